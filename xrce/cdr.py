@@ -1,0 +1,221 @@
+"""Plain CDR (XCDR1) reader and writer with an explicit alignment origin.
+
+Alignment of 2/4/8-byte primitives is counted from ``origin`` (XRCE-WIRE.md §0, §14): the message
+start for XRCE structures, the first byte for binary blobs and topic samples. Little-endian by
+default; a reader built with ``little=False`` decodes big-endian payloads (the E flag cleared).
+
+MicroPython-safe: only ``struct`` with explicit byte order, no ``?`` type code (MicroPython lacks it).
+Every read is bounds-checked first, so hostile input raises only ``DecodeError``.
+"""
+
+import struct
+
+from xrce.errors import DecodeError, EncodeError
+
+_LE = ("<h", "<H", "<i", "<I", "<q", "<Q", "<f", "<d")
+_BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
+
+
+class CdrWriter:
+    """Appends CDR values to a bytearray, growing it as needed.
+
+    ``buf`` may be a preallocated bytearray (reused between messages: call ``reset``); ``pos`` is
+    where writing starts and ``origin`` the offset alignment is counted from.
+    """
+
+    __slots__ = ("buf", "pos", "origin")
+
+    def __init__(self, buf=None, pos=0, origin=None):
+        self.buf = bytearray(64) if buf is None else buf
+        self.pos = pos
+        self.origin = pos if origin is None else origin
+
+    def reset(self, pos=0, origin=None):
+        self.pos = pos
+        self.origin = pos if origin is None else origin
+
+    def reserve(self, n):
+        need = self.pos + n - len(self.buf)
+        if need > 0:
+            self.buf.extend(bytes(need if need > len(self.buf) else len(self.buf)))
+
+    def align(self, n):
+        pad = (self.origin - self.pos) % n
+        if pad:
+            self.reserve(pad)
+            for i in range(self.pos, self.pos + pad):
+                self.buf[i] = 0
+            self.pos += pad
+
+    def _put(self, fmt, size, value):
+        self.align(size)
+        self.reserve(size)
+        try:
+            struct.pack_into(fmt, self.buf, self.pos, value)
+        except (OverflowError, ValueError, TypeError):
+            raise EncodeError("cannot encode %r as %s" % (value, fmt))
+        self.pos += size
+
+    def u8(self, value):
+        if not 0 <= value <= 255:
+            raise EncodeError("octet out of range: %r" % (value,))
+        self.reserve(1)
+        self.buf[self.pos] = value
+        self.pos += 1
+
+    def i8(self, value):
+        if not -128 <= value <= 127:
+            raise EncodeError("int8 out of range: %r" % (value,))
+        self.u8(value & 0xFF)
+
+    def boolean(self, value):
+        self.u8(1 if value else 0)
+
+    def i16(self, value):
+        self._put("<h", 2, value)
+
+    def u16(self, value):
+        self._put("<H", 2, value)
+
+    def i32(self, value):
+        self._put("<i", 4, value)
+
+    def u32(self, value):
+        self._put("<I", 4, value)
+
+    def i64(self, value):
+        self._put("<q", 8, value)
+
+    def u64(self, value):
+        self._put("<Q", 8, value)
+
+    def f32(self, value):
+        self._put("<f", 4, value)
+
+    def f64(self, value):
+        self._put("<d", 8, value)
+
+    def raw(self, data):
+        """Bytes copied verbatim, no alignment (ObjectId, RequestId, keys, blobs)."""
+        n = len(data)
+        self.reserve(n)
+        self.buf[self.pos:self.pos + n] = data
+        self.pos += n
+
+    def string(self, text):
+        """uint32 length including the NUL, the bytes, the NUL."""
+        data = text.encode() if isinstance(text, str) else bytes(text)
+        self.u32(len(data) + 1)
+        self.raw(data)
+        self.u8(0)
+
+    def octets(self, data):
+        """sequence<octet>: uint32 count then the bytes."""
+        self.u32(len(data))
+        self.raw(data)
+
+    def getvalue(self):
+        return bytes(self.buf[:self.pos])
+
+
+class CdrReader:
+    """Reads CDR values from ``buf[pos:end]``; alignment counted from ``origin``."""
+
+    __slots__ = ("buf", "pos", "end", "origin", "_fmt")
+
+    def __init__(self, buf, pos=0, end=None, origin=None, little=True):
+        self.buf = buf
+        self.pos = pos
+        self.end = len(buf) if end is None else end
+        if self.end > len(buf) or pos > self.end:
+            raise DecodeError("reader bounds outside the buffer")
+        self.origin = pos if origin is None else origin
+        self._fmt = _LE if little else _BE
+
+    def remaining(self):
+        return self.end - self.pos
+
+    def align(self, n):
+        self.pos += (self.origin - self.pos) % n
+        if self.pos > self.end:
+            raise DecodeError("truncated: alignment past the end")
+
+    def _need(self, n):
+        if self.pos + n > self.end:
+            raise DecodeError("truncated: need %d bytes at offset %d, have %d" % (n, self.pos, self.end - self.pos))
+
+    def _get(self, index, size):
+        self.align(size)
+        self._need(size)
+        value = struct.unpack_from(self._fmt[index], self.buf, self.pos)[0]
+        self.pos += size
+        return value
+
+    def u8(self):
+        self._need(1)
+        value = self.buf[self.pos]
+        self.pos += 1
+        return value
+
+    def i8(self):
+        value = self.u8()
+        return value - 256 if value > 127 else value
+
+    def boolean(self):
+        value = self.u8()
+        if value > 1:
+            raise DecodeError("bool must be 0 or 1, got %d" % value)
+        return value == 1
+
+    def i16(self):
+        return self._get(0, 2)
+
+    def u16(self):
+        return self._get(1, 2)
+
+    def i32(self):
+        return self._get(2, 4)
+
+    def u32(self):
+        return self._get(3, 4)
+
+    def i64(self):
+        return self._get(4, 8)
+
+    def u64(self):
+        return self._get(5, 8)
+
+    def f32(self):
+        return self._get(6, 4)
+
+    def f64(self):
+        return self._get(7, 8)
+
+    def raw(self, n):
+        if n < 0:
+            raise DecodeError("negative length")
+        self._need(n)
+        data = bytes(self.buf[self.pos:self.pos + n])
+        self.pos += n
+        return data
+
+    def string(self):
+        n = self.u32()
+        if n == 0:
+            # Fast CDR and Micro-CDR both accept a zero length as the empty string.
+            return ""
+        data = self.raw(n)
+        if data[n - 1] != 0:
+            raise DecodeError("string not NUL-terminated")
+        try:
+            return data[:n - 1].decode()
+        except UnicodeError:
+            raise DecodeError("string is not valid UTF-8")
+
+    def octets(self):
+        return self.raw(self.u32())
+
+    def rest(self):
+        data = bytes(self.buf[self.pos:self.end])
+        self.pos = self.end
+        return data
