@@ -1,0 +1,356 @@
+"""Byte-stream framing for XRCE messages: HDLC-like serial frames and the TCP length prefix.
+
+Pure: bytes in, messages out, no I/O, so the asyncio agent and the MicroPython client share it.
+
+Serial frame (XRCE-WIRE.md §11)::
+
+    7E | src | dst | len_lo | len_hi | payload (len bytes) | crc_lo | crc_hi
+
+Only the leading 0x7E is a flag; there is no end flag. Every byte after it equal to 0x7E or 0x7D
+is sent as 0x7D, byte ^ 0x20. The CRC (CRC-16/ARC by default) covers the unescaped payload only.
+
+TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
+"""
+
+from xrce.compat import const
+from xrce.errors import EncodeError
+from xrce.transports.crc import crc16_arc
+
+FLAG = const(0x7E)
+ESCAPE = const(0x7D)
+ESCAPE_XOR = const(0x20)
+# The 16-bit length field caps every frame; it is also the agent's receive buffer size.
+MAX_FRAME_PAYLOAD = const(65535)
+
+_FLAG_BYTES = b"\x7e"
+_ESCAPE_BYTES = b"\x7d"
+_ESCAPED_FLAG = b"\x7d\x5e"
+_ESCAPED_ESCAPE = b"\x7d\x5d"
+
+# FrameDecoder states: hunting for a flag, then one state per field.
+_HUNT = const(0)
+_SRC = const(1)
+_DST = const(2)
+_LEN_LO = const(3)
+_LEN_HI = const(4)
+_PAYLOAD = const(5)
+_CRC_LO = const(6)
+_CRC_HI = const(7)
+
+
+def encode_frame(payload, src, dst, crc=crc16_arc):
+    """One serial frame carrying ``payload`` (one complete XRCE message) from ``src`` to ``dst``."""
+    length = len(payload)
+    if length > MAX_FRAME_PAYLOAD:
+        raise EncodeError("frame payload of %d bytes exceeds 65535" % length)
+    if not (0 <= src <= 255 and 0 <= dst <= 255):
+        raise EncodeError("frame addresses must be 0..255")
+    check = crc(payload)
+    body = (
+        bytes((src, dst, length & 0xFF, length >> 8))
+        + bytes(payload)
+        + bytes((check & 0xFF, check >> 8))
+    )
+    # C-speed escaping: bytes.replace runs in C on CPython and MicroPython alike, and the common
+    # case (nothing to escape) costs two scans and no copy. 0x7D must be escaped before 0x7E,
+    # otherwise the escape bytes inserted for 0x7E would be escaped again.
+    if _ESCAPE_BYTES in body:
+        body = body.replace(_ESCAPE_BYTES, _ESCAPED_ESCAPE)
+    if _FLAG_BYTES in body:
+        body = body.replace(_FLAG_BYTES, _ESCAPED_FLAG)
+    return _FLAG_BYTES + body
+
+
+class FrameDecoder:
+    """Streaming decoder of serial frames, fed arbitrary chunks of the byte stream.
+
+    ``feed(data)`` returns a list (possibly empty) of ``(src, dst, payload)`` tuples, one per complete
+    frame, payload as ``bytes``, in stream order. Chunk boundaries may fall anywhere.
+
+    It hunts for 0x7E; a 0x7E inside a frame abandons that frame and starts a new one (``resyncs``).
+    Frames with a bad CRC (``crc_errors``), a length above ``max_payload`` (``oversize``; the decoder
+    then hunts for the next flag) or, when ``local_addr`` is not None, a dst other than
+    ``local_addr`` (``wrong_address``, counted only for frames whose CRC is good) are dropped.
+    ``dropped_bytes`` counts raw bytes discarded while hunting plus the raw bytes (flag included) of
+    every dropped or abandoned frame. ``frames`` counts frames returned.
+
+    Memory is one preallocated ``max_payload`` buffer plus the returned payloads, whatever is fed.
+    """
+
+    __slots__ = (
+        "local_addr",
+        "max_payload",
+        "frames",
+        "crc_errors",
+        "oversize",
+        "resyncs",
+        "dropped_bytes",
+        "wrong_address",
+        "_crc",
+        "_view",
+        "_state",
+        "_escaped",
+        "_raw",
+        "_src",
+        "_dst",
+        "_length",
+        "_filled",
+        "_crc_rx",
+    )
+
+    def __init__(self, local_addr=None, max_payload=MAX_FRAME_PAYLOAD, crc=crc16_arc):
+        if not 0 <= max_payload <= MAX_FRAME_PAYLOAD:
+            raise ValueError("max_payload must be 0..65535")
+        self.local_addr = local_addr
+        self.max_payload = max_payload
+        self._crc = crc
+        self._view = memoryview(bytearray(max_payload))
+        self.frames = 0
+        self.crc_errors = 0
+        self.oversize = 0
+        self.resyncs = 0
+        self.dropped_bytes = 0
+        self.wrong_address = 0
+        self._state = _HUNT
+        self._escaped = False
+        self._raw = 0  # raw bytes of the frame in progress, flag included
+        self._src = 0
+        self._dst = 0
+        self._length = 0
+        self._filled = 0
+        self._crc_rx = 0
+
+    @property
+    def pending_bytes(self):
+        """Raw bytes of the frame in progress (neither returned nor counted as dropped yet)."""
+        return self._raw
+
+    def reset(self):
+        """Forget any frame in progress (its bytes count as dropped) and hunt for the next flag."""
+        self.dropped_bytes += self._raw
+        self._raw = 0
+        self._state = _HUNT
+        self._escaped = False
+
+    def feed(self, data):
+        if type(data) is not bytes:
+            # bytes.find is the fast path below; MicroPython's bytearray and memoryview lack find.
+            data = bytes(data)
+        frames = []
+        size = len(data)
+        chunk = memoryview(data)
+        view = self._view
+        state = self._state
+        escaped = self._escaped
+        raw = self._raw
+        src = self._src
+        dst = self._dst
+        length = self._length
+        filled = self._filled
+        crc_rx = self._crc_rx
+        i = 0
+        while i < size:
+            if state == _HUNT:
+                start = data.find(_FLAG_BYTES, i)
+                if start < 0:
+                    self.dropped_bytes += size - i
+                    break
+                self.dropped_bytes += start - i
+                i = start + 1
+                state = _SRC
+                escaped = False
+                raw = 1
+                continue
+            if state == _PAYLOAD and not escaped:
+                # Copy the run of plain payload bytes up to the next flag/escape in one slice.
+                stop = i + length - filled
+                if stop > size:
+                    stop = size
+                special = data.find(_FLAG_BYTES, i, stop)
+                if special >= 0:
+                    stop = special
+                special = data.find(_ESCAPE_BYTES, i, stop)
+                if special >= 0:
+                    stop = special
+                if stop > i:
+                    count = stop - i
+                    view[filled : filled + count] = chunk[i:stop]
+                    filled += count
+                    raw += count
+                    i = stop
+                    if filled == length:
+                        state = _CRC_LO
+                    continue
+            byte = data[i]
+            i += 1
+            if byte == FLAG:
+                self.resyncs += 1
+                self.dropped_bytes += raw
+                raw = 1
+                state = _SRC
+                escaped = False
+                continue
+            raw += 1
+            if escaped:
+                byte ^= ESCAPE_XOR
+                escaped = False
+            elif byte == ESCAPE:
+                escaped = True
+                continue
+            if state == _PAYLOAD:
+                view[filled] = byte
+                filled += 1
+                if filled == length:
+                    state = _CRC_LO
+            elif state == _SRC:
+                src = byte
+                state = _DST
+            elif state == _DST:
+                dst = byte
+                state = _LEN_LO
+            elif state == _LEN_LO:
+                length = byte
+                state = _LEN_HI
+            elif state == _LEN_HI:
+                length |= byte << 8
+                if length > self.max_payload:
+                    self.oversize += 1
+                    self.dropped_bytes += raw
+                    raw = 0
+                    state = _HUNT
+                else:
+                    filled = 0
+                    state = _PAYLOAD if length else _CRC_LO
+            elif state == _CRC_LO:
+                crc_rx = byte
+                state = _CRC_HI
+            else:  # _CRC_HI: the frame is complete
+                crc_rx |= byte << 8
+                payload = view[:length]
+                if self._crc(payload) != crc_rx:
+                    self.crc_errors += 1
+                    self.dropped_bytes += raw
+                elif self.local_addr is not None and dst != self.local_addr:
+                    self.wrong_address += 1
+                    self.dropped_bytes += raw
+                else:
+                    self.frames += 1
+                    frames.append((src, dst, bytes(payload)))
+                raw = 0
+                state = _HUNT
+        self._state = state
+        self._escaped = escaped
+        self._raw = raw
+        self._src = src
+        self._dst = dst
+        self._length = length
+        self._filled = filled
+        self._crc_rx = crc_rx
+        return frames
+
+
+def encode_length_prefixed(msg):
+    """``msg`` preceded by its 2-byte little-endian length (the TCP mapping)."""
+    length = len(msg)
+    if not 0 < length <= 0xFFFF:
+        raise EncodeError("length-prefixed message must be 1..65535 bytes, not %d" % length)
+    return bytes((length & 0xFF, length >> 8)) + bytes(msg)
+
+
+class LengthPrefixDecoder:
+    """Streaming decoder of 2-byte-LE-length-prefixed messages (TCP), fed arbitrary chunks.
+
+    ``feed(data)`` returns a list (possibly empty) of complete messages as ``bytes``, in order.
+
+    A length of zero (``zero_length``) or above ``max_len`` (``oversize``) means the peer is not
+    speaking this framing or the stream lost sync. A byte stream has no flag to hunt for, so there
+    is no way to find the next message boundary: the decoder sets ``broken = True``, counts every
+    later byte in ``dropped_bytes`` and returns nothing more; the owner should close the connection.
+
+    Memory is one preallocated ``max_len`` buffer plus the returned messages.
+    """
+
+    __slots__ = (
+        "max_len",
+        "messages",
+        "zero_length",
+        "oversize",
+        "broken",
+        "dropped_bytes",
+        "_view",
+        "_header_lo",
+        "_header_filled",
+        "_length",
+        "_filled",
+    )
+
+    def __init__(self, max_len=0xFFFF):
+        if not 0 < max_len <= 0xFFFF:
+            raise ValueError("max_len must be 1..65535")
+        self.max_len = max_len
+        self._view = memoryview(bytearray(max_len))
+        self.messages = 0
+        self.zero_length = 0
+        self.oversize = 0
+        self.broken = False
+        self.dropped_bytes = 0
+        self._header_lo = 0
+        self._header_filled = 0
+        self._length = 0  # 0 while reading the length prefix
+        self._filled = 0
+
+    def feed(self, data):
+        messages = []
+        size = len(data)
+        if self.broken:
+            self.dropped_bytes += size
+            return messages
+        chunk = memoryview(data)
+        view = self._view
+        length = self._length
+        filled = self._filled
+        i = 0
+        while i < size:
+            if length == 0:
+                if self._header_filled == 0 and size - i >= 2:
+                    length = chunk[i] | (chunk[i + 1] << 8)
+                    i += 2
+                elif self._header_filled == 0:
+                    self._header_lo = chunk[i]
+                    self._header_filled = 1
+                    i += 1
+                    continue
+                else:
+                    length = self._header_lo | (chunk[i] << 8)
+                    self._header_filled = 0
+                    i += 1
+                if length == 0 or length > self.max_len:
+                    if length == 0:
+                        self.zero_length += 1
+                    else:
+                        self.oversize += 1
+                    self.broken = True
+                    self.dropped_bytes += size - i + 2
+                    length = 0
+                    break
+                filled = 0
+                if size - i >= length:
+                    # Whole message in this chunk: one copy straight out of it.
+                    messages.append(bytes(chunk[i : i + length]))
+                    self.messages += 1
+                    i += length
+                    length = 0
+                    continue
+            count = length - filled
+            if count > size - i:
+                count = size - i
+            view[filled : filled + count] = chunk[i : i + count]
+            filled += count
+            i += count
+            if filled == length:
+                messages.append(bytes(view[:length]))
+                self.messages += 1
+                length = 0
+        self._length = length
+        self._filled = filled
+        return messages
