@@ -1,0 +1,163 @@
+"""XRCE message header and submessage framing (XRCE-WIRE.md §1, §2).
+
+Decoding splits a message into ``(id, flags, start, end)`` spans over the original buffer, so the
+hot path (WRITE_DATA/DATA) never copies a payload it only forwards. ``MessageWriter`` appends
+submessages to a reusable buffer, 4-aligned from the message start.
+"""
+
+import struct
+
+from xrce import cdr
+from xrce.constants import CREATE_CLIENT, SESSION_ID_WITHOUT_KEY_MASK
+from xrce.errors import DecodeError, EncodeError
+
+HEADER_SIZE_NO_KEY = 4
+HEADER_SIZE_WITH_KEY = 8
+SUBHEADER_SIZE = 4
+
+
+def has_key(session_id):
+    return session_id < SESSION_ID_WITHOUT_KEY_MASK
+
+
+def header_size(session_id):
+    return HEADER_SIZE_WITH_KEY if session_id < SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
+
+
+class Header:
+    __slots__ = ("session_id", "stream_id", "seq", "key", "size")
+
+    def __init__(self, session_id, stream_id, seq, key=None):
+        self.session_id = session_id
+        self.stream_id = stream_id
+        self.seq = seq
+        self.key = key
+        self.size = header_size(session_id)
+
+    def __eq__(self, other):
+        return (isinstance(other, Header) and self.session_id == other.session_id
+                and self.stream_id == other.stream_id and self.seq == other.seq and self.key == other.key)
+
+    def __repr__(self):
+        return "Header(session=0x%02X, stream=0x%02X, seq=%d, key=%r)" % (
+            self.session_id, self.stream_id, self.seq, self.key)
+
+
+def decode_header(buf, length=None):
+    """Header of the message in ``buf[:length]``; DecodeError if it is shorter than its header."""
+    n = len(buf) if length is None else length
+    if n < HEADER_SIZE_NO_KEY:
+        raise DecodeError("message shorter than its header")
+    session_id = buf[0]
+    key = None
+    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+        if n < HEADER_SIZE_WITH_KEY:
+            raise DecodeError("keyed message shorter than its header")
+        key = bytes(buf[4:8])
+    return Header(session_id, buf[1], buf[2] | (buf[3] << 8), key)
+
+
+def encode_header(buf, session_id, stream_id, seq, key=None):
+    """Write a header at buf[0:]; returns its size."""
+    buf[0] = session_id
+    buf[1] = stream_id
+    buf[2] = seq & 0xFF
+    buf[3] = (seq >> 8) & 0xFF
+    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+        if key is None or len(key) != 4:
+            raise EncodeError("a session id below 0x80 needs a 4-byte client key")
+        buf[4:8] = key
+        return HEADER_SIZE_WITH_KEY
+    return HEADER_SIZE_NO_KEY
+
+
+def iter_submessages(buf, start, end=None):
+    """Yield ``(submessage_id, flags, payload_start, payload_end)`` for the submessages in buf[start:end].
+
+    Submessage headers sit at 4-aligned offsets from the message start (offset 0 of buf); parsing
+    stops when fewer than 4 bytes remain. A length running past the end is a DecodeError. The
+    CREATE_CLIENT length is not trusted (the eProsima client writes 16 even with properties), so its
+    span runs to the end of the message.
+    """
+    end = len(buf) if end is None else end
+    pos = start
+    while end - pos >= SUBHEADER_SIZE:
+        sub_id = buf[pos]
+        flags = buf[pos + 1]
+        length = buf[pos + 2] | (buf[pos + 3] << 8)
+        payload_start = pos + SUBHEADER_SIZE
+        payload_end = payload_start + length
+        if sub_id == CREATE_CLIENT:
+            payload_end = end
+        elif payload_end > end:
+            raise DecodeError("submessage %d length %d runs past the message end" % (sub_id, length))
+        yield sub_id, flags, payload_start, payload_end
+        pos = (payload_end + 3) & ~3
+
+
+class MessageWriter:
+    """Builds one message in a reusable buffer.
+
+    ``begin`` writes the header; ``begin_submessage``/``end_submessage`` frame a payload written
+    with ``self.w`` (a CdrWriter whose origin is the message start, as both eProsima peers do).
+    """
+
+    __slots__ = ("buf", "w", "_sub_start", "limit")
+
+    def __init__(self, capacity=512, limit=None):
+        self.buf = bytearray(capacity)
+        self.w = cdr.CdrWriter(self.buf, 0, 0)
+        self._sub_start = -1
+        self.limit = limit
+
+    def begin(self, session_id, stream_id, seq, key=None):
+        self.w.buf = self.buf
+        size = encode_header(self.buf, session_id, stream_id, seq, key)
+        self.w.reset(size, 0)
+        return self
+
+    def set_seq(self, seq):
+        self.buf[2] = seq & 0xFF
+        self.buf[3] = (seq >> 8) & 0xFF
+
+    def begin_submessage(self, sub_id, flags):
+        w = self.w
+        w.align(4)
+        w.reserve(SUBHEADER_SIZE)
+        b = w.buf
+        b[w.pos] = sub_id
+        b[w.pos + 1] = flags
+        self._sub_start = w.pos
+        w.pos += SUBHEADER_SIZE
+        return w
+
+    def end_submessage(self, length=None):
+        """Patch the length of the open submessage (``length`` overrides the measured one)."""
+        w = self.w
+        if length is None:
+            length = w.pos - self._sub_start - SUBHEADER_SIZE
+        if length > 0xFFFF:
+            raise EncodeError("submessage payload longer than 65535 bytes")
+        struct.pack_into("<H", w.buf, self._sub_start + 2, length)
+        self._sub_start = -1
+
+    def submessage(self, sub_id, flags, payload):
+        """Append a submessage whose payload is already serialized bytes."""
+        w = self.begin_submessage(sub_id, flags)
+        w.raw(payload)
+        self.end_submessage()
+
+    def pad_to_4(self):
+        self.w.align(4)
+
+    @property
+    def size(self):
+        return self.w.pos
+
+    def getvalue(self):
+        self.buf = self.w.buf  # the writer may have grown the buffer
+        return bytes(self.buf[:self.w.pos])
+
+    def view(self):
+        self.buf = self.w.buf
+        return memoryview(self.buf)[:self.w.pos]
