@@ -1,0 +1,211 @@
+"""Best-effort and reliable stream state (XRCE-WIRE.md §1, §7), shared by client and agent.
+
+These classes hold sequence numbers and history only; building, sending and parsing messages is
+the caller's job. ``history`` must be a power of two (slot = seq mod history). A reliable sender
+retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
+client resends everything unacknowledged, which is wire-compatible but wasteful).
+"""
+
+from xrce.errors import EncodeError
+from xrce.seqnum import seq_add, seq_less, seq_sub
+
+SEQ_INITIAL = 0xFFFF  # "last sent/handled" before the first message, so the first seq is 0
+NACK_BITS = 16
+
+
+def is_reliable(stream_id):
+    return stream_id >= 0x80
+
+
+def is_best_effort(stream_id):
+    return 0 < stream_id < 0x80
+
+
+def _check_history(history):
+    if history < 1 or history & (history - 1):
+        raise EncodeError("stream history must be a power of two, got %r" % (history,))
+
+
+class OutputBestEffortStream:
+    __slots__ = ("stream_id", "last_sent")
+
+    def __init__(self, stream_id):
+        self.stream_id = stream_id
+        self.last_sent = SEQ_INITIAL
+
+    def reset(self):
+        self.last_sent = SEQ_INITIAL
+
+    def next_seq(self):
+        self.last_sent = seq_add(self.last_sent, 1)
+        return self.last_sent
+
+
+class InputBestEffortStream:
+    __slots__ = ("stream_id", "last_handled")
+
+    def __init__(self, stream_id):
+        self.stream_id = stream_id
+        self.last_handled = SEQ_INITIAL
+
+    def reset(self):
+        self.last_handled = SEQ_INITIAL
+
+    def accept(self, seq):
+        """True for a strictly newer message; older and duplicate ones are dropped."""
+        if seq_less(self.last_handled, seq):
+            self.last_handled = seq
+            return True
+        return False
+
+
+class OutputReliableStream:
+    """Sent messages kept until acknowledged; at most ``history`` in flight."""
+
+    __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "retransmissions")
+
+    def __init__(self, stream_id, history):
+        _check_history(history)
+        self.stream_id = stream_id
+        self.history = history
+        self.slots = [None] * history
+        self.retransmissions = 0
+        self.reset()
+
+    def reset(self):
+        self.last_sent = SEQ_INITIAL
+        self.last_acknowledged = SEQ_INITIAL
+        for i in range(self.history):
+            self.slots[i] = None
+
+    def in_flight(self):
+        return seq_sub(self.last_sent, self.last_acknowledged)
+
+    def has_room(self):
+        return self.in_flight() < self.history
+
+    def next_seq(self):
+        """The sequence number the next message will carry, or None while the window is full."""
+        if not self.has_room():
+            return None
+        return seq_add(self.last_sent, 1)
+
+    def commit(self, seq, message):
+        """Record ``message`` (bytes, header already carrying ``seq``) as sent."""
+        if seq != seq_add(self.last_sent, 1) or not self.has_room():
+            raise EncodeError("reliable stream out of order or full")
+        self.slots[seq & (self.history - 1)] = message
+        self.last_sent = seq
+
+    def pending(self):
+        return self.last_sent != self.last_acknowledged
+
+    def heartbeat(self):
+        """``(first_unacked, last_unacked)`` while anything is unacknowledged, else None."""
+        if self.last_sent == self.last_acknowledged:
+            return None
+        return seq_add(self.last_acknowledged, 1), self.last_sent
+
+    def on_acknack(self, first_unacked, nack_bitmap):
+        """Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order."""
+        # An ACKNACK that acknowledges more than was ever sent is stale or forged: ignore the ack.
+        if not seq_less(seq_add(self.last_sent, 1), first_unacked):
+            while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
+                self.last_acknowledged = seq_add(self.last_acknowledged, 1)
+                self.slots[self.last_acknowledged & (self.history - 1)] = None
+        resend = []
+        if nack_bitmap:
+            for i in range(NACK_BITS):
+                if nack_bitmap & (1 << i):
+                    seq = seq_add(first_unacked, i)
+                    if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
+                        message = self.slots[seq & (self.history - 1)]
+                        if message is not None:
+                            resend.append(message)
+        self.retransmissions += len(resend)
+        return resend
+
+    def unacked_messages(self):
+        """Every stored unacknowledged message, oldest first (for a resend-all policy)."""
+        out = []
+        seq = self.last_acknowledged
+        while seq != self.last_sent:
+            seq = seq_add(seq, 1)
+            message = self.slots[seq & (self.history - 1)]
+            if message is not None:
+                out.append(message)
+        return out
+
+
+class InputReliableStream:
+    """Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order."""
+
+    __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates")
+
+    def __init__(self, stream_id, window):
+        _check_history(window)
+        self.stream_id = stream_id
+        self.window = window
+        self.stored = {}
+        self.duplicates = 0
+        self.reset()
+
+    def reset(self):
+        self.last_handled = SEQ_INITIAL
+        self.last_announced = SEQ_INITIAL
+        self.stored.clear()
+
+    def receive(self, seq, message):
+        """Messages now deliverable in order (possibly none); duplicates and out-of-window dropped."""
+        if not seq_less(self.last_handled, seq) or seq_sub(seq, self.last_handled) > self.window:
+            self.duplicates += 1
+            return ()
+        if seq_less(self.last_announced, seq):
+            self.last_announced = seq
+        if seq != seq_add(self.last_handled, 1):
+            if seq in self.stored:
+                self.duplicates += 1
+            else:
+                self.stored[seq] = bytes(message)
+            return ()
+        self.last_handled = seq
+        out = [message]
+        self._pop_consecutive(out)
+        return out
+
+    def _pop_consecutive(self, out):
+        stored = self.stored
+        while stored:
+            nxt = seq_add(self.last_handled, 1)
+            message = stored.pop(nxt, None)
+            if message is None:
+                break
+            self.last_handled = nxt
+            out.append(message)
+
+    def on_heartbeat(self, first_unacked, last_unacked):
+        """Note what the sender has sent; skip what it no longer holds. Returns deliverable messages."""
+        if seq_less(self.last_announced, last_unacked):
+            self.last_announced = last_unacked
+        out = []
+        if seq_less(seq_add(self.last_handled, 1), first_unacked):
+            # The sender gave up on messages before first_unacked: they will never come.
+            skip_to = seq_add(first_unacked, -1)
+            for seq in list(self.stored):
+                if not seq_less(skip_to, seq):
+                    del self.stored[seq]
+            self.last_handled = skip_to
+            self._pop_consecutive(out)
+        return out
+
+    def acknack(self):
+        """``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream."""
+        first = seq_add(self.last_handled, 1)
+        bitmap = 0
+        for i in range(NACK_BITS):
+            seq = seq_add(first, i)
+            if seq_less(self.last_announced, seq):
+                break
+            if seq not in self.stored:
+                bitmap |= 1 << i
+        return first, bitmap
