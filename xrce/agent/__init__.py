@@ -1,0 +1,1 @@
+"""The XRCE agent: asyncio transport servers, the protocol engine and middleware backends (CPython)."""

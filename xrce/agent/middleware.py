@@ -1,0 +1,121 @@
+"""The interface between the agent's protocol engine and what its objects map onto.
+
+The engine (``xrce.agent.engine``) owns XRCE semantics: sessions, streams, object trees,
+REUSE/REPLACE, STATUS codes, READ_DATA delivery control. A middleware only creates, deletes and moves
+data through the backing entities:
+
+- ``CedMiddleware`` (``-m ced``): routes samples between the agent's own clients by topic name, no ROS.
+- ``RosMiddleware`` (``-m dds``, ``xrce.agent.ros``): rclpy nodes, publishers, subscriptions, service
+  clients and servers.
+
+Entity handles are the engine's ``EntityKey`` = ``(client_key: int, object_id: int)``, unique across
+the agent. Every ``create_*`` either succeeds or raises ``MiddlewareError`` (the engine answers
+``ERR_DDS_ERROR``) or ``UnknownTypeError`` (also ``ERR_DDS_ERROR``, with a log line that names the
+interface package to build). All methods are called on the asyncio loop's thread; data callbacks
+given to the middleware may be invoked from any thread, and the middleware must hand them to the
+loop itself (``loop.call_soon_threadsafe``) before they reach the engine, keeping its queues bounded.
+
+Sample bytes crossing this interface are bare XCDR1 bodies WITHOUT the 4-byte encapsulation header
+(XRCE-WIRE.md §14): the ROS middleware prepends ``00 01 00 00`` on publish and strips the first 4
+bytes on receive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional, Tuple
+
+EntityKey = Tuple[int, int]
+
+# on_data(sample_bytes)
+DataCallback = Callable[[bytes], None]
+# on_request(sample_identity_24_bytes, request_bytes)
+RequestCallback = Callable[[bytes, bytes], None]
+# on_reply(correlation_id, reply_bytes) — correlation_id is what write_request was given
+ReplyCallback = Callable[[int, bytes], None]
+
+
+class MiddlewareError(Exception):
+    """Creating or using a backing entity failed (answered with STATUS ERR_DDS_ERROR)."""
+
+
+class UnknownTypeError(MiddlewareError):
+    """The type named by a topic has no importable implementation."""
+
+
+@dataclass(frozen=True)
+class EndpointQosSpec:
+    """QoS of a writer/reader after XML/binary/reference have been normalised by the engine."""
+
+    reliable: bool = True
+    keep_last: bool = True
+    depth: int = 10
+    durability: str = "volatile"  # volatile | transient_local | transient | persistent
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    name: str  # DDS topic name as the client sent it, e.g. "rt/chatter"
+    type_name: str  # DDS type name, e.g. "std_msgs::msg::dds_::String_"
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    service_name: str  # e.g. "add_two_ints" or "/add_two_ints" as the client sent it
+    request_type: str  # e.g. "example_interfaces::srv::dds_::AddTwoInts_Request_"
+    reply_type: str
+    request_topic: Optional[str] = None  # e.g. "rq/add_two_intsRequest"
+    reply_topic: Optional[str] = None  # e.g. "rr/add_two_intsReply"
+
+
+class Middleware:
+    """Base class: every method must be implemented by a backend."""
+
+    name = "abstract"
+
+    def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
+        raise NotImplementedError
+
+    def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
+        raise NotImplementedError
+
+    def create_publisher(self, key: EntityKey, participant: EntityKey) -> None:
+        raise NotImplementedError
+
+    def create_subscriber(self, key: EntityKey, participant: EntityKey) -> None:
+        raise NotImplementedError
+
+    def create_datawriter(self, key: EntityKey, publisher: EntityKey, topic: EntityKey,
+                          qos: EndpointQosSpec) -> None:
+        raise NotImplementedError
+
+    def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
+                          qos: EndpointQosSpec, on_data: DataCallback) -> None:
+        raise NotImplementedError
+
+    def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                         qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+        raise NotImplementedError
+
+    def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                       qos: EndpointQosSpec, on_request: RequestCallback) -> None:
+        raise NotImplementedError
+
+    def delete(self, key: EntityKey) -> None:
+        """Delete one entity. The engine deletes children before parents."""
+        raise NotImplementedError
+
+    def write(self, writer: EntityKey, sample: bytes) -> bool:
+        raise NotImplementedError
+
+    def write_request(self, requester: EntityKey, correlation_id: int, sample: bytes) -> bool:
+        raise NotImplementedError
+
+    def write_reply(self, replier: EntityKey, sample_identity: bytes, sample: bytes) -> bool:
+        raise NotImplementedError
+
+    async def start(self) -> None:
+        """Start background machinery (the ROS executor thread); called once on the loop."""
+
+    async def close(self) -> None:
+        """Destroy every entity and stop background machinery."""
