@@ -38,6 +38,8 @@ INT_RANGES = {
     "int64": (-(1 << 63), (1 << 63) - 1), "uint64": (0, (1 << 64) - 1),
 }
 
+MAX_STAR_POSITION = 24
+
 SHIPPED_FROM_VENV = ("builtin_interfaces", "std_msgs", "geometry_msgs", "sensor_msgs", "nav_msgs")
 SHIPPED_FROM_REPO = ("tf2_msgs", "turtlebot3_msgs")
 SHIPPED_COMMAND = "python -m xrce.msggen --shipped"
@@ -317,7 +319,10 @@ def plan_runs(fields):
             count = ft.array_size if ft.array == "fixed" else 1
             if run:
                 first_align = PRIMITIVES[run[0].type.base][1]
-                if size <= first_align and offset % size == 0:
+                # MicroPython records *args positions in a small-int bitmap: keep every unpacked
+                # array among the first MAX_STAR_POSITION arguments of pack_into.
+                star_ok = ft.array is None or len(run) + 3 < MAX_STAR_POSITION
+                if size <= first_align and offset % size == 0 and star_ok:
                     run.append(field)
                     offset += size * count
                     continue
@@ -335,12 +340,16 @@ def plan_runs(fields):
 
 
 def _run_format(run):
-    fmt = "<"
+    """struct format of a run, repeated codes folded into counts ("<6d", "<7d36d" -> "<43d")."""
+    pieces = []
     for f in run:
         code = PRIMITIVES[f.type.base][0]
         count = f.type.array_size if f.type.array == "fixed" else 1
-        fmt += (str(count) if count != 1 else "") + code
-    return fmt
+        if pieces and pieces[-1][0] == code:
+            pieces[-1][1] += count
+        else:
+            pieces.append([code, count])
+    return "<" + "".join((str(n) if n != 1 else "") + c for c, n in pieces)
 
 
 def _run_size(run):
@@ -394,6 +403,45 @@ def _field_kind(ft):
     return 0
 
 
+class Leaf:
+    """One value the encoder touches: a top-level field, or a field of a nested struct inlined
+    into its parent (XCDR1 structs add no alignment of their own, so inlining keeps the bytes)."""
+
+    def __init__(self, expr, label, ftype):
+        self.expr = expr  # "self.linear.x"
+        self.label = label  # "linear.x", for error messages
+        self.type = ftype
+        self.var = None  # decode variable, set by _flatten
+
+
+def _inlinable(ftype, registry):
+    if not ftype.is_nested or ftype.array is not None:
+        return False
+    return bool(registry[ftype.base].fields)  # an empty struct carries a dummy octet instead
+
+
+def _flatten(spec, registry, expr, label, leaves, package, deps):
+    """Append leaves of ``spec`` and return the decode expression that rebuilds it."""
+    parts = []
+    for f in spec.fields:
+        fexpr = "%s.%s" % (expr, f.name)
+        flabel = f.name if not label else "%s.%s" % (label, f.name)
+        if _inlinable(f.type, registry):
+            child = registry[f.type.base]
+            ref = _class_ref(f.type.base, package)
+            if child.package != package:
+                deps.add(child.package)
+            parts.append("%s(%s)" % (ref, _flatten(child, registry, fexpr, flabel, leaves, package, deps)))
+            continue
+        if f.type.is_nested and f.type.base.split("/")[0] != package:
+            deps.add(f.type.base.split("/")[0])
+        leaf = Leaf(fexpr, flabel, f.type)
+        leaf.var = "v%d" % len(leaves)
+        leaves.append(leaf)
+        parts.append(leaf.var)
+    return ", ".join(parts)
+
+
 def _gen_encode_step(step, package, out):
     kind, item = step
     if kind == "run":
@@ -402,31 +450,31 @@ def _gen_encode_step(step, package, out):
         args = []
         for f in run:
             if f.type.array == "fixed":
-                out.append("        if len(self.%s) != %d:" % (f.name, f.type.array_size))
-                out.append("            _bad_len(%r, %d)" % (f.name, f.type.array_size))
-                args.append("*self.%s" % f.name)
+                out.append("        if len(%s) != %d:" % (f.expr, f.type.array_size))
+                out.append("            _bad_len(%r, %d)" % (f.label, f.type.array_size))
+                args.append("*" + f.expr)
             elif f.type.base == "bool":
-                args.append("1 if self.%s else 0" % f.name)
+                args.append("1 if %s else 0" % f.expr)
             else:
-                args.append("self.%s" % f.name)
+                args.append(f.expr)
         align = PRIMITIVES[run[0].type.base][1]
         out.append("        try:")
         out.append("            _pack_into(%r, w.buf, _put(w, %d, %d), %s)" % (fmt, align, _run_size(run), ", ".join(args)))
         out.append("        except _PACK_ERRORS:")
-        out.append("            _bad_values(self, %r)" % ", ".join(f.name for f in run))
+        out.append("            _bad_values(self, %r)" % ", ".join(f.label for f in run))
         return
     f = item
     ft = f.type
-    v = "self." + f.name
+    v = f.expr
     if ft.is_nested:
         if ft.array is None:
             out.append("        %s.encode(w)" % v)
             return
         if ft.array == "fixed":
             out.append("        if len(%s) != %d:" % (v, ft.array_size))
-            out.append("            _bad_len(%r, %d)" % (f.name, ft.array_size))
+            out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
         else:
-            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.name))
+            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
         out.append("        for item in %s:" % v)
         out.append("            item.encode(w)")
         return
@@ -436,71 +484,65 @@ def _gen_encode_step(step, package, out):
             return
         if ft.array == "fixed":
             out.append("        if len(%s) != %d:" % (v, ft.array_size))
-            out.append("            _bad_len(%r, %d)" % (f.name, ft.array_size))
+            out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
         else:
-            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.name))
+            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
         out.append("        for item in %s:" % v)
         out.append("            _put_string(w, item, %r)" % (ft.string_bound,))
         return
     code, size, pkind = PRIMITIVES[ft.base]
-    if ft.array is None:  # only bool/octet scalars outside runs never happen; kept for safety
-        out.append("        _put_array(w, (%s,), %r, %d)" % (v, code, size))
-        return
+    # Primitive scalars always land in runs, so only arrays and sequences reach this point.
     if pkind == "octet":
         if ft.array == "fixed":
-            out.append("        _put_octets(w, %s, %d, None, %r)" % (v, ft.array_size, f.name))
+            out.append("        _put_octets(w, %s, %d, None, %r)" % (v, ft.array_size, f.label))
         else:
-            out.append("        _put_octets(w, %s, None, %r, %r)" % (v, ft.array_size, f.name))
+            out.append("        _put_octets(w, %s, None, %r, %r)" % (v, ft.array_size, f.label))
         return
     if ft.array == "fixed":
         out.append("        if len(%s) != %d:" % (v, ft.array_size))
-        out.append("            _bad_len(%r, %d)" % (f.name, ft.array_size))
+        out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
     else:
-        out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.name))
+        out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
     if pkind == "bool":
         out.append("        _put_array(w, [1 if b else 0 for b in %s], 'B', 1)" % v)
     else:
         out.append("        _put_array(w, %s, %r, %d)" % (v, code, size))
 
 
-def _gen_decode_step(step, package, out, names):
+def _gen_decode_step(step, package, out):
     kind, item = step
     if kind == "run":
         run = item
         fmt = _run_format(run)
         align = PRIMITIVES[run[0].type.base][1]
         size = _run_size(run)
-        scalars_only = all(f.type.array is None for f in run)
-        if scalars_only:
-            targets = ["v_" + f.name for f in run]
+        if all(f.type.array is None for f in run):
+            targets = [f.var for f in run]
             out.append("        %s%s = _unpack_from(%r, r.buf, _take(r, %d, %d))" % (
                 ", ".join(targets), "," if len(targets) == 1 else "", fmt, align, size))
             for f in run:
                 if f.type.base == "bool":
-                    out.append("        v_%s = _bool(v_%s)" % (f.name, f.name))
+                    out.append("        %s = _bool(%s)" % (f.var, f.var))
         else:
             out.append("        vals = _unpack_from(%r, r.buf, _take(r, %d, %d))" % (fmt, align, size))
             idx = 0
             for f in run:
                 if f.type.array == "fixed":
-                    out.append("        v_%s = list(vals[%d:%d])" % (f.name, idx, idx + f.type.array_size))
+                    out.append("        %s = list(vals[%d:%d])" % (f.var, idx, idx + f.type.array_size))
                     idx += f.type.array_size
                 else:
                     conv = "_bool(vals[%d])" if f.type.base == "bool" else "vals[%d]"
-                    out.append("        v_%s = %s" % (f.name, conv % idx))
+                    out.append("        %s = %s" % (f.var, conv % idx))
                     idx += 1
-        names.extend(f.name for f in run)
         return
     f = item
     ft = f.type
-    t = "v_" + f.name
-    names.append(f.name)
+    t = f.var
     if ft.is_nested:
         ref = _class_ref(ft.base, package)
         if ft.array is None:
             out.append("        %s = %s.decode(r)" % (t, ref))
-            return
-        if ft.array == "fixed":
+        elif ft.array == "fixed":
             out.append("        %s = [%s.decode(r) for _ in range(%d)]" % (t, ref, ft.array_size))
         else:
             out.append("        %s = [%s.decode(r) for _ in range(_count(r, %r, 1))]" % (t, ref, ft.array_size))
@@ -508,8 +550,7 @@ def _gen_decode_step(step, package, out, names):
     if ft.is_string:
         if ft.array is None:
             out.append("        %s = _get_string(r, %r)" % (t, ft.string_bound))
-            return
-        if ft.array == "fixed":
+        elif ft.array == "fixed":
             out.append("        %s = [_get_string(r, %r) for _ in range(%d)]" % (t, ft.string_bound, ft.array_size))
         else:
             out.append("        %s = [_get_string(r, %r) for _ in range(_count(r, %r, 4))]" % (
@@ -525,12 +566,12 @@ def _gen_decode_step(step, package, out, names):
         out.append("        %s = _get_array(r, %s, %r, %d)" % (t, count, code, size))
 
 
-def _gen_message(spec, out):
+def _gen_message(spec, registry, out, deps):
     package = spec.package
     fields = spec.fields
     out.append("")
     out.append("")
-    out.append("class %s:" % spec.name)
+    out.append("class %s(_Message):" % spec.name)
     out.append("    __slots__ = (%s)" % "".join("%r, " % f.name for f in fields))
     out.append("    TYPE_NAME = %r" % spec.dds_name)
     out.append("    ROS_TYPE = %r" % spec.ros_type)
@@ -538,12 +579,13 @@ def _gen_message(spec, out):
         value = float(c.value) if c.type.base in ("float32", "float64") else c.value
         out.append("    %s = %r" % (c.name, value))
     out.append("")
-    # __init__
     params = "".join(", %s=None" % f.name for f in fields)
     out.append("    def __init__(self%s):" % params)
     if not fields:
         out.append("        pass")
     for f in fields:
+        if f.type.is_nested and f.type.base.split("/")[0] != package:
+            deps.add(f.type.base.split("/")[0])
         out.append("        self.%s = %s if %s is None else %s" % (f.name, _default_expr(f, package), f.name, f.name))
     out.append("")
     out.append("    def __eq__(self, other):")
@@ -553,18 +595,14 @@ def _gen_message(spec, out):
     else:
         out.append("        return type(other) is %s" % spec.name)
     out.append("")
-    out.append("    def __ne__(self, other):")
-    out.append("        return not self.__eq__(other)")
-    out.append("")
-    out.append("    def __repr__(self):")
-    out.append("        return _repr(self)")
-    out.append("")
-    # encode
+    leaves = []
+    rebuild = _flatten(spec, registry, "self", "", leaves, package, deps)
+    steps = plan_runs(leaves)
     out.append("    def encode(self, w):")
     if not fields:
-        # The DDS/rosidl typesupports give an empty struct one dummy octet.
+        # The rosidl typesupports give an empty struct one dummy octet.
         out.append("        w.u8(0)")
-    for step in plan_runs(fields):
+    for step in steps:
         _gen_encode_step(step, package, out)
     out.append("")
     out.append("    @classmethod")
@@ -573,24 +611,9 @@ def _gen_message(spec, out):
         out.append("        r.u8()")
         out.append("        return cls()")
     else:
-        names = []
-        for step in plan_runs(fields):
-            _gen_decode_step(step, package, out, names)
-        out.append("        return cls(%s)" % ", ".join("v_" + n for n in names))
-    out.append("")
-    out.append("    def to_bytes(self):")
-    out.append("        return _to_bytes(self)")
-    out.append("")
-    out.append("    @classmethod")
-    out.append("    def from_bytes(cls, data):")
-    out.append("        return _from_bytes(cls, data)")
-    out.append("")
-    out.append("    def to_dict(self):")
-    out.append("        return _to_dict(self)")
-    out.append("")
-    out.append("    @classmethod")
-    out.append("    def from_dict(cls, d):")
-    out.append("        return _from_dict(cls, d)")
+        for step in steps:
+            _gen_decode_step(step, package, out)
+        out.append("        return cls(%s)" % rebuild)
 
 
 def _gen_service(srv, out):
@@ -604,47 +627,49 @@ def _gen_service(srv, out):
     out.append("    ROS_TYPE = %r" % ("%s/srv/%s" % (srv.package, srv.name)))
 
 
-def generate_module(package, messages, services, command=SHIPPED_COMMAND):
-    """Return the source text of xrce/msgs/<package>.py."""
+def generate_module(package, messages, services, registry, command=SHIPPED_COMMAND):
+    """Return the source text of xrce/msgs/<package>.py; ``registry`` maps "pkg/Type" to specs."""
     specs = list(messages)
     for srv in services:
         specs.extend((srv.request, srv.response))
     deps = set()
+    body = []
     for spec in specs:
-        for f in spec.fields:
-            if f.type.is_nested:
-                pkg = f.type.base.split("/")[0]
-                if pkg != package:
-                    deps.add(pkg)
-    out = [
-        "# Generated by xrce/msggen.py (%s) from the %s interface definitions. Do not edit." % (command, package),
-        '"""XCDR1 (de)serialization of the %s ROS 2 messages%s."""' % (
-            package, " and services" if services else ""),
-        "",
-        "from xrce.msgs import (",
-        "    _PACK_ERRORS, _bad_len, _bad_values, _bool, _count, _from_bytes, _from_dict, _get_array,",
-        "    _get_string, _pack_into, _put, _put_array, _put_octets, _put_string, _repr, _seq_len, _take,",
-        "    _to_bytes, _to_dict, _unpack_from,",
-        ")",
-    ]
-    for pkg in sorted(deps):
-        out.append("from xrce.msgs import %s as _%s" % (pkg, pkg))
-    for spec in specs:
-        _gen_message(spec, out)
+        _gen_message(spec, registry, body, deps)
     for srv in services:
-        _gen_service(srv, out)
-    out.append("")
-    out.append("")
-    out.append("# Field tables for the dict helpers, set after all classes exist (forward references).")
-    out.append("# Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.")
+        _gen_service(srv, body)
+    body.append("")
+    body.append("")
+    body.append("# Field tables for the dict helpers and repr, set once every class exists.")
+    body.append("# Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.")
     for spec in specs:
         entries = []
         for f in spec.fields:
             k = _field_kind(f.type)
             ref = _class_ref(f.type.base, package) if f.type.is_nested else "None"
             entries.append("(%r, %d, %s)" % (f.name, k, ref))
-        out.append("%s._FIELDS = (%s)" % (spec.name, "".join(e + ", " for e in entries)))
-    return "\n".join(out) + "\n"
+        body.append("%s._FIELDS = (%s)" % (spec.name, "".join(e + ", " for e in entries)))
+    head = [
+        "# Generated by xrce/msggen.py (%s) from the %s interface definitions. Do not edit." % (command, package),
+        '"""XCDR1 (de)serialization of the %s ROS 2 messages%s."""' % (
+            package, " and services" if services else ""),
+        "",
+        "from xrce.msgs import (",
+        "    _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,",
+        "    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,",
+        ")",
+    ]
+    for pkg in sorted(deps):
+        head.append("from xrce.msgs import %s as _%s" % (pkg, pkg))
+    return "\n".join(head + body) + "\n"
+
+
+def build_registry(packages):
+    registry = {}
+    for package, messages, services in packages:
+        for m in messages:
+            registry["%s/%s" % (package, m.name)] = m
+    return registry
 
 
 def check_references(packages):
@@ -697,10 +722,11 @@ def main(argv=None):
         print("msggen: %s" % e, file=sys.stderr)
         return 2
     os.makedirs(outdir, exist_ok=True)
+    registry = build_registry(packages)
     for package, messages, services in packages:
         path = os.path.join(outdir, package + ".py")
         with open(path, "w") as f:
-            f.write(generate_module(package, messages, services, command))
+            f.write(generate_module(package, messages, services, registry, command))
     return 0
 
 
