@@ -17,3 +17,19 @@ from xrce.errors import XrceError
 
 class TransportError(XrceError):
     """The link failed in a way the caller must see: open failed, peer closed, stream desynced."""
+
+
+try:
+    _TIMEOUT_ERRORS = (TimeoutError, BlockingIOError)  # CPython: settimeout(t) / settimeout(0)
+except NameError:  # MicroPython: a plain OSError carrying the errno
+    _TIMEOUT_ERRORS = ()
+
+# EAGAIN, ETIMEDOUT (Linux), ETIMEDOUT (lwIP, as MicroPython ports number it)
+_TIMEOUT_ERRNOS = (11, 110, 116)
+
+
+def is_timeout_error(error):
+    """Whether an OSError from a socket with a timeout means "nothing arrived in time"."""
+    if isinstance(error, _TIMEOUT_ERRORS):
+        return True
+    return bool(error.args) and error.args[0] in _TIMEOUT_ERRNOS

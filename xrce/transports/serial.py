@@ -1,0 +1,202 @@
+"""Serial client transport: XRCE messages in HDLC-like frames (XRCE-WIRE.md §11).
+
+CPython uses pyserial; MicroPython uses ``machine.UART`` (``device`` is then the UART id, or an
+already configured UART object). The client's address defaults to 1 and the agent's to 0, as
+``uxr_init_serial_transport`` is used by the examples and by rmw's serial transport.
+"""
+
+from xrce.compat import IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
+from xrce.errors import EncodeError
+from xrce.transports import TransportError
+from xrce.transports.crc import get_crc
+from xrce.transports.framing import FrameDecoder, encode_frame
+
+try:
+    import serial as _pyserial  # pyserial
+except ImportError:  # MicroPython
+    _pyserial = None
+
+try:
+    import select as _select
+except ImportError:  # pragma: no cover
+    _select = None
+
+_SerialError = _pyserial.SerialException if _pyserial is not None else OSError
+
+DEFAULT_MTU = 512
+# Read size per syscall; frames are at most 2 * (mtu + 6) + 1 bytes escaped, most far smaller.
+_CHUNK = 256
+
+
+class SerialTransport:
+    """Synchronous framed serial link to the agent; the constructor opens the port.
+
+    Frames sent carry src=``local_addr``, dst=``remote_addr``. Received frames whose dst is not
+    ``local_addr`` (``decoder.wrong_address``) or whose src is not ``remote_addr``
+    (``wrong_source``) are dropped, as the C client does. ``send(msg) -> bool``;
+    ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
+    ``received``, ``send_errors``, ``wrong_source`` and the framing counters in ``decoder``.
+    """
+
+    __slots__ = (
+        "device",
+        "baudrate",
+        "local_addr",
+        "remote_addr",
+        "mtu",
+        "sent",
+        "received",
+        "send_errors",
+        "wrong_source",
+        "decoder",
+        "_crc",
+        "_port",
+        "_uart",
+        "_pending",
+        "_buf",
+        "_view",
+        "_poller",
+    )
+
+    def __init__(self, device, baudrate=115200, local_addr=1, remote_addr=0, crc="arc", mtu=DEFAULT_MTU):
+        self.device = device
+        self.baudrate = baudrate
+        self.local_addr = local_addr
+        self.remote_addr = remote_addr
+        self.mtu = mtu
+        self._crc = get_crc(crc)
+        self.sent = 0
+        self.received = 0
+        self.send_errors = 0
+        self.wrong_source = 0
+        self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
+        self._port = None  # pyserial
+        self._uart = None  # machine.UART
+        self._pending = []
+        self._buf = bytearray(_CHUNK)
+        self._view = memoryview(self._buf)
+        self._poller = None
+        self.open()
+
+    def open(self):
+        if self._port is not None or self._uart is not None:
+            return
+        if IS_MICROPYTHON:
+            import machine
+
+            if isinstance(self.device, int):
+                self._uart = machine.UART(self.device, self.baudrate)
+            else:
+                self._uart = self.device  # a UART the caller configured (pins, buffers)
+            return
+        if _pyserial is None:
+            raise TransportError("pyserial is required for the serial transport on CPython")
+        try:
+            # timeout=0: reads return what is buffered; waiting is done with select (below).
+            self._port = _pyserial.Serial(self.device, self.baudrate, timeout=0)
+        except (OSError, ValueError, _pyserial.SerialException) as error:
+            raise TransportError("cannot open serial port %s: %s" % (self.device, error))
+        self._poller = None
+        if _select is not None and hasattr(_select, "poll"):
+            try:
+                poller = _select.poll()
+                poller.register(self._port.fileno(), _select.POLLIN)
+                self._poller = poller
+            except (AttributeError, OSError, ValueError):
+                self._poller = None  # e.g. Windows: fall back to pyserial's own timeout
+        self.decoder.reset()
+        self._pending = []
+
+    def close(self):
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+        if self._uart is not None:
+            if isinstance(self.device, int):
+                self._uart.deinit()
+            self._uart = None
+
+    def send(self, msg):
+        if len(msg) > self.mtu:
+            raise EncodeError("message of %d bytes exceeds the serial MTU %d" % (len(msg), self.mtu))
+        frame = encode_frame(msg, self.local_addr, self.remote_addr, self._crc)
+        try:
+            if self._port is not None:
+                # pyserial writes straight to the fd on POSIX; no flush() (tcdrain would wait for
+                # the bits to leave the UART, which the C client does not do either).
+                written = self._port.write(frame)
+            elif self._uart is not None:
+                written = self._write_uart(frame)
+            else:
+                raise TransportError("serial transport is closed")
+        except (OSError, _SerialError):
+            self.send_errors += 1
+            return False
+        if written != len(frame):
+            self.send_errors += 1
+            return False
+        self.sent += 1
+        return True
+
+    def _write_uart(self, frame):
+        view = memoryview(frame)
+        position = 0
+        while position < len(frame):
+            written = self._uart.write(view[position:])
+            if written:
+                position += written
+            else:
+                sleep_ms(1)  # TX buffer full
+        return position
+
+    def _read_available(self, wait_ms):
+        """Up to _CHUNK bytes read within wait_ms (possibly none), as a memoryview."""
+        if self._uart is not None:
+            uart = self._uart
+            available = uart.any()
+            if not available:
+                if wait_ms > 0:
+                    sleep_ms(1)
+                return None
+            # Never ask for more than is buffered: UART reads may otherwise wait for its timeout.
+            count = uart.readinto(self._buf, available if available < _CHUNK else _CHUNK)
+            return self._view[:count] if count else None
+        port = self._port
+        if port is None:
+            raise TransportError("serial transport is closed")
+        if self._poller is not None:
+            if not self._poller.poll(wait_ms if wait_ms > 0 else 0):
+                return None
+        elif not port.in_waiting:
+            port.timeout = wait_ms / 1000 if wait_ms > 0 else 0
+            data = port.read(1)
+            port.timeout = 0
+            if not data:
+                return None
+            self._buf[0] = data[0]
+            count = 1 + port.readinto(self._view[1:])
+            return self._view[:count]
+        count = port.readinto(self._buf)
+        return self._view[:count] if count else None
+
+    def recv(self, timeout_ms):
+        if self._pending:
+            self.received += 1
+            return self._pending.pop(0)
+        deadline = ticks_add(ticks_ms(), timeout_ms)
+        remaining = timeout_ms
+        while True:
+            chunk = self._read_available(remaining)
+            if chunk is not None:
+                for src, _dst, payload in self.decoder.feed(chunk):
+                    if src != self.remote_addr:
+                        self.wrong_source += 1
+                    else:
+                        self._pending.append(payload)
+                if self._pending:
+                    self.received += 1
+                    return self._pending.pop(0)
+            remaining = ticks_diff(deadline, ticks_ms())
+            if remaining <= 0:
+                return None
+
