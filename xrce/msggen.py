@@ -616,10 +616,16 @@ def _gen_message(spec, registry, out, deps):
         out.append("        return cls(%s)" % rebuild)
 
 
-def _gen_service(srv, out):
+def service_class_name(srv, message_names):
+    """The descriptor is named after the service unless a message of the package already has that
+    name (turtlebot3_msgs has both msg/Sound and srv/Sound); then it gets a "_Service" suffix."""
+    return srv.name + "_Service" if srv.name in message_names else srv.name
+
+
+def _gen_service(srv, out, class_name):
     out.append("")
     out.append("")
-    out.append("class %s:" % srv.name)
+    out.append("class %s:" % class_name)
     out.append("    Request = %s" % srv.request.name)
     out.append("    Response = %s" % srv.response.name)
     out.append("    TYPE_NAME_REQUEST = %r" % srv.request.dds_name)
@@ -636,9 +642,14 @@ def generate_module(package, messages, services, registry, command=SHIPPED_COMMA
     body = []
     for spec in specs:
         _gen_message(spec, registry, body, deps)
+    message_names = set(m.name for m in messages)
     for srv in services:
-        _gen_service(srv, body)
+        _gen_service(srv, body, service_class_name(srv, message_names))
     body.append("")
+    body.append("")
+    body.append("# Service descriptors by service name, for lookup(\"pkg/srv/Name\").")
+    body.append("SERVICES = {%s}" % ", ".join(
+        "%r: %s" % (srv.name, service_class_name(srv, message_names)) for srv in services))
     body.append("")
     body.append("# Field tables for the dict helpers and repr, set once every class exists.")
     body.append("# Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.")
@@ -656,7 +667,7 @@ def generate_module(package, messages, services, registry, command=SHIPPED_COMMA
         "",
         "from xrce.msgs import (",
         "    _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,",
-        "    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,",
+        "    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,",
         ")",
     ]
     for pkg in sorted(deps):

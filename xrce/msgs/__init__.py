@@ -256,7 +256,10 @@ def lookup(type_name):
         module = __import__("xrce.msgs." + package, None, None, (name,))
     except ImportError:
         raise KeyError(type_name)
-    cls = getattr(module, name, None)
+    if check == "ROS_TYPE" and parts[1] == "srv":
+        cls = getattr(module, "SERVICES", {}).get(name) or getattr(module, name, None)
+    else:
+        cls = getattr(module, name, None)
     if cls is None or (check is not None and getattr(cls, check, None) != type_name):
         raise KeyError(type_name)
     _cache[type_name] = cls

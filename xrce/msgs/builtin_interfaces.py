@@ -3,7 +3,7 @@
 
 from xrce.msgs import (
     _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,
-    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,
+    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,
 )
 
 
@@ -54,6 +54,9 @@ class Time(_Message):
         v0, v1 = _unpack_from('<iI', r.buf, _take(r, 4, 8))
         return cls(v0, v1)
 
+
+# Service descriptors by service name, for lookup("pkg/srv/Name").
+SERVICES = {}
 
 # Field tables for the dict helpers and repr, set once every class exists.
 # Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.

@@ -3,7 +3,7 @@
 
 from xrce.msgs import (
     _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,
-    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,
+    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,
 )
 from xrce.msgs import builtin_interfaces as _builtin_interfaces
 from xrce.msgs import std_msgs as _std_msgs
@@ -969,6 +969,9 @@ class WrenchStamped(_Message):
         v3, v4, v5, v6, v7, v8 = _unpack_from('<6d', r.buf, _take(r, 8, 48))
         return cls(_std_msgs.Header(_builtin_interfaces.Time(v0, v1), v2), Wrench(Vector3(v3, v4, v5), Vector3(v6, v7, v8)))
 
+
+# Service descriptors by service name, for lookup("pkg/srv/Name").
+SERVICES = {}
 
 # Field tables for the dict helpers and repr, set once every class exists.
 # Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.

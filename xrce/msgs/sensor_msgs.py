@@ -3,7 +3,7 @@
 
 from xrce.msgs import (
     _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,
-    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,
+    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,
 )
 from xrce.msgs import builtin_interfaces as _builtin_interfaces
 from xrce.msgs import geometry_msgs as _geometry_msgs
@@ -1197,6 +1197,9 @@ class SetCameraInfo:
     TYPE_NAME_RESPONSE = 'sensor_msgs::srv::dds_::SetCameraInfo_Response_'
     ROS_TYPE = 'sensor_msgs/srv/SetCameraInfo'
 
+
+# Service descriptors by service name, for lookup("pkg/srv/Name").
+SERVICES = {'SetCameraInfo': SetCameraInfo}
 
 # Field tables for the dict helpers and repr, set once every class exists.
 # Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.

@@ -3,7 +3,7 @@
 
 from xrce.msgs import (
     _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,
-    _pack_into, _put, _put_array, _put_octets, _put_string, _take, _unpack_from,
+    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,
 )
 from xrce.msgs import builtin_interfaces as _builtin_interfaces
 from xrce.msgs import std_msgs as _std_msgs
@@ -292,13 +292,16 @@ class Goal:
     ROS_TYPE = 'turtlebot3_msgs/srv/Goal'
 
 
-class Sound:
+class Sound_Service:
     Request = Sound_Request
     Response = Sound_Response
     TYPE_NAME_REQUEST = 'turtlebot3_msgs::srv::dds_::Sound_Request_'
     TYPE_NAME_RESPONSE = 'turtlebot3_msgs::srv::dds_::Sound_Response_'
     ROS_TYPE = 'turtlebot3_msgs/srv/Sound'
 
+
+# Service descriptors by service name, for lookup("pkg/srv/Name").
+SERVICES = {'Dqn': Dqn, 'Goal': Goal, 'Sound': Sound_Service}
 
 # Field tables for the dict helpers and repr, set once every class exists.
 # Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.
