@@ -73,7 +73,7 @@ class TcpTransport:
                 sock.settimeout(self.connect_timeout_ms / 1000)
                 sock.connect(info[-1])
                 nodelay = getattr(socket, "TCP_NODELAY", None)
-                if nodelay is not None:
+                if nodelay is not None and hasattr(socket, "IPPROTO_TCP"):
                     # XRCE messages are small and latency-bound; Nagle would hold them back.
                     sock.setsockopt(socket.IPPROTO_TCP, nodelay, 1)
             except BaseException:
