@@ -11,10 +11,39 @@ Runs on MicroPython: no dataclasses, typing or f-strings; ``struct.error`` only 
 import struct
 
 from xrce.cdr import CdrReader, CdrWriter
+from xrce.compat import IS_MICROPYTHON
 from xrce.errors import DecodeError, EncodeError
 
-_pack_into = struct.pack_into
 _unpack_from = struct.unpack_from
+
+_INT_LIMITS = {
+    "b": (-0x80, 0x7F), "B": (0, 0xFF), "h": (-0x8000, 0x7FFF), "H": (0, 0xFFFF),
+    "i": (-0x80000000, 0x7FFFFFFF), "I": (0, 0xFFFFFFFF),
+    "q": (-0x8000000000000000, 0x7FFFFFFFFFFFFFFF), "Q": (0, 0xFFFFFFFFFFFFFFFF),
+}
+
+
+def _checked_pack_into(fmt, buf, offset, *values):
+    """pack_into that rejects out-of-range integers: MicroPython's struct silently truncates them."""
+    i = 0
+    count = 0
+    for ch in fmt[1:]:
+        if "0" <= ch <= "9":
+            count = count * 10 + ord(ch) - 48
+            continue
+        n = count or 1
+        count = 0
+        limits = _INT_LIMITS.get(ch)
+        if limits is not None:
+            lo, hi = limits
+            for v in values[i:i + n]:
+                if not lo <= v <= hi:
+                    raise OverflowError("%r out of range for %s" % (v, ch))
+        i += n
+    struct.pack_into(fmt, buf, offset, *values)
+
+
+_pack_into = _checked_pack_into if IS_MICROPYTHON else struct.pack_into
 
 try:
     _PACK_ERRORS = (struct.error, OverflowError, TypeError, ValueError)
