@@ -1,0 +1,294 @@
+#!/usr/bin/env node
+// Runs a script under real MicroPython 1.27 (the WebAssembly port) with the repo's xrce package
+// and a synchronous UDP bridge.
+//
+//   node run.mjs [--heap BYTES] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]
+//
+// Default mount: the repo's xrce/ (.py files only) as /lib/xrce. The .py adapters next to this
+// file (e.g. nodeudp_transport.py) are always copied into /lib. Exit status: 0 on success, the
+// SystemExit code if the script calls sys.exit, 1 when it raises (traceback on stderr), 2 on a
+// usage error.
+
+import fs from "node:fs";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+import { Worker } from "node:worker_threads";
+import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
+import { DatagramRing } from "./ring.mjs";
+
+const HERE = path.dirname(fileURLToPath(import.meta.url));
+const REPO = path.resolve(HERE, "..", "..");
+const DEFAULT_HEAP = 256 * 1024;
+const REQUEST_TIMEOUT_MS = 5000;
+const SKIPPED_DIRS = new Set(["__pycache__", "node_modules"]);
+
+function usage(message) {
+  process.stderr.write(`run.mjs: ${message}\n`);
+  process.stderr.write("usage: node run.mjs [--heap BYTES] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]\n");
+  process.exit(2);
+}
+
+function parseArgs(argv) {
+  const options = { heap: DEFAULT_HEAP, mounts: [], defaultMount: true, script: null, args: [] };
+  let i = 0;
+  for (; i < argv.length && options.script === null; i++) {
+    const arg = argv[i];
+    if (arg === "--heap") {
+      options.heap = Number.parseInt(argv[++i], 10);
+      if (!(options.heap > 0)) usage("--heap needs a positive byte count");
+    } else if (arg === "--mount") {
+      const spec = argv[++i] || "";
+      const colon = spec.lastIndexOf(":");
+      if (colon <= 0 || !spec.slice(colon + 1).startsWith("/")) usage(`--mount wants HOSTDIR:/MPDIR, got ${spec}`);
+      options.mounts.push({ host: path.resolve(spec.slice(0, colon)), target: spec.slice(colon + 1), pyOnly: false });
+    } else if (arg === "--no-default-mount") {
+      options.defaultMount = false;
+    } else if (arg.startsWith("--")) {
+      usage(`unknown option ${arg}`);
+    } else {
+      options.script = arg;
+    }
+  }
+  if (options.script === null) usage("no script given");
+  options.args = argv.slice(i);
+  if (options.defaultMount && !options.mounts.some((m) => m.target === "/lib/xrce")) {
+    options.mounts.unshift({ host: path.join(REPO, "xrce"), target: "/lib/xrce", pyOnly: true });
+  }
+  return options;
+}
+
+function makeDirs(FS, target) {
+  let current = "";
+  for (const part of target.split("/").filter(Boolean)) {
+    current += "/" + part;
+    try {
+      FS.mkdir(current);
+    } catch (error) {
+      if (!FS.analyzePath(current).exists) throw error;
+    }
+  }
+}
+
+function copyTree(FS, hostDir, target, pyOnly) {
+  if (!fs.statSync(hostDir).isDirectory()) throw new Error(`mount source is not a directory: ${hostDir}`);
+  makeDirs(FS, target);
+  let copied = 0;
+  for (const entry of fs.readdirSync(hostDir, { withFileTypes: true })) {
+    const hostPath = path.join(hostDir, entry.name);
+    const mpPath = `${target}/${entry.name}`;
+    if (entry.isDirectory()) {
+      if (!SKIPPED_DIRS.has(entry.name) && !entry.name.startsWith(".")) copied += copyTree(FS, hostPath, mpPath, pyOnly);
+    } else if (entry.isFile() && (!pyOnly || entry.name.endsWith(".py"))) {
+      FS.writeFile(mpPath, fs.readFileSync(hostPath));
+      copied += 1;
+    }
+  }
+  return copied;
+}
+
+// Output goes through fs.writeSync: the main thread may be blocked in Atomics.wait for a long time
+// and asynchronous stream writes would sit in the event loop until it returns.
+function byteSink(fd) {
+  const pending = [];
+  return {
+    put(bytes) {
+      for (const b of bytes) {
+        pending.push(b);
+        if (b === 10) this.flush();
+      }
+    },
+    flush() {
+      if (pending.length) fs.writeSync(fd, Uint8Array.from(pending));
+      pending.length = 0;
+    },
+  };
+}
+
+// Synchronous request/response with the UDP worker over a shared block:
+// int32 [0] = id of the request answered last, [1] = value, [2] = error text length, bytes 16.. = error text.
+class Reply {
+  static allocate() {
+    return new SharedArrayBuffer(16 + 1024);
+  }
+
+  constructor(worker, buffer) {
+    this.worker = worker;
+    this.ints = new Int32Array(buffer, 0, 4);
+    this.text = new Uint8Array(buffer, 16);
+    this.nextId = 1;
+  }
+
+  request(op, fields, transfer) {
+    const id = this.nextId++;
+    this.worker.postMessage({ op, id, ...fields }, transfer || []);
+    const deadline = performance.now() + REQUEST_TIMEOUT_MS;
+    for (;;) {
+      const answered = Atomics.load(this.ints, 0);
+      if (answered === id) break;
+      const left = deadline - performance.now();
+      if (left <= 0) throw new Error(`${op} got no answer from the UDP worker within ${REQUEST_TIMEOUT_MS} ms`);
+      Atomics.wait(this.ints, 0, answered, left);
+    }
+    const errorLength = Atomics.load(this.ints, 2);
+    if (errorLength) throw new Error(`${op}: ${new TextDecoder().decode(this.text.slice(0, errorLength))}`);
+    return Atomics.load(this.ints, 1);
+  }
+}
+
+async function startWorker() {
+  const replyBuffer = Reply.allocate();
+  const worker = new Worker(new URL("./udp_worker.mjs", import.meta.url), { workerData: { replyBuffer } });
+  await new Promise((resolve, reject) => {
+    worker.once("message", resolve);
+    worker.once("error", reject);
+  });
+  return new Reply(worker, replyBuffer);
+}
+
+// Bytes across the JS<->MicroPython boundary (checked on 1.27.0, see README.md): a Python
+// bytes/bytearray/memoryview reaches JS as an opaque PyProxy and a Uint8Array reaches Python as a
+// JsProxy (bytes(proxy) works but costs one boundary crossing per byte). binascii's C code
+// converts both ways at memory speed through a hex str, which does cross natively.
+function makeBytesBridge(mp) {
+  const binascii = mp.pyimport("binascii");
+  return {
+    toUint8Array(value) {
+      if (ArrayBuffer.isView(value)) return new Uint8Array(value.buffer, value.byteOffset, value.byteLength);
+      if (value instanceof mp.PyProxy) return Buffer.from(binascii.hexlify(value).decode(), "hex");
+      throw new TypeError("expected bytes, bytearray or memoryview");
+    },
+    toPythonBytes(bytes) {
+      return binascii.unhexlify(Buffer.from(bytes.buffer, bytes.byteOffset, bytes.byteLength).toString("hex"));
+    },
+  };
+}
+
+// A JS exception thrown inside a function that MicroPython called is not turned into a Python
+// exception: it unwinds through the wasm frames and out of runPython, killing the script. So every
+// nodeudp function catches, remembers the message for last_error() and returns -1.
+function makeNodeUdp(reply, bytesBridge) {
+  const rings = new Map();
+  let nextHandle = 1;
+  let lastError = "";
+  const ringOf = (handle) => {
+    const ring = rings.get(handle);
+    if (!ring) throw new Error(`no open socket with handle ${handle}`);
+    return ring;
+  };
+  const guarded = (fn) => (...args) => {
+    try {
+      return fn(...args);
+    } catch (error) {
+      lastError = String(error.message || error);
+      return -1;
+    }
+  };
+  return {
+    open: guarded((host, port) => {
+      if (typeof host !== "string" || !Number.isInteger(port)) throw new TypeError("open(host: str, port: int)");
+      const handle = nextHandle++;
+      const buffer = DatagramRing.allocate();
+      reply.request("open", { handle, host, port, ring: buffer });
+      rings.set(handle, new DatagramRing(buffer));
+      return handle;
+    }),
+    send: guarded((handle, data) => {
+      ringOf(handle);
+      // Copied so that the worker owns a stable buffer (a view may alias the wasm heap).
+      const payload = new Uint8Array(bytesBridge.toUint8Array(data));
+      return reply.request("send", { handle, payload }, [payload.buffer]);
+    }),
+    recv: guarded((handle, timeoutMs) => {
+      const ring = ringOf(handle);
+      const wait = timeoutMs === null || timeoutMs === undefined ? Infinity : Math.max(0, timeoutMs);
+      const datagram = ring.shiftWaiting(wait);
+      return datagram === null ? null : bytesBridge.toPythonBytes(datagram);
+    }),
+    close: guarded((handle) => {
+      if (!rings.delete(handle)) return 0;
+      reply.request("close", { handle });
+      return 1;
+    }),
+    local_port: guarded((handle) => {
+      ringOf(handle);
+      return reply.request("localPort", { handle });
+    }),
+    dropped: guarded((handle) => ringOf(handle).stats().dropped),
+    last_error: () => lastError,
+  };
+}
+
+function pythonStr(text) {
+  // JSON string literals are valid Python string literals for everything JSON.stringify emits.
+  return JSON.stringify(text);
+}
+
+const RUN_SCRIPT = (scriptPath, argv) => `
+import sys
+if "/lib" not in sys.path:
+    sys.path.append("/lib")
+sys.path[0] = "/app"
+sys.argv.clear()
+for _arg in [${argv.map(pythonStr).join(", ")}]:
+    sys.argv.append(_arg)
+del _arg
+
+def _run_main(path):
+    try:
+        with open(path) as source:
+            code = compile(source.read(), path, "exec")
+        exec(code, {"__name__": "__main__", "__file__": path})
+        return 0
+    except SystemExit as stop:
+        status = stop.args[0] if stop.args else None
+        if status is None:
+            return 0
+        if isinstance(status, int):
+            return status
+        print(status, file=sys.stderr)
+        return 1
+    except BaseException as error:
+        sys.print_exception(error, sys.stderr)
+        return 1
+
+_exit_status = _run_main(${pythonStr(scriptPath)})
+`;
+
+async function main() {
+  const options = parseArgs(process.argv.slice(2));
+  if (!fs.existsSync(options.script)) usage(`script not found: ${options.script}`);
+  const stdout = byteSink(1);
+  const stderr = byteSink(2);
+  const mp = await loadMicroPython({
+    heapsize: options.heap,
+    linebuffer: false,
+    stdout: (bytes) => stdout.put(bytes),
+    stderr: (bytes) => stderr.put(bytes),
+  });
+  for (const mount of options.mounts) copyTree(mp.FS, mount.host, mount.target, mount.pyOnly);
+  makeDirs(mp.FS, "/lib");
+  for (const name of fs.readdirSync(HERE)) {
+    if (name.endsWith(".py")) mp.FS.writeFile(`/lib/${name}`, fs.readFileSync(path.join(HERE, name)));
+  }
+  makeDirs(mp.FS, "/app");
+  const scriptPath = `/app/${path.basename(options.script)}`;
+  mp.FS.writeFile(scriptPath, fs.readFileSync(options.script));
+
+  const reply = await startWorker();
+  mp.registerJsModule("nodeudp", makeNodeUdp(reply, makeBytesBridge(mp)));
+  let status;
+  try {
+    mp.runPython(RUN_SCRIPT(scriptPath, [scriptPath, ...options.args]));
+    status = mp.globals.get("_exit_status");
+  } catch (error) {
+    // Only a failure of the harness prelude itself lands here; script errors are caught in Python.
+    stderr.put(new TextEncoder().encode(`run.mjs: ${error.stack || error}\n`));
+    status = 1;
+  }
+  stdout.flush();
+  stderr.flush();
+  await reply.worker.terminate();
+  process.exit(typeof status === "number" ? status : 1);
+}
+
+await main();

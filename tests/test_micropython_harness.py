@@ -1,0 +1,202 @@
+"""The MicroPython harness itself: real MicroPython 1.27 in Node, the mounted xrce package and the
+synchronous UDP bridge (tests/micropython/run.mjs)."""
+
+import socket
+import threading
+import time
+
+import pytest
+
+from mp_harness import run_micropython
+
+
+def _check(result):
+    assert result.returncode == 0, "exit %d\nstdout:\n%s\nstderr:\n%s" % (result.returncode, result.stdout, result.stderr)
+    return result.stdout
+
+
+def test_runs_real_micropython_1_27():
+    out = _check(
+        run_micropython(
+            "import sys\n"
+            "print(sys.implementation.name)\n"
+            "print('%d.%d' % sys.implementation.version[:2])\n"
+            "print(sys.argv[1:])\n",
+            "first",
+            "second arg",
+        )
+    )
+    assert out.splitlines() == ["micropython", "1.27", "['first', 'second arg']"]
+
+
+def test_mounted_wire_core_imports_and_round_trips():
+    script = r"""
+import sys
+from xrce.cdr import CdrReader, CdrWriter
+from xrce.compat import IS_MICROPYTHON, ticks_add, ticks_diff, ticks_ms
+from xrce.errors import DecodeError, XrceError
+import xrce.cdr
+
+assert IS_MICROPYTHON
+assert xrce.cdr.__file__.startswith("/lib/xrce/"), xrce.cdr.__file__
+assert issubclass(DecodeError, XrceError)
+now = ticks_ms()
+assert ticks_diff(ticks_add(now, 25), now) == 25
+
+w = CdrWriter()
+w.u8(7)
+w.u32(0xDEADBEEF)
+w.f64(-1.25)
+w.string("héllo")
+w.i64(-(2 ** 40))
+data = w.getvalue()
+r = CdrReader(data)
+values = (r.u8(), r.u32(), r.f64(), r.string(), r.i64())
+print(repr(values[:3] + values[4:]))
+print(values[3])
+print(len(data))
+try:
+    CdrReader(b"\x05\x00").u32()
+except DecodeError:
+    print("truncated input raises DecodeError")
+"""
+    out = _check(run_micropython(script)).splitlines()
+    assert out[0] == repr((7, 0xDEADBEEF, -1.25, -(2**40)))
+    assert out[1] == "héllo"
+    # u8, pad to 4, u32, f64, u32 length + "héllo\0" (7 bytes), pad to 8, i64
+    assert out[2] == str(1 + 3 + 4 + 8 + 4 + 7 + 5 + 8)
+    assert out[3] == "truncated input raises DecodeError"
+
+
+@pytest.fixture
+def udp_echo_server():
+    """A CPython UDP echo server on 127.0.0.1 with an ephemeral port; yields (port, received list)."""
+    server = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    server.bind(("127.0.0.1", 0))
+    server.settimeout(0.1)
+    received = []
+    stop = threading.Event()
+
+    def serve():
+        while not stop.is_set():
+            try:
+                data, peer = server.recvfrom(65535)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            received.append(data)
+            server.sendto(data, peer)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield server.getsockname()[1], received
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        server.close()
+
+
+NODEUDP_SCRIPT = r"""
+import sys, time
+import nodeudp
+
+port = int(sys.argv[1])
+handle = nodeudp.open("127.0.0.1", port)
+payloads = [
+    b"\x00",
+    bytes(range(256)),
+    bytearray(b"\xff\x00" * 700),
+    memoryview(b"..slice..")[2:7],
+    b"",
+]
+for payload in payloads:
+    sent = nodeudp.send(handle, payload)
+    echoed = nodeudp.recv(handle, 2000)
+    assert sent == len(payload), (sent, len(payload))
+    assert type(echoed) is bytes, type(echoed)
+    assert echoed == bytes(payload), (echoed, payload)
+    print("echo", len(payload))
+
+start = time.ticks_ms()
+nothing = nodeudp.recv(handle, 150)
+waited = time.ticks_diff(time.ticks_ms(), start)
+print("timeout", nothing, waited)
+assert nodeudp.dropped(handle) == 0
+assert nodeudp.close(handle) == 1
+assert nodeudp.send(handle, b"late") == -1
+assert "no open socket" in nodeudp.last_error(), nodeudp.last_error()
+assert nodeudp.send(nodeudp.open("127.0.0.1", port), "not bytes") == -1
+assert "expected bytes" in nodeudp.last_error(), nodeudp.last_error()
+print("errors ok")
+"""
+
+
+def test_nodeudp_bridge_echoes_byte_exact_and_times_out(udp_echo_server):
+    port, received = udp_echo_server
+    started = time.monotonic()
+    out = _check(run_micropython(NODEUDP_SCRIPT, port, timeout=30)).splitlines()
+    assert out[:5] == ["echo 1", "echo 256", "echo 1400", "echo 5", "echo 0"]
+    word, value, waited = out[5].split()
+    assert (word, value) == ("timeout", "None")
+    assert 140 <= int(waited) < 1000
+    assert out[6] == "errors ok"
+    assert received == [b"\x00", bytes(range(256)), b"\xff\x00" * 700, b"slice", b""]
+    assert time.monotonic() - started < 30
+
+
+def test_nodeudp_transport_callbacks(udp_echo_server):
+    port, received = udp_echo_server
+    script = r"""
+import sys
+from nodeudp_transport import make_callbacks
+
+port = int(sys.argv[1])
+open_cb, close_cb, write_cb, read_cb = make_callbacks("127.0.0.1", port)
+buf = bytearray(512)
+assert read_cb(None, buf, 512, 10) == 0  # not open yet
+assert write_cb(None, b"x") == 0
+assert open_cb(None) is True
+assert write_cb(None, b"\x81\x00\x00\x00hello") == 9
+n = read_cb(None, buf, 512, 2000)
+assert bytes(buf[:n]) == b"\x81\x00\x00\x00hello", buf[:n]
+# packet mode: a datagram longer than size is truncated like recvfrom on a short buffer
+assert write_cb(None, bytes(range(20))) == 20
+assert read_cb(None, buf, 8, 2000) == 8 and bytes(buf[:8]) == bytes(range(8))
+assert read_cb(None, buf, 512, 100) == 0  # the tail was dropped, nothing else queued
+assert close_cb(None) is True
+
+open_cb, close_cb, write_cb, read_cb = make_callbacks("127.0.0.1", port, stream=True)
+assert open_cb(None)
+assert write_cb(None, bytearray(range(10))) == 10
+got = bytearray()
+while len(got) < 10:
+    n = read_cb(None, buf, 4, 2000)
+    assert 0 < n <= 4
+    got.extend(buf[:n])
+assert got == bytearray(range(10)), got
+assert read_cb(None, buf, 4, 100) == 0
+assert close_cb(None)
+
+refused_open, _, _, _ = make_callbacks("127.0.0.1", 0)  # port 0 cannot be connected to
+assert refused_open(None) is False
+print("callbacks ok")
+"""
+    out = _check(run_micropython(script, port, timeout=30))
+    assert out.strip() == "callbacks ok"
+    assert received == [b"\x81\x00\x00\x00hello", bytes(range(20)), bytes(range(10))]
+
+
+def test_script_exception_gives_exit_1_and_traceback():
+    result = run_micropython("def fail():\n    raise ValueError('deliberate failure 42')\n\nprint('before')\nfail()\n")
+    assert result.returncode == 1
+    assert result.stdout == "before\n"
+    assert "Traceback (most recent call last):" in result.stderr
+    assert "line 5" in result.stderr and "line 2, in fail" in result.stderr
+    assert "ValueError: deliberate failure 42" in result.stderr
+
+
+def test_sys_exit_status_is_the_exit_code():
+    assert run_micropython("import sys\nsys.exit(3)\n").returncode == 3
+    assert run_micropython("import sys\nsys.exit()\n").returncode == 0
