@@ -44,3 +44,25 @@ def epoch_ns():
         return time.time_ns()
     except AttributeError:  # very old MicroPython ports
         return int(time.time() * 1000000000)
+
+
+if IS_MICROPYTHON:
+    ticks_us = time.ticks_us
+else:
+
+    def ticks_us():
+        return (_monotonic_ns() // 1000) % _TICKS_PERIOD
+
+
+def random_client_key():
+    """Four random bytes, never all zero (the agent rejects key 0)."""
+    try:
+        import os
+        key = os.urandom(4)
+    except (ImportError, AttributeError, NotImplementedError):
+        import random
+        value = random.getrandbits(32)
+        key = bytes(((value >> 24) & 0xFF, (value >> 16) & 0xFF, (value >> 8) & 0xFF, value & 0xFF))
+    if key == b"\x00\x00\x00\x00":
+        key = b"\x00\x00\x00\x01"
+    return key

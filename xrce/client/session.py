@@ -1,0 +1,918 @@
+"""The XRCE client session: streams, entities, data, services, ping and time sync.
+
+Synchronous and MicroPython-safe. Nothing blocks without a bound: every ``run_until_*`` takes a
+timeout in milliseconds, and ``spin_once`` processes at most one incoming message.
+
+Shape of use (mirrors eProsima's ``uxr_*`` API so that traffic matches the real client)::
+
+    session = Session(UdpTransport("127.0.0.1", 8888))
+    session.create()                                   # CREATE_CLIENT until STATUS_AGENT
+    node = session.create_participant(name="talker")   # buffered on the reliable stream
+    writer = session.create_writer(node, "/chatter", String)
+    session.run_until_all_status(1000)                 # flush, wait for every STATUS
+    session.write(writer, String(data="hi"))
+    session.run_until_confirm_delivery(1000)
+
+Outgoing submessages are appended to the open message of their stream and sent when the message
+is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
+message exactly as with the C client.
+"""
+
+from xrce import constants as C
+from xrce.cdr import CdrReader
+from xrce.compat import epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
+from xrce.errors import DecodeError, EncodeError, XrceError
+from xrce.message import MessageWriter, SUBHEADER_SIZE, decode_header, header_size, iter_submessages
+from xrce.objects import (
+    DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, ReplierBin, RequesterBin,
+    TopicBin, object_id, object_kind,
+)
+from xrce.streams import (
+    InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
+)
+from xrce.submessages import (
+    AckNack, Create, CreateClient, Delete, DeliveryControl, GetInfo, Heartbeat, Info, ReadData,
+    Timestamp, TimestampReply, write_submessage,
+)
+
+# Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
+# message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
+SLOT_OVERHEAD = 4
+SAMPLE_IDENTITY_SIZE = 24
+
+
+class SessionError(XrceError):
+    """The session is not usable for the requested operation (not created, window full, ...)."""
+
+
+def _trunc_half(value):
+    """Halve an int rounding toward zero, as the C client's int64 division does."""
+    return -((-value) // 2) if value < 0 else value // 2
+
+
+def ros_topic_name(name, prefix="rt"):
+    """'/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS)."""
+    return prefix + (name if name.startswith("/") else "/" + name)
+
+
+class _Output:
+    __slots__ = ("stream_id", "state", "mw", "reliable", "has_content")
+
+    def __init__(self, stream_id, state, capacity):
+        self.stream_id = stream_id
+        self.state = state
+        self.mw = MessageWriter(capacity)
+        self.reliable = stream_id >= 0x80
+        self.has_content = False
+
+
+class _SampleWrite:
+    """WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
+    alignment origin. One instance per session is reused, so a write allocates nothing here."""
+
+    ID = C.WRITE_DATA
+    __slots__ = ("flags", "request_id", "object_id", "prefix", "sample")
+
+    def __init__(self):
+        self.flags = C.FLAG_LITTLE_ENDIAN | C.FORMAT_DATA
+        self.request_id = 0
+        self.object_id = 0
+        self.prefix = None
+        self.sample = None
+
+    def encode(self, w):
+        w.u8(self.request_id >> 8)
+        w.u8(self.request_id & 0xFF)
+        w.u8(self.object_id >> 8)
+        w.u8(self.object_id & 0xFF)
+        if self.prefix is not None:
+            w.raw(self.prefix)
+        sample = self.sample
+        if isinstance(sample, (bytes, bytearray, memoryview)):
+            w.raw(sample)
+        else:
+            saved = w.origin
+            w.origin = w.pos  # a sample is aligned from its own first byte (§14)
+            try:
+                sample.encode(w)
+            finally:
+                w.origin = saved
+
+
+class _Reader:
+    __slots__ = ("callback", "msg_class", "kind")
+
+    def __init__(self, callback, msg_class, kind):
+        self.callback = callback
+        self.msg_class = msg_class
+        self.kind = kind
+
+
+class Session:
+    """One XRCE client session over a transport (see ``xrce.transports``)."""
+
+    def __init__(self, transport, key=None, session_id=C.DEFAULT_SESSION_ID, history=4,
+                 mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
+                 max_reassembly=None, on_topic=None):
+        if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
+            raise SessionError("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
+        self.transport = transport
+        if key is None:
+            key = random_client_key()
+        elif isinstance(key, int):
+            key = bytes(((key >> 24) & 0xFF, (key >> 16) & 0xFF, (key >> 8) & 0xFF, key & 0xFF))
+        if len(key) != 4 or key == b"\x00\x00\x00\x00":
+            raise SessionError("client key must be 4 bytes and not zero")
+        self.key = bytes(key)
+        self.session_id = session_id
+        self._header_key = self.key if session_id < 0x80 else None
+        self.header_size = header_size(session_id)
+        self.mtu = transport.mtu if mtu is None else mtu
+        self.max_message = self.mtu - SLOT_OVERHEAD
+        self.history = history
+        self.heartbeat_ms = heartbeat_ms
+        # Fragmented input may span at most this many bytes (the C client's limit is history slots).
+        self.max_reassembly = max_reassembly if max_reassembly is not None else 16 * self.mtu
+        self.on_topic = on_topic
+        self.connected = False
+
+        self._outputs = {}
+        self._inputs = {}
+        for i in range(best_effort_streams):
+            sid = C.BUILTIN_BEST_EFFORT + i
+            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), self.max_message)
+            self._inputs[sid] = InputBestEffortStream(sid)
+        for i in range(reliable_streams):
+            sid = C.BUILTIN_RELIABLE + i
+            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), self.max_message)
+            self._inputs[sid] = InputReliableStream(sid, history)
+        self.best_effort = C.BUILTIN_BEST_EFFORT if best_effort_streams else None
+        self.reliable = C.BUILTIN_RELIABLE if reliable_streams else None
+
+        self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
+        self._sample = _SampleWrite()
+        self._last_request_id = C.FIRST_REQUEST_ID - 1
+        self._object_counters = {}
+        self._statuses = {}
+        self._readers = {}
+        self._agent_status = None
+        self._pong_in_session = False
+        self._delete_status = None
+        self._sync_originate = None
+        self._reassembly = None
+        self._next_heartbeat = {}
+        self.time_offset_ns = 0
+        self.time_synced = False
+        self.last_rtt_us = None
+        self.last_statuses = {}
+        # Counters for observability and tests.
+        self.messages_in = 0
+        self.messages_out = 0
+        self.decode_errors = 0
+        self.dropped_messages = 0
+        self.stale_timestamps = 0
+        self.dropped_writes = 0
+
+    # ------------------------------------------------------------------ session lifecycle
+
+    def create(self, attempts=10, timeout_ms=1000):
+        """CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session."""
+        payload = CreateClient(self.key, self.session_id, self.max_message)
+        header_session = self.session_id & C.SESSION_ID_WITHOUT_KEY_MASK
+        message = self._control_message(payload, header_session, self.key if header_session == 0 else None)
+        self._agent_status = None
+        for _ in range(attempts):
+            self._send(message)
+            if self._wait(timeout_ms, self._has_agent_status):
+                break
+        if self._agent_status is None:
+            return False
+        self.connected = self._agent_status == C.STATUS_OK
+        if self.connected:
+            self._reset_streams()
+        return self.connected
+
+    def _has_agent_status(self):
+        return self._agent_status is not None
+
+    @property
+    def create_status(self):
+        return self._agent_status
+
+    def delete(self, attempts=10, timeout_ms=1000):
+        """DELETE of the client (logout) until the agent's STATUS; True when confirmed."""
+        self.flush()
+        message = self._control_message(Delete(C.REQUEST_ID_LOGOUT, C.OBJECTID_CLIENT))
+        self._delete_status = None
+        for _ in range(attempts):
+            self._send(message)
+            if self._wait(timeout_ms, self._has_delete_status):
+                break
+        self.connected = False
+        return self._delete_status is not None
+
+    def _has_delete_status(self):
+        return self._delete_status is not None
+
+    def _reset_streams(self):
+        for out in self._outputs.values():
+            out.state.reset()
+            out.has_content = False
+        for stream in self._inputs.values():
+            stream.reset()
+        self._reassembly = None
+        self._next_heartbeat = {}
+
+    def close(self):
+        self.transport.close()
+
+    # ------------------------------------------------------------------ request and object ids
+
+    def next_request_id(self):
+        rid = self._last_request_id + 1
+        if rid > 0xFFFF:
+            rid = C.FIRST_REQUEST_ID
+        self._last_request_id = rid
+        return rid
+
+    @property
+    def last_request_id(self):
+        return self._last_request_id
+
+    def new_object_id(self, kind):
+        index = self._object_counters.get(kind, 0) + 1
+        self._object_counters[kind] = index
+        return object_id(index, kind)
+
+    # ------------------------------------------------------------------ entity creation
+
+    def _create(self, kind, fmt, representation, tail_id, object_id_, stream_id, flags):
+        oid = self.new_object_id(kind) if object_id_ is None else object_id_
+        rid = self.next_request_id()
+        payload = Create(rid, oid, kind, fmt, representation, tail_id, C.FLAG_LITTLE_ENDIAN | flags)
+        self._buffer(stream_id, payload)
+        self._statuses[rid] = C.STATUS_NONE
+        return oid
+
+    @staticmethod
+    def _representation(xml, ref, binary):
+        if ref is not None:
+            return C.REPRESENTATION_BY_REFERENCE, ref
+        if xml is not None:
+            return C.REPRESENTATION_AS_XML_STRING, xml
+        return C.REPRESENTATION_IN_BINARY, binary
+
+    def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
+                           stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        """A participant (a ROS node on the agent). Returns its object id; the request is buffered."""
+        fmt, rep = self._representation(xml, ref, ParticipantBin(name))
+        return self._create(C.OBJK_PARTICIPANT, fmt, rep, domain_id, object_id, stream_id, flags)
+
+    def create_topic(self, participant_id, topic_name=None, type_name=None, xml=None, ref=None,
+                     object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        fmt, rep = self._representation(xml, ref, TopicBin(topic_name, type_name))
+        return self._create(C.OBJK_TOPIC, fmt, rep, participant_id, object_id, stream_id, flags)
+
+    def create_publisher(self, participant_id, xml=None, object_id=None, stream_id=None,
+                         flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        fmt, rep = self._representation(xml, None, PubSubBin())
+        return self._create(C.OBJK_PUBLISHER, fmt, rep, participant_id, object_id, stream_id, flags)
+
+    def create_subscriber(self, participant_id, xml=None, object_id=None, stream_id=None,
+                          flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        fmt, rep = self._representation(xml, None, PubSubBin())
+        return self._create(C.OBJK_SUBSCRIBER, fmt, rep, participant_id, object_id, stream_id, flags)
+
+    @staticmethod
+    def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
+        flags = (C.QOS_RELIABLE if reliable else 0) | (C.QOS_KEEP_LAST if keep_last else 0)
+        if transient_local:
+            flags |= C.QOS_TRANSIENT_LOCAL
+        return EndpointQos(flags, depth if depth else None)
+
+    def create_datawriter(self, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
+                          object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        binary = DataWriterBin(topic_id, qos if qos is not None else self.endpoint_qos())
+        fmt, rep = self._representation(xml, ref, binary)
+        return self._create(C.OBJK_DATAWRITER, fmt, rep, publisher_id, object_id, stream_id, flags)
+
+    def create_datareader(self, subscriber_id, topic_id=None, qos=None, xml=None, ref=None,
+                          object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        binary = DataReaderBin(topic_id, qos if qos is not None else self.endpoint_qos())
+        fmt, rep = self._representation(xml, ref, binary)
+        return self._create(C.OBJK_DATAREADER, fmt, rep, subscriber_id, object_id, stream_id, flags)
+
+    def create_requester(self, participant_id, service_name=None, request_type=None,
+                         reply_type=None, request_topic=None, reply_topic=None, xml=None, ref=None,
+                         object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        binary = RequesterBin(service_name, request_type, reply_type, request_topic, reply_topic)
+        fmt, rep = self._representation(xml, ref, binary)
+        return self._create(C.OBJK_REQUESTER, fmt, rep, participant_id, object_id, stream_id, flags)
+
+    def create_replier(self, participant_id, service_name=None, request_type=None,
+                       reply_type=None, request_topic=None, reply_topic=None, xml=None, ref=None,
+                       object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
+        binary = ReplierBin(service_name, request_type, reply_type, request_topic, reply_topic)
+        fmt, rep = self._representation(xml, ref, binary)
+        return self._create(C.OBJK_REPLIER, fmt, rep, participant_id, object_id, stream_id, flags)
+
+    def delete_entity(self, object_id_, stream_id=None):
+        """Buffer a DELETE of one entity (the agent deletes its children). Returns the request id."""
+        rid = self.next_request_id()
+        self._buffer(stream_id, Delete(rid, object_id_))
+        self._statuses[rid] = C.STATUS_NONE
+        return rid
+
+    # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
+
+    def create_writer(self, participant_id, topic, msg_class, reliable=True, depth=10,
+                      transient_local=False, stream_id=None):
+        """Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class."""
+        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
+                                     stream_id=stream_id)
+        publisher_id = self.create_publisher(participant_id, stream_id=stream_id)
+        return self.create_datawriter(publisher_id, topic_id,
+                                      self.endpoint_qos(reliable, True, depth, transient_local),
+                                      stream_id=stream_id)
+
+    def create_reader(self, participant_id, topic, msg_class, callback, reliable=True, depth=10,
+                      transient_local=False, stream_id=None, data_stream_id=None):
+        """Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
+
+        ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
+        for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
+        """
+        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
+                                     stream_id=stream_id)
+        subscriber_id = self.create_subscriber(participant_id, stream_id=stream_id)
+        reader_id = self.create_datareader(subscriber_id, topic_id,
+                                           self.endpoint_qos(reliable, True, depth, transient_local),
+                                           stream_id=stream_id)
+        self.set_reader_callback(reader_id, callback, msg_class)
+        if data_stream_id is None:
+            data_stream_id = self.reliable if reliable else self.best_effort
+        self.read_data(reader_id, data_stream_id, stream_id=stream_id)
+        return reader_id
+
+    # ------------------------------------------------------------------ data
+
+    def set_reader_callback(self, reader_id, callback, msg_class=None):
+        """``callback(data)`` for every DATA of this reader/requester/replier.
+
+        Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
+        Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
+        Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
+        """
+        self._readers[reader_id] = _Reader(callback, msg_class, object_kind(reader_id))
+
+    def read_data(self, reader_id, data_stream_id=None, max_samples=C.MAX_SAMPLES_UNLIMITED,
+                  max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
+                  stream_id=None):
+        """Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``."""
+        control = DeliveryControl(max_samples, max_elapsed_time, max_bytes_per_second,
+                                  min_pace_period) if delivery else None
+        rid = self.next_request_id()
+        if data_stream_id is None:
+            data_stream_id = self.reliable
+        self._buffer(stream_id, ReadData(rid, reader_id, data_stream_id, control))
+        return rid
+
+    def cancel_data(self, reader_id, stream_id=None):
+        """Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0)."""
+        rid = self.next_request_id()
+        self._buffer(stream_id, ReadData(rid, reader_id, C.STREAM_NONE, DeliveryControl(0, 0, 0, 0)))
+        return rid
+
+    def write(self, writer_id, data, stream_id=None):
+        """Buffer one sample (a generated message object or its serialized bytes).
+
+        Reliable samples larger than a message are fragmented; when the window is full the session
+        spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
+        """
+        return self._write_sample(writer_id, data, None, stream_id)
+
+    def send_request(self, requester_id, data, stream_id=None):
+        """A service request; the reply reaches the requester's callback with the returned id."""
+        return self._write_sample(requester_id, data, None, stream_id)
+
+    def send_reply(self, replier_id, sample_identity, data, stream_id=None):
+        """Answer the request ``sample_identity`` (as given to the replier's callback)."""
+        return self._write_sample(replier_id, data, sample_identity, stream_id)
+
+    def _write_sample(self, object_id_, data, prefix, stream_id):
+        sample = self._sample
+        sample.request_id = self.next_request_id()
+        sample.object_id = object_id_
+        sample.prefix = prefix
+        sample.sample = data
+        try:
+            ok = self._buffer(stream_id, sample)
+        finally:
+            sample.sample = None
+            sample.prefix = None
+        if not ok:
+            self.dropped_writes += 1
+            return 0
+        return sample.request_id
+
+    # ------------------------------------------------------------------ output path
+
+    def _output(self, stream_id):
+        if stream_id is None:
+            stream_id = self.reliable
+        out = self._outputs.get(stream_id)
+        if out is None:
+            raise SessionError("no output stream 0x%02X" % stream_id)
+        return out
+
+    def _begin(self, out):
+        """Open a new message on ``out``; False if a reliable window has no free slot."""
+        if out.reliable:
+            seq = out.state.next_seq()
+            if seq is None:
+                return False
+        else:
+            seq = 0  # best-effort messages get their sequence number when sent
+        out.mw.begin(self.session_id, out.stream_id, seq, self._header_key)
+        out.has_content = False
+        return True
+
+    def _buffer(self, stream_id, payload):
+        """Append ``payload`` to its stream's open message; True when it is buffered or sent."""
+        out = self._output(stream_id)
+        for _ in range(2):
+            if not out.has_content and not self._begin_with_room(out):
+                return False
+            mw = out.mw
+            mark = mw.size
+            write_submessage(mw, payload)
+            if mw.size <= self.max_message:
+                out.has_content = True
+                return True
+            mw.w.pos = mark
+            if not out.has_content:
+                break
+            self._close_message(out)  # the open message is full: send it and retry in a fresh one
+        if not out.reliable:
+            return False  # a best-effort message cannot be fragmented (the C client refuses too)
+        return self._write_fragmented(out, payload)
+
+    def _begin_with_room(self, out, timeout_ms=1000):
+        if self._begin(out):
+            return True
+        if not out.reliable:
+            return False
+        self._wait(timeout_ms, out.state.has_room)
+        if out.has_content:
+            return True  # a callback run while waiting opened a message: append to it
+        return self._begin(out)
+
+    def _close_message(self, out):
+        """Send the open message of ``out`` (trailing padding to 4, as the C client)."""
+        if not out.has_content:
+            return
+        mw = out.mw
+        mw.pad_to_4()
+        if out.reliable:
+            message = mw.getvalue()
+            out.state.commit(out.state.next_seq(), message)
+            self._send(message)
+            self._schedule_heartbeat(out.stream_id)
+        else:
+            mw.set_seq(out.state.next_seq())
+            self._send(mw.view())
+        out.has_content = False
+
+    def _write_fragmented(self, out, payload):
+        """Cut one submessage into FRAGMENTs, each alone in a fresh reliable message (§8)."""
+        inner = MessageWriter(2 * self.max_message)
+        inner.begin(self.session_id, 0, 0, self._header_key)  # header only sets the origin phase
+        write_submessage(inner, payload)
+        inner.pad_to_4()
+        body = inner.view()[self.header_size:]
+        chunk_size = self.max_message - self.header_size - SUBHEADER_SIZE
+        total = len(body)
+        pos = 0
+        while pos < total:
+            end = pos + chunk_size
+            last = end >= total
+            while True:
+                # A callback run while waiting for room may have opened a message: send it first.
+                if out.has_content:
+                    self._close_message(out)
+                if not self._begin_with_room(out):
+                    return False  # the remainder is lost; the agent discards the incomplete message
+                if not out.has_content:
+                    break
+            mw = out.mw
+            w = mw.begin_submessage(C.FRAGMENT, C.FLAG_LITTLE_ENDIAN | (C.FLAG_LAST_FRAGMENT if last else 0))
+            w.raw(body[pos:end])
+            mw.end_submessage()
+            out.has_content = True
+            message = mw.getvalue()  # fragments are not padded (§2)
+            out.state.commit(out.state.next_seq(), message)
+            self._send(message)
+            out.has_content = False
+            pos = end
+        self._schedule_heartbeat(out.stream_id)
+        return True
+
+    def flush(self):
+        """Send every stream's open message."""
+        for out in self._outputs.values():
+            if out.has_content:
+                self._close_message(out)
+
+    def _control_message(self, payload, session_id=None, key=None):
+        mw = self._control
+        if session_id is None:
+            session_id, key = self.session_id, self._header_key
+        mw.begin(session_id, C.STREAM_NONE, 0, key)
+        write_submessage(mw, payload)
+        return mw.getvalue()
+
+    def _send(self, message):
+        self.messages_out += 1
+        self.transport.send(message)
+
+    def _send_control(self, payload):
+        mw = self._control
+        mw.begin(self.session_id, C.STREAM_NONE, 0, self._header_key)
+        write_submessage(mw, payload)
+        self._send(mw.view())
+
+    def _schedule_heartbeat(self, stream_id):
+        if stream_id not in self._next_heartbeat:
+            self._next_heartbeat[stream_id] = ticks_add(ticks_ms(), self.heartbeat_ms)
+
+    def _send_due_heartbeats(self, now):
+        for stream_id, due in list(self._next_heartbeat.items()):
+            state = self._outputs[stream_id].state
+            bounds = state.heartbeat()
+            if bounds is None:
+                del self._next_heartbeat[stream_id]
+            elif ticks_diff(now, due) >= 0:
+                self._send_control(Heartbeat(bounds[0], bounds[1], stream_id))
+                self._next_heartbeat[stream_id] = ticks_add(now, self.heartbeat_ms)
+
+    # ------------------------------------------------------------------ running
+
+    def _wait(self, timeout_ms, done):
+        """Process input until ``done()`` or ``timeout_ms``; True if done."""
+        start = ticks_ms()
+        while True:
+            if done():
+                return True
+            now = ticks_ms()
+            remaining = timeout_ms - ticks_diff(now, start)
+            if remaining <= 0:
+                return False
+            wait = remaining
+            for due in self._next_heartbeat.values():
+                until = ticks_diff(due, now)
+                if until < wait:
+                    wait = until if until > 0 else 0
+            data = self.transport.recv(wait)
+            if data is not None:
+                self.handle_message(data)
+            self._send_due_heartbeats(ticks_ms())
+
+    def spin_once(self, timeout_ms=0):
+        """Flush, then wait up to ``timeout_ms`` for one incoming message and process it."""
+        self.flush()
+        data = self.transport.recv(timeout_ms)
+        if data is not None:
+            self.handle_message(data)
+        self._send_due_heartbeats(ticks_ms())
+        return data is not None
+
+    def run_until_timeout(self, timeout_ms):
+        """Flush and process everything that arrives for ``timeout_ms``."""
+        self.flush()
+        self._wait(timeout_ms, _never)
+
+    def run_until_all_status(self, timeout_ms=1000, request_ids=None):
+        """Flush, wait for a STATUS for every pending request (or those given); True if all OK.
+
+        OK_MATCHED counts as success (an entity reused as it was). Statuses stay readable with
+        ``status_of`` until the next call collects them.
+        """
+        self.flush()
+        ids = list(self._statuses) if request_ids is None else list(request_ids)
+        statuses = self._statuses
+
+        def done():
+            for rid in ids:
+                if statuses.get(rid, C.STATUS_NONE) == C.STATUS_NONE and rid != 0:
+                    return False
+            return True
+
+        self._wait(timeout_ms, done)
+        ok = True
+        self.last_statuses = {}
+        for rid in ids:
+            status = statuses.pop(rid, C.STATUS_NONE) if rid else C.STATUS_OK
+            self.last_statuses[rid] = status
+            if status not in (C.STATUS_OK, C.STATUS_OK_MATCHED):
+                ok = False
+        return ok
+
+    def status_of(self, request_id):
+        return self._statuses.get(request_id, self.last_statuses.get(request_id, C.STATUS_NONE))
+
+    def run_until_confirm_delivery(self, timeout_ms=1000):
+        """Flush and wait until every reliable message sent has been acknowledged."""
+        self.flush()
+        return self._wait(timeout_ms, self._all_delivered)
+
+    def _all_delivered(self):
+        for out in self._outputs.values():
+            if out.reliable and out.state.pending():
+                return False
+        return True
+
+    def run_until_data(self, timeout_ms, request_id):
+        """Flush and wait for the first DATA answering the READ_DATA ``request_id``."""
+        self.flush()
+        self._statuses[request_id] = C.STATUS_NONE
+        self._wait(timeout_ms, lambda: self._statuses.get(request_id) != C.STATUS_NONE)
+        return self._statuses.pop(request_id, C.STATUS_NONE) == C.STATUS_OK
+
+    # ------------------------------------------------------------------ ping and time
+
+    def ping(self, timeout_ms=1000, attempts=1):
+        """GET_INFO inside the session: True only if the agent still knows this session."""
+        self.flush()
+        message = self._control_message(GetInfo())
+        for _ in range(attempts):
+            self._pong_in_session = False
+            sent = ticks_us()
+            self._send(message)
+            if self._wait(timeout_ms, self._has_pong):
+                self.last_rtt_us = ticks_diff(ticks_us(), sent)
+                return True
+        return False
+
+    def _has_pong(self):
+        return self._pong_in_session
+
+    def sync_time(self, timeout_ms=1000, attempts=1):
+        """NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated."""
+        self.flush()
+        for _ in range(attempts):
+            originate = epoch_ns()
+            self._sync_originate = originate
+            self._send_control(Timestamp.from_ns(originate))
+            if self._wait(timeout_ms, self._sync_done):
+                return True
+        self._sync_originate = None
+        return False
+
+    def _sync_done(self):
+        return self._sync_originate is None
+
+    def epoch_ns(self):
+        """Nanoseconds since the epoch on the agent's clock (after ``sync_time``)."""
+        return epoch_ns() - self.time_offset_ns
+
+    def epoch_ms(self):
+        return self.epoch_ns() // 1000000
+
+    # ------------------------------------------------------------------ input path
+
+    def handle_message(self, buf):
+        """Process one incoming message (bytes-like). Malformed input is counted and dropped."""
+        self.messages_in += 1
+        n = len(buf)
+        if n < 4 or buf[0] != self.session_id or (self._header_key is not None and (
+                n < 8 or bytes(buf[4:8]) != self._header_key)):
+            self.dropped_messages += 1
+            return
+        stream_id = buf[1]
+        try:
+            if stream_id == C.STREAM_NONE:
+                self._process(buf, n)
+            elif stream_id < 0x80:
+                stream = self._inputs.get(stream_id)
+                if stream is None:
+                    self.dropped_messages += 1
+                elif stream.accept(buf[2] | (buf[3] << 8)):
+                    self._process(buf, n)
+            else:
+                stream = self._inputs.get(stream_id)
+                if stream is None:
+                    self.dropped_messages += 1
+                    return
+                ready = stream.receive(buf[2] | (buf[3] << 8), buf)
+                self._send_acknack(stream)
+                for message in ready:
+                    self._process_reliable(message)
+        except DecodeError:
+            self.decode_errors += 1
+
+    def _send_acknack(self, stream):
+        first, bitmap = stream.acknack()
+        self._send_control(AckNack(first, bitmap, stream.stream_id))
+
+    def _process_reliable(self, message):
+        start = self.header_size
+        if len(message) >= start + SUBHEADER_SIZE and message[start] == C.FRAGMENT:
+            for sub_id, flags, s, e in iter_submessages(message, start):
+                if sub_id != C.FRAGMENT:
+                    raise DecodeError("FRAGMENT mixed with other submessages")
+                if self._reassembly is None:
+                    self._reassembly = bytearray(message[:start])
+                if len(self._reassembly) + (e - s) > self.max_reassembly:
+                    self._reassembly = None
+                    raise DecodeError("fragmented message larger than max_reassembly")
+                self._reassembly.extend(message[s:e])
+                if flags & C.FLAG_LAST_FRAGMENT:
+                    whole = self._reassembly
+                    self._reassembly = None
+                    self._process(whole, len(whole))
+            return
+        self._process(message, len(message))
+
+    def _process(self, buf, end):
+        for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
+            handler = _HANDLERS.get(sub_id)
+            if handler is not None:
+                handler(self, buf, flags, s, e)
+
+    def _on_status_agent(self, buf, flags, s, e):
+        if e - s < 1:
+            raise DecodeError("empty STATUS_AGENT")
+        self._agent_status = buf[s]
+
+    def _on_status(self, buf, flags, s, e):
+        if e - s < 6:
+            raise DecodeError("short STATUS")
+        rid = (buf[s] << 8) | buf[s + 1]
+        if rid == C.REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == C.OBJECTID_CLIENT:
+            self._delete_status = buf[s + 4]
+            return
+        self._statuses[rid] = buf[s + 4]
+
+    def _on_info(self, buf, flags, s, e):
+        info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
+        if info.availability is not None and info.availability > 0 and info.impl_status == 1:
+            self._pong_in_session = True
+
+    def _on_data(self, buf, flags, s, e):
+        if e - s < 4:
+            raise DecodeError("short DATA")
+        rid = (buf[s] << 8) | buf[s + 1]
+        oid = (buf[s + 2] << 8) | buf[s + 3]
+        if rid in self._statuses:
+            self._statuses[rid] = C.STATUS_OK  # a DATA answers its READ_DATA (§5)
+        reader = self._readers.get(oid)
+        data = memoryview(buf)[s + 4:e]
+        if self.on_topic is not None:
+            self.on_topic(self, oid, rid, buf[1], data)
+        if reader is None:
+            return
+        kind = reader.kind
+        if kind == C.OBJK_REQUESTER:
+            if len(data) < 4:
+                raise DecodeError("reply without its request id")
+            reader.callback((data[0] << 8) | data[1], self._decode_sample(reader, data[4:]))
+        elif kind == C.OBJK_REPLIER:
+            if len(data) < SAMPLE_IDENTITY_SIZE:
+                raise DecodeError("request without its sample identity")
+            reader.callback(bytes(data[:SAMPLE_IDENTITY_SIZE]),
+                            self._decode_sample(reader, data[SAMPLE_IDENTITY_SIZE:]))
+        else:
+            reader.callback(self._decode_sample(reader, data))
+
+    @staticmethod
+    def _decode_sample(reader, data):
+        if reader.msg_class is None:
+            return bytes(data)
+        return reader.msg_class.decode(CdrReader(data))
+
+    def _on_acknack(self, buf, flags, s, e):
+        if e - s < 5:
+            raise DecodeError("short ACKNACK")
+        out = self._outputs.get(buf[s + 4])
+        if out is None or not out.reliable:
+            return
+        first = buf[s] | (buf[s + 1] << 8) if flags & 1 else (buf[s] << 8) | buf[s + 1]
+        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3]):
+            self._send(message)
+
+    def _on_heartbeat(self, buf, flags, s, e):
+        if e - s < 5:
+            raise DecodeError("short HEARTBEAT")
+        stream = self._inputs.get(buf[s + 4])
+        if stream is None or buf[s + 4] < 0x80:
+            return
+        if flags & 1:
+            first, last = buf[s] | (buf[s + 1] << 8), buf[s + 2] | (buf[s + 3] << 8)
+        else:
+            first, last = (buf[s] << 8) | buf[s + 1], (buf[s + 2] << 8) | buf[s + 3]
+        ready = stream.on_heartbeat(first, last)
+        self._send_acknack(stream)
+        for message in ready:
+            self._process_reliable(message)
+
+    def _on_timestamp_reply(self, buf, flags, s, e):
+        reply = TimestampReply.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
+        t0 = self._sync_originate
+        if t0 is None or reply.originate_ns != t0:
+            self.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
+            return
+        t3 = epoch_ns()
+        self.time_offset_ns = _trunc_half((t0 + t3) - (reply.receive_ns + reply.transmit_ns))
+        self.time_synced = True
+        self._sync_originate = None
+
+
+def _never():
+    return False
+
+
+_HANDLERS = {
+    C.STATUS_AGENT: Session._on_status_agent,
+    C.STATUS: Session._on_status,
+    C.INFO: Session._on_info,
+    C.DATA: Session._on_data,
+    C.ACKNACK: Session._on_acknack,
+    C.HEARTBEAT: Session._on_heartbeat,
+    C.TIMESTAMP_REPLY: Session._on_timestamp_reply,
+}
+
+
+def ping_agent(transport, timeout_ms=1000, attempts=1):
+    """Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
+
+    Any INFO reporting an available agent counts as the answer, as with the C client.
+    """
+    mw = MessageWriter(32)
+    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
+    write_submessage(mw, GetInfo())
+    message = mw.getvalue()
+    for _ in range(attempts):
+        sent = ticks_us()
+        transport.send(message)
+        deadline = ticks_add(ticks_ms(), timeout_ms)
+        while True:
+            remaining = ticks_diff(deadline, ticks_ms())
+            if remaining <= 0:
+                break
+            data = transport.recv(remaining)
+            if data is not None and _is_pong(data):
+                return ticks_diff(ticks_us(), sent)
+    return None
+
+
+def _is_pong(data):
+    try:
+        header = decode_header(data)
+        for sub_id, flags, s, e in iter_submessages(data, header.size):
+            if sub_id == C.INFO:
+                info = Info.decode(CdrReader(data, s, e, 0, bool(flags & 1)), flags)
+                return info.availability is not None and info.availability > 0
+    except DecodeError:
+        pass
+    return False
+
+
+def discover_agents(transport, attempts=1, period_ms=1000):
+    """GET_INFO discovery (request 0x0009): ``[(address_bytes, port), ...]`` of the agents that answer.
+
+    ``transport`` must reach the agents' discovery port (default 7400), unicast or, with a socket that
+    accepts replies from any source, the multicast group 239.255.0.2.
+    """
+    mw = MessageWriter(32)
+    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
+    write_submessage(mw, GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT,
+                                 C.INFO_CONFIGURATION | C.INFO_ACTIVITY))
+    message = mw.getvalue()
+    found = []
+    for _ in range(attempts):
+        transport.send(message)
+        deadline = ticks_add(ticks_ms(), period_ms)
+        while True:
+            remaining = ticks_diff(deadline, ticks_ms())
+            if remaining <= 0:
+                break
+            data = transport.recv(remaining)
+            if data is None:
+                continue
+            for locator in _info_locators(data):
+                if locator not in found:
+                    found.append(locator)
+    return found
+
+
+def _info_locators(data):
+    try:
+        header = decode_header(data)
+        for sub_id, flags, s, e in iter_submessages(data, header.size):
+            if sub_id == C.INFO:
+                info = Info.decode(CdrReader(data, s, e, 0, bool(flags & 1)), flags)
+                if info.config is not None and info.config[1] == C.XRCE_VERSION:
+                    return [(loc.address, loc.port) for loc in info.locators if loc.fmt != C.LOCATOR_STRING]
+    except DecodeError:
+        pass
+    return []
