@@ -142,7 +142,7 @@ def _value_from_rclpy(value, ftype):
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 RCLPY_SPECS = [s for s in ALL_SPECS if s.package in RCLPY_PACKAGES]
 OWN_SPECS = [s for s in ALL_SPECS if s.package not in RCLPY_PACKAGES]
-FAST = settings(max_examples=8, deadline=None, derandomize=True,
+FAST = settings(max_examples=30, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 
