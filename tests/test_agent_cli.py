@@ -1,0 +1,449 @@
+"""The xrce-agent command line, run as real processes (python -m xrce.agent) on loopback and ptys."""
+
+import os
+import re
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import termios
+import time
+import tty
+from pathlib import Path
+
+import pytest
+
+from xrce import constants as C
+from xrce.agent.cli import load_refs
+from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
+from xrce.transports.framing import (
+    FrameDecoder,
+    LengthPrefixDecoder,
+    encode_frame,
+    encode_length_prefixed,
+)
+
+REPO = Path(__file__).resolve().parent.parent
+START_TIMEOUT = 30.0  # the venv's python re-executes itself once at start-up (ROS wheels)
+EXIT_TIMEOUT = 15.0
+REPLY_TIMEOUT = 5.0
+
+try:
+    import xrce.agent.engine  # noqa: F401
+    import xrce.agent.ced  # noqa: F401
+    HAVE_ENGINE = True
+except ImportError:
+    HAVE_ENGINE = False
+
+needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine / ced not there yet")
+
+
+def _env():
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = "57"
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def run_cli(*args, timeout=START_TIMEOUT):
+    """Run the CLI to completion; (returncode, stdout, stderr)."""
+    done = subprocess.run([sys.executable, "-m", "xrce.agent", *args], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=timeout)
+    return done.returncode, done.stdout, done.stderr
+
+
+class AgentProcess:
+    """A running agent; ``banner`` is its first stdout line, ``port`` the port it names."""
+
+    def __init__(self, *args, tmp_path):
+        self.stderr_path = tmp_path / ("agent-stderr-%d.txt" % time.monotonic_ns())
+        self._stderr = open(self.stderr_path, "wb")
+        self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *args], cwd=REPO,
+                                     env=_env(), stdout=subprocess.PIPE, stderr=self._stderr)
+        self.banner = None
+
+    def wait_banner(self):
+        selector = selectors.DefaultSelector()
+        selector.register(self.proc.stdout, selectors.EVENT_READ)
+        try:
+            line = b""
+            deadline = time.monotonic() + START_TIMEOUT
+            while not line.endswith(b"\n"):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not selector.select(remaining):
+                    raise AssertionError("no banner; stderr: %s" % self.stderr_text())
+                chunk = os.read(self.proc.stdout.fileno(), 1)
+                if not chunk:
+                    raise AssertionError("agent exited (%s) before its banner; stderr: %s"
+                                         % (self.proc.poll(), self.stderr_text()))
+                line += chunk
+        finally:
+            selector.close()
+        self.banner = line.decode().strip()
+        return self.banner
+
+    def port(self, what="agent"):
+        match = re.search(r"%s on port (\d+)" % what, self.banner)
+        assert match, self.banner
+        return int(match.group(1))
+
+    def stderr_text(self):
+        self._stderr.flush()
+        return self.stderr_path.read_text(errors="replace")
+
+    def stop(self, signum=signal.SIGINT):
+        self.proc.send_signal(signum)
+        return self.proc.wait(EXIT_TIMEOUT)
+
+    def cleanup(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(EXIT_TIMEOUT)
+        self.proc.stdout.close()
+        self._stderr.close()
+
+
+@pytest.fixture
+def agent(tmp_path):
+    started = []
+
+    def start(*args):
+        process = AgentProcess(*args, tmp_path=tmp_path)
+        started.append(process)
+        process.wait_banner()
+        return process
+
+    yield start
+    for process in started:
+        process.cleanup()
+
+
+@pytest.fixture
+def pty_pair():
+    opened = []
+
+    def make():
+        master, slave = os.openpty()
+        tty.setraw(master, termios.TCSANOW)
+        opened.extend((master, slave))
+        return master, os.ttyname(slave)
+
+    yield make
+    for fd in opened:
+        os.close(fd)
+
+
+def ipv6_loopback():
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as probe:
+            probe.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+# ------------------------------------------------------------------------------ argument errors
+
+@pytest.mark.parametrize("args, mentions", [
+    (["bogus"], "invalid choice: 'bogus'"),
+    ([], "required: SUBCOMMAND"),
+    (["udp4"], "-p/--port"),
+    (["udp4", "-p", "x"], "-p/--port"),
+    (["tcp4", "-p", "70000"], "-p/--port"),
+    (["udp4", "-p", "8888", "-v", "9"], "-v/--verbose"),
+    (["serial", "-D", "/dev/null", "--crc", "crc32"], "--crc"),
+    (["serial"], "-D/--dev"),
+    (["multiserial", "-b", "fast", "--devs", "a b"], "-b/--baudrate"),
+    (["udp4", "-p", "8888", "-m", "zenoh"], "-m/--middleware"),
+    (["udp4", "-p", "8888", "-r", "/nonexistent/refs.xml"], "refs"),
+])
+def test_bad_arguments_give_one_line_and_exit_2(args, mentions):
+    code, out, err = run_cli(*args)
+    assert code == 2
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("xrce-agent: error: ") and mentions in lines[0]
+
+
+def test_help_lists_every_subcommand():
+    code, out, err = run_cli("-h")
+    assert code == 0 and err == ""
+    for name in ("udp4", "udp6", "tcp4", "tcp6", "serial", "multiserial", "pseudoterminal"):
+        assert name in out
+    code, out, _ = run_cli("serial", "-h")
+    assert code == 0 and "--baudrate" in out and "--crc" in out
+
+
+def test_refs_file_gives_one_xml_per_profile(tmp_path):
+    refs_file = tmp_path / "refs.xml"
+    refs_file.write_text(
+        '<?xml version="1.0"?>\n'
+        '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+        '  <profiles>\n'
+        '    <participant profile_name="my_participant">\n'
+        '      <rtps><name>xrce_participant</name></rtps>\n'
+        '    </participant>\n'
+        '    <data_writer profile_name="my_writer">\n'
+        '      <topic><kind>NO_KEY</kind><name>rt/chatter</name>\n'
+        '        <dataType>std_msgs::msg::dds_::String_</dataType></topic>\n'
+        '    </data_writer>\n'
+        '  </profiles>\n'
+        '</dds>\n')
+    refs = load_refs(str(refs_file))
+    assert sorted(refs) == ["my_participant", "my_writer"]
+    assert refs["my_participant"].startswith('<participant profile_name="my_participant">')
+    assert "<name>xrce_participant</name>" in refs["my_participant"]
+    assert "ns0" not in refs["my_writer"] and "<dataType>std_msgs::msg::dds_::String_" in refs["my_writer"]
+
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<dds><profiles>")
+    code, _, err = run_cli("udp4", "-p", "0", "-m", "ced", "-r", str(broken))
+    assert code == 2 and len(err.splitlines()) == 1 and "not valid XML" in err
+
+
+# ------------------------------------------------------------------------------ start and stop
+
+@needs_engine
+@pytest.mark.parametrize("transport", ["udp4", "udp6", "tcp4", "tcp6"])
+def test_ip_subcommands_start_and_exit_0_on_sigint(agent, transport):
+    if transport.endswith("6") and not ipv6_loopback():
+        pytest.skip("no IPv6 loopback")
+    process = agent(transport, "-p", "0", "-m", "ced")
+    assert process.banner.startswith("xrce-agent: %s agent on port " % transport)
+    assert process.port() > 0
+    assert process.stop() == 0
+    assert "Traceback" not in process.stderr_text()
+
+
+@needs_engine
+def test_serial_and_multiserial_start_and_exit_0_on_sigint(agent, pty_pair):
+    _, slave = pty_pair()
+    process = agent("serial", "-D", slave, "-b", "57600", "-m", "ced")
+    assert slave in process.banner and "57600 baud" in process.banner
+    assert process.stop() == 0
+
+    (_, slave_a), (_, slave_b) = pty_pair(), pty_pair()
+    process = agent("multiserial", "--devs", "%s %s" % (slave_a, slave_b), "-m", "ced")
+    assert slave_a in process.banner and slave_b in process.banner
+    assert process.stop(signal.SIGTERM) == 0
+    assert "Traceback" not in process.stderr_text()
+
+
+@needs_engine
+def test_pseudoterminal_prints_its_slave_and_links_dev(agent, tmp_path):
+    link = tmp_path / "xrce_pty"
+    process = agent("pseudoterminal", "-D", str(link), "-m", "ced")
+    match = re.search(r"pseudoterminal at (/dev/\S+)", process.banner)
+    assert match, process.banner
+    assert os.readlink(link) == match.group(1)
+    assert process.stop() == 0
+    assert not os.path.lexists(link)
+
+
+@needs_engine
+def test_a_port_in_use_is_one_line_and_exit_1():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
+        busy.bind(("0.0.0.0", 0))
+        busy.listen()
+        code, out, err = run_cli("tcp4", "-p", str(busy.getsockname()[1]), "-m", "ced", "-v", "0")
+    assert code == 1 and out == ""
+    assert len(err.splitlines()) == 1 and err.startswith("xrce-agent: error: ")
+
+
+@needs_engine
+def test_serial_device_missing_is_one_line_and_exit_1(tmp_path):
+    code, out, err = run_cli("serial", "-D", str(tmp_path / "ttyNOPE"), "-m", "ced", "-v", "0")
+    assert code == 1 and out == ""
+    assert len(err.splitlines()) == 1 and "ttyNOPE" in err
+
+
+# ------------------------------------------------------------------ end to end (XRCE-WIRE.md §13)
+
+def h(text):
+    return bytes.fromhex(text.replace("xx", "00"))
+
+
+PARTICIPANT_XML = b"<dds><participant><rtps><name>default_xrce_participant</name></rtps></participant></dds>\x00"
+M1_CREATE_CLIENT = h("80000000 00011000 58524345 0100010F AABBCCDD 8100FC01")
+M2_STATUS_AGENT = h("81000000 04010B00 0000 58524345 0100010F 00")
+M3_CREATE_PARTICIPANT = (h("81800000 01056800 000A 0011 01 02 0000 59000000") + PARTICIPANT_XML
+                         + h("00 0000"))
+M4_STATUS = h("81800000 05010600 000A 0011 0000")
+M6_FIVE_CREATES = h(
+    "81800100"
+    "01054300 000B0012 02030000 35000000"
+    "0B000000 72742F63 68617474 65720000 01xxxxxx"
+    "1D000000" + b"std_msgs::msg::dds_::String_\x00".hex() + "0011 00"
+    "01051000 000C0013 03030000 02000000 00000011"
+    "01051C00 000D0015 05030000 0E000000 001201xx 030001xx 05000000 00000013"
+    "01051000 000E0014 04030000 02000000 00000011"
+    "01051D00 000F0016 06030000 0F000000 001201xx 030001xx 05000000 000000 0014 000000")
+M6_STATUSES = [h("8180%02X00 05010600 %s 0000" % (seq, ids)) for seq, ids in
+               ((1, "000B0012"), (2, "000C0013"), (3, "000D0015"), (4, "000E0014"),
+                (5, "000F0016"))]
+M7_READ_DATA = h("81800200 08011000 00100016 80000001 FFFF0000 00000000")
+M8_WRITE_DATA = h("81800300 07010B00 00110015 03000000 686900 00")
+M9_DATA = h("81800600 09010B00 00100016 03000000 686900")
+
+
+def test_section_13_bytes_are_consistent():
+    assert len(M1_CREATE_CLIENT) == 24 and len(M2_STATUS_AGENT) == 19
+    assert len(M3_CREATE_PARTICIPANT) == 112 and len(M6_FIVE_CREATES) == 184
+    assert len(M7_READ_DATA) == 24 and len(M8_WRITE_DATA) == 20 and len(M9_DATA) == 19
+    for message in (M1_CREATE_CLIENT, M3_CREATE_PARTICIPANT, M6_FIVE_CREATES, M7_READ_DATA,
+                    M8_WRITE_DATA):
+        decode_message(message)
+
+
+class Conversation:
+    """Sends client messages and collects agent messages until the wanted ones have arrived."""
+
+    def __init__(self, send, receive):
+        self.send = send
+        self.receive = receive  # receive(timeout) -> list of messages
+        self.seen = []
+
+    def expect(self, wanted):
+        missing = list(wanted)
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        while missing:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError("missing %s; got %s" % (
+                    [m.hex() for m in missing], [m.hex() for m in self.seen]))
+            for message in self.receive(remaining):
+                self.seen.append(message)
+                if message in missing:
+                    missing.remove(message)
+
+    def run_section_13(self):
+        self.send(M1_CREATE_CLIENT)
+        self.expect([M2_STATUS_AGENT])
+        self.send(M3_CREATE_PARTICIPANT)
+        self.expect([M4_STATUS])
+        self.send(M6_FIVE_CREATES)
+        self.expect(M6_STATUSES)
+        self.send(M7_READ_DATA)
+        self.send(M8_WRITE_DATA)
+        self.expect([M9_DATA])
+
+
+def _wait_readable(fd, timeout):
+    with selectors.DefaultSelector() as selector:
+        selector.register(fd, selectors.EVENT_READ)
+        return bool(selector.select(timeout))
+
+
+@needs_engine
+def test_end_to_end_over_udp(agent):
+    process = agent("udp4", "-p", "0", "-m", "ced")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.connect(("127.0.0.1", process.port()))
+
+        def receive(timeout):
+            client.settimeout(timeout)
+            try:
+                return [client.recv(65536)]
+            except socket.timeout:
+                return []
+
+        Conversation(client.send, receive).run_section_13()
+    assert process.stop() == 0
+
+
+@needs_engine
+def test_end_to_end_over_tcp(agent):
+    process = agent("tcp4", "-p", "0", "-m", "ced")
+    with socket.create_connection(("127.0.0.1", process.port()), timeout=REPLY_TIMEOUT) as client:
+        decoder = LengthPrefixDecoder()
+
+        def receive(timeout):
+            client.settimeout(timeout)
+            try:
+                data = client.recv(65536)
+            except socket.timeout:
+                return []
+            assert data, "agent closed the connection"
+            return decoder.feed(data)
+
+        Conversation(lambda m: client.sendall(encode_length_prefixed(m)), receive).run_section_13()
+    assert process.stop() == 0
+
+
+def _framed_conversation(fd):
+    decoder = FrameDecoder(local_addr=1)
+
+    def receive(timeout):
+        if not _wait_readable(fd, timeout):
+            return []
+        frames = decoder.feed(os.read(fd, 65536))
+        assert all(src == 0 for src, _, _ in frames)
+        return [payload for _, _, payload in frames]
+
+    return Conversation(lambda m: os.write(fd, encode_frame(m, 1, 0)), receive)
+
+
+@needs_engine
+def test_end_to_end_over_serial_on_a_pty(agent, pty_pair):
+    master, slave = pty_pair()
+    process = agent("serial", "-D", slave, "-m", "ced")
+    # XRCE-WIRE.md §11 worked example 1, byte for byte in both directions.
+    os.write(master, h("7E 01 00 18 00 80 00 00 00 00 01 10 00 58 52 43 45 01 00 01 0F "
+                       "AA BB CC DD 81 00 FC 01 3E 8F"))
+    expected = h("7E 00 01 13 00 81 00 00 00 04 01 0B 00 00 00 58 52 43 45 01 00 01 0F 00 00 EC")
+    received = b""
+    deadline = time.monotonic() + REPLY_TIMEOUT
+    while len(received) < len(expected) and _wait_readable(master, deadline - time.monotonic()):
+        received += os.read(master, 65536)
+    assert received[:len(expected)] == expected
+    conversation = _framed_conversation(master)
+    conversation.send(M3_CREATE_PARTICIPANT)
+    conversation.expect([M4_STATUS])
+    conversation.send(M6_FIVE_CREATES)
+    conversation.expect(M6_STATUSES)
+    conversation.send(M7_READ_DATA)
+    conversation.send(M8_WRITE_DATA)
+    conversation.expect([M9_DATA])
+    assert process.stop() == 0
+
+
+@needs_engine
+def test_end_to_end_over_the_agents_pseudoterminal(agent):
+    process = agent("pseudoterminal", "-m", "ced")
+    slave_path = re.search(r"pseudoterminal at (/dev/\S+)", process.banner).group(1)
+    fd = os.open(slave_path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd, termios.TCSANOW)
+        _framed_conversation(fd).run_section_13()
+    finally:
+        os.close(fd)
+    assert process.stop() == 0
+
+
+def _free_udp_port():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("0.0.0.0", 0))
+        return probe.getsockname()[1]
+
+
+@needs_engine
+def test_discovery_answers_with_the_agents_port(agent):
+    discovery_port = _free_udp_port()
+    process = agent("udp4", "-p", "0", "-d", str(discovery_port), "-m", "ced")
+    assert process.port("discovery") == discovery_port
+    agent_port = process.port()
+    request = encode_message(0x80, 0, 0, None, [GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT, 3)])
+    assert request == h("80000000 02010800 0009FFFD 03000000")  # the captured discovery request
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.settimeout(REPLY_TIMEOUT)
+        client.sendto(request, ("127.0.0.1", discovery_port))
+        reply, source = client.recvfrom(65536)
+    assert source == ("127.0.0.1", discovery_port)
+    _, (info,) = decode_message(reply)
+    assert isinstance(info, Info) and info.request_id == C.REQUEST_ID_DISCOVERY
+    assert Locator(C.LOCATOR_MEDIUM, socket.inet_aton("127.0.0.1"), agent_port) in info.locators
+    assert process.stop() == 0

@@ -1,0 +1,7 @@
+"""``python -m xrce.agent ...`` is the ``xrce-agent`` command."""
+
+import sys
+
+from xrce.agent.cli import main
+
+sys.exit(main())

@@ -1,0 +1,332 @@
+"""``xrce-agent``: a command line compatible with eProsima's MicroXRCEAgent.
+
+    xrce-agent udp4 -p 8888 [-d [PORT]] [-m dds|ced] [-r refs.xml] [-v 0..6]
+    xrce-agent tcp6 -p 8888
+    xrce-agent serial -D /dev/ttyUSB0 [-b 115200] [--crc arc|ccitt]
+    xrce-agent multiserial --devs "/dev/ttyUSB0 /dev/ttyUSB1"
+    xrce-agent pseudoterminal [-D /tmp/xrce_pty]
+
+Subcommands live in the ``SUBCOMMANDS`` table: each entry adds its options to a subparser and
+either returns the links to serve (``make_links``) or runs on its own (``run``), so tools such as
+``build-interfaces`` or ``stats`` can be registered without touching the agent start-up.
+
+Once every link is open, one banner line goes to stdout (flushed) — tests wait for it. Errors in the
+arguments give one ``xrce-agent: error: ...`` line on stderr and exit code 2; a port that cannot be
+opened gives one line and exit code 1; SIGINT/SIGTERM close the agent cleanly and exit 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import socket
+import sys
+import xml.etree.ElementTree as ElementTree
+
+from xrce.agent import servers
+
+PROG = "xrce-agent"
+TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
+logging.addLevelName(TRACE, "TRACE")
+_VERBOSITY_LEVELS = {
+    0: logging.CRITICAL + 10,  # nothing
+    1: logging.CRITICAL,
+    2: logging.ERROR,
+    3: logging.WARNING,
+    4: logging.INFO,
+    5: logging.DEBUG,
+    6: TRACE,
+}
+
+
+class CliError(Exception):
+    """A problem found after parsing (unreadable refs file, ...) reported like a bad argument."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
+
+    def error(self, message):
+        sys.stderr.write("%s: error: %s\n" % (PROG, message))
+        sys.stderr.flush()
+        raise SystemExit(2)
+
+
+# ----------------------------------------------------------------------------- argument types
+
+def _port(text):
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid port: %r" % text)
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError("port %d is not in 0..65535" % value)
+    return value
+
+
+def _baudrate(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid baud rate: %r" % text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError("baud rate must be positive, not %d" % value)
+    return value
+
+
+def _verbosity(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid verbosity: %r (0..6)" % text)
+    if value not in _VERBOSITY_LEVELS:
+        raise argparse.ArgumentTypeError("verbosity %d is not in 0..6" % value)
+    return value
+
+
+# ----------------------------------------------------------------------------- option groups
+
+def _add_common_options(parser):
+    parser.add_argument("-v", "--verbose", type=_verbosity, default=4, metavar="LEVEL",
+                        help="log level 0 (off) .. 4 (info, default) .. 5 (debug) .. 6 (trace)")
+    parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
+                        help="dds: ROS 2 through rclpy (default); ced: route between clients only")
+    parser.add_argument("-r", "--refs", metavar="FILE",
+                        help="Fast DDS XML profiles file for objects created by reference")
+
+
+def _add_ip_options(parser):
+    parser.add_argument("-p", "--port", type=_port, required=True,
+                        help="UDP/TCP port to serve (0: any free port, shown in the banner)")
+    parser.add_argument("-d", "--discovery", type=_port, nargs="?", const=servers.DISCOVERY_PORT,
+                        metavar="PORT", help="answer discovery requests on PORT (default 7400)")
+
+
+def _add_tcp_options(parser):
+    _add_ip_options(parser)
+    parser.add_argument("--max-connections", type=int, default=servers.DEFAULT_TCP_MAX_CONNECTIONS,
+                        metavar="N", help="simultaneous TCP connections (default 100)")
+
+
+def _add_crc_option(parser):
+    parser.add_argument("--crc", choices=("arc", "ccitt"), default="arc",
+                        help="frame checksum: CRC-16/ARC (default, as eProsima) or CRC-16/X.25")
+
+
+def _add_serial_options(parser):
+    parser.add_argument("-D", "--dev", required=True, metavar="DEVICE", help="serial device")
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=servers.DEFAULT_BAUDRATE)
+    _add_crc_option(parser)
+
+
+def _add_multiserial_options(parser):
+    parser.add_argument("--devs", required=True, metavar='"DEV1 DEV2 ..."',
+                        help="space-separated serial devices")
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=servers.DEFAULT_BAUDRATE)
+    _add_crc_option(parser)
+
+
+def _add_pty_options(parser):
+    parser.add_argument("-D", "--dev", metavar="PATH",
+                        help="also make PATH a symbolic link to the pseudoterminal")
+    _add_crc_option(parser)
+
+
+# ----------------------------------------------------------------------------- link factories
+
+def _ip_links(family, server_class):
+    def make_links(args, agent):
+        extra = {}
+        if server_class is servers.TcpServer:
+            extra["max_connections"] = args.max_connections
+        return [server_class(agent, args.port, family=family, **extra)]
+    return make_links
+
+
+def _serial_links(args, agent):
+    return [servers.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
+
+
+def _multiserial_links(args, agent):
+    devices = args.devs.split()
+    return [servers.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
+
+
+def _pty_links(args, agent):
+    return [servers.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
+
+
+class Subcommand:
+    """One row of the subcommand table. An agent transport gives ``make_links(args, agent)``; any
+    other tool gives ``run(args) -> exit code``."""
+
+    def __init__(self, name, help, add_options, make_links=None, run=None):
+        self.name = name
+        self.help = help
+        self.add_options = add_options
+        self.make_links = make_links
+        self.run = run
+
+
+SUBCOMMANDS = {}
+
+
+def register(subcommand):
+    SUBCOMMANDS[subcommand.name] = subcommand
+    return subcommand
+
+
+for _row in (
+    Subcommand("udp4", "serve UDP over IPv4", _add_ip_options,
+               _ip_links(socket.AF_INET, servers.UdpServer)),
+    Subcommand("udp6", "serve UDP over IPv6", _add_ip_options,
+               _ip_links(socket.AF_INET6, servers.UdpServer)),
+    Subcommand("tcp4", "serve TCP over IPv4", _add_tcp_options,
+               _ip_links(socket.AF_INET, servers.TcpServer)),
+    Subcommand("tcp6", "serve TCP over IPv6", _add_tcp_options,
+               _ip_links(socket.AF_INET6, servers.TcpServer)),
+    Subcommand("serial", "serve one serial device", _add_serial_options, _serial_links),
+    Subcommand("multiserial", "serve several serial devices", _add_multiserial_options,
+               _multiserial_links),
+    Subcommand("pseudoterminal", "create a pseudoterminal and serve it", _add_pty_options,
+               _pty_links),
+):
+    register(_row)
+
+
+def build_parser():
+    parser = ArgumentParser(prog=PROG, description="Micro XRCE-DDS agent (MicroXRCEAgent-compatible)")
+    sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
+    for row in SUBCOMMANDS.values():
+        child = sub.add_parser(row.name, help=row.help, description=row.help)
+        row.add_options(child)
+        if row.make_links is not None:
+            _add_common_options(child)
+    return parser
+
+
+# ----------------------------------------------------------------------------- refs and middleware
+
+def _local_name(tag):
+    return tag.rsplit("}", 1)[-1]
+
+
+def _strip_namespaces(element):
+    for node in element.iter():
+        if isinstance(node.tag, str):
+            node.tag = _local_name(node.tag)
+
+
+def load_refs(path):
+    """``{profile_name: xml}`` for every element carrying a ``profile_name`` in a Fast DDS XML
+    profiles file; the XML of each is that element alone, namespaces removed."""
+    try:
+        tree = ElementTree.parse(path)
+    except OSError as exc:
+        raise CliError("cannot read refs file %s: %s" % (path, exc.strerror or exc))
+    except ElementTree.ParseError as exc:
+        raise CliError("refs file %s is not valid XML: %s" % (path, exc))
+    root = tree.getroot()
+    _strip_namespaces(root)
+    refs = {}
+    for element in root.iter():
+        name = element.get("profile_name")
+        if name:
+            element.tail = None
+            refs[name] = ElementTree.tostring(element, encoding="unicode")
+    return refs
+
+
+def make_middleware(name):
+    # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
+    if name == "ced":
+        from xrce.agent.ced import CedMiddleware
+        return CedMiddleware()
+    from xrce.agent.ros import RosMiddleware
+    return RosMiddleware()
+
+
+def configure_logging(verbosity):
+    level = _VERBOSITY_LEVELS[verbosity]
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+
+
+# ----------------------------------------------------------------------------- running
+
+async def serve(args, refs):
+    """Run the agent on the links of ``args.subcommand`` until SIGINT/SIGTERM; the exit code."""
+    from xrce.agent.engine import Agent
+
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+
+    middleware = make_middleware(args.middleware)
+    agent = Agent(middleware, refs=refs, loop=loop)
+    links = SUBCOMMANDS[args.subcommand].make_links(args, agent)
+    started = []
+    run_task = None
+    try:
+        try:
+            for link in links:
+                await link.start()
+                started.append(link)
+            if getattr(args, "discovery", None) is not None:
+                discovery = servers.DiscoveryServer(links[0].port, args.discovery)
+                await discovery.start()
+                started.append(discovery)
+        except OSError as exc:
+            sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+            sys.stderr.flush()
+            return 1
+        run_task = asyncio.ensure_future(agent.run())
+        banner = "; ".join(link.describe() for link in started)
+        sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
+        sys.stdout.flush()
+        stopped = asyncio.ensure_future(stop.wait())
+        done, _ = await asyncio.wait({run_task, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        if run_task in done and run_task.exception() is not None:
+            logging.getLogger("xrce.agent").error("agent stopped: %r", run_task.exception())
+            stopped.cancel()
+            return 1
+        stopped.cancel()
+        return 0
+    finally:
+        if run_task is not None and not run_task.done():
+            run_task.cancel()
+            try:
+                await run_task
+            except asyncio.CancelledError:
+                pass
+        # The engine first, so DELETE-time replies can still go out through the open links.
+        await agent.close()
+        for link in reversed(started):
+            await link.close()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(signum)
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    row = SUBCOMMANDS[args.subcommand]
+    if row.run is not None:
+        return row.run(args)
+    try:
+        refs = load_refs(args.refs) if args.refs else None
+    except CliError as exc:
+        parser.error(str(exc))
+    configure_logging(args.verbose)
+    try:
+        return asyncio.run(serve(args, refs))
+    except KeyboardInterrupt:  # a second Ctrl-C during shutdown
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
