@@ -130,18 +130,30 @@ assert "no open socket" in nodeudp.last_error(), nodeudp.last_error()
 assert nodeudp.send(nodeudp.open("127.0.0.1", port), "not bytes") == -1
 assert "expected bytes" in nodeudp.last_error(), nodeudp.last_error()
 print("errors ok")
+
+# Nobody listens on this port: the ICMP port-unreachable must neither kill the socket nor the run.
+silent = nodeudp.open("127.0.0.1", int(sys.argv[2]))
+assert nodeudp.send(silent, b"anyone?") == 7
+assert nodeudp.recv(silent, 100) is None
+assert nodeudp.send(silent, b"still here") == 10
+assert nodeudp.close(silent) == 1
+print("unreachable ok")
 """
 
 
 def test_nodeudp_bridge_echoes_byte_exact_and_times_out(udp_echo_server):
     port, received = udp_echo_server
     started = time.monotonic()
-    out = _check(run_micropython(NODEUDP_SCRIPT, port, timeout=30)).splitlines()
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    closed_port = probe.getsockname()[1]
+    probe.close()
+    out = _check(run_micropython(NODEUDP_SCRIPT, port, closed_port, timeout=30)).splitlines()
     assert out[:5] == ["echo 1", "echo 256", "echo 1400", "echo 5", "echo 0"]
     word, value, waited = out[5].split()
     assert (word, value) == ("timeout", "None")
     assert 140 <= int(waited) < 1000
-    assert out[6] == "errors ok"
+    assert out[6:] == ["errors ok", "unreachable ok"]
     assert received == [b"\x00", bytes(range(256)), b"\xff\x00" * 700, b"slice", b""]
     assert time.monotonic() - started < 30
 

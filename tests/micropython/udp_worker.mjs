@@ -32,29 +32,31 @@ function open({ id, handle, host, port, ring }) {
   const socket = dgram.createSocket(net.isIPv6(host) ? "udp6" : "udp4");
   const datagrams = new DatagramRing(ring);
   let settled = false;
+  const fail = (error) => {
+    if (settled) return;
+    settled = true;
+    socket.close();
+    answer(id, 0, error);
+  };
   socket.on("message", (message) => datagrams.push(message));
   socket.on("error", (error) => {
     // Before connect() completes an error means the open failed. Afterwards the likely cause is
     // ICMP port-unreachable for an earlier send (no agent listening yet): a real UDP client
     // ignores that and retries, so only the open request reports errors.
-    if (!settled) {
-      settled = true;
-      socket.close();
-      answer(id, 0, error);
-    }
+    fail(error);
   });
   socket.bind(0, () => {
-    socket.connect(port, host, (error) => {
-      if (settled) return;
-      settled = true;
-      if (error) {
-        socket.close();
-        answer(id, 0, error);
-        return;
-      }
-      sockets.set(handle, socket);
-      answer(id, handle);
-    });
+    try {
+      socket.connect(port, host, (error) => {
+        if (error) return fail(error);
+        if (settled) return;
+        settled = true;
+        sockets.set(handle, socket);
+        answer(id, handle);
+      });
+    } catch (error) {
+      fail(error); // bad port or address: thrown synchronously, not passed to the callback
+    }
   });
 }
 

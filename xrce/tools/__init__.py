@@ -1,0 +1,1 @@
+"""CPython-only helpers for building and packaging the client; never shipped to boards."""
