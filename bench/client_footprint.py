@@ -1,0 +1,206 @@
+"""Client footprint under real MicroPython 1.27 (tests/micropython harness) next to CPython.
+
+    .venv/bin/python bench/client_footprint.py [--mpy] [--iterations N]
+
+Each step is a piece of MicroPython-compatible source defining ``run(report, argv)``; it runs in a
+fresh MicroPython interpreter (so heap deltas are not disturbed by earlier steps) and, when marked
+``cpython=True``, also in-process under CPython for comparison. ``report(key, value)`` records a
+figure. To add a step (sessions, messages, ...), write its source and append a ``Step`` to STEPS.
+
+--mpy measures the mpy-cross output instead of the .py sources (what a board loading /lib/*.mpy
+pays: no compiler on import).
+"""
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO_ROOT))
+sys.path.insert(0, str(REPO_ROOT / "tests"))
+
+from mp_harness import run_micropython  # noqa: E402
+from xrce.tools import mpy  # noqa: E402
+
+# Imported in this order so each delta is what the module adds on top of the ones before it.
+LAYERED_IMPORTS = (
+    "xrce.errors",
+    "xrce.compat",
+    "xrce.cdr",
+    "xrce.constants",
+    "xrce.seqnum",
+    "xrce.objects",
+    "xrce.submessages",
+    "xrce.message",
+    "xrce.streams",
+    "xrce.transports",
+    "xrce.transports.crc",
+    "xrce.transports.framing",
+    "xrce.transports.custom",
+    "xrce.transports.serial",
+    "xrce.transports.udp",
+    "xrce.transports.tcp",
+    "xrce.client.session",
+    "xrce.client",
+    "xrce.msgs.builtin_interfaces",
+    "xrce.msgs.std_msgs",
+    "xrce.msgs.geometry_msgs",
+)
+
+
+class Step:
+    __slots__ = ("name", "source", "cpython", "argv")
+
+    def __init__(self, name, source, cpython=False, argv=()):
+        self.name = name
+        self.source = source
+        self.cpython = cpython
+        self.argv = tuple(str(arg) for arg in argv)
+
+
+IMPORTS_SOURCE = r"""
+import gc, sys
+
+def run(report, argv):
+    gc.collect()
+    start = gc.mem_alloc()
+    for name in argv:
+        gc.collect()
+        before = gc.mem_alloc()
+        try:
+            __import__(name)
+        except ImportError as error:
+            report(name, "skipped (%s)" % error)
+            continue
+        gc.collect()
+        report(name, gc.mem_alloc() - before)
+    gc.collect()
+    report("total heap after imports", gc.mem_alloc() - start)
+"""
+
+CDR_TWIST_SOURCE = r"""
+import gc
+from xrce.cdr import CdrReader, CdrWriter
+try:
+    from time import ticks_us, ticks_diff
+except ImportError:
+    from time import perf_counter_ns as _ns
+    def ticks_us():
+        return _ns() // 1000
+    def ticks_diff(a, b):
+        return a - b
+
+def run(report, argv):
+    iterations = int(argv[0])
+    twist = (0.5, 0.0, 0.0, 0.0, 0.0, -1.25)  # linear xyz, angular xyz
+    writer = CdrWriter(bytearray(64))
+    start = ticks_us()
+    for _ in range(iterations):
+        writer.reset()
+        for value in twist:
+            writer.f64(value)
+    encode_us = ticks_diff(ticks_us(), start)
+    body = bytes(writer.buf[: writer.pos])
+    assert len(body) == 48
+    start = ticks_us()
+    for _ in range(iterations):
+        reader = CdrReader(body)
+        decoded = (reader.f64(), reader.f64(), reader.f64(), reader.f64(), reader.f64(), reader.f64())
+    decode_us = ticks_diff(ticks_us(), start)
+    assert decoded == twist
+    report("encode us/op", encode_us / iterations)
+    report("decode us/op", decode_us / iterations)
+    gc.collect()
+    before = gc.mem_alloc()
+    writer.reset()
+    for value in twist:
+        writer.f64(value)
+    report("heap bytes per encode (preallocated writer)", gc.mem_alloc() - before)
+"""
+
+RUNNER_TAIL = r"""
+import sys
+def _report(key, value):
+    print("REPORT\t%s\t%s" % (key, value))
+run(_report, sys.argv[1:])
+"""
+
+
+def build_steps(iterations):
+    names = list(LAYERED_IMPORTS)
+    for relative in mpy.client_files():
+        name = relative[: -len(".py")].replace("/", ".")
+        name = name[: -len(".__init__")] if name.endswith(".__init__") else name
+        if name not in names and name != "xrce":
+            names.append(name)
+    return [
+        Step("imports", IMPORTS_SOURCE, argv=names),
+        Step("cdr_twist", CDR_TWIST_SOURCE, cpython=True, argv=[iterations]),
+    ]
+
+
+def run_on_micropython(step, mounts, default_mount):
+    result = run_micropython(step.source + RUNNER_TAIL, *step.argv, mounts=mounts,
+                             default_mount=default_mount, timeout=300)
+    if result.returncode != 0:
+        raise SystemExit("step %s failed under MicroPython:\n%s%s" % (step.name, result.stdout, result.stderr))
+    figures = []
+    for line in result.stdout.splitlines():
+        if line.startswith("REPORT\t"):
+            _, key, value = line.split("\t", 2)
+            figures.append((key, value))
+    return figures
+
+
+def run_on_cpython(step):
+    figures = []
+    namespace = {"__name__": "bench_step_" + step.name}
+    exec(compile(step.source, "<step %s>" % step.name, "exec"), namespace)
+    # CPython has no gc.mem_alloc: heap figures are MicroPython-only.
+    try:
+        namespace["run"](lambda key, value: figures.append((key, str(value))), list(step.argv))
+    except AttributeError as error:
+        if "mem_alloc" not in str(error):
+            raise
+    return figures
+
+
+def _format(value):
+    try:
+        number = float(value)
+    except ValueError:
+        return value
+    return "%d" % number if number == int(number) else "%.2f" % number
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mpy", action="store_true", help="measure mpy-cross output instead of .py")
+    parser.add_argument("--iterations", type=int, default=1000)
+    options = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="xrce-mpy-") as outdir:
+        if options.mpy:
+            mpy.build_mpy(outdir)
+            mounts, default_mount = [(outdir, "/lib")], False
+        else:
+            mounts, default_mount = [], True
+        print("MicroPython 1.27 (WebAssembly, Node) loading %s; CPython %s" % (
+            ".mpy" if options.mpy else ".py", sys.version.split()[0]))
+        for step in build_steps(options.iterations):
+            micro = run_on_micropython(step, mounts, default_mount)
+            cpython = dict(run_on_cpython(step)) if step.cpython else {}
+            print("\n[%s]" % step.name)
+            width = max(len(key) for key, _ in micro)
+            header = "  %-*s  %14s" % (width, "", "MicroPython")
+            print(header + ("  %14s" % "CPython" if cpython else ""))
+            for key, value in micro:
+                line = "  %-*s  %14s" % (width, key, _format(value))
+                if cpython:
+                    line += "  %14s" % _format(cpython.get(key, "-"))
+                print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
