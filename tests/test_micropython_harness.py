@@ -212,3 +212,35 @@ def test_script_exception_gives_exit_1_and_traceback():
 def test_sys_exit_status_is_the_exit_code():
     assert run_micropython("import sys\nsys.exit(3)\n").returncode == 3
     assert run_micropython("import sys\nsys.exit()\n").returncode == 0
+
+
+def test_callbacks_drive_the_custom_transport(udp_echo_server):
+    """The adapter plugged into xrce.transports.custom.CustomTransport, packet and framed modes."""
+    port, received = udp_echo_server
+    script = r"""
+import sys
+from nodeudp_transport import make_callbacks
+from xrce.transports.custom import CustomTransport
+
+port = int(sys.argv[1])
+messages = [b"\x81\x00\x00\x00" + bytes(range(40)), b"\x7e\x7d" * 50, bytes(300)]
+
+packets = CustomTransport(*make_callbacks("127.0.0.1", port), framing=False, mtu=512)
+for message in messages:
+    assert packets.send(message)
+    assert packets.recv(2000) == message
+assert packets.recv(50) is None
+packets.close()
+
+framed = CustomTransport(*make_callbacks("127.0.0.1", port, stream=True), framing=True, mtu=512)
+for message in messages:
+    assert framed.send(message)
+    assert framed.recv(2000) == message
+framed.close()
+print("sent", packets.sent + framed.sent, "received", packets.received + framed.received)
+"""
+    out = _check(run_micropython(script, port, timeout=30))
+    assert out.strip() == "sent 6 received 6"
+    assert received[:3] == [b"\x81\x00\x00\x00" + bytes(range(40)), b"\x7e\x7d" * 50, bytes(300)]
+    # framed datagrams carry the §11 framing: flag byte first, escaped payload, so never the raw message
+    assert len(received) == 6 and all(frame[:1] == b"\x7e" for frame in received[3:])
