@@ -1,0 +1,294 @@
+"""RosMiddleware against real rclpy peers on an isolated, loopback-only ROS domain."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import pytest
+from geometry_msgs.msg import Twist
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import String
+from test_msgs.srv import BasicTypes
+
+from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
+from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, UnknownTypeError
+from xrce.agent.ros import ENCAPSULATION_LE, RosMiddleware
+from xrce.agent.rostypes import dds_topic_to_ros, node_name_and_namespace, service_class
+
+CLIENT = 0x1234ABCD
+QOS = EndpointQosSpec(reliable=True, keep_last=True, depth=10, durability="volatile")
+STRING_T = "std_msgs::msg::dds_::String_"
+TWIST_T = "geometry_msgs::msg::dds_::Twist_"
+BASIC_REQ_T = "test_msgs::srv::dds_::BasicTypes_Request_"
+BASIC_REP_T = "test_msgs::srv::dds_::BasicTypes_Response_"
+
+
+def key(object_id: int):
+    return (CLIENT, object_id)
+
+
+def body_of(msg) -> bytes:
+    return serialize_message(msg)[4:]
+
+
+def decode(body: bytes, cls):
+    return deserialize_message(ENCAPSULATION_LE + body, cls)
+
+
+@pytest.fixture
+async def middleware(ros_domain):  # noqa: F811
+    mw = RosMiddleware()
+    await mw.start()
+    try:
+        yield mw
+    finally:
+        await mw.close()
+
+
+def make_participant(mw, domain_id, name="xrce_part", object_id=0x01):
+    mw.create_participant(key(object_id), domain_id, name)
+    return key(object_id)
+
+
+def make_writer(mw, participant, topic_name, type_name, base):
+    mw.create_topic(key(base + 2), participant, TopicSpec(topic_name, type_name))
+    mw.create_publisher(key(base + 3), participant)
+    mw.create_datawriter(key(base + 5), key(base + 3), key(base + 2), QOS)
+    return key(base + 5)
+
+
+def make_reader(mw, participant, topic_name, type_name, base, on_data):
+    mw.create_topic(key(base + 2), participant, TopicSpec(topic_name, type_name))
+    mw.create_subscriber(key(base + 4), participant)
+    mw.create_datareader(key(base + 6), key(base + 4), key(base + 2), QOS, on_data)
+    return key(base + 6)
+
+
+async def write_until_received(mw, writer, body, received, timeout_s=10.0):
+    """Publish every 50 ms until the peer got something: the first samples may predate matching."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not received and asyncio.get_running_loop().time() < deadline:
+        assert mw.write(writer, body)
+        await asyncio.sleep(0.05)
+    return bool(received)
+
+
+def test_name_mapping():
+    assert dds_topic_to_ros("rt/chatter") == ("topic", "/chatter")
+    assert dds_topic_to_ros("rt/robot1/cmd_vel") == ("topic", "/robot1/cmd_vel")
+    assert dds_topic_to_ros("rq/add_two_intsRequest") == ("request", "/add_two_ints")
+    assert dds_topic_to_ros("rr/add_two_intsReply") == ("reply", "/add_two_ints")
+    assert dds_topic_to_ros("plain_topic") == ("topic", "/plain_topic")
+    with pytest.raises(MiddlewareError):
+        dds_topic_to_ros("rt/bad name!")
+    assert node_name_and_namespace("robot/talker", "fb") == ("talker", "/robot")
+    assert node_name_and_namespace("my-node.1", "fb") == ("my_node_1", "/")
+    assert node_name_and_namespace("", "fb") == ("fb", "/")
+    assert node_name_and_namespace("9lives", "fb") == ("n9lives", "/")
+    assert service_class(BASIC_REQ_T) is BasicTypes
+    assert service_class(BASIC_REP_T) is BasicTypes
+
+
+async def test_participants_show_as_nodes_and_close_removes_them(ros_domain, ros_peer):  # noqa: F811
+    mw = RosMiddleware()
+    await mw.start()
+    try:
+        make_participant(mw, ros_domain, "robot/talker", 0x01)
+        make_participant(mw, ros_domain, "", 0x11)
+        expected = {("talker", "/robot"), ("xrce_%08x_0011" % CLIENT, "/")}
+        assert await async_wait_until(lambda: expected <= set(ros_peer.node_names()))
+        mw.delete(key(0x11))
+        assert await async_wait_until(
+            lambda: ("xrce_%08x_0011" % CLIENT, "/") not in ros_peer.node_names())
+    finally:
+        await mw.close()
+    assert await async_wait_until(lambda: ros_peer.node_names() == [])
+
+
+async def test_unknown_type_names_the_package(middleware, ros_domain):  # noqa: F811
+    participant = make_participant(middleware, ros_domain)
+    with pytest.raises(UnknownTypeError, match="turtlebot3_msgs is not installed.*build-interfaces"):
+        middleware.create_topic(key(0x02), participant,
+                                TopicSpec("rt/sensor_state", "turtlebot3_msgs::msg::dds_::SensorState_"))
+    with pytest.raises(UnknownTypeError, match="std_msgs.msg has no interface NoSuchType"):
+        middleware.create_topic(key(0x02), participant,
+                                TopicSpec("rt/x", "std_msgs::msg::dds_::NoSuchType_"))
+    with pytest.raises(UnknownTypeError):
+        middleware.create_requester(key(0x07), participant,
+                                    ServiceSpec("svc", "nope_srvs::srv::dds_::X_Request_",
+                                                "nope_srvs::srv::dds_::X_Response_"), QOS,
+                                    lambda c, b: None)
+
+
+@pytest.mark.parametrize("executor", ["events", "single"])
+async def test_writer_delivers_string_and_twist(ros_domain, ros_peer, executor):  # noqa: F811
+    mw = RosMiddleware(executor=executor)
+    await mw.start()
+    try:
+        strings, twists = [], []
+        ros_peer.node.create_subscription(String, "/chatter", strings.append, 10)
+        ros_peer.node.create_subscription(Twist, "/cmd_vel", twists.append, 10)
+        participant = make_participant(mw, ros_domain)
+        chatter = make_writer(mw, participant, "rt/chatter", STRING_T, 0x10)
+        cmd_vel = make_writer(mw, participant, "rt/cmd_vel", TWIST_T, 0x20)
+
+        hello = String(data="hello from xrce")
+        assert await write_until_received(mw, chatter, body_of(hello), strings)
+        assert strings[0].data == "hello from xrce"
+
+        twist = Twist()
+        twist.linear.x, twist.linear.y, twist.angular.z = 0.5, -1.25, 3.0
+        assert await write_until_received(mw, cmd_vel, body_of(twist), twists)
+        got = twists[0]
+        assert (got.linear.x, got.linear.y, got.linear.z) == (0.5, -1.25, 0.0)
+        assert (got.angular.x, got.angular.y, got.angular.z) == (0.0, 0.0, 3.0)
+
+        # The unpadded body of a 2-byte string (what a Micro-CDR client sends) needs no re-encoding.
+        strings.clear()
+        assert await write_until_received(mw, chatter, b"\x03\x00\x00\x00hi\x00", strings)
+        assert strings[0].data == "hi"
+
+        big = "x" * 2000 + "end"
+        strings.clear()
+        assert await write_until_received(mw, chatter, body_of(String(data=big)), strings)
+        assert strings[-1].data == big
+
+        mw.delete(chatter)
+        assert mw.write(chatter, body_of(hello)) is False
+        assert await async_wait_until(lambda: ros_peer.node.count_publishers("/chatter") == 0)
+        assert ros_peer.node.count_publishers("/cmd_vel") == 1
+    finally:
+        await mw.close()
+
+
+@pytest.mark.parametrize("executor", ["events", "single"])
+async def test_reader_hands_bare_bodies_to_the_loop(ros_domain, ros_peer, executor):  # noqa: F811
+    mw = RosMiddleware(executor=executor)
+    await mw.start()
+    try:
+        loop_thread = threading.get_ident()
+        bodies, threads = [], set()
+
+        def on_data(body):
+            threads.add(threading.get_ident())
+            bodies.append(body)
+
+        participant = make_participant(mw, ros_domain)
+        reader = make_reader(mw, participant, "rt/chatter", STRING_T, 0x10, on_data)
+        publisher = ros_peer.node.create_publisher(String, "/chatter", 10)
+        big = "y" * 2048
+        deadline = asyncio.get_running_loop().time() + 10
+        while len(bodies) < 3 and asyncio.get_running_loop().time() < deadline:
+            publisher.publish(String(data=big))
+            await asyncio.sleep(0.05)
+        assert len(bodies) >= 3
+        assert threads == {loop_thread}
+        assert all(decode(b, String).data == big for b in bodies)
+        assert bodies[0][:4] == (2049).to_bytes(4, "little")  # bare body: starts with the length
+        delivered, dropped = mw.reader_stats(reader)
+        assert delivered == len(bodies) and dropped == 0
+
+        mw.delete(reader)
+        count = len(bodies)
+        assert await async_wait_until(lambda: publisher.get_subscription_count() == 0)
+        publisher.publish(String(data="after delete"))
+        await asyncio.sleep(0.2)
+        assert len(bodies) == count
+    finally:
+        await mw.close()
+
+
+async def test_reader_drops_oldest_when_the_loop_falls_behind(middleware, ros_domain, ros_peer):  # noqa: F811
+    middleware.handoff_depth = 4
+    bodies = []
+    participant = make_participant(middleware, ros_domain)
+    reader = make_reader(middleware, participant, "rt/burst", STRING_T, 0x10, bodies.append)
+    publisher = ros_peer.node.create_publisher(String, "/burst", 100)
+    assert await async_wait_until(lambda: publisher.get_subscription_count() == 1)
+    # Block the loop while 50 samples arrive: the hand-off keeps only the newest 4.
+    for i in range(50):
+        publisher.publish(String(data=str(i)))
+    time.sleep(1.0)
+    assert await async_wait_until(lambda: sum(middleware.reader_stats(reader)) == 50, timeout_s=5)
+    delivered, dropped = middleware.reader_stats(reader)
+    assert (delivered, dropped) == (4, 46)
+    assert [decode(b, String).data for b in bodies] == ["46", "47", "48", "49"]
+
+
+async def test_requester_calls_an_rclpy_service(middleware, ros_domain, ros_peer):  # noqa: F811
+    def double(request, response):
+        response.int32_value = request.int32_value * 2
+        response.string_value = request.string_value.upper()
+        response.float64_value = request.float64_value + 0.5
+        return response
+
+    ros_peer.node.create_service(BasicTypes, "/basic", double)
+    replies = []
+    participant = make_participant(middleware, ros_domain)
+    requester = key(0x07)
+    middleware.create_requester(requester, participant,
+                                ServiceSpec("basic", BASIC_REQ_T, BASIC_REP_T,
+                                            "rq/basicRequest", "rr/basicReply"),
+                                QOS, lambda cid, body: replies.append((cid, body)))
+    # Sent before the server is discovered: the middleware holds it until the server is ready.
+    for cid in (0x70001, 0x70002):
+        request = BasicTypes.Request(int32_value=cid & 0xFF, string_value="abc%d" % cid,
+                                     float64_value=1.0)
+        assert middleware.write_request(requester, cid, body_of(request))
+    assert await async_wait_until(lambda: len(replies) == 2)
+    by_id = {cid: decode(body, BasicTypes.Response) for cid, body in replies}
+    assert by_id[0x70001].int32_value == 2 and by_id[0x70001].string_value == "ABC458753"
+    assert by_id[0x70002].int32_value == 4 and by_id[0x70002].float64_value == 1.5
+    assert middleware.write_request(requester, 9, b"\x01") is False  # not a BasicTypes request
+
+
+async def test_replier_answers_an_rclpy_client(middleware, ros_domain, ros_peer):  # noqa: F811
+    participant = make_participant(middleware, ros_domain)
+    replier = key(0x08)
+    identities = []
+
+    def on_request(identity, body):
+        identities.append(identity)
+        request = decode(body, BasicTypes.Request)
+        response = BasicTypes.Response(int64_value=request.int64_value + 1,
+                                       string_value="re:" + request.string_value)
+        assert middleware.write_reply(replier, identity, body_of(response))
+
+    middleware.create_replier(replier, participant,
+                              ServiceSpec("/basic", BASIC_REQ_T, BASIC_REP_T), QOS, on_request)
+    client = ros_peer.node.create_client(BasicTypes, "/basic")
+    assert await async_wait_until(client.service_is_ready)
+    futures = [client.call_async(BasicTypes.Request(int64_value=i, string_value="q%d" % i))
+               for i in (10, 20)]
+    assert await async_wait_until(lambda: all(f.done() for f in futures))
+    results = [f.result() for f in futures]
+    assert [(r.int64_value, r.string_value) for r in results] == [(11, "re:q10"), (21, "re:q20")]
+    assert len(identities) == 2 and all(len(i) == 24 for i in identities)
+    assert identities[0] != identities[1] and identities[0][:16] == identities[1][:16]
+    assert identities[1][16:] == (0).to_bytes(4, "little") + (2).to_bytes(4, "little")
+    # A reply to an identity that is not pending (already answered) is refused.
+    assert middleware.write_reply(replier, identities[0], body_of(BasicTypes.Response())) is False
+
+
+async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer):  # noqa: F811
+    mw = RosMiddleware(request_timeout_s=0.3)
+    await mw.start()
+    try:
+        participant = make_participant(mw, ros_domain)
+        replier = key(0x08)
+        pending = []
+        mw.create_replier(replier, participant, ServiceSpec("slow", BASIC_REQ_T, BASIC_REP_T), QOS,
+                          lambda identity, body: pending.append(identity))
+        client = ros_peer.node.create_client(BasicTypes, "/slow")
+        assert await async_wait_until(client.service_is_ready)
+        ignored = client.call_async(BasicTypes.Request(int64_value=1))
+        assert await async_wait_until(lambda: len(pending) == 1)
+        await asyncio.sleep(0.5)
+        assert mw.requests_timed_out == 1
+        assert mw.write_reply(replier, pending[0], body_of(BasicTypes.Response())) is False
+        assert not ignored.done()
+        client.remove_pending_request(ignored)
+    finally:
+        await mw.close()

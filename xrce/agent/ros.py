@@ -1,0 +1,751 @@
+"""``-m dds``: XRCE objects backed by rclpy nodes, publishers, subscriptions, service clients/servers.
+
+Threading model (measured, see tests/test_agent_ros_middleware.py and the report in git history):
+
+- One rclpy ``Context`` per ROS domain, created when the first participant of that domain appears,
+  each with one executor thread.
+- Every call that touches the executor's entity set (creating/destroying nodes, publishers,
+  subscriptions, clients, services; ``call_async``) runs ON that executor thread: the engine's
+  thread submits a job and, for creation, waits for its result. The reason is the rclpy 7.1
+  ``EventsExecutor``: calling ``wake()``/``add_node()`` on it from another thread while it spins
+  deadlocks (observed: every time, within milliseconds), and node/entity creation wakes the executor.
+  SingleThreadedExecutor tolerates cross-thread creation, but it delivers raw subscriptions about
+  an order of magnitude slower (ros-from-wheels.md), so both go through the same job queue and
+  the events executor spins in short slices between job batches.
+- Publishing and sending service responses need no executor and happen directly on the engine's
+  thread: rcl publish/send_response are thread-safe.
+- Data from ROS reaches the engine through a bounded per-reader hand-off drained on the asyncio
+  loop (``call_soon_threadsafe`` once per batch, drop-oldest when the loop falls behind).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import concurrent.futures
+import logging
+import os
+import queue
+import struct
+import threading
+import time
+
+import rclpy
+import rclpy.task
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.service import Service
+from rclpy.signals import SignalHandlerOptions
+
+from xrce.agent.middleware import (
+    DataCallback,
+    EndpointQosSpec,
+    EntityKey,
+    Middleware,
+    MiddlewareError,
+    ReplyCallback,
+    RequestCallback,
+    ServiceSpec,
+    TopicSpec,
+)
+from xrce.agent.rostypes import (
+    dds_topic_to_ros,
+    message_class,
+    node_name_and_namespace,
+    qos_profile,
+    service_class,
+    service_ros_name,
+)
+
+log = logging.getLogger("xrce.agent.ros")
+
+# CDR_LE, options 0: what the XRCE agent always puts in front of a sample going into DDS (§14).
+ENCAPSULATION_LE = b"\x00\x01\x00\x00"
+_ENCAPSULATION_SIZE = 4
+
+_NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
+
+EXECUTOR_EVENTS = "events"
+EXECUTOR_SINGLE = "single"
+
+
+class _DomainRuntime:
+    """One rclpy context and its executor thread; runs entity jobs on that thread."""
+
+    def __init__(self, domain_id: int, executor_kind: str, spin_slice_s: float):
+        self.domain_id = domain_id
+        self.context = Context()
+        rclpy.init(args=[], context=self.context, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        if executor_kind == EXECUTOR_EVENTS:
+            from rclpy.experimental import EventsExecutor
+            self.executor = EventsExecutor(context=self.context)
+        elif executor_kind == EXECUTOR_SINGLE:
+            self.executor = SingleThreadedExecutor(context=self.context)
+        else:
+            raise MiddlewareError("unknown executor %r" % (executor_kind,))
+        # SingleThreadedExecutor may be woken from any thread, so jobs run at once; the events
+        # executor cannot (see module docstring), so jobs wait for the end of the current slice.
+        self._wakeable = executor_kind == EXECUTOR_SINGLE
+        self._events = executor_kind == EXECUTOR_EVENTS
+        self._spin_slice_s = spin_slice_s
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._running = True
+        self._never_done = rclpy.task.Future()
+        self.nodes: set[Node] = set()
+        self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
+                                       daemon=True)
+        self.thread.start()
+
+    def _run_jobs(self) -> None:
+        while True:
+            try:
+                result, job = self._jobs.get_nowait()
+            except queue.Empty:
+                return
+            if result is not None and not result.set_running_or_notify_cancel():
+                continue
+            try:
+                value = job()
+            except BaseException as exc:  # handed to the submitter, never lost
+                if result is not None:
+                    result.set_exception(exc)
+                else:
+                    log.exception("ROS job failed in domain %d", self.domain_id)
+            else:
+                if result is not None:
+                    result.set_result(value)
+
+    def _run(self) -> None:
+        while self._running:
+            self._run_jobs()
+            try:
+                if self._events:
+                    self.executor.spin_until_future_complete(self._never_done,
+                                                             timeout_sec=self._spin_slice_s)
+                else:
+                    self.executor.spin_once(timeout_sec=self._spin_slice_s)
+            except ExternalShutdownException:
+                break
+            except Exception:
+                # A failing callback must not take the whole domain down with it.
+                log.exception("ROS executor callback failed in domain %d", self.domain_id)
+        self._run_jobs()
+
+    def post(self, job) -> None:
+        """Run ``job`` on the executor thread, not waiting for it."""
+        self._jobs.put((None, job))
+        if self._wakeable:
+            self.executor.wake()
+
+    def call(self, job, timeout_s: float):
+        """Run ``job`` on the executor thread and return its result (or raise its exception)."""
+        if not self.thread.is_alive():
+            raise MiddlewareError("ROS executor of domain %d is not running" % self.domain_id)
+        result: concurrent.futures.Future = concurrent.futures.Future()
+        self._jobs.put((result, job))
+        if self._wakeable:
+            self.executor.wake()
+        try:
+            return result.result(timeout_s)
+        except concurrent.futures.TimeoutError:
+            result.cancel()
+            raise MiddlewareError("ROS executor of domain %d did not answer within %.1f s"
+                                  % (self.domain_id, timeout_s)) from None
+
+    def _destroy_all_nodes(self) -> None:
+        for node in list(self.nodes):
+            self.executor.remove_node(node)
+            node.destroy_node()
+        self.nodes.clear()
+
+    def stop(self, timeout_s: float) -> None:
+        """Destroy every node, stop and join the thread, shut the context down. Blocking."""
+        if self.thread.is_alive():
+            try:
+                self.call(self._destroy_all_nodes, timeout_s)
+            except Exception:
+                log.exception("destroying the nodes of domain %d failed", self.domain_id)
+            self._running = False
+            if self._wakeable:
+                self.executor.wake()
+            self.thread.join(timeout_s)
+        if self.thread.is_alive():
+            log.error("ROS executor thread of domain %d did not stop", self.domain_id)
+            return
+        self._destroy_all_nodes()
+        self.executor.shutdown()
+        self.context.try_shutdown()
+
+
+class _ReaderHandoff:
+    """Samples from the executor thread to ``on_data`` on the loop, bounded, drop-oldest."""
+
+    __slots__ = ("loop", "on_data", "queue", "scheduled", "closed", "delivered", "dropped")
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, on_data: DataCallback, depth: int):
+        self.loop = loop
+        self.on_data = on_data
+        self.queue: collections.deque = collections.deque(maxlen=depth)
+        self.scheduled = False
+        self.closed = False
+        self.delivered = 0
+        self.dropped = 0
+
+    def push(self, raw: bytes) -> None:
+        """Subscription callback (executor thread)."""
+        if self.closed:
+            return
+        pending = self.queue
+        if len(pending) == pending.maxlen:
+            self.dropped += 1
+        pending.append(raw[_ENCAPSULATION_SIZE:])
+        # Ordering with drain(): drain clears the flag before popping, so a sample appended
+        # while it runs is either popped by it or schedules a new drain.
+        if not self.scheduled:
+            self.scheduled = True
+            try:
+                self.loop.call_soon_threadsafe(self.drain)
+            except RuntimeError:  # loop closed: the agent is going away
+                self.closed = True
+
+    def drain(self) -> None:
+        """Loop thread: deliver at most one queue's worth, then yield to other loop work."""
+        self.scheduled = False
+        pending = self.queue
+        budget = pending.maxlen
+        while pending and not self.closed:
+            if budget == 0:
+                self.scheduled = True
+                self.loop.call_soon(self.drain)
+                return
+            budget -= 1
+            body = pending.popleft()
+            self.delivered += 1
+            try:
+                self.on_data(body)
+            except Exception:
+                log.exception("on_data failed")
+
+
+class _TakenRequest:
+    """What the replier's service callback returns instead of a response (see _ReplierRecord)."""
+
+    __slots__ = ("identity", "body")
+
+    def __init__(self, identity: bytes, body: bytes):
+        self.identity = identity
+        self.body = body
+
+
+class _ParticipantRecord:
+    __slots__ = ("domain", "node")
+    kind = "participant"
+
+    def __init__(self, domain: _DomainRuntime, node: Node):
+        self.domain = domain
+        self.node = node
+
+
+class _TopicRecord:
+    __slots__ = ("participant", "ros_name", "msg_class")
+    kind = "topic"
+
+    def __init__(self, participant: EntityKey, ros_name: str, msg_class):
+        self.participant = participant
+        self.ros_name = ros_name
+        self.msg_class = msg_class
+
+
+class _GroupRecord:
+    """XRCE publisher/subscriber: nothing in ROS, only the link to the participant."""
+
+    __slots__ = ("participant",)
+    kind = "group"
+
+    def __init__(self, participant: EntityKey):
+        self.participant = participant
+
+
+class _WriterRecord:
+    __slots__ = ("participant", "publisher")
+    kind = "datawriter"
+
+    def __init__(self, participant: EntityKey, publisher):
+        self.participant = participant
+        self.publisher = publisher
+
+
+class _ReaderRecord:
+    __slots__ = ("participant", "subscription", "handoff")
+    kind = "datareader"
+
+    def __init__(self, participant: EntityKey, handoff: _ReaderHandoff):
+        self.participant = participant
+        self.subscription = None
+        self.handoff = handoff
+
+
+class _RequesterRecord:
+    __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed")
+    kind = "requester"
+
+    def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback):
+        self.participant = participant
+        self.client = None
+        self.srv = srv
+        self.on_reply = on_reply
+        # correlation id -> [rclpy Future or None until sent, expiry TimerHandle]
+        self.pending: dict[int, list] = {}
+        # tasks waiting for the service server to be discovered
+        self.waiting: set[asyncio.Task] = set()
+        self.closed = False
+
+
+class _ReplierRecord:
+    """rclpy service whose responses are sent later, when the XRCE client writes its reply.
+
+    rclpy calls ``service.callback(request, response)`` and then ``service.send_response(result,
+    header)``. The events executor runs that synchronously and has no coroutine support, and
+    blocking in the callback would stall every other entity of the domain for the client's
+    round trip. So the callback only records the request and returns a ``_TakenRequest``, and the
+    instance's ``send_response`` is replaced by ``capture`` which keeps the request header; the
+    real ``Service.send_response`` runs from ``write_reply`` on the loop thread.
+    """
+
+    __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
+                 "identity_prefix", "sequence", "loop", "middleware")
+    kind = "replier"
+
+    def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
+                 identity_prefix: bytes, loop: asyncio.AbstractEventLoop, middleware: "RosMiddleware"):
+        self.participant = participant
+        self.service = None
+        self.srv = srv
+        self.on_request = on_request
+        self.pending: dict[bytes, tuple] = {}  # identity -> (request header, expiry TimerHandle)
+        self.closed = False
+        self.identity_prefix = identity_prefix  # guidPrefix(12) + entityKey(3) + entityKind(1)
+        self.sequence = 0
+        self.loop = loop
+        self.middleware = middleware
+
+    def take(self, request, _unused_response) -> _TakenRequest:
+        """Service callback (executor thread)."""
+        self.sequence += 1
+        identity = self.identity_prefix + struct.pack("<iI", self.sequence >> 32,
+                                                      self.sequence & 0xFFFFFFFF)
+        return _TakenRequest(identity, serialize_message(request)[_ENCAPSULATION_SIZE:])
+
+    def capture(self, taken, header) -> None:
+        """Stands in for ``service.send_response`` (executor thread)."""
+        if not isinstance(taken, _TakenRequest):
+            Service.send_response(self.service, taken, header)
+            return
+        if self.closed:
+            return
+        try:
+            self.loop.call_soon_threadsafe(self.middleware._deliver_request, self,
+                                           taken.identity, taken.body, header)
+        except RuntimeError:
+            self.closed = True
+
+
+class RosMiddleware(Middleware):
+    """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
+
+    name = "dds"
+
+    def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
+                 request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
+                 spin_slice_s: float = 0.002):
+        self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
+        if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
+            raise MiddlewareError("unknown executor %r" % (self.executor_kind,))
+        self.handoff_depth = handoff_depth
+        self.request_timeout_s = request_timeout_s
+        self.entity_timeout_s = entity_timeout_s
+        self.spin_slice_s = spin_slice_s
+        self.requests_timed_out = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._domains: dict[int, _DomainRuntime] = {}
+        self._entities: dict[EntityKey, object] = {}
+        # 12-byte guidPrefix for generated sample identities: random per agent run so identities
+        # from two runs never collide in a client that survived an agent restart.
+        self._guid_prefix = os.urandom(12)
+        self._replier_counter = 0
+        self._closed = False
+
+    # -- plumbing -----------------------------------------------------------------------------
+
+    def _get_loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is None:
+            self._loop = asyncio.get_running_loop()
+        return self._loop
+
+    def _domain(self, domain_id: int) -> _DomainRuntime:
+        if self._closed:
+            raise MiddlewareError("middleware is closed")
+        domain = self._domains.get(domain_id)
+        if domain is None:
+            try:
+                domain = _DomainRuntime(domain_id, self.executor_kind, self.spin_slice_s)
+            except MiddlewareError:
+                raise
+            except Exception as exc:
+                raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
+            self._domains[domain_id] = domain
+        return domain
+
+    def _record(self, key: EntityKey, kinds: tuple):
+        record = self._entities.get(key)
+        if record is None or record.kind not in kinds:
+            raise MiddlewareError("no %s %r" % ("/".join(kinds), key))
+        return record
+
+    def _participant_of(self, key: EntityKey, kinds: tuple):
+        record = self._record(key, kinds)
+        owner = key if record.kind == "participant" else record.participant
+        return owner, self._record(owner, ("participant",))
+
+    def _on_executor(self, participant: _ParticipantRecord, job):
+        try:
+            return participant.domain.call(job, self.entity_timeout_s)
+        except MiddlewareError:
+            raise
+        except Exception as exc:
+            raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
+
+    def _add(self, key: EntityKey, record) -> None:
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        self._entities[key] = record
+
+    # -- creation -----------------------------------------------------------------------------
+
+    def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        self._get_loop()
+        domain = self._domain(domain_id)
+        fallback = "xrce_%08x_%04x" % (key[0] & 0xFFFFFFFF, key[1] & 0xFFFF)
+        node_name, namespace = node_name_and_namespace(name or "", fallback)
+
+        def make_node():
+            # No parameter services, /rosout publisher or type description service: each costs
+            # DDS endpoints and discovery traffic, and an agent may host hundreds of nodes.
+            node = Node(node_name, namespace=namespace, context=domain.context,
+                        start_parameter_services=False, enable_rosout=False,
+                        use_global_arguments=False, parameter_overrides=[_NO_TYPE_DESCRIPTION])
+            domain.executor.add_node(node)
+            domain.nodes.add(node)
+            return node
+
+        try:
+            node = domain.call(make_node, self.entity_timeout_s)
+        except MiddlewareError:
+            raise
+        except Exception as exc:
+            raise MiddlewareError("cannot create node %r: %s" % (name, exc)) from exc
+        self._entities[key] = _ParticipantRecord(domain, node)
+
+    def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
+        self._record(participant, ("participant",))
+        kind, ros_name = dds_topic_to_ros(topic.name)
+        if kind != "topic":
+            raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
+        self._add(key, _TopicRecord(participant, ros_name, message_class(topic.type_name)))
+
+    def create_publisher(self, key: EntityKey, participant: EntityKey) -> None:
+        self._record(participant, ("participant",))
+        self._add(key, _GroupRecord(participant))
+
+    def create_subscriber(self, key: EntityKey, participant: EntityKey) -> None:
+        self._record(participant, ("participant",))
+        self._add(key, _GroupRecord(participant))
+
+    def create_datawriter(self, key: EntityKey, publisher: EntityKey, topic: EntityKey,
+                          qos: EndpointQosSpec) -> None:
+        owner, participant = self._participant_of(publisher, ("group",))
+        topic_record = self._record(topic, ("topic",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        profile = qos_profile(qos)
+        node = participant.node
+        ros_publisher = self._on_executor(participant, lambda: node.create_publisher(
+            topic_record.msg_class, topic_record.ros_name, profile))
+        self._entities[key] = _WriterRecord(owner, ros_publisher)
+
+    def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
+                          qos: EndpointQosSpec, on_data: DataCallback) -> None:
+        owner, participant = self._participant_of(subscriber, ("group",))
+        topic_record = self._record(topic, ("topic",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        profile = qos_profile(qos)
+        record = _ReaderRecord(owner, _ReaderHandoff(self._get_loop(), on_data, self.handoff_depth))
+        node = participant.node
+        record.subscription = self._on_executor(participant, lambda: node.create_subscription(
+            topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile, raw=True))
+        self._entities[key] = record
+
+    def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                         qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+        owner, participant_record = self._participant_of(participant, ("participant",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        srv = service_class(service.request_type)
+        service_name = service_ros_name(service.service_name, service.request_topic)
+        profile = qos_profile(qos)
+        self._get_loop()
+        record = _RequesterRecord(owner, srv, on_reply)
+        node = participant_record.node
+        record.client = self._on_executor(participant_record, lambda: node.create_client(
+            srv, service_name, qos_profile=profile))
+        self._entities[key] = record
+
+    def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                       qos: EndpointQosSpec, on_request: RequestCallback) -> None:
+        owner, participant_record = self._participant_of(participant, ("participant",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        srv = service_class(service.request_type)
+        service_name = service_ros_name(service.service_name, service.request_topic)
+        profile = qos_profile(qos)
+        self._replier_counter += 1
+        # entityKey: 3 bytes of a per-agent replier counter; entityKind 0x02 = user writer with key
+        # (the reply writer a DDS replier would own).
+        prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] + b"\x02"
+        record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self)
+        node = participant_record.node
+
+        def make_service():
+            ros_service = node.create_service(srv, service_name, record.take, qos_profile=profile)
+            ros_service.send_response = record.capture
+            return ros_service
+
+        record.service = self._on_executor(participant_record, make_service)
+        self._entities[key] = record
+
+    # -- data ---------------------------------------------------------------------------------
+
+    def write(self, writer: EntityKey, sample: bytes) -> bool:
+        record = self._entities.get(writer)
+        if record is None or record.kind != "datawriter":
+            return False
+        try:
+            record.publisher.publish(ENCAPSULATION_LE + sample)
+        except Exception as exc:
+            log.warning("publish on %r failed: %s", writer, exc)
+            return False
+        return True
+
+    def write_request(self, requester: EntityKey, correlation_id: int, sample: bytes) -> bool:
+        record = self._entities.get(requester)
+        if record is None or record.kind != "requester":
+            return False
+        try:
+            request = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Request)
+        except Exception as exc:
+            log.warning("request for %r does not decode as %s: %s", requester,
+                        record.srv.__name__, exc)
+            return False
+        loop = self._get_loop()
+        previous = record.pending.pop(correlation_id, None)
+        if previous is not None:
+            self._forget_request(record, previous)
+        entry = [None, loop.call_later(self.request_timeout_s, self._expire_request, record,
+                                       correlation_id)]
+        record.pending[correlation_id] = entry
+        if record.client.service_is_ready():
+            self._send_request(record, correlation_id, entry, request)
+        else:
+            # A request sent before the server is discovered is lost in DDS; the XRCE client
+            # cannot know that, so hold it here until the server shows up (or it expires).
+            task = loop.create_task(self._send_when_ready(record, correlation_id, entry, request))
+            record.waiting.add(task)
+            task.add_done_callback(record.waiting.discard)
+        return True
+
+    async def _send_when_ready(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                               request) -> None:
+        while not record.closed and record.pending.get(correlation_id) is entry:
+            if record.client.service_is_ready():
+                self._send_request(record, correlation_id, entry, request)
+                return
+            await asyncio.sleep(0.01)
+
+    def _send_request(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                      request) -> None:
+        participant = self._entities.get(record.participant)
+        if participant is None:
+            return
+        loop = self._loop
+
+        def reply_arrived(future) -> None:  # executor thread
+            try:
+                body = serialize_message(future.result())[_ENCAPSULATION_SIZE:]
+            except Exception:
+                log.exception("service reply could not be serialized")
+                return
+            try:
+                loop.call_soon_threadsafe(self._deliver_reply, record, correlation_id, entry, body)
+            except RuntimeError:
+                pass
+
+        def send() -> None:  # executor thread: call_async may schedule on the executor
+            if record.closed:
+                return
+            future = record.client.call_async(request)
+            entry[0] = future
+            future.add_done_callback(reply_arrived)
+
+        participant.domain.post(send)
+
+    def _deliver_reply(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                       body: bytes) -> None:
+        if record.closed or record.pending.get(correlation_id) is not entry:
+            return
+        del record.pending[correlation_id]
+        entry[1].cancel()
+        try:
+            record.on_reply(correlation_id, body)
+        except Exception:
+            log.exception("on_reply failed")
+
+    def _forget_request(self, record: _RequesterRecord, entry: list) -> None:
+        entry[1].cancel()
+        if entry[0] is not None and record.client is not None:
+            record.client.remove_pending_request(entry[0])
+
+    def _expire_request(self, record: _RequesterRecord, correlation_id: int) -> None:
+        entry = record.pending.pop(correlation_id, None)
+        if entry is not None:
+            self.requests_timed_out += 1
+            log.warning("service request %d got no reply within %.1f s", correlation_id,
+                        self.request_timeout_s)
+            self._forget_request(record, entry)
+
+    def _deliver_request(self, record: _ReplierRecord, identity: bytes, body: bytes,
+                         header) -> None:
+        if record.closed:
+            return
+        expiry = self._loop.call_later(self.request_timeout_s, self._expire_reply, record, identity)
+        record.pending[identity] = (header, expiry)
+        try:
+            record.on_request(identity, body)
+        except Exception:
+            log.exception("on_request failed")
+
+    def _expire_reply(self, record: _ReplierRecord, identity: bytes) -> None:
+        if record.pending.pop(identity, None) is not None:
+            self.requests_timed_out += 1
+            log.warning("replier got no reply from its XRCE client within %.1f s",
+                        self.request_timeout_s)
+
+    def write_reply(self, replier: EntityKey, sample_identity: bytes, sample: bytes) -> bool:
+        record = self._entities.get(replier)
+        if record is None or record.kind != "replier":
+            return False
+        entry = record.pending.pop(bytes(sample_identity), None)
+        if entry is None:
+            return False
+        header, expiry = entry
+        expiry.cancel()
+        try:
+            response = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Response)
+            Service.send_response(record.service, response, header)
+        except Exception as exc:
+            log.warning("reply on %r failed: %s", replier, exc)
+            return False
+        return True
+
+    # -- inspection ---------------------------------------------------------------------------
+
+    def reader_stats(self, reader: EntityKey) -> tuple[int, int]:
+        """(samples delivered to on_data, samples dropped because the loop fell behind)."""
+        record = self._record(reader, ("datareader",))
+        return record.handoff.delivered, record.handoff.dropped
+
+    def node_of(self, participant: EntityKey) -> Node:
+        return self._record(participant, ("participant",)).node
+
+    # -- deletion -----------------------------------------------------------------------------
+
+    def _detach(self, record) -> None:
+        """Stop a record's traffic on the loop side; its rclpy entity is destroyed separately."""
+        if record.kind == "datareader":
+            record.handoff.closed = True
+            record.handoff.queue.clear()
+        elif record.kind == "requester":
+            record.closed = True
+            for entry in record.pending.values():
+                self._forget_request(record, entry)
+            record.pending.clear()
+            for task in list(record.waiting):
+                task.cancel()
+        elif record.kind == "replier":
+            record.closed = True
+            for _header, expiry in record.pending.values():
+                expiry.cancel()
+            record.pending.clear()
+
+    def delete(self, key: EntityKey) -> None:
+        record = self._entities.get(key)
+        if record is None:
+            return
+        if record.kind == "participant":
+            # The engine deletes children first; anything it missed goes with the node anyway.
+            for child_key in [k for k, r in self._entities.items()
+                              if r.kind != "participant" and r.participant == key]:
+                self._detach(self._entities.pop(child_key))
+            domain, node = record.domain, record.node
+
+            def destroy_node():
+                domain.executor.remove_node(node)
+                domain.nodes.discard(node)
+                node.destroy_node()
+
+            del self._entities[key]
+            self._on_executor(record, destroy_node)
+            return
+        del self._entities[key]
+        self._detach(record)
+        participant = self._entities.get(record.participant)
+        if participant is None:
+            return
+        node = participant.node
+        if record.kind == "datawriter":
+            self._on_executor(participant, lambda: node.destroy_publisher(record.publisher))
+        elif record.kind == "datareader":
+            self._on_executor(participant, lambda: node.destroy_subscription(record.subscription))
+        elif record.kind == "requester":
+            self._on_executor(participant, lambda: node.destroy_client(record.client))
+        elif record.kind == "replier":
+            self._on_executor(participant, lambda: node.destroy_service(record.service))
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+
+    async def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for record in self._entities.values():
+            if record.kind != "participant":
+                self._detach(record)
+        self._entities.clear()
+        domains = list(self._domains.values())
+        self._domains.clear()
+        loop = asyncio.get_running_loop()
+        started = time.monotonic()
+        # Joining executor threads blocks; keep the loop (and other sessions' I/O) running.
+        await asyncio.gather(*(loop.run_in_executor(None, domain.stop, self.entity_timeout_s)
+                               for domain in domains))
+        log.debug("ROS middleware closed %d domain(s) in %.3f s", len(domains),
+                  time.monotonic() - started)

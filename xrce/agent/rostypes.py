@@ -1,0 +1,147 @@
+"""Map XRCE/DDS names onto ROS 2 names, interface classes and QoS profiles (CPython agent only).
+
+micro-ROS names things the way the ROS 2 DDS mapping does (XRCE-WIRE.md §4): topics ``rt/<ros name>``,
+service topics ``rq/<service>Request`` / ``rr/<service>Reply``, types ``pkg::msg::dds_::T_`` and
+``pkg::srv::dds_::X_Request_``. rclpy wants the ROS spelling and an importable class, so these helpers
+undo that mangling.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.validate_full_topic_name import validate_full_topic_name
+from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
+
+from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, UnknownTypeError
+
+BUILD_HINT = "run `xrce-agent build-interfaces`"
+
+_TOPIC_PREFIX = "rt/"
+_REQUEST_PREFIX = "rq/"
+_REPLY_PREFIX = "rr/"
+_NODE_TOKEN_INVALID = re.compile(r"[^A-Za-z0-9_]")
+
+# "pkg::msg::dds_::T_", "pkg::msg::T", "pkg/msg/T" all name the same interface.
+_DDS_TYPE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)(?:::|/)(msg|srv|action)(?:::|/)(?:dds_::)?([A-Za-z][A-Za-z0-9_]*?)_?$")
+
+
+def _full_name(name: str) -> str:
+    full = name if name.startswith("/") else "/" + name
+    try:
+        validate_full_topic_name(full)
+    except (InvalidTopicNameException, InvalidServiceNameException) as exc:
+        raise MiddlewareError("%r is not a valid ROS name: %s" % (name, exc)) from None
+    return full
+
+
+def dds_topic_to_ros(dds_name: str) -> tuple[str, str]:
+    """Return (kind, fully qualified ROS name); kind is "topic", "request" or "reply".
+
+    Names without a ROS prefix are used as they are (with a leading "/"), so plain DDS topic
+    names from XRCE clients that do not follow the ROS convention still reach ROS when valid.
+    """
+    if dds_name.startswith(_TOPIC_PREFIX):
+        return "topic", _full_name(dds_name[len(_TOPIC_PREFIX):])
+    if dds_name.startswith(_REQUEST_PREFIX) and dds_name.endswith("Request"):
+        return "request", _full_name(dds_name[len(_REQUEST_PREFIX):-len("Request")])
+    if dds_name.startswith(_REPLY_PREFIX) and dds_name.endswith("Reply"):
+        return "reply", _full_name(dds_name[len(_REPLY_PREFIX):-len("Reply")])
+    return "topic", _full_name(dds_name)
+
+
+def service_ros_name(service_name: str, request_topic: str | None = None) -> str:
+    """The ROS service name from a ServiceSpec: its name, else its request topic."""
+    if service_name:
+        return dds_topic_to_ros(service_name)[1]
+    if request_topic:
+        kind, name = dds_topic_to_ros(request_topic)
+        if kind == "request":
+            return name
+    raise MiddlewareError("service has neither a name nor a request topic")
+
+
+def _split_type(dds_type: str) -> tuple[str, str, str]:
+    match = _DDS_TYPE.match(dds_type)
+    if match is None:
+        raise UnknownTypeError("%r is not a ROS interface type name (expected pkg::msg::dds_::T_)"
+                               % dds_type)
+    return match.group(1), match.group(2), match.group(3)
+
+
+def _import_interface(package: str, kind: str, type_name: str):
+    module_name = "%s.%s" % (package, kind)
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        # ImportError of the package itself means it was never built; anything deeper is a broken
+        # install, which the same rebuild fixes.
+        raise UnknownTypeError("%s is not installed: %s (%s)" % (package, BUILD_HINT, exc)) from None
+    try:
+        return getattr(module, type_name)
+    except AttributeError:
+        raise UnknownTypeError("%s has no interface %s: %s if it was added recently"
+                               % (module_name, type_name, BUILD_HINT)) from None
+
+
+def message_class(dds_type: str):
+    """``std_msgs::msg::dds_::String_`` -> ``std_msgs.msg.String``."""
+    package, kind, type_name = _split_type(dds_type)
+    if kind != "msg":
+        raise UnknownTypeError("%r is not a message type" % dds_type)
+    return _import_interface(package, kind, type_name)
+
+
+def service_class(request_or_reply_type: str):
+    """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ``pkg.srv.X``."""
+    package, kind, type_name = _split_type(request_or_reply_type)
+    for suffix in ("_Request", "_Response"):
+        if type_name.endswith(suffix):
+            type_name = type_name[:-len(suffix)]
+            break
+    if kind != "srv":
+        raise UnknownTypeError("%r is not a service type" % request_or_reply_type)
+    return _import_interface(package, kind, type_name)
+
+
+def _node_token(token: str) -> str:
+    token = _NODE_TOKEN_INVALID.sub("_", token)
+    if not token or token[0].isdigit():
+        token = "n" + token
+    return token
+
+
+def node_name_and_namespace(participant_name: str, fallback: str) -> tuple[str, str]:
+    """Split "ns/sub/name" into ("name", "/ns/sub") and make every token a valid ROS token.
+
+    ``fallback`` is used when the client gave no usable name (empty or eProsima's "default").
+    """
+    parts = [p for p in participant_name.strip().split("/") if p]
+    if not parts or parts == ["default"]:
+        return fallback, "/"
+    name = _node_token(parts[-1])
+    namespace = "/" + "/".join(_node_token(p) for p in parts[:-1]) if len(parts) > 1 else "/"
+    return name, namespace
+
+
+_DURABILITY = {
+    "volatile": DurabilityPolicy.VOLATILE,
+    # rclpy only offers volatile and transient-local; the stronger DDS kinds degrade to the closest.
+    "transient_local": DurabilityPolicy.TRANSIENT_LOCAL,
+    "transient": DurabilityPolicy.TRANSIENT_LOCAL,
+    "persistent": DurabilityPolicy.TRANSIENT_LOCAL,
+}
+
+
+def qos_profile(qos: EndpointQosSpec) -> QoSProfile:
+    durability = _DURABILITY.get(qos.durability)
+    if durability is None:
+        raise MiddlewareError("unknown durability %r" % (qos.durability,))
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST if qos.keep_last else HistoryPolicy.KEEP_ALL,
+        depth=max(1, int(qos.depth)),
+        reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=durability,
+    )
