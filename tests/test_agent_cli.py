@@ -447,3 +447,46 @@ def test_discovery_answers_with_the_agents_port(agent):
     assert isinstance(info, Info) and info.request_id == C.REQUEST_ID_DISCOVERY
     assert Locator(C.LOCATOR_MEDIUM, socket.inet_aton("127.0.0.1"), agent_port) in info.locators
     assert process.stop() == 0
+
+
+@needs_engine
+def test_the_ros_middleware_runs_section_13_and_exits_0(agent):
+    pytest.importorskip("rclpy")
+    process = agent("udp4", "-p", "0")  # -m dds is the default
+    assert process.banner.endswith("(middleware dds)")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.connect(("127.0.0.1", process.port()))
+
+        def receive(timeout):
+            client.settimeout(timeout)
+            try:
+                return [client.recv(65536)]
+            except socket.timeout:
+                return []
+
+        conversation = Conversation(client.send, receive)
+        conversation.send(M1_CREATE_CLIENT)
+        conversation.expect([M2_STATUS_AGENT])
+        conversation.send(M3_CREATE_PARTICIPANT)
+        conversation.expect([M4_STATUS])
+        conversation.send(M6_FIVE_CREATES)
+        conversation.expect(M6_STATUSES)
+    # Shutting down with live ROS entities: the engine destroys them, then the process exits 0.
+    assert process.stop() == 0
+    assert "Traceback" not in process.stderr_text()
+
+
+@needs_engine
+@pytest.mark.parametrize("verbosity, traced", [("6", True), ("0", False)])
+def test_verbosity_6_traces_every_message_and_0_is_silent(agent, verbosity, traced):
+    process = agent("udp4", "-p", "0", "-m", "ced", "-v", verbosity)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.settimeout(REPLY_TIMEOUT)
+        client.sendto(M1_CREATE_CLIENT, ("127.0.0.1", process.port()))
+        assert client.recv(65536) == M2_STATUS_AGENT
+    assert process.stop() == 0
+    log_text = process.stderr_text()
+    if traced:
+        assert "TRACE" in log_text and "CREATE_CLIENT" in log_text and "STATUS_AGENT" in log_text
+    else:
+        assert log_text == ""

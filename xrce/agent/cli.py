@@ -272,6 +272,9 @@ async def serve(args, refs):
     started = []
     run_task = None
     try:
+        # Scheduled before any link opens, so the engine starts its middleware before the first
+        # message can arrive: the task's first step runs before the loop next polls the sockets.
+        run_task = asyncio.ensure_future(agent.run())
         try:
             for link in links:
                 await link.start()
@@ -284,7 +287,6 @@ async def serve(args, refs):
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
-        run_task = asyncio.ensure_future(agent.run())
         banner = "; ".join(link.describe() for link in started)
         sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
         sys.stdout.flush()
