@@ -442,8 +442,9 @@ class SerialFramedLink(Link):
         if port.writer_armed:
             loop.remove_writer(port.fd)
             port.writer_armed = False
-        self.stats.drops += len(port.pending) and 1
-        port.pending.clear()
+        if port.pending:  # replies that never reached the wire
+            self.stats.drops += 1
+            port.pending.clear()
         try:
             port.closer()
         except OSError as exc:
