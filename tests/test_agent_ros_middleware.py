@@ -59,10 +59,10 @@ def make_writer(mw, participant, topic_name, type_name, base):
     return key(base + 5)
 
 
-def make_reader(mw, participant, topic_name, type_name, base, on_data):
+def make_reader(mw, participant, topic_name, type_name, base, on_data, qos=QOS):
     mw.create_topic(key(base + 2), participant, TopicSpec(topic_name, type_name))
     mw.create_subscriber(key(base + 4), participant)
-    mw.create_datareader(key(base + 6), key(base + 4), key(base + 2), QOS, on_data)
+    mw.create_datareader(key(base + 6), key(base + 4), key(base + 2), qos, on_data)
     return key(base + 6)
 
 
@@ -204,7 +204,9 @@ async def test_reader_drops_oldest_when_the_loop_falls_behind(middleware, ros_do
     middleware.handoff_depth = 4
     bodies = []
     participant = make_participant(middleware, ros_domain)
-    reader = make_reader(middleware, participant, "rt/burst", STRING_T, 0x10, bodies.append)
+    # DDS history deep enough that every loss is the hand-off's, not the subscription's.
+    reader = make_reader(middleware, participant, "rt/burst", STRING_T, 0x10, bodies.append,
+                         EndpointQosSpec(depth=100))
     publisher = ros_peer.node.create_publisher(String, "/burst", 100)
     assert await async_wait_until(lambda: publisher.get_subscription_count() == 1)
     # Block the loop while 50 samples arrive: the hand-off keeps only the newest 4.
