@@ -1,0 +1,335 @@
+"""The xrce-client command line, run as real processes (python -m xrce.client) on loopback.
+
+ping is checked against an in-test UDP responder that replies with the reference INFO bytes
+(XRCE-WIRE.md §10); pub/sub end to end go through a real agent (python -m xrce.agent ... -m ced).
+"""
+
+import os
+import re
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from xrce import constants as C
+from xrce.client import cli
+from xrce.message import decode_header, iter_submessages
+
+REPO = Path(__file__).resolve().parent.parent
+START_TIMEOUT = 30.0
+RUN_TIMEOUT = 30.0
+EXIT_TIMEOUT = 15.0
+
+# XRCE-WIRE.md §10, "VERIFIED ping reply": header 80 00 00 00, then INFO (availability 1).
+REFERENCE_PING_REPLY = bytes.fromhex(
+    "80000000 06011C00 000AFFFD 0000010D 58524345 0100010F 00010D00 01000000 00000000".replace(" ", ""))
+
+try:
+    import xrce.agent.ced  # noqa: F401
+    import xrce.agent.engine  # noqa: F401
+    HAVE_ENGINE = True
+except ImportError:
+    HAVE_ENGINE = False
+
+needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine / ced not importable")
+
+
+def _env():
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = "63"
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def run_client(*args, timeout=RUN_TIMEOUT):
+    """Run xrce-client to completion; (returncode, stdout lines, stderr lines)."""
+    done = subprocess.run([sys.executable, "-m", "xrce.client", *args], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=timeout)
+    return done.returncode, done.stdout.splitlines(), done.stderr.splitlines()
+
+
+class Process:
+    """A background process whose stdout and stderr lines are collected by reader threads."""
+
+    def __init__(self, module, *args):
+        self.proc = subprocess.Popen([sys.executable, "-m", module, *args], cwd=REPO, env=_env(),
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.stdout = []
+        self.stderr = []
+        self._changed = threading.Condition()
+        self._threads = [threading.Thread(target=self._collect, args=(self.proc.stdout, self.stdout), daemon=True),
+                         threading.Thread(target=self._collect, args=(self.proc.stderr, self.stderr), daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def _collect(self, pipe, lines):
+        for line in pipe:
+            with self._changed:
+                lines.append(line.rstrip("\n"))
+                self._changed.notify_all()
+
+    def wait_line(self, lines, pattern, timeout=START_TIMEOUT):
+        """The first line of ``lines`` matching ``pattern``; fails if the process exits first."""
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while True:
+                for line in lines:
+                    match = re.search(pattern, line)
+                    if match:
+                        return match
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or (self.proc.poll() is not None and not any(t.is_alive() for t in self._threads)):
+                    raise AssertionError("no line matching %r; stdout %r, stderr %r"
+                                         % (pattern, self.stdout, self.stderr))
+                self._changed.wait(min(remaining, 0.2))
+
+    def wait(self, timeout=EXIT_TIMEOUT):
+        code = self.proc.wait(timeout)
+        for thread in self._threads:
+            thread.join(EXIT_TIMEOUT)
+        return code
+
+    def cleanup(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(EXIT_TIMEOUT)
+        for thread in self._threads:
+            thread.join(EXIT_TIMEOUT)
+        self.proc.stdout.close()
+        self.proc.stderr.close()
+
+
+@pytest.fixture
+def processes():
+    started = []
+
+    def start(module, *args):
+        process = Process(module, *args)
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        process.cleanup()
+
+
+class PingResponder:
+    """A UDP socket on loopback that answers each session-less GET_INFO with the reference INFO,
+    or stays silent (``answer=False``), counting the GET_INFO requests it saw either way."""
+
+    def __init__(self, answer=True):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.answer = answer
+        self.get_infos = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self):
+        while not self._stop.is_set():
+            try:
+                data, peer = self.sock.recvfrom(2048)
+            except socket.timeout:
+                continue
+            header = decode_header(data)
+            kinds = [sub_id for sub_id, _, _, _ in iter_submessages(data, header.size)]
+            if header.session_id == C.SESSION_ID_NONE_WITHOUT_KEY and kinds == [C.GET_INFO]:
+                self.get_infos += 1
+                if self.answer:
+                    self.sock.sendto(REFERENCE_PING_REPLY, peer)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(5)
+        self.sock.close()
+
+
+@pytest.fixture
+def responder():
+    made = []
+
+    def make(answer=True):
+        made.append(PingResponder(answer))
+        return made[-1]
+
+    yield make
+    for item in made:
+        item.close()
+
+
+# ----------------------------------------------------------------------------- ping
+
+def test_ping_prints_the_round_trip_time_of_the_reference_reply(responder):
+    agent = responder()
+    code, out, err = run_client("ping", "udp4", "--agent", "127.0.0.1", "-p", str(agent.port))
+    assert code == 0, err
+    assert len(out) == 1 and re.fullmatch(r"pong from 127\.0\.0\.1:%d in \d+\.\d\d ms" % agent.port, out[0]), out
+    assert agent.get_infos == 1
+
+
+def test_ping_without_an_answer_exits_1_with_one_line_after_every_attempt(responder):
+    silent = responder(answer=False)
+    started = time.monotonic()
+    code, out, err = run_client("ping", "udp4", "-p", str(silent.port), "--timeout-ms", "300", "--attempts", "2")
+    assert code == 1
+    assert out == []
+    assert err == ["xrce-client: no agent answered at 127.0.0.1:%d after 2 attempts" % silent.port]
+    assert silent.get_infos == 2
+    assert time.monotonic() - started >= 0.6
+
+
+def test_ping_over_tcp_to_a_closed_port_exits_1_with_one_line():
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]  # bound, never listening: connect is refused
+        code, out, err = run_client("ping", "tcp4", "-p", str(port))
+    assert code == 1 and out == []
+    assert len(err) == 1 and err[0].startswith("xrce-client: cannot connect TCP to 127.0.0.1:%d" % port), err
+
+
+# ----------------------------------------------------------------------------- bad arguments
+
+BAD_ARGUMENTS = [
+    [],
+    ["fly"],
+    ["ping"],
+    ["ping", "udp5", "-p", "8888"],
+    ["ping", "udp4"],
+    ["ping", "udp4", "-p", "70000"],
+    ["ping", "udp4", "-p", "8888", "--attempts", "0"],
+    ["ping", "serial"],
+    ["ping", "serial", "--dev", "/dev/null", "-p", "8888"],
+    ["ping", "udp4", "-p", "8888", "--dev", "/dev/null"],
+    ["ping", "serial", "--dev", "/dev/null", "--crc", "md5"],
+    ["pub", "udp4", "-p", "8888", "--topic", "chatter"],
+    ["pub", "udp4", "-p", "8888", "--topic", "chatter", "--type", "std_msgs/msg/Nope", "--data", "x"],
+    ["pub", "udp4", "-p", "8888", "--topic", "chatter", "--type", "not a type"],
+    ["pub", "udp4", "-p", "8888", "--topic", "n", "--type", "std_msgs/msg/Int32", "--data", "five"],
+    ["pub", "udp4", "-p", "8888", "--topic", "n", "--type", "std_msgs/msg/UInt8", "--data", "300"],
+    ["pub", "udp4", "-p", "8888", "--topic", "v", "--type", "geometry_msgs/msg/Twist", "--data", "{linear: ["],
+    ["pub", "udp4", "-p", "8888", "--topic", "v", "--type", "geometry_msgs/msg/Twist", "--data", "{up: 1}"],
+    ["pub", "udp4", "-p", "8888", "--topic", "v", "--type", "geometry_msgs/msg/Twist", "--data", "0.5"],
+    ["pub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--rate", "0"],
+    ["pub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--count", "-1"],
+    ["pub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--key", "xyz"],
+    ["pub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--key", "00000000"],
+    ["pub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--domain", "300"],
+    ["sub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--reliable", "--best-effort"],
+    ["sub", "udp4", "-p", "8888", "--topic", "c", "--type", "std_msgs/msg/String", "--timeout-ms", "soon"],
+    ["build-mpy"],
+]
+
+
+@pytest.mark.parametrize("args", BAD_ARGUMENTS, ids=lambda a: " ".join(a) or "(none)")
+def test_bad_arguments_give_one_stderr_line_and_exit_2(args):
+    code, out, err = run_client(*args, timeout=RUN_TIMEOUT)
+    assert code == 2, (out, err)
+    assert out == []
+    assert len(err) == 1 and err[0].startswith("xrce-client: error: "), err
+
+
+def test_data_takes_plain_values_for_one_field_types_and_yaml_otherwise():
+    from xrce.msgs import lookup
+
+    assert cli.parse_data(lookup("std_msgs/msg/String"), "5").data == "5"
+    assert cli.parse_data(lookup("std_msgs/msg/String"), '{data: "a: b"}').data == "a: b"
+    assert cli.parse_data(lookup("std_msgs/msg/Int32"), "-7").data == -7
+    assert cli.parse_data(lookup("std_msgs/msg/Float64"), "2.5").data == 2.5
+    assert cli.parse_data(lookup("std_msgs/msg/Bool"), "true").data is True
+    twist = cli.parse_data(lookup("geometry_msgs/msg/Twist"), "{linear: {x: 0.5}, angular: {z: -1}}")
+    assert (twist.linear.x, twist.linear.y, twist.angular.z) == (0.5, 0.0, -1)
+    header = cli.parse_data(lookup("std_msgs/msg/Header"), "stamp: {sec: 3}\nframe_id: map")
+    assert (header.stamp.sec, header.frame_id) == (3, "map")
+    assert cli.format_message(twist) == "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1}}"
+
+
+def test_build_mpy_without_the_tools_module_exits_1_with_one_line(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "xrce.tools.mpy", None)  # makes the import raise ImportError
+    assert cli.main(["build-mpy", str(tmp_path)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert len(captured.err.splitlines()) == 1 and "build-mpy is unavailable" in captured.err
+
+
+def test_build_mpy_passes_through_to_the_tools_module(tmp_path):
+    pytest.importorskip("xrce.tools.mpy")
+    code, out, err = run_client("build-mpy", str(tmp_path / "mpy"), timeout=120)
+    assert code == 0, err
+    assert list((tmp_path / "mpy").rglob("*.mpy")), out
+
+
+# ----------------------------------------------------------------------------- pub/sub through an agent
+
+@pytest.fixture
+def ced_agent(processes):
+    def start(transport="udp4"):
+        agent = processes("xrce.agent", transport, "-p", "0", "-m", "ced", "-v", "3")
+        return int(agent.wait_line(agent.stdout, r"agent on port (\d+)").group(1))
+
+    return start
+
+
+PUBSUB_CASES = [
+    ("udp4", "chatter", "std_msgs/msg/String", "hello", "{data: hello}", []),
+    ("udp4", "chatter", "std_msgs/msg/String", "hello", "{data: hello}", ["--reliable"]),
+    ("udp4", "cmd_vel", "geometry_msgs/msg/Twist", "{linear: {x: 0.5}, angular: {z: -1.25}}",
+     "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1.25}}", []),
+    ("udp4", "cmd_vel", "geometry_msgs/msg/Twist", "{linear: {x: 0.5}, angular: {z: -1.25}}",
+     "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1.25}}", ["--reliable"]),
+    ("tcp4", "counter", "std_msgs/msg/Int32", "42", "{data: 42}", ["--reliable"]),
+]
+
+
+@needs_engine
+@pytest.mark.parametrize("transport, topic, type_name, data, expected, qos", PUBSUB_CASES,
+                         ids=["string-best-effort", "string-reliable", "twist-best-effort",
+                              "twist-reliable", "int32-tcp-reliable"])
+def test_pub_reaches_sub_through_the_agent(ced_agent, processes, transport, topic, type_name, data,
+                                           expected, qos):
+    port = str(ced_agent(transport))
+    sub = processes("xrce.client", "sub", transport, "-p", port, "--topic", topic, "--type", type_name,
+                    "--count", "3", "--timeout-ms", "20000", *qos)
+    sub.wait_line(sub.stderr, r"^subscribed to ")
+    code, out, err = run_client("pub", transport, "-p", port, "--topic", topic, "--type", type_name,
+                                "--data", data, "--count", "5", "--rate", "20", *qos)
+    assert code == 0, err
+    assert len(out) == 5 and out[0].startswith("published 1/5 on %s: %s" % (topic, expected)), out
+    if qos:
+        assert all(line.endswith("(confirmed)") for line in out), out
+    assert sub.wait() == 0, sub.stderr
+    assert sub.stdout == [expected] * 3
+
+
+@needs_engine
+def test_sub_timeout_exits_1_and_pub_forever_stops_cleanly_on_ctrl_c(ced_agent, processes):
+    port = str(ced_agent())
+    code, out, err = run_client("sub", "udp4", "-p", port, "--topic", "quiet", "--type",
+                                "std_msgs/msg/String", "--count", "1", "--timeout-ms", "400")
+    assert code == 1 and out == []
+    assert err[-1] == "xrce-client: timed out after 400 ms with 0 of 1 messages on quiet", err
+
+    pub = processes("xrce.client", "pub", "udp4", "-p", port, "--topic", "loop", "--type",
+                    "std_msgs/msg/Int32", "--data", "7", "--count", "0", "--rate", "50", "--reliable")
+    pub.wait_line(pub.stdout, r"^published 3 on loop: \{data: 7\} \(confirmed\)$")
+    pub.proc.send_signal(signal.SIGINT)
+    assert pub.wait() == 0, pub.stderr
+    assert pub.stderr == []
+
+
+def test_pub_without_an_agent_exits_1_with_one_line(responder):
+    silent = responder(answer=False)
+    code, out, err = run_client("pub", "udp4", "-p", str(silent.port), "--topic", "c", "--type",
+                                "std_msgs/msg/String", "--data", "x")
+    assert code == 1 and out == []
+    assert err == ["xrce-client: no agent answered CREATE_CLIENT at 127.0.0.1:%d" % silent.port]
