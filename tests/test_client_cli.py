@@ -333,3 +333,18 @@ def test_pub_without_an_agent_exits_1_with_one_line(responder):
                                 "std_msgs/msg/String", "--data", "x")
     assert code == 1 and out == []
     assert err == ["xrce-client: no agent answered CREATE_CLIENT at 127.0.0.1:%d" % silent.port]
+
+
+@needs_engine
+def test_ping_and_reliable_pub_over_a_serial_pseudoterminal(processes):
+    agent = processes("xrce.agent", "pseudoterminal", "-m", "ced", "-v", "3")
+    device = agent.wait_line(agent.stdout, r"pseudoterminal at (\S+)").group(1)
+    code, out, err = run_client("ping", "serial", "--dev", device, "-b", "115200")
+    assert code == 0, err
+    assert len(out) == 1 and re.fullmatch(r"pong from %s in \d+\.\d\d ms" % re.escape(device), out[0]), out
+    # One client at a time: two processes reading the same pty would steal each other's bytes.
+    code, out, err = run_client("pub", "serial", "--dev", device, "--topic", "chatter", "--type",
+                                "std_msgs/msg/String", "--data", "over serial", "--count", "2",
+                                "--rate", "20", "--reliable")
+    assert code == 0, err
+    assert out == ["published %d/2 on chatter: {data: over serial} (confirmed)" % i for i in (1, 2)]
