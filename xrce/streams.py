@@ -6,6 +6,7 @@ retransmits exactly the sequence numbers a NACK names (the eProsima agent's poli
 client resends everything unacknowledged, which is wire-compatible but wasteful).
 """
 
+from xrce.compat import ticks_diff
 from xrce.errors import EncodeError
 from xrce.seqnum import seq_add, seq_less, seq_sub
 
@@ -62,14 +63,17 @@ class InputBestEffortStream:
 class OutputReliableStream:
     """Sent messages kept until acknowledged; at most ``history`` in flight."""
 
-    __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "retransmissions")
+    __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
+                 "retransmissions", "suppressed")
 
     def __init__(self, stream_id, history):
         _check_history(history)
         self.stream_id = stream_id
         self.history = history
         self.slots = [None] * history
+        self.resent_at = [None] * history
         self.retransmissions = 0
+        self.suppressed = 0
         self.reset()
 
     def reset(self):
@@ -77,6 +81,7 @@ class OutputReliableStream:
         self.last_acknowledged = SEQ_INITIAL
         for i in range(self.history):
             self.slots[i] = None
+            self.resent_at[i] = None
 
     def in_flight(self):
         return seq_sub(self.last_sent, self.last_acknowledged)
@@ -95,6 +100,7 @@ class OutputReliableStream:
         if seq != seq_add(self.last_sent, 1) or not self.has_room():
             raise EncodeError("reliable stream out of order or full")
         self.slots[seq & (self.history - 1)] = message
+        self.resent_at[seq & (self.history - 1)] = None
         self.last_sent = seq
 
     def pending(self):
@@ -106,8 +112,14 @@ class OutputReliableStream:
             return None
         return seq_add(self.last_acknowledged, 1), self.last_sent
 
-    def on_acknack(self, first_unacked, nack_bitmap):
-        """Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order."""
+    def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0):
+        """Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order.
+
+        A message is retransmitted at the first NACK that names it (so recovery is immediate, as
+        both eProsima peers do), but not again within ``holdoff_ms`` of that retransmission: a
+        receiver ACKNACKs every duplicate it gets, and on a lossy, reordering link answering each of
+        those NACKs again multiplies the traffic into a retransmission storm.
+        """
         # An ACKNACK that acknowledges more than was ever sent is stale or forged: ignore the ack.
         if not seq_less(seq_add(self.last_sent, 1), first_unacked):
             while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
@@ -119,9 +131,16 @@ class OutputReliableStream:
                 if nack_bitmap & (1 << i):
                     seq = seq_add(first_unacked, i)
                     if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
-                        message = self.slots[seq & (self.history - 1)]
-                        if message is not None:
-                            resend.append(message)
+                        slot = seq & (self.history - 1)
+                        message = self.slots[slot]
+                        if message is None:
+                            continue
+                        last = self.resent_at[slot]
+                        if holdoff_ms and last is not None and ticks_diff(now_ms, last) < holdoff_ms:
+                            self.suppressed += 1
+                            continue
+                        self.resent_at[slot] = now_ms
+                        resend.append(message)
         self.retransmissions += len(resend)
         return resend
 

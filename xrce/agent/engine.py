@@ -741,7 +741,10 @@ class Agent:
         stream = client.out_reliable.get(acknack.stream_id)
         if stream is None:
             return
-        for message in stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap):
+        now_ms = int(self.clock() * 1000)
+        holdoff_ms = int(self.heartbeat_period * 1000) // 2
+        for message in stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms,
+                                         holdoff_ms):
             self.stats.retransmissions += 1
             self._send_raw(client.link, client.endpoint, message)
         if client.blocked_readers and stream.has_room():

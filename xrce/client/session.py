@@ -797,7 +797,8 @@ class Session:
         if out is None or not out.reliable:
             return
         first = buf[s] | (buf[s + 1] << 8) if flags & 1 else (buf[s] << 8) | buf[s + 1]
-        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3]):
+        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3], ticks_ms(),
+                                            self.heartbeat_ms // 2):
             self._send(message)
 
     def _on_heartbeat(self, buf, flags, s, e):
