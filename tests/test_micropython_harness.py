@@ -2,12 +2,14 @@
 synchronous UDP bridge (tests/micropython/run.mjs)."""
 
 import socket
+import subprocess
+import sys
 import threading
 import time
 
 import pytest
 
-from mp_harness import run_micropython
+from mp_harness import RUNNER, ensure_installed, node_executable, run_micropython
 
 
 def _check(result):
@@ -244,3 +246,113 @@ print("sent", packets.sent + framed.sent, "received", packets.received + framed.
     assert received[:3] == [b"\x81\x00\x00\x00" + bytes(range(40)), b"\x7e\x7d" * 50, bytes(300)]
     # framed datagrams carry the §11 framing: flag byte first, escaped payload, so never the raw message
     assert len(received) == 6 and all(frame[:1] == b"\x7e" for frame in received[3:])
+
+
+PUBLISHER_SCRIPT = r"""
+import sys
+import nodeudp
+from nodeudp_transport import make_callbacks
+from xrce.client.session import Session, ping_agent
+from xrce.msgs.std_msgs import String
+from xrce.transports.custom import CustomTransport
+
+port, domain, control_port, limit = [int(arg) for arg in sys.argv[1:5]]
+transport = CustomTransport(*make_callbacks("127.0.0.1", port), framing=False, mtu=512)
+assert ping_agent(transport, 1000, 5) is not None, "agent did not answer the ping"
+session = Session(transport, key=0x4D505931)
+assert session.create(attempts=5, timeout_ms=500), "no session"
+participant = session.create_participant(domain)
+writer = session.create_writer(participant, "/mp_harness_chatter", String)
+assert session.run_until_all_status(3000), "entities not confirmed"
+# DDS discovery between the agent and the test's subscriber takes a variable time, so publish
+# until the test says it has seen enough (or the limit is reached).
+control = nodeudp.open("127.0.0.1", control_port)
+nodeudp.send(control, b"publishing")
+sent = 0
+while sent < limit and nodeudp.recv(control, 0) != b"stop":
+    session.write(writer, String("micropython says %d" % sent))
+    sent += 1
+    session.run_until_timeout(50)
+assert session.delete(attempts=3, timeout_ms=500)
+transport.close()
+nodeudp.close(control)
+print("published", sent)
+"""
+
+
+def test_micropython_client_publishes_to_ros_through_the_agent(tmp_path, monkeypatch):
+    """End to end: the client under MicroPython, the nodeudp bridge, the Python agent, rclpy."""
+    domain = 77
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import String
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    ensure_installed()
+    script = tmp_path / "publisher.py"
+    script.write_text(PUBLISHER_SCRIPT)
+    wanted, limit = 15, 400
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    with open(tmp_path / "agent.log", "w") as agent_log:
+        agent = subprocess.Popen([sys.executable, "-m", "xrce.agent", "udp4", "-p", str(port)],
+                                 stdout=subprocess.PIPE, stderr=agent_log, text=True)
+        publisher = None
+        control = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            control.bind(("127.0.0.1", 0))
+            control.setblocking(False)
+            banner = agent.stdout.readline()
+            assert "udp4" in banner, banner
+            node = rclpy.create_node("mp_harness_listener", context=context)
+            received = []
+            node.create_subscription(String, "/mp_harness_chatter", lambda msg: received.append(msg.data), 50)
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            publisher = subprocess.Popen(
+                [node_executable(), str(RUNNER), str(script), str(port), str(domain),
+                 str(control.getsockname()[1]), str(limit)],
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            )
+            script_address = None
+            deadline = time.monotonic() + 45
+            while publisher.poll() is None and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.02)
+                try:
+                    _, script_address = control.recvfrom(64)
+                except BlockingIOError:
+                    pass
+                if script_address is not None and len(received) >= wanted:
+                    control.sendto(b"stop", script_address)
+            out, err = publisher.communicate(timeout=10)
+            settle = time.monotonic() + 0.5
+            while time.monotonic() < settle:
+                executor.spin_once(timeout_sec=0.02)
+            assert publisher.returncode == 0, out + err
+            sent = int(out.split()[-1])
+            assert out.strip() == "published %d" % sent and sent < limit, out
+            # Samples written before DDS matched the subscription are legitimately lost (volatile).
+            assert len(received) >= wanted, (received, (tmp_path / "agent.log").read_text())
+            numbers = [int(text.rsplit(" ", 1)[1]) for text in received]
+            assert received == ["micropython says %d" % n for n in numbers]
+            assert numbers == sorted(set(numbers)) and numbers[-1] < sent, numbers
+            executor.shutdown()
+            node.destroy_node()
+        finally:
+            if publisher is not None and publisher.poll() is None:
+                publisher.kill()
+                publisher.communicate()
+            agent.terminate()
+            try:
+                agent.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                agent.kill()
+                agent.wait()
+            agent.stdout.close()
+            control.close()
+            rclpy.shutdown(context=context)
