@@ -1,0 +1,75 @@
+"""Start ``python -m xrce.agent`` as a real process for a test and stop it cleanly afterwards."""
+
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class AgentProcess:
+    """``with AgentProcess("udp4", "-m", "ced") as agent: agent.port`` — the agent listens on a free
+    port (``-p 0``) unless the arguments name one; the banner line tells which."""
+
+    def __init__(self, *args, env=None, start_timeout=60):
+        self.args = list(args)
+        if self.args and self.args[0] in ("udp4", "udp6", "tcp4", "tcp6") and "-p" not in self.args:
+            self.args += ["-p", "0"]
+        self.env = dict(os.environ, **(env or {}))
+        self.start_timeout = start_timeout
+        self.proc = None
+        self.port = None
+        self.device = None
+        self.banner = None
+        self.output = []
+
+    def __enter__(self):
+        self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *self.args], cwd=REPO,
+                                     env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True)
+        selector = selectors.DefaultSelector()
+        selector.register(self.proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + self.start_timeout
+        try:
+            while time.monotonic() < deadline:
+                if not selector.select(timeout=0.5):
+                    if self.proc.poll() is not None:
+                        break
+                    continue
+                line = self.proc.stdout.readline()
+                if not line:
+                    break
+                self.output.append(line)
+                if line.startswith("xrce-agent:") and ("agent on port" in line or "pseudoterminal at" in line
+                                                       or "serial" in line):
+                    self.banner = line.strip()
+                    port = re.search(r"on port (\d+)", line)
+                    self.port = int(port.group(1)) if port else None
+                    device = re.search(r"pseudoterminal at (\S+)", line)
+                    self.device = device.group(1) if device else None
+                    return self
+        finally:
+            selector.close()
+        self.stop()
+        raise RuntimeError("agent did not start: %s" % "".join(self.output))
+
+    def stop(self, timeout=20):
+        """SIGINT, as a user's Ctrl-C; returns the exit code (killing it if it hangs)."""
+        if self.proc is None or self.proc.poll() is not None:
+            return None if self.proc is None else self.proc.returncode
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            rest, _ = self.proc.communicate(timeout=timeout)
+            self.output.append(rest or "")
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.communicate()
+        return self.proc.returncode
+
+    def __exit__(self, *exc):
+        self.stop()

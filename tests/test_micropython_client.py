@@ -1,0 +1,62 @@
+"""The client's own source files, unmodified, under real MicroPython 1.27 (WebAssembly in Node) talking
+to a real ``xrce-agent`` over a custom transport bridged to Node's UDP socket: session, ping, time
+sync, entities, publish and receive."""
+
+import threading
+import time
+from pathlib import Path
+
+from agent_process import AgentProcess
+from mp_harness import run_micropython
+from xrce.client.session import Session
+from xrce.msgs.geometry_msgs import Twist, Vector3
+from xrce.msgs.std_msgs import String
+from xrce.transports.udp import UdpTransport
+
+SCRIPT = Path(__file__).resolve().parent / "micropython" / "e2e_client.py"
+
+
+class CPythonPeer(threading.Thread):
+    """Reads what the MicroPython client publishes and publishes Twist for it to read."""
+
+    def __init__(self, port):
+        super().__init__(daemon=True)
+        self.session = Session(UdpTransport("127.0.0.1", port), history=8)
+        assert self.session.create(attempts=5, timeout_ms=500)
+        node = self.session.create_participant(name="cpython_peer")
+        self.received = []
+        self.session.create_reader(node, "/mp_chatter", String, self.received.append)
+        self.writer = self.session.create_writer(node, "/mp_cmd", Twist, reliable=False)
+        assert self.session.run_until_all_status(2000)
+        self.stop = threading.Event()
+
+    def run(self):
+        while not self.stop.is_set():
+            self.session.write(self.writer, Twist(linear=Vector3(x=0.25)), stream_id=self.session.best_effort)
+            deadline = time.monotonic() + 0.05
+            while time.monotonic() < deadline:
+                self.session.spin_once(10)
+
+    def close(self):
+        self.stop.set()
+        self.join(5)
+        self.session.delete(attempts=1, timeout_ms=200)
+        self.session.close()
+
+
+def test_micropython_client_against_the_real_agent():
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        peer = CPythonPeer(agent.port)
+        peer.start()
+        try:
+            result = run_micropython(SCRIPT, agent.port, timeout=120)
+        finally:
+            peer.close()
+    lines = dict(line.split(" ", 1) for line in result.stdout.splitlines() if " " in line)
+    assert result.returncode == 0, result.stdout + result.stderr
+    for step in ("ping_agent", "create", "ping_session", "sync_time", "entities", "delivered", "delete"):
+        assert lines.get(step) == "True", (step, result.stdout)
+    count, x = lines["received"].split()
+    assert int(count) >= 3 and float(x) == 0.25
+    assert abs(int(lines["epoch_ms"]) - time.time() * 1000) < 60000
+    assert [m.data for m in peer.received] == ["from micropython %d" % i for i in range(10)]
