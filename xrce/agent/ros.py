@@ -1,6 +1,10 @@
 """``-m dds``: XRCE objects backed by rclpy nodes, publishers, subscriptions, service clients/servers.
 
-Threading model (measured, see tests/test_agent_ros_middleware.py and the report in git history):
+Threading model (measured on the 2-core dev machine, Twist, peer in another process):
+
+- EventsExecutor (default, ``XRCE_ROS_EXECUTOR=single`` to switch): publisher -> on_data 47-75k
+  msg/s, SingleThreadedExecutor 5-6k msg/s; write() -> rclpy subscriber 74-95k calls/s either way;
+  200 clients (node + writer + reader) created in 3.9 s (5.5 ms median per create) vs 7.0 s.
 
 - One rclpy ``Context`` per ROS domain, created when the first participant of that domain appears,
   each with one executor thread.
