@@ -354,6 +354,33 @@ class Session:
         self.read_data(reader_id, data_stream_id, stream_id=stream_id)
         return reader_id
 
+    def create_service_client(self, participant_id, service, srv, callback, stream_id=None,
+                              data_stream_id=None):
+        """A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
+
+        ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
+        ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
+        """
+        return self._service_endpoint(self.create_requester, participant_id, service, srv, callback,
+                                      srv.Response, stream_id, data_stream_id)
+
+    def create_service_server(self, participant_id, service, srv, callback, stream_id=None,
+                              data_stream_id=None):
+        """A replier for a ROS service; ``callback(sample_identity, request)`` answers with
+        ``send_reply(replier_id, sample_identity, response)``."""
+        return self._service_endpoint(self.create_replier, participant_id, service, srv, callback,
+                                      srv.Request, stream_id, data_stream_id)
+
+    def _service_endpoint(self, create, participant_id, service, srv, callback, msg_class,
+                          stream_id, data_stream_id):
+        name = service if service.startswith("/") else "/" + service
+        object_id_ = create(participant_id, name, srv.TYPE_NAME_REQUEST, srv.TYPE_NAME_RESPONSE,
+                            "rq" + name + "Request", "rr" + name + "Reply", stream_id=stream_id)
+        self.set_reader_callback(object_id_, callback, msg_class)
+        self.read_data(object_id_, self.reliable if data_stream_id is None else data_stream_id,
+                       stream_id=stream_id)
+        return object_id_
+
     # ------------------------------------------------------------------ data
 
     def set_reader_callback(self, reader_id, callback, msg_class=None):
