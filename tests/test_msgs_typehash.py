@@ -70,6 +70,6 @@ def test_generated_classes_follow_the_definition_files():
         specs = list(messages) + [s for srv in services for s in (srv.request, srv.response)]
         for spec in specs:
             cls = lookup(spec.ros_type)
-            assert [f[0] for f in cls._FIELDS] == [f.name for f in spec.fields]
+            assert list(cls.__slots__) == [f.name for f in spec.fields]
             for constant in spec.constants:
                 assert getattr(cls, constant.name) == constant.value

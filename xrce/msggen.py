@@ -1,6 +1,9 @@
 """Generate MicroPython-safe XCDR1 message classes from ROS 2 .msg/.srv files (CPython-only tool).
 
-One Python module per ROS package is written to the output directory (normally ``xrce/msgs``).
+Each ROS package becomes a Python package in the output directory (normally ``xrce/msgs``) with
+one module per message type and per service (``geometry_msgs/_Twist.py``) and an ``__init__.py``
+that imports a type's module the first time its name is looked up: importing a whole package's
+classes costs tens of KB of MicroPython heap, and a board usually needs two or three types.
 The generated code is plain Python in the MicroPython subset: ``__slots__`` classes, precompiled
 ``struct`` formats for runs of fixed-size primitives, no dataclasses/typing/f-strings.
 
@@ -356,22 +359,25 @@ def _run_size(run):
     return sum(PRIMITIVES[f.type.base][1] * (f.type.array_size if f.type.array == "fixed" else 1) for f in run)
 
 
-def _class_ref(base, package):
+def _class_ref(base, package, deps):
+    """The name generated code uses for a nested type; recorded in ``deps`` so the module imports
+    it. Types of other packages get a package prefix: two packages may both define e.g. Point."""
+    deps.add(base)
     pkg, name = base.split("/")
     if pkg == package:
         return name
-    return "_%s.%s" % (pkg, name)
+    return "_%s_%s" % (pkg, name)
 
 
-def _default_expr(field, package):
+def _default_expr(field, package, deps):
     ft = field.type
     d = field.default
     if ft.is_nested:
-        ref = _class_ref(ft.base, package)
-        if ft.array == "fixed":
-            return "[%s() for _ in range(%d)]" % (ref, ft.array_size)
         if ft.array == "seq":
             return "[]"
+        ref = _class_ref(ft.base, package, deps)
+        if ft.array == "fixed":
+            return "[%s() for _ in range(%d)]" % (ref, ft.array_size)
         return "%s()" % ref
     kind = PRIMITIVES[ft.base][2] if ft.is_primitive else "string"
     if ft.array is None:
@@ -392,15 +398,6 @@ def _default_expr(field, package):
     if kind == "float":
         d = [float(v) for v in d]
     return repr(list(d))
-
-
-def _field_kind(ft):
-    """Tag used by the runtime's dict helpers: 0 plain value, 1 nested, 2 list of nested, 3 bytes."""
-    if ft.is_nested:
-        return 2 if ft.array else 1
-    if ft.is_primitive and ft.array and PRIMITIVES[ft.base][2] == "octet":
-        return 3
-    return 0
 
 
 class Leaf:
@@ -428,13 +425,9 @@ def _flatten(spec, registry, expr, label, leaves, package, deps):
         flabel = f.name if not label else "%s.%s" % (label, f.name)
         if _inlinable(f.type, registry):
             child = registry[f.type.base]
-            ref = _class_ref(f.type.base, package)
-            if child.package != package:
-                deps.add(child.package)
+            ref = _class_ref(f.type.base, package, deps)
             parts.append("%s(%s)" % (ref, _flatten(child, registry, fexpr, flabel, leaves, package, deps)))
             continue
-        if f.type.is_nested and f.type.base.split("/")[0] != package:
-            deps.add(f.type.base.split("/")[0])
         leaf = Leaf(fexpr, flabel, f.type)
         leaf.var = "v%d" % len(leaves)
         leaves.append(leaf)
@@ -509,7 +502,7 @@ def _gen_encode_step(step, package, out):
         out.append("        _put_array(w, %s, %r, %d)" % (v, code, size))
 
 
-def _gen_decode_step(step, package, out):
+def _gen_decode_step(step, package, out, deps):
     kind, item = step
     if kind == "run":
         run = item
@@ -539,7 +532,7 @@ def _gen_decode_step(step, package, out):
     ft = f.type
     t = f.var
     if ft.is_nested:
-        ref = _class_ref(ft.base, package)
+        ref = _class_ref(ft.base, package, deps)
         if ft.array is None:
             out.append("        %s = %s.decode(r)" % (t, ref))
         elif ft.array == "fixed":
@@ -575,6 +568,12 @@ def _gen_message(spec, registry, out, deps):
     out.append("    __slots__ = (%s)" % "".join("%r, " % f.name for f in fields))
     out.append("    TYPE_NAME = %r" % spec.dds_name)
     out.append("    ROS_TYPE = %r" % spec.ros_type)
+    # The dict helpers infer every other field's shape from a default instance; a list of
+    # messages may be empty by default, so its item type is spelled out.
+    items = [f for f in fields if f.type.is_nested and f.type.array is not None]
+    if items:
+        out.append("    _ITEMS = (%s)" % "".join(
+            "(%r, %s), " % (f.name, _class_ref(f.type.base, package, deps)) for f in items))
     for c in spec.constants:
         value = float(c.value) if c.type.base in ("float32", "float64") else c.value
         out.append("    %s = %r" % (c.name, value))
@@ -584,16 +583,8 @@ def _gen_message(spec, registry, out, deps):
     if not fields:
         out.append("        pass")
     for f in fields:
-        if f.type.is_nested and f.type.base.split("/")[0] != package:
-            deps.add(f.type.base.split("/")[0])
-        out.append("        self.%s = %s if %s is None else %s" % (f.name, _default_expr(f, package), f.name, f.name))
-    out.append("")
-    out.append("    def __eq__(self, other):")
-    if fields:
-        out.append("        return type(other) is %s and %s" % (
-            spec.name, " and ".join("self.%s == other.%s" % (f.name, f.name) for f in fields)))
-    else:
-        out.append("        return type(other) is %s" % spec.name)
+        out.append("        self.%s = %s if %s is None else %s" % (
+            f.name, _default_expr(f, package, deps), f.name, f.name))
     out.append("")
     leaves = []
     rebuild = _flatten(spec, registry, "self", "", leaves, package, deps)
@@ -612,7 +603,7 @@ def _gen_message(spec, registry, out, deps):
         out.append("        return cls()")
     else:
         for step in steps:
-            _gen_decode_step(step, package, out)
+            _gen_decode_step(step, package, out, deps)
         out.append("        return cls(%s)" % rebuild)
 
 
@@ -620,6 +611,12 @@ def service_class_name(srv, message_names):
     """The descriptor is named after the service unless a message of the package already has that
     name (turtlebot3_msgs has both msg/Sound and srv/Sound); then it gets a "_Service" suffix."""
     return srv.name + "_Service" if srv.name in message_names else srv.name
+
+
+def module_name(class_name):
+    """Module of a message or service descriptor class inside its package. The underscore keeps the
+    submodule, which imports bind as an attribute of the package, from hiding the class there."""
+    return "_" + class_name
 
 
 def _gen_service(srv, out, class_name):
@@ -633,46 +630,126 @@ def _gen_service(srv, out, class_name):
     out.append("    ROS_TYPE = %r" % ("%s/srv/%s" % (srv.package, srv.name)))
 
 
-def generate_module(package, messages, services, registry, command=SHIPPED_COMMAND):
-    """Return the source text of xrce/msgs/<package>.py; ``registry`` maps "pkg/Type" to specs."""
-    specs = list(messages)
-    for srv in services:
-        specs.extend((srv.request, srv.response))
+# What generated modules may take from the shared runtime, by module: xrce/msgs/__init__.py has what
+# scalar and string fields need, _seq.py the array and sequence helpers. Each generated module
+# imports only the names its code uses, so a board does not load or bind what it never calls.
+RUNTIME_NAMES = (
+    ("xrce.msgs", ("_PACK_ERRORS", "_Message", "_bad_values", "_bool", "_get_string", "_pack_into", "_put",
+                   "_put_string", "_take", "_unpack_from")),
+    ("xrce.msgs._seq", ("_bad_len", "_count", "_get_array", "_put_array", "_put_octets", "_seq_len")),
+)
+
+
+def _imports(package, body, deps):
+    text = "\n".join(body)
+    lines = []
+    for module, names in RUNTIME_NAMES:
+        used = [n for n in names if re.search(r"(?<![\w.])%s\b" % re.escape(n), text)]
+        if not used:
+            continue
+        line = "from %s import %s" % (module, ", ".join(used))
+        if len(line) <= 110:
+            lines.append(line)
+            continue
+        lines.append("from %s import (" % module)
+        current = "   "
+        for name in used:
+            piece = " %s," % name
+            if len(current) + len(piece) > 100:
+                lines.append(current)
+                current = "   "
+            current += piece
+        lines.append(current)
+        lines.append(")")
+    # Full dotted imports only: MicroPython's "from package import _Module" asks the package's
+    # __getattr__ first and does not fall back to importing the submodule when it raises.
+    for base in sorted(deps):
+        pkg, name = base.split("/")
+        alias = _class_ref(base, package, set())
+        lines.append("from xrce.msgs.%s.%s import %s%s" % (
+            pkg, module_name(name), name, "" if alias == name else " as " + alias))
+    return lines
+
+
+def generate_message_module(spec, registry, command=SHIPPED_COMMAND):
+    """Source of xrce/msgs/<package>/_<Type>.py: one message class and the imports it needs."""
     deps = set()
     body = []
-    for spec in specs:
-        _gen_message(spec, registry, body, deps)
-    message_names = set(m.name for m in messages)
-    for srv in services:
-        _gen_service(srv, body, service_class_name(srv, message_names))
-    body.append("")
-    body.append("")
-    body.append("# Service descriptors by service name, for lookup(\"pkg/srv/Name\").")
-    body.append("SERVICES = {%s}" % ", ".join(
-        "%r: %s" % (srv.name, service_class_name(srv, message_names)) for srv in services))
-    body.append("")
-    body.append("# Field tables for the dict helpers and repr, set once every class exists.")
-    body.append("# Entries: (name, kind, nested class or None); kind 0 value, 1 nested, 2 list of nested, 3 bytes.")
-    for spec in specs:
-        entries = []
-        for f in spec.fields:
-            k = _field_kind(f.type)
-            ref = _class_ref(f.type.base, package) if f.type.is_nested else "None"
-            entries.append("(%r, %d, %s)" % (f.name, k, ref))
-        body.append("%s._FIELDS = (%s)" % (spec.name, "".join(e + ", " for e in entries)))
-    head = [
+    _gen_message(spec, registry, body, deps)
+    head = ["# Generated by xrce/msggen.py (%s) from %s. Do not edit." % (command, spec.ros_type)]
+    return "\n".join(head + _imports(spec.package, body, deps) + body) + "\n"
+
+
+def generate_service_module(srv, class_name, registry, command=SHIPPED_COMMAND):
+    """Source of xrce/msgs/<package>/_<Service>.py: request, response and their descriptor."""
+    deps = set()
+    body = []
+    _gen_message(srv.request, registry, body, deps)
+    _gen_message(srv.response, registry, body, deps)
+    _gen_service(srv, body, class_name)
+    head = ["# Generated by xrce/msggen.py (%s) from %s/srv/%s. Do not edit." % (command, srv.package, srv.name)]
+    return "\n".join(head + _imports(srv.package, body, deps) + body) + "\n"
+
+
+def generate_package_init(package, service_classes, command=SHIPPED_COMMAND):
+    """Source of xrce/msgs/<package>/__init__.py: resolves type names to their modules on first use."""
+    lines = [
         "# Generated by xrce/msggen.py (%s) from the %s interface definitions. Do not edit." % (command, package),
-        '"""XCDR1 (de)serialization of the %s ROS 2 messages%s."""' % (
-            package, " and services" if services else ""),
+        "# Every type has its own module (_<Type>.py, _<Service>.py), imported the first time its name is",
+        "# looked up here, so a board holds only the types it uses. SERVICES maps services to descriptors.",
+        "from xrce.msgs import _type_attr",
         "",
-        "from xrce.msgs import (",
-        "    _PACK_ERRORS, _Message, _bad_len, _bad_values, _bool, _count, _get_array, _get_string,",
-        "    _pack_into, _put, _put_array, _put_octets, _put_string, _seq_len, _take, _unpack_from,",
-        ")",
+        "# Service descriptor classes; Name_Request/Name_Response live in the same module.",
+        "_SERVICE_CLASSES = (%s)" % "".join("%r, " % name for name in service_classes),
+        "",
+        "",
+        "def __getattr__(name):",
+        "    return _type_attr(globals(), name)",
     ]
-    for pkg in sorted(deps):
-        head.append("from xrce.msgs import %s as _%s" % (pkg, pkg))
-    return "\n".join(head + body) + "\n"
+    return "\n".join(lines) + "\n"
+
+
+def generate_package(package, messages, services, registry, command=SHIPPED_COMMAND):
+    """{file name inside xrce/msgs/<package>/: source text} for one ROS package."""
+    message_names = set(m.name for m in messages)
+    files = {}
+    for spec in messages:
+        files[module_name(spec.name) + ".py"] = generate_message_module(spec, registry, command)
+    service_classes = []
+    for srv in services:
+        class_name = service_class_name(srv, message_names)
+        service_classes.append(class_name)
+        files[module_name(class_name) + ".py"] = generate_service_module(srv, class_name, registry, command)
+    files["__init__.py"] = generate_package_init(package, service_classes, command)
+    return files
+
+
+GENERATED_MARK = "# Generated by xrce/msggen.py"
+
+
+def _is_generated(path):
+    try:
+        with open(path) as f:
+            return f.readline().startswith(GENERATED_MARK)
+    except OSError:
+        return False
+
+
+def write_package(outdir, package, files):
+    """Write one package directory; generated modules that are no longer produced (a removed type,
+    or the old one-file-per-package layout) are deleted so they cannot be imported by mistake."""
+    pkg_dir = os.path.join(outdir, package)
+    os.makedirs(pkg_dir, exist_ok=True)
+    old_layout = os.path.join(outdir, package + ".py")
+    if _is_generated(old_layout):
+        os.remove(old_layout)
+    for name in sorted(os.listdir(pkg_dir)):
+        path = os.path.join(pkg_dir, name)
+        if name.endswith(".py") and name not in files and _is_generated(path):
+            os.remove(path)
+    for name in sorted(files):
+        with open(os.path.join(pkg_dir, name), "w") as f:
+            f.write(files[name])
 
 
 def build_registry(packages):
@@ -713,7 +790,7 @@ def default_outdir():
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m xrce.msggen", description=__doc__.splitlines()[0])
     parser.add_argument("packages", nargs="*", help="package directories holding msg/ and/or srv/")
-    parser.add_argument("-o", "--outdir", default=None, help="where <package>.py modules are written")
+    parser.add_argument("-o", "--outdir", default=None, help="where the <package>/ directories are written")
     parser.add_argument("--shipped", action="store_true",
                         help="regenerate the packages committed in xrce/msgs (venv share + interfaces/)")
     args = parser.parse_args(argv)
@@ -735,9 +812,7 @@ def main(argv=None):
     os.makedirs(outdir, exist_ok=True)
     registry = build_registry(packages)
     for package, messages, services in packages:
-        path = os.path.join(outdir, package + ".py")
-        with open(path, "w") as f:
-            f.write(generate_module(package, messages, services, registry, command))
+        write_package(outdir, package, generate_package(package, messages, services, registry, command))
     return 0
 
 
