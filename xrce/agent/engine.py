@@ -125,6 +125,8 @@ class ObjectEntry:
     topic: Optional[int] = None  # the topic object a writer/reader uses
     topic_spec: Optional[TopicSpec] = None
     reader: Optional[ReaderState] = None
+    samples: int = 0  # written into the middleware (writers) or delivered to the client (readers)
+    sample_bytes: int = 0
 
 
 class ClientProxy:
@@ -150,6 +152,20 @@ class ClientProxy:
         self.reassembly: Dict[int, bytearray] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored
+        # Per-client counters for xrce.agent.observability; plain ints so the hot path stays cheap.
+        self.created_at = now
+        self.messages_in = 0
+        self.bytes_in = 0
+        self.messages_out = 0
+        self.bytes_out = 0
+        self.decode_errors = 0
+        self.duplicates = 0
+        self.retransmissions = 0
+        # The agent cannot know the client's clock offset; it can time HEARTBEAT -> ACKNACK and
+        # see how far a client's TIMESTAMP is from its own clock on arrival (skew + one-way delay).
+        self.heartbeat_sent_at: Optional[float] = None
+        self.rtt_s: Optional[float] = None
+        self.timestamp_skew_ns: Optional[int] = None
 
     def entity(self, object_id: int) -> EntityKey:
         return (self.key_int, object_id)
@@ -181,6 +197,9 @@ class Agent:
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
         self._started = False
+        # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
+        # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
+        self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -189,6 +208,8 @@ class Agent:
         data = bytes(data)
         self.stats.messages_in += 1
         self.stats.bytes_in += len(data)
+        if self.tap is not None:
+            self.tap("in", link, endpoint, data)
         try:
             self._receive(link, endpoint, data)
         except DecodeError as exc:
@@ -245,6 +266,8 @@ class Agent:
             return
         client.last_seen = self.clock()
         client.probes = 0
+        client.messages_in += 1
+        client.bytes_in += len(data)
         stream_id = header.stream_id
         if stream_id == C.STREAM_NONE:
             self._process_message(client, data, header.size, stream_id)
@@ -269,6 +292,7 @@ class Agent:
                 self._process_reliable_message(client, stream_id, message)
         finally:
             self.stats.duplicates += stream.duplicates - duplicates
+            client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
                 self._send_acknack(client, stream)
 
@@ -278,6 +302,7 @@ class Agent:
             self._process_message(client, message, size, stream_id)
         except DecodeError:
             self.stats.decode_errors += 1
+            client.decode_errors += 1
             log.debug("malformed reliable message from client %s: %s", client.key.hex(), message.hex())
 
     def _receive_sessionless(self, link: Link, endpoint: Hashable, data: bytes, header) -> None:
@@ -322,6 +347,7 @@ class Agent:
                     return
         except DecodeError as exc:
             self.stats.decode_errors += 1
+            client.decode_errors += 1
             log.debug("client %s: malformed submessage (%s) in %s", client.key.hex(), exc, data.hex())
 
     def _handle_submessage(self, client: ClientProxy, stream_id: int, data: bytes, sub_id: int,
@@ -350,6 +376,7 @@ class Agent:
             self._send_stream0(client, self._info(payload, 1))
         elif sub_id == C.TIMESTAMP:
             receive_ns = time.time_ns()
+            client.timestamp_skew_ns = receive_ns - payload.ns()
             self._send_stream0(client, TimestampReply(time.time_ns(), receive_ns, payload.ns()))
         elif sub_id == C.RESET:
             client.reset_streams()
@@ -609,6 +636,8 @@ class Agent:
         data = request.data
         key = client.entity(entry.object_id)
         self.stats.samples_in += 1
+        entry.samples += 1
+        entry.sample_bytes += len(data)
         if entry.kind == C.OBJK_DATAWRITER:
             return bool(self.middleware.write(key, data))
         if entry.kind == C.OBJK_REQUESTER:
@@ -709,6 +738,8 @@ class Agent:
                 break
             reader.queue.popleft()
             self.stats.samples_out += 1
+            entry.samples += 1
+            entry.sample_bytes += len(sample)
             if active.remaining is not None:
                 active.remaining -= 1
                 if active.remaining <= 0:
@@ -741,12 +772,17 @@ class Agent:
         stream = client.out_reliable.get(acknack.stream_id)
         if stream is None:
             return
-        now_ms = int(self.clock() * 1000)
+        now = self.clock()
+        if client.heartbeat_sent_at is not None:
+            client.rtt_s = now - client.heartbeat_sent_at
+            client.heartbeat_sent_at = None
+        now_ms = int(now * 1000)
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
         for message in stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms,
                                          holdoff_ms):
             self.stats.retransmissions += 1
-            self._send_raw(client.link, client.endpoint, message)
+            client.retransmissions += 1
+            self._send_client(client, message)
         if client.blocked_readers and stream.has_room():
             self._unblock(client)
 
@@ -791,6 +827,7 @@ class Agent:
             span = stream.heartbeat()
             if span is not None:
                 self.stats.heartbeats_out += 1
+                client.heartbeat_sent_at = now
                 self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
         for object_id, entry in list(client.objects.items()):
             reader = entry.reader
@@ -807,10 +844,17 @@ class Agent:
         self.stats.bytes_out += len(message)
         if log.isEnabledFor(TRACE):
             self._trace("out", link, endpoint, message, header_size(message[0]))
+        if self.tap is not None:
+            self.tap("out", link, endpoint, message)
         link.send(endpoint, message)
 
+    def _send_client(self, client: ClientProxy, message: bytes) -> None:
+        client.messages_out += 1
+        client.bytes_out += len(message)
+        self._send_raw(client.link, client.endpoint, message)
+
     def _send_stream0(self, client: ClientProxy, payload) -> None:
-        self._send_raw(client.link, client.endpoint, encode_message(
+        self._send_client(client, encode_message(
             client.session_id, C.STREAM_NONE, 0, client.header_key, [payload]))
 
     def _send_on_stream(self, client: ClientProxy, stream_id: int, payload) -> bool:
@@ -832,7 +876,7 @@ class Agent:
             stream = client.out_best_effort.get(stream_id)
             if stream is None:
                 stream = client.out_best_effort[stream_id] = OutputBestEffortStream(stream_id)
-            self._send_raw(client.link, client.endpoint, _with_seq(message, stream.next_seq()))
+            self._send_client(client, _with_seq(message, stream.next_seq()))
             return True
         stream = client.out_reliable.get(stream_id)
         if stream is None:
@@ -843,7 +887,7 @@ class Agent:
                 return False
             message = _with_seq(message, seq)
             stream.commit(seq, message)
-            self._send_raw(client.link, client.endpoint, message)
+            self._send_client(client, message)
             return True
         return self._send_fragmented(client, stream, message)
 
@@ -868,7 +912,7 @@ class Agent:
                                       [Fragment(inner[index * chunk:(index + 1) * chunk], flags)])
             stream.commit(seq, fragment)
             self.stats.fragments_out += 1
-            self._send_raw(client.link, client.endpoint, fragment)
+            self._send_client(client, fragment)
         return True
 
     # ------------------------------------------------------------------ logging --
