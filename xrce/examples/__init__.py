@@ -1,0 +1,1 @@
+"""Example firmware built on the XRCE client (MicroPython-safe, like the client itself)."""

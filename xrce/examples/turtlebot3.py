@@ -1,0 +1,465 @@
+"""A simulated TurtleBot3 (burger) firmware on the XRCE client, written the way MCU firmware is.
+
+One loop, no threads: wait for input a few milliseconds at a time, integrate the wheels, publish
+whatever is due. It runs unchanged under MicroPython (give it any transport object) and under
+CPython::
+
+    python -m xrce.examples.turtlebot3 udp4 --agent 127.0.0.1 -p 8888
+    python -m xrce.examples.turtlebot3 serial --dev /dev/pts/5 [-b 115200]
+
+Node ``turtlebot3_node``. Publishes ``/sensor_state`` (turtlebot3_msgs/SensorState),
+``/imu``, ``/battery_state``, ``/odom`` and ``/tf`` (odom → base_footprint), every header stamped
+with the agent's clock (``Session.epoch_ns`` after ``sync_time``, repeated periodically).
+Subscribes ``/cmd_vel``: commands drive a differential-drive model whose wheel speeds give the
+encoder counts and the odometry; without a command for ``failsafe_ms`` the wheels stop.
+
+Topic QoS follows what ROS 2 subscribers of each topic expect, because a best-effort writer never
+matches a reliable reader: sensor streams (sensor_state, imu, battery_state) are best-effort,
+``/odom`` and ``/tf`` reliable. ``/odom`` is larger than one 512-byte message and is fragmented,
+which only the reliable stream can do.
+"""
+
+import math
+
+from xrce.client.session import Session, ping_agent
+from xrce.compat import ticks_add, ticks_diff, ticks_ms
+from xrce.msgs.geometry_msgs import TransformStamped, Twist
+from xrce.msgs.nav_msgs import Odometry
+from xrce.msgs.sensor_msgs import BatteryState, Imu
+from xrce.msgs.tf2_msgs import TFMessage
+from xrce.msgs.turtlebot3_msgs import SensorState
+
+NODE_NAME = "turtlebot3_node"
+
+# TurtleBot3 burger geometry and limits (ROBOTIS e-Manual).
+WHEEL_RADIUS = 0.033
+WHEEL_SEPARATION = 0.160
+MAX_LINEAR_VELOCITY = 0.22
+MAX_ANGULAR_VELOCITY = 2.84
+ENCODER_TICKS_PER_REV = 4096  # DYNAMIXEL XL430 position resolution
+TWO_PI = 2.0 * math.pi
+
+BATTERY_FULL_V = 12.4  # 3S LiPo, 1800 mAh
+BATTERY_EMPTY_V = 10.5
+BATTERY_CAPACITY_AH = 1.8
+GRAVITY = 9.80665
+
+# Default periods (ms). /sensor_state at 10 Hz as the OpenCR firmware; odom and tf at the rate a
+# navigation stack expects; the battery changes slowly.
+DEFAULT_PERIODS_MS = {
+    "sensor_state": 100,
+    "imu": 100,
+    "odom": 100,
+    "tf": 100,
+    "battery_state": 1000,
+}
+TIME_SYNC_PERIOD_MS = 10000
+FAILSAFE_MS = 500
+MAX_WAIT_MS = 5  # the loop's longest sleep: bounds fail-safe and schedule jitter
+MAX_MESSAGES_PER_STEP = 16  # drain a burst of input, but keep publishing on time
+
+NS_PER_S = 1000000000
+
+
+def _clamp(value, limit):
+    if value > limit:
+        return limit
+    if value < -limit:
+        return -limit
+    return value
+
+
+def _set_stamp(header, ns):
+    header.stamp.sec = ns // NS_PER_S
+    header.stamp.nanosec = ns % NS_PER_S
+
+
+def _set_yaw(quaternion, yaw):
+    quaternion.x = 0.0
+    quaternion.y = 0.0
+    quaternion.z = math.sin(yaw * 0.5)
+    quaternion.w = math.cos(yaw * 0.5)
+
+
+class _Periodic:
+    """A drift-free period: the next deadline advances by whole periods, not from 'now'."""
+
+    __slots__ = ("period_ms", "due")
+
+    def __init__(self, period_ms, now):
+        self.period_ms = period_ms
+        self.due = now
+
+    def take(self, now):
+        """True once per elapsed period; a late loop catches up by skipping, never by bursting."""
+        if ticks_diff(now, self.due) < 0:
+            return False
+        self.due = ticks_add(self.due, self.period_ms)
+        if ticks_diff(now, self.due) >= 0:
+            self.due = ticks_add(now, self.period_ms)
+        return True
+
+    def remaining(self, now):
+        return ticks_diff(self.due, now)
+
+
+class TurtleBot3:
+    """The robot: ``connect()``, ``setup()``, then ``step()`` in a loop (or ``run()``).
+
+    Counters for observers and tests: ``commands_received``, ``last_command`` ((linear.x,
+    angular.z) as received), ``failsafe_trips``, ``published`` (topic → samples written),
+    ``failed_topics`` (topics the agent refused), ``time_syncs``; the state: ``x``, ``y``, ``yaw``,
+    ``linear``, ``angular`` (the velocities being driven), ``left_ticks``, ``right_ticks``.
+    """
+
+    def __init__(self, transport, domain_id=0, node_name=NODE_NAME, cmd_vel_reliable=True,
+                 periods_ms=None, failsafe_ms=FAILSAFE_MS, time_sync_period_ms=TIME_SYNC_PERIOD_MS,
+                 key=None, log=print):
+        self.transport = transport
+        self.domain_id = domain_id
+        self.node_name = node_name
+        self.cmd_vel_reliable = cmd_vel_reliable
+        self.periods_ms = dict(DEFAULT_PERIODS_MS)
+        if periods_ms:
+            self.periods_ms.update(periods_ms)
+        self.failsafe_ms = failsafe_ms
+        self.time_sync_period_ms = time_sync_period_ms
+        self.log = log
+        self.session = Session(transport, key=key, history=16)
+
+        self.commands_received = 0
+        self.last_command = None
+        self.failsafe_trips = 0
+        self.time_syncs = 0
+        self.published = {}
+        self.failed_topics = []
+        self._writers = {}
+        self._schedule = []
+        self._sync_timer = None
+
+        self.x = 0.0
+        self.y = 0.0
+        self.yaw = 0.0
+        self.linear = 0.0
+        self.angular = 0.0
+        self.left_angle = 0.0  # wheel angles (rad) since start; the encoders count them
+        self.right_angle = 0.0
+        self.left_ticks = 0
+        self.right_ticks = 0
+        self.battery_voltage = BATTERY_FULL_V
+        self._last_command_ms = None
+        self._last_motion_ms = None
+
+        # One instance of each message, refilled in place: no allocation per sample.
+        self._sensor_state = SensorState()
+        self._sensor_state.torque = True
+        self._imu = Imu()
+        self._imu.header.frame_id = "imu_link"
+        self._imu.linear_acceleration.z = GRAVITY
+        self._battery = BatteryState()
+        self._battery.design_capacity = BATTERY_CAPACITY_AH
+        self._battery.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
+        self._battery.power_supply_health = BatteryState.POWER_SUPPLY_HEALTH_GOOD
+        self._battery.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LIPO
+        self._battery.present = True
+        self._odom = Odometry()
+        self._odom.header.frame_id = "odom"
+        self._odom.child_frame_id = "base_footprint"
+        self._transform = TransformStamped()
+        self._transform.header.frame_id = "odom"
+        self._transform.child_frame_id = "base_footprint"
+        self._tf = TFMessage(transforms=[self._transform])
+        self._publishers = {
+            "sensor_state": self._publish_sensor_state,
+            "imu": self._publish_imu,
+            "battery_state": self._publish_battery,
+            "odom": self._publish_odom,
+            "tf": self._publish_tf,
+        }
+
+    # ------------------------------------------------------------------ start-up
+
+    def connect(self, timeout_ms=1000, attempts=0):
+        """Ping the agent until it answers (``attempts`` 0: forever, as the OpenCR firmware).
+        Returns the round-trip time in µs, or None when the attempts ran out."""
+        tried = 0
+        while attempts <= 0 or tried < attempts:
+            rtt = ping_agent(self.transport, timeout_ms, 1)
+            if rtt is not None:
+                return rtt
+            tried += 1
+            if tried == 1 or tried % 10 == 0:
+                self.log("turtlebot3: waiting for the agent (%d pings unanswered)" % tried)
+        return None
+
+    def setup(self, timeout_ms=5000):
+        """Session, clock, node, publishers and the /cmd_vel subscription. Topics the agent refuses
+        (e.g. a message package it cannot load) are logged and left out; the robot runs without
+        them. Returns False if the session or node could not be created."""
+        session = self.session
+        if not session.create(attempts=10, timeout_ms=1000):
+            self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
+            return False
+        self.sync_clock()
+        node = session.create_participant(domain_id=self.domain_id, name=self.node_name)
+        if not session.run_until_all_status(timeout_ms):
+            self.log("turtlebot3: node not created: %r" % (session.last_statuses,))
+            return False
+        self._add_writer(node, "sensor_state", "/sensor_state", SensorState, False, timeout_ms)
+        self._add_writer(node, "imu", "/imu", Imu, False, timeout_ms)
+        self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
+        self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
+        self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
+        session.create_reader(node, "/cmd_vel", Twist, self._on_cmd_vel,
+                              reliable=self.cmd_vel_reliable, depth=10)
+        if not session.run_until_all_status(timeout_ms):
+            self.log("turtlebot3: /cmd_vel subscription failed: %r" % (session.last_statuses,))
+            self.failed_topics.append("cmd_vel")
+        now = ticks_ms()
+        self._last_motion_ms = now
+        self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))
+        self._schedule = []
+        for topic in self._writers:
+            self._schedule.append((topic, _Periodic(self.periods_ms[topic], now)))
+        return True
+
+    def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
+        session = self.session
+        writer = session.create_writer(node, ros_name, msg_class, reliable=reliable, depth=10)
+        if session.run_until_all_status(timeout_ms):
+            stream = session.reliable if reliable else session.best_effort
+            self._writers[topic] = (writer, stream)
+            self.published[topic] = 0
+        else:
+            self.failed_topics.append(topic)
+            self.log("turtlebot3: %s not created (%s): %r" % (ros_name, msg_class.TYPE_NAME,
+                                                               session.last_statuses))
+
+    def sync_clock(self):
+        if self.session.sync_time(timeout_ms=200, attempts=3):
+            self.time_syncs += 1
+            return True
+        self.log("turtlebot3: time sync unanswered")
+        return False
+
+    # ------------------------------------------------------------------ commands and motion
+
+    def _on_cmd_vel(self, twist):
+        self._move(ticks_ms())  # integrate up to now with the previous velocities first
+        self.commands_received += 1
+        self.last_command = (twist.linear.x, twist.angular.z)
+        self.linear = _clamp(twist.linear.x, MAX_LINEAR_VELOCITY)
+        self.angular = _clamp(twist.angular.z, MAX_ANGULAR_VELOCITY)
+        self._last_command_ms = ticks_ms()
+
+    def _move(self, now):
+        """Integrate the differential drive from the last update to ``now``."""
+        last = self._last_motion_ms
+        self._last_motion_ms = now
+        if last is None:
+            return
+        dt = ticks_diff(now, last) * 0.001
+        if dt <= 0.0:
+            return
+        # The wheels turn at the speeds the command asks for; pose and encoders follow from them.
+        half_track = self.angular * WHEEL_SEPARATION * 0.5
+        left_speed = self.linear - half_track
+        right_speed = self.linear + half_track
+        self.left_angle += left_speed * dt / WHEEL_RADIUS
+        self.right_angle += right_speed * dt / WHEEL_RADIUS
+        self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / TWO_PI)
+        self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / TWO_PI)
+        linear = (left_speed + right_speed) * 0.5
+        angular = (right_speed - left_speed) / WHEEL_SEPARATION
+        heading = self.yaw + angular * dt * 0.5  # midpoint heading: exact for straight lines and
+        self.x += linear * dt * math.cos(heading)  # second-order accurate on arcs
+        self.y += linear * dt * math.sin(heading)
+        yaw = self.yaw + angular * dt
+        self.yaw = math.atan2(math.sin(yaw), math.cos(yaw))
+        # A burger draws about 1 A driving: the voltage sags linearly with the charge used.
+        used = (0.3 + 0.7 * (abs(linear) / MAX_LINEAR_VELOCITY)) * dt / 3600.0 / BATTERY_CAPACITY_AH
+        self.battery_voltage -= used * (BATTERY_FULL_V - BATTERY_EMPTY_V)
+        if self.battery_voltage < BATTERY_EMPTY_V:
+            self.battery_voltage = BATTERY_EMPTY_V
+
+    def _check_failsafe(self, now):
+        last = self._last_command_ms
+        if last is not None and ticks_diff(now, last) > self.failsafe_ms:
+            self._last_command_ms = None
+            self.linear = 0.0
+            self.angular = 0.0
+            self.failsafe_trips += 1
+
+    # ------------------------------------------------------------------ publishing
+
+    def _write(self, topic, msg):
+        writer, stream = self._writers[topic]
+        if self.session.write(writer, msg, stream_id=stream):
+            self.published[topic] += 1
+
+    def _publish_sensor_state(self, stamp_ns):
+        msg = self._sensor_state
+        _set_stamp(msg.header, stamp_ns)
+        msg.left_encoder = self.left_ticks
+        msg.right_encoder = self.right_ticks
+        msg.battery = self.battery_voltage
+        self._write("sensor_state", msg)
+
+    def _publish_imu(self, stamp_ns):
+        msg = self._imu
+        _set_stamp(msg.header, stamp_ns)
+        _set_yaw(msg.orientation, self.yaw)
+        msg.angular_velocity.z = self.angular
+        self._write("imu", msg)
+
+    def _publish_battery(self, stamp_ns):
+        msg = self._battery
+        _set_stamp(msg.header, stamp_ns)
+        msg.voltage = self.battery_voltage
+        msg.percentage = (self.battery_voltage - BATTERY_EMPTY_V) / (BATTERY_FULL_V - BATTERY_EMPTY_V)
+        msg.current = -(0.3 + 0.7 * abs(self.linear) / MAX_LINEAR_VELOCITY)
+        self._write("battery_state", msg)
+
+    def _publish_odom(self, stamp_ns):
+        msg = self._odom
+        _set_stamp(msg.header, stamp_ns)
+        pose = msg.pose.pose
+        pose.position.x = self.x
+        pose.position.y = self.y
+        _set_yaw(pose.orientation, self.yaw)
+        msg.twist.twist.linear.x = self.linear
+        msg.twist.twist.angular.z = self.angular
+        self._write("odom", msg)
+
+    def _publish_tf(self, stamp_ns):
+        transform = self._transform
+        _set_stamp(transform.header, stamp_ns)
+        transform.transform.translation.x = self.x
+        transform.transform.translation.y = self.y
+        _set_yaw(transform.transform.rotation, self.yaw)
+        self._write("tf", self._tf)
+
+    # ------------------------------------------------------------------ the loop
+
+    def step(self):
+        """One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications."""
+        session = self.session
+        now = ticks_ms()
+        wait = MAX_WAIT_MS
+        for _, timer in self._schedule:
+            remaining = timer.remaining(now)
+            if remaining < wait:
+                wait = remaining if remaining > 0 else 0
+        if session.spin_once(wait):
+            count = 1
+            while count < MAX_MESSAGES_PER_STEP and session.spin_once(0):
+                count += 1
+        now = ticks_ms()
+        self._move(now)
+        self._check_failsafe(now)
+        stamp_ns = None
+        for topic, timer in self._schedule:
+            if timer.take(now):
+                if stamp_ns is None:
+                    stamp_ns = session.epoch_ns()  # one stamp for everything sampled this pass
+                self._publishers[topic](stamp_ns)
+        if stamp_ns is not None:
+            session.flush()
+        if self._sync_timer is not None and self._sync_timer.take(now):
+            self.sync_clock()
+
+    def run(self, duration_ms=None, should_stop=None):
+        """Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true."""
+        start = ticks_ms()
+        while True:
+            if duration_ms is not None and ticks_diff(ticks_ms(), start) >= duration_ms:
+                return
+            if should_stop is not None and should_stop():
+                return
+            self.step()
+
+    def shutdown(self):
+        """Delete the session on the agent (its ROS entities go with it) and close the transport."""
+        try:
+            self.session.delete(attempts=2, timeout_ms=300)
+        finally:
+            self.session.close()
+
+    def status_line(self):
+        return ("turtlebot3: x=%.3f y=%.3f yaw=%.3f v=%.3f w=%.3f commands=%d failsafe_trips=%d "
+                "published=%r" % (self.x, self.y, self.yaw, self.linear, self.angular,
+                                  self.commands_received, self.failsafe_trips, self.published))
+
+
+# ---------------------------------------------------------------------- CPython command line
+
+def _make_transport(args):
+    if args.transport == "udp4":
+        from xrce.transports.udp import UdpTransport
+        return UdpTransport(args.agent, args.port)
+    from xrce.transports.serial import SerialTransport
+    return SerialTransport(args.dev, args.baudrate)
+
+
+def main(argv=None):
+    import argparse
+    import signal
+    import sys
+
+    parser = argparse.ArgumentParser(prog="python -m xrce.examples.turtlebot3",
+                                     description="simulated TurtleBot3 burger firmware")
+    sub = parser.add_subparsers(dest="transport", required=True)
+    udp = sub.add_parser("udp4", help="reach the agent over UDP/IPv4")
+    udp.add_argument("--agent", default="127.0.0.1", help="agent address (default 127.0.0.1)")
+    udp.add_argument("-p", "--port", type=int, default=8888)
+    serial = sub.add_parser("serial", help="reach the agent over a serial line")
+    serial.add_argument("--dev", "-D", required=True)
+    serial.add_argument("-b", "--baudrate", type=int, default=115200)
+    for child in (udp, serial):
+        child.add_argument("--domain", type=int, default=None,
+                           help="ROS domain of the node (default: $ROS_DOMAIN_ID or 0)")
+        child.add_argument("--cmd-vel-best-effort", action="store_true",
+                           help="subscribe /cmd_vel best-effort (default reliable)")
+        child.add_argument("--status-period", type=float, default=0.0, metavar="S",
+                           help="print a status line every S seconds (0: never)")
+        child.add_argument("--connect-attempts", type=int, default=0,
+                           help="agent pings before giving up (0: forever)")
+    args = parser.parse_args(argv)
+    import os
+    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
+    transport = _make_transport(args)
+    robot = TurtleBot3(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
+                       log=log)
+    try:
+        if robot.connect(attempts=args.connect_attempts) is None:
+            log("turtlebot3: no agent answered")
+            return 1
+        if not robot.setup():
+            return 1
+        log("turtlebot3: running (node %s, domain %d, failed topics %r)"
+            % (robot.node_name, domain, robot.failed_topics))
+        status = None
+        if args.status_period > 0:
+            status = _Periodic(int(args.status_period * 1000), ticks_ms())
+        while not stop:
+            robot.step()
+            if status is not None and status.take(ticks_ms()):
+                log(robot.status_line())
+        return 0
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        try:
+            robot.shutdown()
+        except Exception:  # the agent may be gone already; the process is ending anyway
+            transport.close()
+        log(robot.status_line())
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())
