@@ -42,8 +42,16 @@ logging.addLevelName(TRACE, "TRACE")
 log = logging.getLogger("xrce.agent")
 
 STREAM_WINDOW = 16  # RELIABLE_STREAM_DEPTH of the eProsima agent, both directions
+# Per-client quotas (defaults; ``Agent`` takes each as a constructor argument, the CLI as a flag).
 MAX_REASSEMBLY = 256 * 1024  # a fragmented message larger than this is abandoned
 MAX_OBJECTS_PER_CLIENT = 4096  # beyond this CREATE answers ERR_RESOURCES
+MAX_OUTPUT_QUEUE_BYTES = 1024 * 1024  # samples waiting for one client; the oldest go first
+MAX_CLIENTS = 1024  # CREATE_CLIENT of a new key beyond this evicts a dead client or is refused
+QUOTA_LOG_INTERVAL = 1.0  # seconds between repeated quota log lines for one client and quota
+# eProsima's UAGENT_CONFIG_CLIENT_DEAD_TIME; eProsima never destroys a silent client's entities
+# unless it asked for hard liveliness (uxr_hl), hence expiry off by default.
+CLIENT_DEAD_TIME = 30.0
+CLIENT_EXPIRE_TIME = 0.0
 MAX_QUEUE_KEEP_ALL = 1024  # reader queue bound when its QoS is KEEP_ALL
 MIN_MTU = 24  # smaller CREATE_CLIENT mtu values would leave no room for a fragment chunk
 HARD_LIVELINESS_PROBES = 3
@@ -87,6 +95,13 @@ class AgentStats:
     samples_overwritten: int = 0  # reader queue full: oldest sample dropped
     clients_created: int = 0
     clients_deleted: int = 0
+    clients_dead: int = 0  # times a client went silent for client_dead_time
+    clients_revived: int = 0  # dead clients that spoke again
+    clients_expired: int = 0  # silent for client_expire_time: deleted with their entities
+    clients_refused: int = 0  # CREATE_CLIENT beyond max_clients with no dead client to evict
+    endpoints_closed: int = 0  # TCP connections / serial ports that went away under a session
+    quota_objects: int = 0  # CREATE refused with ERR_RESOURCES
+    quota_output_dropped: int = 0  # samples dropped because a client's output queue was full
 
     def as_dict(self) -> Dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -144,6 +159,9 @@ class ClientProxy:
         self.last_seen = now
         self.hard_liveliness = hard_liveliness
         self.probes = 0
+        self.dead = False  # silent for the dead time: no HEARTBEATs until it speaks again
+        self.queued_bytes = 0  # sample bytes waiting in this client's reader queues
+        self.quota_logged: Dict[str, float] = {}
         self.objects: Dict[int, ObjectEntry] = {}
         self.in_best_effort: Dict[int, InputBestEffortStream] = {}
         self.in_reliable: Dict[int, InputReliableStream] = {}
@@ -185,12 +203,26 @@ class _StopMessage(Exception):
 
 class Agent:
     def __init__(self, middleware: Middleware, *, refs: Optional[Dict[str, str]] = None,
-                 heartbeat_period: float = 0.2, client_dead_time: float = 30.0,
+                 heartbeat_period: float = 0.2, client_dead_time: float = CLIENT_DEAD_TIME,
+                 client_expire_time: float = CLIENT_EXPIRE_TIME,
+                 max_objects_per_client: Optional[int] = None,
+                 max_reassembly_bytes: Optional[int] = None,
+                 max_output_queue_bytes: int = MAX_OUTPUT_QUEUE_BYTES,
+                 max_clients: int = MAX_CLIENTS,
                  loop: Optional[asyncio.AbstractEventLoop] = None):
+        """``client_dead_time`` (s): silence after which a client gets no more HEARTBEATs;
+        ``client_expire_time`` (s, counted from its last message, 0 = never): silence after which
+        the client and all its entities are deleted. Quotas are per client except ``max_clients``;
+        None for the first two means the module defaults, looked up when used."""
         self.middleware = middleware
         self.refs = dict(refs or {})
         self.heartbeat_period = heartbeat_period
         self.client_dead_time = client_dead_time
+        self.client_expire_time = client_expire_time
+        self.max_objects_per_client = max_objects_per_client
+        self.max_reassembly_bytes = max_reassembly_bytes
+        self.max_output_queue_bytes = max_output_queue_bytes
+        self.max_clients = max_clients
         self.loop = loop
         self.stats = AgentStats()
         self.clock: Callable[[], float] = time.monotonic  # tests may substitute a fake clock
@@ -246,6 +278,19 @@ class Agent:
             self._delete_client(client)
         await self.middleware.close()
 
+    def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
+        """A TCP connection or serial port went away: sessions identified by that endpoint need a
+        new CREATE_CLIENT (as a new UDP socket would). Their objects stay for REUSE; liveliness
+        decides when a client that never comes back is forgotten."""
+        key = self.endpoints.pop((link, endpoint), None)
+        for client in self.clients.values():
+            if client.link is link and client.endpoint == endpoint:
+                self.stats.endpoints_closed += 1
+                log.info("client %s: %s %r closed; its entities are kept until it returns or expires",
+                         client.key.hex(), link.name, endpoint)
+        if key is not None and key not in self.clients:
+            log.debug("endpoint %s %r was mapped to unknown client %s", link.name, endpoint, key.hex())
+
     # ------------------------------------------------------------------ input dispatch --
 
     def _receive(self, link: Link, endpoint: Hashable, data: bytes) -> None:
@@ -266,6 +311,10 @@ class Agent:
             return
         client.last_seen = self.clock()
         client.probes = 0
+        if client.dead:
+            client.dead = False
+            self.stats.clients_revived += 1
+            log.info("client %s is alive again", client.key.hex())
         client.messages_in += 1
         client.bytes_in += len(data)
         stream_id = header.stream_id
@@ -392,6 +441,8 @@ class Agent:
             status = C.STATUS_ERR_INVALID_DATA
         elif request.version[0] != C.XRCE_VERSION_MAJOR:
             status = C.STATUS_ERR_INCOMPATIBLE
+        elif not self._room_for_client(bytes(request.client_key), link, endpoint, session_id):
+            status = C.STATUS_ERR_RESOURCES
         if status == C.STATUS_OK:
             self._establish(link, endpoint, request)
         self._send_raw(link, endpoint, encode_message(session_id, C.STREAM_NONE, 0, reply_key,
@@ -412,6 +463,9 @@ class Agent:
             client.reset_streams()  # session restart: objects survive for REUSE
             self._unbind(client)
             client.link, client.endpoint, client.last_seen, client.probes = link, endpoint, now, 0
+            client.dead = False
+            log.info("client %s session 0x%02X restarted on %s %r, %d objects kept for reuse",
+                     key.hex(), session_id, link.name, endpoint, len(client.objects))
         else:
             if client is not None:
                 log.info("client %s replaced (session 0x%02X → 0x%02X)", key.hex(),
@@ -426,6 +480,35 @@ class Agent:
                      link.name, endpoint, client.mtu)
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
+
+    def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
+        """True if a session for ``key`` fits under max_clients, evicting the longest-silent dead
+        client if that is what it takes (a hostile or buggy peer must not grow the table forever)."""
+        if key in self.clients or len(self.clients) < self.max_clients:
+            return True
+        if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK and self.endpoints.get((link, endpoint)) \
+                in self.clients:
+            return True  # re-binding this endpoint deletes its current client first
+        now = self.clock()
+        silent = [c for c in self.clients.values()
+                  if now - c.last_seen >= (c.hard_liveliness or self.client_dead_time)]
+        if silent:
+            victim = min(silent, key=lambda c: c.last_seen)
+            log.warning("%d clients: evicting dead client %s to admit %s", len(self.clients),
+                        victim.key.hex(), key.hex())
+            self._delete_client(victim)
+            return True
+        self.stats.clients_refused += 1
+        log.warning("%d clients, none dead: refusing client %s (max_clients)", len(self.clients),
+                    key.hex())
+        return False
+
+    def _quota_warning(self, client: ClientProxy, quota: str, message: str, *args) -> None:
+        now = self.clock()
+        last = client.quota_logged.get(quota)
+        if last is None or now - last >= QUOTA_LOG_INTERVAL:
+            client.quota_logged[quota] = now
+            log.warning("client %s: " + message, client.key.hex(), *args)
 
     def _unbind(self, client: ClientProxy) -> None:
         if self.endpoints.get((client.link, client.endpoint)) == client.key:
@@ -485,7 +568,10 @@ class Agent:
                     self._status(client, request, C.STATUS_ERR_MISMATCH, stream_id)
                     return
             self._delete_object(client, object_id)
-        if len(client.objects) >= MAX_OBJECTS_PER_CLIENT:
+        if len(client.objects) >= (self.max_objects_per_client or MAX_OBJECTS_PER_CLIENT):
+            self.stats.quota_objects += 1
+            self._quota_warning(client, "objects", "%d objects, quota reached: CREATE of 0x%04X "
+                                "refused (ERR_RESOURCES)", len(client.objects), object_id)
             self._status(client, request, C.STATUS_ERR_RESOURCES, stream_id)
             return
         parent = None if kind == C.OBJK_PARTICIPANT else with_kind(request.tail_id, PARENT_KIND[kind])
@@ -622,6 +708,9 @@ class Agent:
         if entry is None:
             return
         client.blocked_readers.discard(object_id)
+        if entry.reader is not None:
+            client.queued_bytes -= sum(len(sample) for sample in entry.reader.queue)
+            entry.reader.queue.clear()
         try:
             self.middleware.delete(client.entity(object_id))
         except Exception:
@@ -676,7 +765,25 @@ class Agent:
         queue = entry.reader.queue
         if queue.maxlen is not None and len(queue) == queue.maxlen:
             self.stats.samples_overwritten += 1
+            client.queued_bytes -= len(queue[0])  # append() below pushes it out
+        if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+            dropped = 0
+            while queue and client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+                client.queued_bytes -= len(queue.popleft())
+                dropped += 1
+            if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+                dropped += 1  # other readers hold the space: the new sample is the one to go
+                self.stats.quota_output_dropped += dropped
+                self._quota_warning(client, "output", "output queue quota (%d bytes) full, "
+                                    "sample for 0x%04X dropped", self.max_output_queue_bytes,
+                                    object_id)
+                return
+            self.stats.quota_output_dropped += dropped
+            self._quota_warning(client, "output", "output queue quota (%d bytes) full, %d oldest "
+                                "samples of 0x%04X dropped", self.max_output_queue_bytes, dropped,
+                                object_id)
         queue.append(payload)
+        client.queued_bytes += len(payload)
         try:
             self._pump(client, entry)
         except Exception:
@@ -736,7 +843,7 @@ class Agent:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
                 break
-            reader.queue.popleft()
+            client.queued_bytes -= len(reader.queue.popleft())
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
@@ -753,11 +860,12 @@ class Agent:
         buffer = client.reassembly.get(stream_id)
         if buffer is None:
             buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
-        if len(buffer) + (end - start) > MAX_REASSEMBLY:
+        limit = self.max_reassembly_bytes or MAX_REASSEMBLY
+        if len(buffer) + (end - start) > limit:
             del client.reassembly[stream_id]
             self.stats.reassembly_overflows += 1
-            log.debug("client %s: reassembly on stream 0x%02X exceeds %d bytes, abandoned",
-                      client.key.hex(), stream_id, MAX_REASSEMBLY)
+            self._quota_warning(client, "reassembly", "reassembly on stream 0x%02X exceeds the "
+                                "%d-byte quota, message abandoned", stream_id, limit)
             return False
         buffer += data[start:end]
         if flags & C.FLAG_LAST_FRAGMENT:
@@ -813,7 +921,20 @@ class Agent:
 
     def _tick_client(self, client: ClientProxy, now: float) -> None:
         dead_time = client.hard_liveliness or self.client_dead_time
-        if now - client.last_seen >= dead_time:
+        silent = now - client.last_seen
+        if silent >= dead_time:
+            if not client.dead:
+                client.dead = True
+                self.stats.clients_dead += 1
+                log.info("client %s silent for %d ms: dead (no more HEARTBEATs)", client.key.hex(),
+                         int(silent * 1000))
+            if not client.hard_liveliness and self.client_expire_time and \
+                    silent >= self.client_expire_time:
+                self.stats.clients_expired += 1
+                log.info("client %s silent for %d ms: expired, deleting its %d objects",
+                         client.key.hex(), int(silent * 1000), len(client.objects))
+                self._delete_client(client)
+                return
             if client.hard_liveliness:
                 if client.probes >= HARD_LIVELINESS_PROBES:
                     log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
