@@ -45,10 +45,8 @@ if IS_MICROPYTHON:
 else:
     _pack_into = struct.pack_into
 
-try:
-    _PACK_ERRORS = (struct.error, OverflowError, TypeError, ValueError)
-except AttributeError:  # MicroPython raises the built-in exception types directly
-    _PACK_ERRORS = (OverflowError, TypeError, ValueError)
+# MicroPython has no struct.error: it raises the built-in exception types directly.
+_PACK_ERRORS = (getattr(struct, "error", OverflowError), OverflowError, TypeError, ValueError)
 
 # Safety net for from_bytes: the generated decoders bound-check before reading, so these only
 # appear if a bug slips through; callers are promised DecodeError and nothing else.
@@ -164,6 +162,19 @@ class _Message:
         return from_dict(cls, d)
 
 
+if not IS_MICROPYTHON:
+    # CPython tools (xrce/client/cli.py) read Class._FIELDS, ((name, kind, nested class), ...) with
+    # kind 0 value, 1 message, 2 list of messages, 3 bytes. _dict.py works it out on first use
+    # instead of every class carrying one, which boards would pay for.
+    class _FieldTable:
+        def __get__(self, obj, cls):
+            from xrce.msgs._dict import _shape
+
+            return _shape(cls)
+
+    _Message._FIELDS = _FieldTable()
+
+
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
 # type `name` on first use and keeps the class in the package for later look-ups. Generated code
 # imports its dependencies by full dotted name: MicroPython's `from package import submodule` gives
@@ -199,17 +210,9 @@ def _import(dotted):
     return sys.modules[dotted]
 
 
-# lookup() and the packages load on first use; packages are imported here because MicroPython's
-# `from xrce.msgs import std_msgs` does not fall back to a submodule import once this raises.
-def __getattr__(name):
-    if name == "lookup":
-        from xrce.msgs._lookup import lookup
+# The class for a ROS or DDS type name ("std_msgs/msg/String", "std_msgs::msg::dds_::String_"); see
+# _lookup.py, which is loaded by the first call.
+def lookup(type_name):
+    from xrce.msgs._lookup import lookup
 
-        globals()[name] = lookup
-        return lookup
-    if not name or name[0] == "_":
-        raise AttributeError(name)
-    try:
-        return _import("xrce.msgs." + name)
-    except ImportError:
-        raise AttributeError(name)
+    return lookup(type_name)

@@ -1,5 +1,5 @@
-# lookup(): message and service classes by ROS or DDS type name, loaded on first use (`from
-# xrce.msgs import lookup` brings it in). Only the looked-up type's module is imported. Comments
+# lookup(): message and service classes by ROS or DDS type name, loaded by the first call of
+# xrce.msgs.lookup. Only the looked-up type's module is imported. Comments
 # rather than docstrings: MicroPython keeps docstring text in the heap when compiling from source.
 
 from xrce.msgs import _import

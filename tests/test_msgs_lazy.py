@@ -1,0 +1,128 @@
+"""One module per type, resolved lazily: what a board loads when it names a type, under real
+MicroPython 1.27 from .py sources and from mpy-cross output, and the field tables the dict helpers
+infer instead of every class carrying one."""
+
+import pytest
+from mp_harness import run_micropython
+
+from xrce import msggen
+from xrce.msgs import lookup
+from xrce.tools import mpy
+
+RESOLUTION_SCRIPT = """
+import sys
+from xrce.msgs.geometry_msgs import Twist
+loaded = sorted(m for m in sys.modules if m.startswith("xrce.msgs"))
+print("LOADED", " ".join(loaded))
+assert Twist.from_bytes(Twist().to_bytes()) == Twist()
+from xrce.msgs import std_msgs
+assert std_msgs.String(data="hi").to_bytes() == b"\\x03\\x00\\x00\\x00hi\\x00"
+from xrce.msgs import nav_msgs, turtlebot3_msgs, lookup
+assert nav_msgs.GetMap.Request is nav_msgs.GetMap_Request
+assert turtlebot3_msgs.Sound_Service.Response is turtlebot3_msgs.Sound_Response
+assert turtlebot3_msgs.Sound.ROS_TYPE == "turtlebot3_msgs/msg/Sound"
+assert sorted(nav_msgs.SERVICES) == ["GetMap", "GetPlan", "LoadMap", "SetMap"]
+assert lookup("turtlebot3_msgs/srv/Sound") is turtlebot3_msgs.Sound_Service
+assert lookup("geometry_msgs::msg::dds_::Twist_") is Twist
+for name in ("Nope", "Nope_Request", "_Twist_", "SERVICES_"):
+    try:
+        getattr(std_msgs, name)
+        raise AssertionError(name)
+    except AttributeError:
+        pass
+try:
+    lookup("std_msgs/msg/Nope")
+    raise AssertionError("lookup")
+except KeyError:
+    pass
+assert Twist.from_dict({"linear": {"x": 1.5}}).to_dict()["linear"]["x"] == 1.5
+print("RESOLVED")
+"""
+
+# Import cost of one statement in a fresh interpreter, on top of the wire core every client has.
+FOOTPRINT_SCRIPT = """
+import gc
+import xrce.errors, xrce.compat, xrce.cdr
+gc.collect()
+before = gc.mem_alloc()
+%s
+gc.collect()
+print("HEAP", gc.mem_alloc() - before)
+"""
+
+IMPORTS = {
+    "String": "from xrce.msgs.std_msgs import String",
+    "Twist": "from xrce.msgs.geometry_msgs import Twist",
+    "SensorState": "from xrce.msgs.turtlebot3_msgs import SensorState",
+}
+# Measured on 1.27.0 with per-type modules (.py): 8.6, 10.7 and 15.1 KB. Importing the whole
+# package instead, as the one-module-per-package layout did, cost 47, 93 and 63 KB.
+PY_LIMITS = {"String": 11000, "Twist": 13500, "SensorState": 19000}
+
+EXPECTED_AFTER_TWIST = [
+    "xrce.msgs", "xrce.msgs.geometry_msgs", "xrce.msgs.geometry_msgs._Twist", "xrce.msgs.geometry_msgs._Vector3",
+]
+
+
+def _heap(statement, **mount):
+    result = run_micropython(FOOTPRINT_SCRIPT % statement, heap=4 * 1024 * 1024, timeout=60, **mount)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return int(result.stdout.split("HEAP ")[1].split()[0])
+
+
+def _assert_resolves(**mount):
+    result = run_micropython(RESOLUTION_SCRIPT, heap=4 * 1024 * 1024, timeout=60, **mount)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "RESOLVED" in result.stdout
+    loaded = result.stdout.split("LOADED ")[1].splitlines()[0].split()
+    assert loaded == EXPECTED_AFTER_TWIST
+
+
+def test_micropython_resolves_types_lazily_from_sources():
+    _assert_resolves()
+
+
+@pytest.fixture(scope="module")
+def mpy_tree(tmp_path_factory):
+    outdir = tmp_path_factory.mktemp("mpy")
+    mpy.build_mpy(outdir)
+    return outdir / "xrce"
+
+
+def test_micropython_resolves_types_lazily_from_mpy(mpy_tree):
+    _assert_resolves(mounts=[(mpy_tree, "/lib/xrce")], default_mount=False)
+
+
+def test_importing_one_type_costs_a_few_kb_of_heap(mpy_tree, capsys):
+    sources = {name: _heap(statement) for name, statement in IMPORTS.items()}
+    compiled = {name: _heap(statement, mounts=[(mpy_tree, "/lib/xrce")], default_mount=False)
+                for name, statement in IMPORTS.items()}
+    with capsys.disabled():
+        print("\nheap for one type (.py / .mpy): " + ", ".join(
+            "%s %d / %d" % (name, sources[name], compiled[name]) for name in IMPORTS))
+    for name in IMPORTS:
+        assert sources[name] <= PY_LIMITS[name], (name, sources[name])
+        assert compiled[name] < sources[name], (name, compiled[name])
+
+
+def _kind(ftype):
+    # The table the generator used to write onto every class: 0 value, 1 message, 2 list of
+    # messages, 3 bytes (octet arrays).
+    if ftype.is_nested:
+        return 2 if ftype.array else 1
+    if ftype.is_primitive and ftype.array and msggen.PRIMITIVES[ftype.base][2] == "octet":
+        return 3
+    return 0
+
+
+def test_inferred_field_tables_match_the_definitions():
+    packages = [msggen.load_package(d) for d in msggen.shipped_package_dirs()]
+    checked = 0
+    for _, messages, services in packages:
+        for spec in list(messages) + [s for srv in services for s in (srv.request, srv.response)]:
+            cls = lookup(spec.ros_type)
+            expected = tuple(
+                (f.name, _kind(f.type), lookup(f.type.base) if f.type.is_nested else None) for f in spec.fields)
+            assert cls._FIELDS == expected, spec.ros_type
+            checked += 1
+    assert checked > 100
