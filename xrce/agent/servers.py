@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import fcntl
+import glob
 import logging
 import os
 import socket
@@ -52,6 +53,7 @@ DEFAULT_TCP_MAX_CONNECTIONS = 100
 MAX_PENDING_OUTPUT = 256 * 1024
 SERIAL_AGENT_ADDRESS = 0
 DEFAULT_BAUDRATE = 115200
+DEFAULT_REOPEN_INTERVAL = 0.2  # seconds between attempts to reopen a vanished serial device
 DISCOVERY_PORT = 7400
 DISCOVERY_MULTICAST_GROUP = "239.255.0.2"
 _READ_CHUNK = 65536
@@ -461,32 +463,95 @@ class SerialFramedLink(Link):
 
 
 class SerialServer(SerialFramedLink):
-    """One or several serial devices opened with pyserial (raw, 8N1, no flow control)."""
+    """One or several serial devices opened with pyserial (raw, 8N1, no flow control).
 
-    def __init__(self, receiver, devices, *, baudrate=DEFAULT_BAUDRATE, crc="arc"):
+    A device may be a glob (``/dev/serial/by-id/*OpenCR*``): the first match, in sorted order, is
+    opened. Hot-plug: when a device fails (EIO or end of file after a USB unplug) its sessions are
+    forgotten (``endpoint_closed``) and the same path or glob is tried again every
+    ``reopen_interval`` seconds until it opens; the port keeps its name (the path or glob as given),
+    so endpoints stay the same across a re-plug. Every device must open at start.
+    """
+
+    def __init__(self, receiver, devices, *, baudrate=DEFAULT_BAUDRATE, crc="arc",
+                 reopen_interval=DEFAULT_REOPEN_INTERVAL):
         super().__init__(receiver, crc=crc)
         if isinstance(devices, str):
             devices = [devices]
         self.devices = list(devices)
         self.name = "serial" if len(self.devices) == 1 else "multiserial"
         self.baudrate = baudrate
-        self._serials = []
+        self.reopen_interval = reopen_interval
+        self.reopens = 0
+        self._serials = {}
+        self._reopen_tasks = {}
+        self._closing = False
 
     async def start(self):
-        import serial  # pyserial: termios setup of baud rate and raw mode, portable and well kept
-
         for device in self.devices:
             try:
-                port = serial.Serial(device, self.baudrate, timeout=0, write_timeout=0,
-                                     exclusive=True)
-            except (serial.SerialException, OSError, ValueError) as exc:
+                self._open(device)
+            except OSError:
                 await self.close()
-                raise OSError("cannot open %s: %s" % (device, exc)) from exc
-            self._serials.append(port)
-            self._add_port(device, port.fileno(), port.close)
+                raise
+
+    def _open(self, device):
+        import serial  # pyserial: termios setup of baud rate and raw mode, portable and well kept
+
+        path = _resolve_device(device)
+        try:
+            port = serial.Serial(path, self.baudrate, timeout=0, write_timeout=0, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise OSError("cannot open %s: %s" % (device, exc)) from exc
+        self._serials[device] = port
+        self._add_port(device, port.fileno(), port.close)
+        return path
+
+    def _close_port(self, port):
+        was_open = port.open
+        super()._close_port(port)
+        self._serials.pop(port.name, None)
+        if was_open and not self._closing and port.name not in self._reopen_tasks:
+            log.warning("%s: %s went away; trying to reopen it every %.1f s", self.name, port.name,
+                        self.reopen_interval)
+            self._reopen_tasks[port.name] = asyncio.ensure_future(self._reopen(port.name))
+
+    async def _reopen(self, device):
+        reported = False
+        try:
+            while not self._closing:
+                await asyncio.sleep(self.reopen_interval)
+                try:
+                    path = self._open(device)
+                except OSError as exc:
+                    if not reported:
+                        reported = True
+                        log.info("%s: %s not back yet (%s)", self.name, device, exc)
+                    continue
+                self.reopens += 1
+                log.warning("%s: %s is back (%s), serving it again", self.name, device, path)
+                return
+        finally:
+            self._reopen_tasks.pop(device, None)
 
     def describe(self):
         return "%s agent on %s at %d baud" % (self.name, " ".join(self.devices), self.baudrate)
+
+    async def close(self):
+        self._closing = True
+        for task in list(self._reopen_tasks.values()):
+            task.cancel()
+        self._reopen_tasks.clear()
+        await super().close()
+
+
+def _resolve_device(device):
+    """``device`` itself, or the first (sorted) match when it is a glob pattern."""
+    if not glob.has_magic(device):
+        return device
+    matches = sorted(glob.glob(device))
+    if not matches:
+        raise OSError("no device matches %s" % device)
+    return matches[0]
 
 
 class PseudoterminalServer(SerialFramedLink):
