@@ -113,7 +113,8 @@ class Session:
 
     def __init__(self, transport, key=None, session_id=C.DEFAULT_SESSION_ID, history=4,
                  mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
-                 max_reassembly=None, on_topic=None):
+                 max_reassembly=None, on_topic=None, auto_recover=True, liveliness_ms=500,
+                 on_link_state=None):
         if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
             raise SessionError("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
         self.transport = transport
@@ -161,6 +162,15 @@ class Session:
         self._sync_originate = None
         self._reassembly = None
         self._next_heartbeat = {}
+        self._last_heard = ticks_ms()
+        self._session_unknown = False
+        # What to re-create after the agent lost the session (see xrce.client.recovery).
+        self._creations = []
+        self._read_requests = {}
+        self.link = None
+        if auto_recover:
+            from xrce.client.recovery import LinkMonitor
+            self.link = LinkMonitor(self, liveliness_ms, on_state=on_link_state)
         self.time_offset_ns = 0
         self.time_synced = False
         self.last_rtt_us = None
@@ -177,12 +187,9 @@ class Session:
 
     def create(self, attempts=10, timeout_ms=1000):
         """CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session."""
-        payload = CreateClient(self.key, self.session_id, self.max_message)
-        header_session = self.session_id & C.SESSION_ID_WITHOUT_KEY_MASK
-        message = self._control_message(payload, header_session, self.key if header_session == 0 else None)
         self._agent_status = None
         for _ in range(attempts):
-            self._send(message)
+            self._send_create_client()
             if self._wait(timeout_ms, self._has_agent_status):
                 break
         if self._agent_status is None:
@@ -190,7 +197,38 @@ class Session:
         self.connected = self._agent_status == C.STATUS_OK
         if self.connected:
             self._reset_streams()
+            self._last_heard = ticks_ms()
         return self.connected
+
+    def _send_create_client(self):
+        payload = CreateClient(self.key, self.session_id, self.max_message)
+        header_session = self.session_id & C.SESSION_ID_WITHOUT_KEY_MASK
+        self._send(self._control_message(payload, header_session,
+                                         self.key if header_session == 0 else None))
+
+    def _send_ping(self):
+        self._send_control(GetInfo())
+
+    def _restore(self):
+        """The agent accepted our CREATE_CLIENT again: re-create what we had and resume."""
+        self.connected = True
+        self._reset_streams()
+        self._last_heard = ticks_ms()
+        for create in self._creations:
+            create.request_id = self.next_request_id()
+            create.flags |= C.FLAG_REUSE | C.FLAG_REPLACE
+            self._buffer(None, create)
+        for read in self._read_requests.values():
+            read.request_id = self.next_request_id()
+            self._buffer(None, read)
+        self.flush()
+
+    @property
+    def link_state(self):
+        """'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating)."""
+        from xrce.client.recovery import LINK_STATE_NAMES
+        return LINK_STATE_NAMES[self.link.state] if self.link is not None else (
+            "connected" if self.connected else "lost")
 
     def _has_agent_status(self):
         return self._agent_status is not None
@@ -252,7 +290,23 @@ class Session:
         payload = Create(rid, oid, kind, fmt, representation, tail_id, C.FLAG_LITTLE_ENDIAN | flags)
         self._buffer(stream_id, payload)
         self._statuses[rid] = C.STATUS_NONE
+        if self.link is not None:
+            self._forget(oid)
+            self._creations.append(payload)
         return oid
+
+    def _forget(self, object_id_):
+        """Drop an entity and everything created under it from the recovery log."""
+        gone = [object_id_]
+        kept = []
+        for create in self._creations:
+            if create.object_id in gone or (create.kind != C.OBJK_PARTICIPANT and create.tail_id in gone):
+                gone.append(create.object_id)
+            else:
+                kept.append(create)
+        self._creations = kept
+        for oid in gone:
+            self._read_requests.pop(oid, None)
 
     @staticmethod
     def _representation(xml, ref, binary):
@@ -321,6 +375,8 @@ class Session:
         rid = self.next_request_id()
         self._buffer(stream_id, Delete(rid, object_id_))
         self._statuses[rid] = C.STATUS_NONE
+        if self.link is not None:
+            self._forget(object_id_)
         return rid
 
     # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
@@ -401,13 +457,17 @@ class Session:
         rid = self.next_request_id()
         if data_stream_id is None:
             data_stream_id = self.reliable
-        self._buffer(stream_id, ReadData(rid, reader_id, data_stream_id, control))
+        request = ReadData(rid, reader_id, data_stream_id, control)
+        self._buffer(stream_id, request)
+        if self.link is not None:
+            self._read_requests[reader_id] = request
         return rid
 
     def cancel_data(self, reader_id, stream_id=None):
         """Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0)."""
         rid = self.next_request_id()
         self._buffer(stream_id, ReadData(rid, reader_id, C.STREAM_NONE, DeliveryControl(0, 0, 0, 0)))
+        self._read_requests.pop(reader_id, None)
         return rid
 
     def write(self, writer_id, data, stream_id=None):
@@ -487,8 +547,8 @@ class Session:
     def _begin_with_room(self, out, timeout_ms=1000):
         if self._begin(out):
             return True
-        if not out.reliable:
-            return False
+        if not out.reliable or not self.connected:
+            return False  # a lost link frees no room until the session is re-created
         self._wait(timeout_ms, out.state.has_room)
         if out.has_content:
             return True  # a callback run while waiting opened a message: append to it
@@ -599,10 +659,12 @@ class Session:
                 until = ticks_diff(due, now)
                 if until < wait:
                     wait = until if until > 0 else 0
+            if self.link is not None and wait > self.heartbeat_ms:
+                wait = self.heartbeat_ms  # let the link monitor ping or reconnect on time
             data = self.transport.recv(wait)
             if data is not None:
                 self.handle_message(data)
-            self._send_due_heartbeats(ticks_ms())
+            self._periodic(ticks_ms())
 
     def spin_once(self, timeout_ms=0):
         """Flush, then wait up to ``timeout_ms`` for one incoming message and process it."""
@@ -610,8 +672,13 @@ class Session:
         data = self.transport.recv(timeout_ms)
         if data is not None:
             self.handle_message(data)
-        self._send_due_heartbeats(ticks_ms())
+        self._periodic(ticks_ms())
         return data is not None
+
+    def _periodic(self, now):
+        self._send_due_heartbeats(now)
+        if self.link is not None:
+            self.link.poll(now)
 
     def run_until_timeout(self, timeout_ms):
         """Flush and process everything that arrives for ``timeout_ms``."""
@@ -715,6 +782,7 @@ class Session:
                 n < 8 or bytes(buf[4:8]) != self._header_key)):
             self.dropped_messages += 1
             return
+        self._last_heard = ticks_ms()
         stream_id = buf[1]
         try:
             if stream_id == C.STREAM_NONE:
@@ -778,12 +846,16 @@ class Session:
         if rid == C.REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == C.OBJECTID_CLIENT:
             self._delete_status = buf[s + 4]
             return
-        self._statuses[rid] = buf[s + 4]
+        if rid in self._statuses:  # only requests someone waits for (not re-creations)
+            self._statuses[rid] = buf[s + 4]
 
     def _on_info(self, buf, flags, s, e):
         info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
-        if info.availability is not None and info.availability > 0 and info.impl_status == 1:
-            self._pong_in_session = True
+        if info.availability is not None and info.availability > 0:
+            if info.impl_status == 1:
+                self._pong_in_session = True
+            elif self.connected:
+                self._session_unknown = True  # an agent answers but no longer knows this session
 
     def _on_data(self, buf, flags, s, e):
         if e - s < 4:

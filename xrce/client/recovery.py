@@ -1,0 +1,80 @@
+"""Link supervision and automatic recovery of a client session.
+
+The agent never tells a client that it went away: a restarted agent simply does not know the
+session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
+``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
+when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
+(INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
+the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
+agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
+session's run loops.
+"""
+
+from xrce.compat import ticks_add, ticks_diff
+
+LINK_CONNECTED = 0
+LINK_SILENT = 1  # the agent has been quiet for a while; pings are out
+LINK_LOST = 2  # re-creating the session
+LINK_STATE_NAMES = ("connected", "silent", "lost")
+
+
+class LinkMonitor:
+    __slots__ = ("session", "liveliness_ms", "retry_ms", "max_missed", "on_state", "state",
+                 "missed", "next_ping", "next_attempt", "recoveries")
+
+    def __init__(self, session, liveliness_ms=500, retry_ms=250, max_missed=3, on_state=None):
+        self.session = session
+        self.liveliness_ms = liveliness_ms
+        self.retry_ms = retry_ms
+        self.max_missed = max_missed
+        self.on_state = on_state
+        self.state = LINK_CONNECTED
+        self.missed = 0
+        self.next_ping = 0
+        self.next_attempt = 0
+        self.recoveries = 0
+
+    def _set(self, state):
+        if state != self.state:
+            self.state = state
+            if self.on_state is not None:
+                self.on_state(self.session, LINK_STATE_NAMES[state])
+
+    def lose(self, now):
+        session = self.session
+        session.connected = False
+        session._agent_status = None
+        session._session_unknown = False
+        self.next_attempt = now
+        self._set(LINK_LOST)
+
+    def poll(self, now):
+        session = self.session
+        if self.state == LINK_LOST:
+            if session._agent_status == 0:  # STATUS_OK to our CREATE_CLIENT
+                self.missed = 0
+                self.recoveries += 1
+                session._restore()
+                self._set(LINK_CONNECTED)
+            elif ticks_diff(now, self.next_attempt) >= 0:
+                session._send_create_client()
+                self.next_attempt = ticks_add(now, self.retry_ms)
+            return
+        if not session.connected:
+            return  # never created, or deleted by the application: nothing to supervise
+        if session._session_unknown:
+            self.lose(now)
+            return
+        if ticks_diff(now, session._last_heard) < self.liveliness_ms:
+            self.missed = 0
+            self._set(LINK_CONNECTED)
+            return
+        if ticks_diff(now, self.next_ping) >= 0:
+            if self.missed >= self.max_missed:
+                self.lose(now)
+                return
+            if self.missed:
+                self._set(LINK_SILENT)
+            self.missed += 1
+            session._send_ping()
+            self.next_ping = ticks_add(now, self.liveliness_ms)
