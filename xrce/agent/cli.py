@@ -88,9 +88,58 @@ def _verbosity(text):
 
 # ----------------------------------------------------------------------------- option groups
 
+def _milliseconds(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid time in ms: %r" % text)
+    if value < 0:
+        raise argparse.ArgumentTypeError("time must be >= 0 ms, not %d" % value)
+    return value
+
+
+def _positive(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid number: %r" % text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError("must be positive, not %d" % value)
+    return value
+
+
+def _add_session_options(parser):
+    from xrce.agent import engine  # no rclpy behind it; the defaults are documented there
+
+    group = parser.add_argument_group("client liveliness and per-client quotas")
+    group.add_argument("--client-dead-time", type=_milliseconds, metavar="MS",
+                       default=int(engine.CLIENT_DEAD_TIME * 1000),
+                       help="a client silent this long is dead: no more HEARTBEATs to it, entities "
+                            "kept, any message revives it (default %(default)s, as eProsima)")
+    group.add_argument("--client-expire-time", type=_milliseconds, metavar="MS",
+                       default=int(engine.CLIENT_EXPIRE_TIME * 1000),
+                       help="a client silent this long (since its last message) is deleted with "
+                            "all its ROS entities; 0 = never (default, as eProsima without uxr_hl)")
+    group.add_argument("--max-clients", type=_positive, metavar="N", default=engine.MAX_CLIENTS,
+                       help="sessions at once; a new one evicts the longest-dead client or is "
+                            "refused with ERR_RESOURCES (default %(default)s)")
+    group.add_argument("--max-objects", type=_positive, metavar="N",
+                       default=engine.MAX_OBJECTS_PER_CLIENT,
+                       help="XRCE objects per client; beyond, CREATE gets ERR_RESOURCES "
+                            "(default %(default)s)")
+    group.add_argument("--max-reassembly", type=_positive, metavar="BYTES",
+                       default=engine.MAX_REASSEMBLY,
+                       help="largest fragmented message per client and stream (default %(default)s)")
+    group.add_argument("--max-output-queue", type=_positive, metavar="BYTES",
+                       default=engine.MAX_OUTPUT_QUEUE_BYTES,
+                       help="sample bytes queued towards one client; the oldest are dropped "
+                            "beyond (default %(default)s)")
+
+
 def _add_common_options(parser):
     parser.add_argument("-v", "--verbose", type=_verbosity, default=4, metavar="LEVEL",
                         help="log level 0 (off) .. 4 (info, default) .. 5 (debug) .. 6 (trace)")
+    _add_session_options(parser)
     parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
     parser.add_argument("-r", "--refs", metavar="FILE",
@@ -267,7 +316,12 @@ async def serve(args, refs):
         loop.add_signal_handler(signum, stop.set)
 
     middleware = make_middleware(args.middleware)
-    agent = Agent(middleware, refs=refs, loop=loop)
+    agent = Agent(middleware, refs=refs, loop=loop,
+                  client_dead_time=args.client_dead_time / 1000.0,
+                  client_expire_time=args.client_expire_time / 1000.0,
+                  max_clients=args.max_clients, max_objects_per_client=args.max_objects,
+                  max_reassembly_bytes=args.max_reassembly,
+                  max_output_queue_bytes=args.max_output_queue)
     links = SUBCOMMANDS[args.subcommand].make_links(args, agent)
     started = []
     run_task = None
@@ -290,6 +344,7 @@ async def serve(args, refs):
         banner = "; ".join(link.describe() for link in started)
         sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
         sys.stdout.flush()
+        loop.add_signal_handler(signal.SIGUSR1, _print_stats, agent, started)
         stopped = asyncio.ensure_future(stop.wait())
         done, _ = await asyncio.wait({run_task, stopped}, return_when=asyncio.FIRST_COMPLETED)
         if run_task in done and run_task.exception() is not None:
@@ -309,8 +364,19 @@ async def serve(args, refs):
         await agent.close()
         for link in reversed(started):
             await link.close()
-        for signum in (signal.SIGINT, signal.SIGTERM):
+        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
             loop.remove_signal_handler(signum)
+
+
+def _print_stats(agent, links):
+    """SIGUSR1: one ``xrce-agent: stats {json}`` line on stdout with the engine's and every link's
+    counters, for scripts and tests watching a running agent."""
+    import json
+
+    report = {"engine": agent.stats.as_dict(), "clients": len(agent.clients),
+              "links": {link.name: link.stats.as_dict() for link in links}}
+    sys.stdout.write("%s: stats %s\n" % (PROG, json.dumps(report, sort_keys=True)))
+    sys.stdout.flush()
 
 
 def main(argv=None):
