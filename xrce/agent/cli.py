@@ -25,7 +25,7 @@ import socket
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from xrce.agent import servers
+from xrce.agent import observability, servers
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -144,6 +144,7 @@ def _add_common_options(parser):
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
     parser.add_argument("-r", "--refs", metavar="FILE",
                         help="Fast DDS XML profiles file for objects created by reference")
+    observability.add_agent_options(parser)
 
 
 def _add_ip_options(parser):
@@ -243,6 +244,8 @@ for _row in (
                _pty_links),
 ):
     register(_row)
+register(Subcommand("stats", "show a running agent's counters live (see --stats-port)",
+                    observability.add_stats_options, run=observability.run_stats))
 
 
 def build_parser():
@@ -325,6 +328,7 @@ async def serve(args, refs):
     links = SUBCOMMANDS[args.subcommand].make_links(args, agent)
     started = []
     run_task = None
+    observe = None
     try:
         # Scheduled before any link opens, so the engine starts its middleware before the first
         # message can arrive: the task's first step runs before the loop next polls the sockets.
@@ -337,11 +341,15 @@ async def serve(args, refs):
                 discovery = servers.DiscoveryServer(links[0].port, args.discovery)
                 await discovery.start()
                 started.append(discovery)
+            observe = observability.Observability.from_args(args, agent, started, middleware)
+            await observe.start()
         except OSError as exc:
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
         banner = "; ".join(link.describe() for link in started)
+        if observe.describe():
+            banner += "; " + observe.describe()
         sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
         sys.stdout.flush()
         loop.add_signal_handler(signal.SIGUSR1, _print_stats, agent, started)
@@ -362,6 +370,8 @@ async def serve(args, refs):
                 pass
         # The engine first, so DELETE-time replies can still go out through the open links.
         await agent.close()
+        if observe is not None:  # after the engine, so a capture ends with the DELETE replies
+            await observe.close()
         for link in reversed(started):
             await link.close()
         for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):

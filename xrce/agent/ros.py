@@ -100,6 +100,7 @@ class _DomainRuntime:
         self._running = True
         self._never_done = rclpy.task.Future()
         self.nodes: set[Node] = set()
+        self.agent_node: Node | None = None  # RosMiddleware.agent_publisher's node, made on demand
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
         self.thread.start()
@@ -382,6 +383,8 @@ class RosMiddleware(Middleware):
         self._guid_prefix = os.urandom(12)
         self._replier_counter = 0
         self._closed = False
+        # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
+        self._agent_publishers: dict[tuple, object] = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -677,6 +680,36 @@ class RosMiddleware(Middleware):
     def node_of(self, participant: EntityKey) -> Node:
         return self._record(participant, ("participant",)).node
 
+    def domain_ids(self) -> list[int]:
+        """The ROS domains the agent has joined (one per domain its clients asked for)."""
+        return list(self._domains)
+
+    def agent_publisher(self, domain_id: int, msg_class, topic: str, depth: int = 10):
+        """A publisher of the agent's own node ``xrce_agent`` in a domain already joined, made on
+        first use and destroyed with the domain; None when the agent has not joined ``domain_id``.
+        Publish from the loop thread (rcl publish is thread-safe)."""
+        domain = self._domains.get(domain_id)
+        if domain is None or self._closed:
+            return None
+        publisher = self._agent_publishers.get((domain_id, topic))
+        if publisher is not None:
+            return publisher
+
+        def make_publisher():
+            node = domain.agent_node
+            if node is None:
+                node = Node("xrce_agent", context=domain.context, start_parameter_services=False,
+                            enable_rosout=False, use_global_arguments=False,
+                            parameter_overrides=[_NO_TYPE_DESCRIPTION])
+                domain.executor.add_node(node)
+                domain.nodes.add(node)
+                domain.agent_node = node
+            return node.create_publisher(msg_class, topic, depth)
+
+        publisher = domain.call(make_publisher, self.entity_timeout_s)
+        self._agent_publishers[(domain_id, topic)] = publisher
+        return publisher
+
     # -- deletion -----------------------------------------------------------------------------
 
     def _detach(self, record) -> None:
@@ -740,6 +773,7 @@ class RosMiddleware(Middleware):
         if self._closed:
             return
         self._closed = True
+        self._agent_publishers.clear()
         for record in self._entities.values():
             if record.kind != "participant":
                 self._detach(record)
