@@ -1,0 +1,165 @@
+"""Agent observability through real agent processes: counters served on --stats-port move as the
+traffic says (a corrupted serial frame is one CRC drop, a malformed message one decode error), the
+``xrce-agent stats`` view renders them, --capture files decode back, and /diagnostics reaches an
+rclpy subscriber in an isolated domain."""
+
+import os
+import re
+import subprocess
+import sys
+import time
+
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from agent_process import REPO, AgentProcess
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from xrce import constants as C
+from xrce.agent.observability import decode_capture, fetch_stats, read_capture
+from xrce.client.session import Session
+from xrce.msgs.std_msgs import String
+from xrce.submessages import CreateClient, Delete, GetInfo, Info, Status, StatusAgent, encode_message
+from xrce.transports.framing import encode_frame
+from xrce.transports.serial import SerialTransport
+from xrce.transports.udp import UdpTransport
+
+
+def stats_port(agent):
+    match = re.search(r"stats on 127\.0\.0\.1:(\d+)", agent.banner)
+    assert match, agent.banner
+    return int(match.group(1))
+
+
+def client_row(snapshot, session):
+    rows = [c for c in snapshot["clients"] if c["key"] == session.key.hex()]
+    assert len(rows) == 1, snapshot["clients"]
+    return rows[0]
+
+
+def test_a_corrupted_serial_frame_is_one_crc_drop_and_traffic_is_counted():
+    with AgentProcess("pseudoterminal", "-m", "ced", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        device = agent.device.rstrip(";")  # the banner continues "; stats on ..."
+        transport = SerialTransport(device, local_addr=1)
+        session = Session(transport, history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            for _ in range(3):
+                assert session.ping(timeout_ms=1000)
+            before = fetch_stats(port)
+            assert [link["crc_errors"] for link in before["links"]] == [0]
+            row = client_row(before, session)
+            # CREATE_CLIENT is session-less; the 3 pings are the client's in-session messages.
+            assert row["messages_in"] == 3 and row["messages_out"] == 3
+            assert row["decode_errors"] == 0
+
+            ping = encode_message(session.session_id, C.STREAM_NONE, 0, None, [GetInfo()])
+            frame = bytearray(encode_frame(ping, 1, 0))
+            frame[-1] ^= 0x55  # the CRC no longer matches
+            fd = os.open(device, os.O_WRONLY | os.O_NOCTTY)
+            try:
+                os.write(fd, bytes(frame))
+            finally:
+                os.close(fd)
+            assert session.ping(timeout_ms=1000)  # the link resynchronises on the next flag
+            after = fetch_stats(port)
+            assert [link["crc_errors"] for link in after["links"]] == [1]
+            assert after["links"][0]["drops"] == before["links"][0]["drops"] + 1
+            row = client_row(after, session)
+            assert row["messages_in"] == 4 and row["decode_errors"] == 0
+
+            view = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
+                                   "--once"], cwd=REPO, capture_output=True, text=True, timeout=30)
+            assert view.returncode == 0, view.stderr
+            assert session.key.hex() in view.stdout
+            assert re.search(r"^pseudoterminal\s+\d+\s+\d+\s+\d+\s+\d+\s+1\s+1$", view.stdout,
+                             re.MULTILINE), view.stdout
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+
+
+def test_decode_errors_and_topic_samples_are_counted_per_client():
+    with AgentProcess("udp4", "-m", "ced", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=0, name="counted")
+            writer = session.create_writer(node, "/counted", String, reliable=False)
+            assert session.run_until_all_status(3000), session.last_statuses
+            for i in range(25):
+                session.write(writer, String(data="sample %d" % i), stream_id=session.best_effort)
+                session.flush()
+            assert session.ping(timeout_ms=1000)
+            # A best-effort message whose only submessage claims more bytes than the datagram has.
+            bad = bytes((session.session_id, C.BUILTIN_BEST_EFFORT, 0x40, 0x00,
+                         C.WRITE_DATA, 0x01, 0xFF, 0x00, 1, 2, 3, 4))
+            session.transport.send(bad)
+            assert session.ping(timeout_ms=1000)
+            snapshot = fetch_stats(port)
+            row = client_row(snapshot, session)
+            assert row["decode_errors"] == 1
+            assert snapshot["agent"]["decode_errors"] == 1
+            topics = [t for t in snapshot["topics"] if t["topic"] == "rt/counted"]
+            assert len(topics) == 1 and topics[0]["direction"] == "to_ros"
+            assert topics[0]["samples"] == 25 and topics[0]["endpoints"] == 1
+            # XCDR1 string: 4-byte length, the characters and a NUL.
+            assert topics[0]["bytes"] == sum(4 + len("sample %d" % i) + 1 for i in range(25))
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+
+
+def test_capture_file_decodes_back_in_order(tmp_path):
+    capture = tmp_path / "agent.capture"
+    with AgentProcess("udp4", "-m", "ced", "--capture", str(capture)) as agent:
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            assert session.ping(timeout_ms=1000)
+            assert session.delete(attempts=2, timeout_ms=1000)
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    records = list(read_capture(str(capture)))
+    decoded = list(decode_capture(str(capture)))
+    assert len(records) == len(decoded) == 6
+    kinds = [(record.direction, [type(p) for p in payloads]) for record, _, payloads in decoded]
+    assert kinds == [("in", [CreateClient]), ("out", [StatusAgent]), ("in", [GetInfo]),
+                     ("out", [Info]), ("in", [Delete]), ("out", [Status])]
+    assert decoded[0][2][0].client_key == session.key
+    assert all(r.link == "udp4" and r.endpoint.startswith("127.0.0.1:") for r in records)
+    times = [r.time for r in records]
+    assert times == sorted(times) and abs(times[0] - time.time()) < 120
+
+
+def test_diagnostics_name_the_client(ros_peer, ros_domain):  # noqa: F811
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    arrays = []
+    ros_peer.node.create_subscription(DiagnosticArray, "/diagnostics", arrays.append,
+                                      QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    with AgentProcess("udp4", "-m", "dds") as agent:
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="diagnosed")
+            assert session.run_until_all_status(5000), session.last_statuses
+            name = "xrce_agent: client %s" % session.key.hex()
+
+            def named():
+                return any(status.name == name for array in list(arrays)
+                           for status in array.status)
+
+            deadline = time.monotonic() + 15
+            while not named() and time.monotonic() < deadline:
+                session.run_until_timeout(100)  # stay alive for the agent
+            assert named(), [s.name for a in arrays for s in a.status]
+            status = next(s for a in arrays for s in a.status if s.name == name)
+            values = {kv.key: kv.value for kv in status.values}
+            assert values["link"] == "udp4" and int(values["messages_in"]) >= 1
+            assert status.hardware_id == session.key.hex()
+            session.delete_entity(node)
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
