@@ -25,7 +25,7 @@ import socket
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from xrce.agent import observability, servers
+from xrce.agent import interfaces, observability, servers
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -144,6 +144,10 @@ def _add_common_options(parser):
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
     parser.add_argument("-r", "--refs", metavar="FILE",
                         help="Fast DDS XML profiles file for objects created by reference")
+    parser.add_argument("--interfaces", action="append", default=[], metavar="DIR",
+                        help="also look here for interface packages to build when a client names "
+                             "a type that is not installed (repeatable; the project's interfaces/ "
+                             "is always searched)")
     observability.add_agent_options(parser)
 
 
@@ -246,6 +250,8 @@ for _row in (
     register(_row)
 register(Subcommand("stats", "show a running agent's counters live (see --stats-port)",
                     observability.add_stats_options, run=observability.run_stats))
+register(Subcommand("build-interfaces", "build ROS interface packages (.msg/.srv) for rclpy",
+                    interfaces.add_build_options, run=interfaces.run_build_command))
 
 
 def build_parser():
@@ -400,6 +406,7 @@ def main(argv=None):
     except CliError as exc:
         parser.error(str(exc))
     configure_logging(args.verbose)
+    interfaces.add_search_dirs(args.interfaces)
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown
