@@ -9,6 +9,7 @@ undo that mangling.
 from __future__ import annotations
 
 import importlib
+import logging
 import re
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -18,6 +19,8 @@ from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameExcept
 from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, UnknownTypeError
 
 BUILD_HINT = "run `xrce-agent build-interfaces`"
+
+log = logging.getLogger("xrce.agent.rostypes")
 
 _TOPIC_PREFIX = "rt/"
 _REQUEST_PREFIX = "rq/"
@@ -71,10 +74,34 @@ def _split_type(dds_type: str) -> tuple[str, str, str]:
     return match.group(1), match.group(2), match.group(3)
 
 
+def _build_missing_package(package: str) -> bool:
+    """Build ``package`` from the interface search path (xrce.agent.interfaces); False if absent.
+
+    The cmake run happens on the interfaces module's worker thread and this call waits for it;
+    concurrent requests for one package share that build.
+    """
+    from xrce.agent import interfaces
+
+    try:
+        built = interfaces.ensure_package(package)
+    except interfaces.InterfaceBuildError as exc:
+        raise UnknownTypeError("building %s failed: %s" % (package, exc)) from None
+    if built:
+        log.info("built interface package %s", package)
+    return built
+
+
 def _import_interface(package: str, kind: str, type_name: str):
     module_name = "%s.%s" % (package, kind)
     try:
         module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name != package or not _build_missing_package(package):
+            raise UnknownTypeError("%s is not installed: %s (%s)" % (package, BUILD_HINT, exc)) from None
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc2:
+            raise UnknownTypeError("%s was built but does not import: %s" % (package, exc2)) from None
     except ImportError as exc:
         # ImportError of the package itself means it was never built; anything deeper is a broken
         # install, which the same rebuild fixes.
