@@ -359,6 +359,13 @@ class _ReplierRecord:
             self.closed = True
 
 
+def _default_domain_id() -> int:
+    try:
+        return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    except ValueError:
+        return 0
+
+
 class RosMiddleware(Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
@@ -768,6 +775,21 @@ class RosMiddleware(Middleware):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
+        # Join the default ROS domain now. A client that connects (or reconnects after an agent
+        # restart) then only adds a node to a DDS participant its peers already discovered, instead
+        # of waiting for a new participant to be discovered: measured 0.2-2.4 s before this, after
+        # an agent restart, from the session being back to the first sample reaching a subscriber.
+        domain_id = _default_domain_id()
+        try:
+            runtime = await self._loop.run_in_executor(
+                None, _DomainRuntime, domain_id, self.executor_kind, self.spin_slice_s)
+        except Exception as exc:  # the agent still serves; the domain starts on first use
+            log.warning("could not join ROS domain %d at start-up: %s", domain_id, exc)
+            return
+        if self._closed or domain_id in self._domains:
+            await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
+        else:
+            self._domains[domain_id] = runtime
 
     async def close(self) -> None:
         if self._closed:
