@@ -55,6 +55,7 @@ DEFAULT_PERIODS_MS = {
 }
 TIME_SYNC_PERIOD_MS = 10000
 FAILSAFE_MS = 500
+PHASE_STEP_MS = 17  # offset between the topics' periods (ms)
 MAX_WAIT_MS = 5  # the loop's longest sleep: bounds fail-safe and schedule jitter
 MAX_MESSAGES_PER_STEP = 16  # drain a burst of input, but keep publishing on time
 
@@ -219,8 +220,11 @@ class TurtleBot3:
         self._last_motion_ms = now
         self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))
         self._schedule = []
-        for topic in self._writers:
-            self._schedule.append((topic, _Periodic(self.periods_ms[topic], now)))
+        # Staggered phases, like separate firmware timers: samples due at the same instant would
+        # queue behind each other (and behind /odom's fragments) on the link and in the agent.
+        for index, topic in enumerate(self._writers):
+            self._schedule.append((topic, _Periodic(self.periods_ms[topic],
+                                                    ticks_add(now, index * PHASE_STEP_MS))))
         return True
 
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
@@ -296,6 +300,9 @@ class TurtleBot3:
         writer, stream = self._writers[topic]
         if self.session.write(writer, msg, stream_id=stream):
             self.published[topic] += 1
+        # Out at once, as rmw_microxrcedds flushes on every publish: a sample must not wait
+        # behind the fragments of a larger one written after it.
+        self.session.flush()
 
     def _publish_sensor_state(self, stamp_ns):
         msg = self._sensor_state
@@ -357,14 +364,9 @@ class TurtleBot3:
         now = ticks_ms()
         self._move(now)
         self._check_failsafe(now)
-        stamp_ns = None
         for topic, timer in self._schedule:
             if timer.take(now):
-                if stamp_ns is None:
-                    stamp_ns = session.epoch_ns()  # one stamp for everything sampled this pass
-                self._publishers[topic](stamp_ns)
-        if stamp_ns is not None:
-            session.flush()
+                self._publishers[topic](session.epoch_ns())
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
 

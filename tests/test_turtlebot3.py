@@ -1,0 +1,255 @@
+"""The simulated TurtleBot3 end to end: firmware (CPython thread or MicroPython) ↔ xrce-agent -m dds ↔
+rclpy, over UDP and over the agent's pseudoterminal at 115200 baud; and the ``xrce-agent demo``.
+
+Every test leases its own ROS domain with localhost-only discovery and stops what it starts.
+
+Why the stamp check is sound: the robot stamps with ``Session.epoch_ns()``, the agent's clock after
+``sync_time``; the agent runs on this machine, so its clock *is* the test's ``time.time_ns()``. The
+receive time in the rclpy callback minus the stamp is then the transport delay plus the sync error
+(half a loopback round trip at most); both are well under a millisecond on loopback, so a stamp
+more than 5 ms away from the receive time means the stamp is wrong (not synced, or taken at the
+wrong moment), not that the link is slow.
+"""
+
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from geometry_msgs.msg import Twist as RosTwist
+from nav_msgs.msg import Odometry as RosOdometry
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu as RosImu
+
+from agent_process import AgentProcess
+from mp_harness import run_micropython
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from xrce.examples.turtlebot3 import ENCODER_TICKS_PER_REV, TurtleBot3
+from xrce.transports.serial import SerialTransport
+from xrce.transports.udp import UdpTransport
+
+REPO = Path(__file__).resolve().parents[1]
+MP_SCRIPT = Path(__file__).resolve().parent / "micropython" / "turtlebot3_main.py"
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+BEST_EFFORT = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+STAMP_TOLERANCE_NS = 5_000_000
+# The sync error is half a loopback round trip; a stamp later than the receive time by more than
+# this would mean the robot's clock runs ahead of the agent's.
+SYNC_ERROR_NS = 1_000_000
+
+
+def turtlebot3_msgs_types():
+    """(SensorState, TFMessage) rclpy classes, building them first when the build tool exists;
+    None when they cannot be had on this machine yet."""
+    try:
+        from xrce.agent import interfaces
+    except ImportError:
+        interfaces = None
+    if interfaces is not None:
+        interfaces.build(names=["tf2_msgs", "turtlebot3_msgs"])  # a cache hit after the first time
+    try:
+        from tf2_msgs.msg import TFMessage
+        from turtlebot3_msgs.msg import SensorState
+    except ImportError:
+        return None
+    return SensorState, TFMessage
+
+
+class Stamped:
+    """Collects (receive wall-clock ns, message) from an rclpy subscription callback."""
+
+    def __init__(self):
+        self.samples = []
+
+    def __call__(self, msg):
+        self.samples.append((time.time_ns(), msg))
+
+    def between(self, start_ns, end_ns):
+        return [(t, m) for t, m in self.samples if start_ns <= t < end_ns]
+
+
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def check_rate_and_stamps(collected, start_ns, end_ns, hz):
+    window = collected.between(start_ns, end_ns)
+    seconds = (end_ns - start_ns) / 1e9
+    rate = len(window) / seconds
+    gaps = [b[0] - a[0] for a, b in zip(window, window[1:])]
+    assert abs(rate - hz) <= 0.1 * hz, (rate, len(window), seconds, max(gaps, default=None))
+    delays = sorted(received - stamp_ns(msg) for received, msg in window)
+    # delay = transport + stamp error, transport >= 0: the stamp error is at most min(delay), and a
+    # stamp from the future (clock ahead) shows as a negative delay.
+    assert -SYNC_ERROR_NS < delays[0] < STAMP_TOLERANCE_NS, delays[:5]
+    # Single samples may queue behind the GIL of three Python processes (measured: rare 20-80 ms
+    # outliers on a loaded machine), so the tail is bounded by a percentile, not the maximum.
+    assert delays[int(0.9 * len(delays))] < STAMP_TOLERANCE_NS, delays[-10:]
+    return rate, delays
+
+
+class RobotThread(threading.Thread):
+    """The CPython firmware in its own thread, as it would run on its own MCU."""
+
+    def __init__(self, transport, domain_id, cmd_vel_reliable):
+        super().__init__(daemon=True, name="turtlebot3")
+        self.robot = TurtleBot3(transport, domain_id=domain_id, cmd_vel_reliable=cmd_vel_reliable,
+                                log=lambda text: None)
+        self.ready = threading.Event()
+        self.failed = None
+        self._halt = threading.Event()
+
+    def run(self):
+        try:
+            if self.robot.connect(timeout_ms=500, attempts=20) is None or not self.robot.setup():
+                self.failed = "no agent or setup failed"
+                return
+            self.ready.set()
+            self.robot.run(should_stop=self._halt.is_set)
+        except Exception as exc:  # reported by the test, which would otherwise only time out
+            self.failed = repr(exc)
+            raise
+
+    def stop(self):
+        self._halt.set()
+        self.join(5)
+        self.robot.shutdown()
+
+
+def drive(publisher, twist, seconds, hz=30):
+    """Publish ``twist`` at ``hz`` for ``seconds``; (number published, wall-clock ns of the last)."""
+    period = 1.0 / hz
+    count = 0
+    next_at = time.monotonic()
+    end = next_at + seconds
+    while next_at < end:
+        publisher.publish(twist)
+        last_ns = time.time_ns()
+        count += 1
+        next_at += period
+        pause = next_at - time.monotonic()
+        if pause > 0:
+            time.sleep(pause)
+    return count, last_ns
+
+
+def forward_twist(speed):
+    twist = RosTwist()
+    twist.linear.x = speed
+    return twist
+
+
+def wait_for_failsafe(odom, stopped_ns, timeout_s=3.0):
+    """Seconds from the last command to the first /odom whose twist is zero."""
+    assert wait_until(lambda: any(t > stopped_ns and m.twist.twist.linear.x == 0.0
+                                  for t, m in odom.samples), timeout_s)
+    first = min(t for t, m in odom.samples if t > stopped_ns and m.twist.twist.linear.x == 0.0)
+    return (first - stopped_ns) / 1e9
+
+
+def run_flow(agent, ros_peer, domain, transport, cmd_vel_reliable):  # noqa: F811
+    types = turtlebot3_msgs_types()
+    node = ros_peer.node
+    imu, odom, sensor_state = Stamped(), Stamped(), Stamped()
+    node.create_subscription(RosImu, "/imu", imu, BEST_EFFORT)
+    node.create_subscription(RosOdometry, "/odom", odom, RELIABLE)
+    if types is not None:
+        node.create_subscription(types[0], "/sensor_state", sensor_state, BEST_EFFORT)
+    cmd_vel = node.create_publisher(RosTwist, "/cmd_vel", RELIABLE if cmd_vel_reliable else BEST_EFFORT)
+
+    robot_thread = RobotThread(transport, domain, cmd_vel_reliable)
+    robot_thread.start()
+    robot = robot_thread.robot
+    try:
+        assert robot_thread.ready.wait(30), robot_thread.failed
+        assert ("sensor_state" in robot.failed_topics) == (types is None), robot.failed_topics
+        assert abs(robot.session.time_offset_ns) < SYNC_ERROR_NS  # one clock: the sync finds ~0
+        assert wait_until(lambda: node.count_subscribers("/cmd_vel") >= 1 and odom.samples
+                          and imu.samples and (types is None or sensor_state.samples), 15)
+
+        # 3 s of 30 Hz commands; the sensor streams are measured over the same window.
+        start_ns = time.time_ns()
+        sent, last_command_ns = drive(cmd_vel, forward_twist(0.1), 3.0)
+        stopped_ns = time.time_ns()
+        check_rate_and_stamps(imu, start_ns, stopped_ns, 10)
+        if types is not None:
+            _, delays = check_rate_and_stamps(sensor_state, start_ns, stopped_ns, 10)
+            last = sensor_state.samples[-1][1]
+            assert last.torque and 10.5 <= last.battery <= 12.4
+            assert last.left_encoder == last.right_encoder > 0  # straight ahead: both wheels alike
+
+        if cmd_vel_reliable:
+            assert wait_until(lambda: robot.commands_received == sent, 2), (robot.commands_received, sent)
+        else:
+            assert robot.commands_received >= 0.9 * sent, (robot.commands_received, sent)
+        assert robot.last_command == (0.1, 0.0)
+        # 0.1 m/s for ~3 s straight ahead: odom moves along +x only.
+        moving = [m for t, m in odom.between(start_ns + 500_000_000, stopped_ns)]
+        assert moving and all(m.twist.twist.linear.x == 0.1 for m in moving)
+        position = odom.between(0, stopped_ns)[-1][1].pose.pose.position
+        assert 0.25 <= position.x <= 0.32 and abs(position.y) < 1e-9, (position.x, position.y)
+        ticks = robot.left_ticks
+        expected_ticks = robot.x / (2 * 3.141592653589793 * 0.033) * ENCODER_TICKS_PER_REV
+        assert abs(ticks - expected_ticks) <= 1
+
+        failsafe_s = wait_for_failsafe(odom, last_command_ns)
+        assert 0.5 <= failsafe_s <= 0.7, failsafe_s
+        assert robot.failsafe_trips == 1
+        return robot
+    finally:
+        robot_thread.stop()
+
+
+@pytest.mark.timeout(60)
+def test_robot_over_udp_reliable_cmd_vel(ros_peer, ros_domain):  # noqa: F811
+    with AgentProcess("udp4", "-m", "dds") as agent:
+        run_flow(agent, ros_peer, ros_domain, UdpTransport("127.0.0.1", agent.port), True)
+
+
+@pytest.mark.timeout(60)
+def test_robot_over_pty_at_115200_best_effort_cmd_vel(ros_peer, ros_domain):  # noqa: F811
+    with AgentProcess("pseudoterminal", "-m", "dds") as agent:
+        run_flow(agent, ros_peer, ros_domain, SerialTransport(agent.device, 115200), False)
+
+
+@pytest.mark.timeout(120)
+def test_robot_under_micropython_over_udp(ros_peer, ros_domain):  # noqa: F811
+    types = turtlebot3_msgs_types()
+    node = ros_peer.node
+    imu, odom, sensor_state = Stamped(), Stamped(), Stamped()
+    node.create_subscription(RosImu, "/imu", imu, BEST_EFFORT)
+    node.create_subscription(RosOdometry, "/odom", odom, RELIABLE)
+    if types is not None:
+        node.create_subscription(types[0], "/sensor_state", sensor_state, BEST_EFFORT)
+    cmd_vel = node.create_publisher(RosTwist, "/cmd_vel", RELIABLE)
+    with AgentProcess("udp4", "-m", "dds") as agent:
+        result = {}
+        runner = threading.Thread(target=lambda: result.setdefault(
+            "run", run_micropython(MP_SCRIPT, agent.port, ros_domain, 8, 1, timeout=90)), daemon=True)
+        runner.start()
+        assert wait_until(lambda: odom.samples and node.count_subscribers("/cmd_vel") >= 1, 60)
+        start_ns = time.time_ns()
+        sent, last_command_ns = drive(cmd_vel, forward_twist(0.1), 2.0)
+        stopped_ns = time.time_ns()
+        failsafe_s = wait_for_failsafe(odom, last_command_ns)
+        runner.join(100)
+    run = result["run"]
+    assert run.returncode == 0, run.stdout + run.stderr
+    lines = dict(line.split(" ", 1) for line in run.stdout.splitlines() if " " in line)
+    assert lines["connect"] == lines["setup"] == lines["done"] == "True", run.stdout
+    # The WebAssembly port's clocks and the synchronous Node bridge add up to ~0.5 ms (measured).
+    assert abs(int(lines["time_offset_ns"])) < 2 * SYNC_ERROR_NS
+    assert (lines["failed_topics"] == "-") == (types is not None), lines["failed_topics"]
+    assert int(lines["commands_received"]) == sent and lines["last_command"] == "0.1,0.0"
+    assert lines["failsafe_trips"] == "1" and 0.5 <= failsafe_s <= 0.8, failsafe_s
+    # 0.1 m/s for the 2 s of commands and the 0.5 s until the fail-safe stops the wheels.
+    assert 0.22 <= float(lines["x"]) <= 0.28 and float(lines["y"]) == 0.0, run.stdout
+    check_rate_and_stamps(imu, start_ns, stopped_ns, 10)
+    if types is not None:
+        check_rate_and_stamps(sensor_state, start_ns, stopped_ns, 10)
+        assert sensor_state.samples[-1][1].left_encoder > 0
