@@ -7,6 +7,7 @@ package(
         "__init__.py",
         "cdr.py",
         "client/__init__.py",
+        "client/recovery.py",
         "client/session.py",
         "compat.py",
         "constants.py",
