@@ -190,6 +190,7 @@ def ros_benchmarks(env, domain_id, seconds, latency_count, ping_count, groups):
                 stream = session.reliable if reliable else session.best_effort
                 sample = Twist(linear=Vector3(x=1.0))
                 sent = 0
+                cpu_before = cpu_seconds(agent.proc.pid)
                 start = time.monotonic()
                 end = start + seconds
                 while time.monotonic() < end:
@@ -200,6 +201,7 @@ def ros_benchmarks(env, domain_id, seconds, latency_count, ping_count, groups):
                     if reliable:
                         session.spin_once(0)
                 elapsed = time.monotonic() - start
+                agent_cpu = (cpu_seconds(agent.proc.pid) - cpu_before) / elapsed
                 if reliable:
                     session.run_until_confirm_delivery(5000)
                 time.sleep(0.5)
@@ -207,7 +209,8 @@ def ros_benchmarks(env, domain_id, seconds, latency_count, ping_count, groups):
                 record("client->ROS %s" % ("reliable" if reliable else "best-effort"), rate,
                        "msg/s", baseline, "bare rclpy pub->same sub",
                        ">= 0.8" if not reliable else "",
-                       "client sent %.0f msg/s, sub got %d of %d" % (sent / elapsed, received, sent))
+                       "client sent %.0f msg/s, sub got %d of %d, agent CPU %.0f %% of one core"
+                       % (sent / elapsed, received, sent, 100 * agent_cpu))
 
             # ROS -> client: the bare publisher's own rate is the baseline.
             topic = "/to_client"
