@@ -252,6 +252,9 @@ register(Subcommand("stats", "show a running agent's counters live (see --stats-
                     observability.add_stats_options, run=observability.run_stats))
 register(Subcommand("build-interfaces", "build ROS interface packages (.msg/.srv) for rclpy",
                     interfaces.add_build_options, run=interfaces.run_build_command))
+from xrce.agent import demo  # noqa: E402 (stdlib-only at import; rclpy loads when it runs)
+register(Subcommand("demo", "run the agent, a simulated TurtleBot3 and a ROS node driving it",
+                    demo.add_options, run=demo.run))
 
 
 def build_parser():
