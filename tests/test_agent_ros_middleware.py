@@ -109,9 +109,10 @@ async def test_participants_show_as_nodes_and_close_removes_them(ros_domain, ros
 
 async def test_unknown_type_names_the_package(middleware, ros_domain):  # noqa: F811
     participant = make_participant(middleware, ros_domain)
-    with pytest.raises(UnknownTypeError, match="turtlebot3_msgs is not installed.*build-interfaces"):
+    # A package that is neither installed nor in any interface directory the agent could build.
+    with pytest.raises(UnknownTypeError, match="nowhere_robot_msgs is not installed.*build-interfaces"):
         middleware.create_topic(key(0x02), participant,
-                                TopicSpec("rt/sensor_state", "turtlebot3_msgs::msg::dds_::SensorState_"))
+                                TopicSpec("rt/sensor_state", "nowhere_robot_msgs::msg::dds_::SensorState_"))
     with pytest.raises(UnknownTypeError, match="std_msgs.msg has no interface NoSuchType"):
         middleware.create_topic(key(0x02), participant,
                                 TopicSpec("rt/x", "std_msgs::msg::dds_::NoSuchType_"))
