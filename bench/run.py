@@ -430,6 +430,10 @@ def footprint():
     heap = re.search(r"total heap after imports\s+(\d+)", output)
     encode = re.search(r"encode us/op\s+([\d.]+)\s+([\d.]+)", output)
     decode = re.search(r"decode us/op\s+([\d.]+)\s+([\d.]+)", output)
+    headline = re.search(r"TOTAL import \+ session \+ publisher \+ subscriber\s+(\d+)", output)
+    if headline:
+        record("MicroPython heap: import + session + pub + sub", int(headline.group(1)), "bytes",
+               None, "-", "", "bench/client_footprint.py headline figure")
     if heap:
         record("MicroPython heap after client imports", int(heap.group(1)), "bytes", None,
                "-", "", "bench/client_footprint.py, WebAssembly MicroPython 1.27")
