@@ -50,7 +50,7 @@ class AgentProcess:
                     self.banner = line.strip()
                     port = re.search(r"on port (\d+)", line)
                     self.port = int(port.group(1)) if port else None
-                    device = re.search(r"pseudoterminal at (\S+)", line)
+                    device = re.search(r"pseudoterminal at ([^\s;]+)", line)
                     self.device = device.group(1) if device else None
                     return self
         finally:
