@@ -98,8 +98,9 @@ class RobotThread(threading.Thread):
 
     def __init__(self, transport, domain_id, cmd_vel_reliable):
         super().__init__(daemon=True, name="turtlebot3")
+        # Time sync every second instead of 10 s, so the periodic path runs inside the measurement.
         self.robot = TurtleBot3(transport, domain_id=domain_id, cmd_vel_reliable=cmd_vel_reliable,
-                                log=lambda text: None)
+                                time_sync_period_ms=1000, log=lambda text: None)
         self.ready = threading.Event()
         self.failed = None
         self._halt = threading.Event()
@@ -155,11 +156,12 @@ def wait_for_failsafe(odom, stopped_ns, timeout_s=3.0):
 def run_flow(agent, ros_peer, domain, transport, cmd_vel_reliable):  # noqa: F811
     types = turtlebot3_msgs_types()
     node = ros_peer.node
-    imu, odom, sensor_state = Stamped(), Stamped(), Stamped()
+    imu, odom, sensor_state, tf = Stamped(), Stamped(), Stamped(), Stamped()
     node.create_subscription(RosImu, "/imu", imu, BEST_EFFORT)
     node.create_subscription(RosOdometry, "/odom", odom, RELIABLE)
     if types is not None:
         node.create_subscription(types[0], "/sensor_state", sensor_state, BEST_EFFORT)
+        node.create_subscription(types[1], "/tf", tf, RELIABLE)
     cmd_vel = node.create_publisher(RosTwist, "/cmd_vel", RELIABLE if cmd_vel_reliable else BEST_EFFORT)
 
     robot_thread = RobotThread(transport, domain, cmd_vel_reliable)
@@ -200,6 +202,13 @@ def run_flow(agent, ros_peer, domain, transport, cmd_vel_reliable):  # noqa: F81
         failsafe_s = wait_for_failsafe(odom, last_command_ns)
         assert 0.5 <= failsafe_s <= 0.7, failsafe_s
         assert robot.failsafe_trips == 1
+        assert robot.time_syncs >= 4  # at start, then every second of the run
+        if types is not None:  # odom -> base_footprint follows the same pose as /odom
+            _, tf_msg = tf.between(0, stopped_ns)[-1]
+            (transform,) = tf_msg.transforms
+            assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_footprint")
+            assert abs(transform.transform.translation.x - position.x) < 0.011  # one 10 Hz period
+            assert transform.transform.rotation.w == 1.0
         return robot
     finally:
         robot_thread.stop()
