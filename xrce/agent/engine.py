@@ -55,6 +55,7 @@ CLIENT_EXPIRE_TIME = 0.0
 MAX_QUEUE_KEEP_ALL = 1024  # reader queue bound when its QoS is KEEP_ALL
 MIN_MTU = 24  # smaller CREATE_CLIENT mtu values would leave no room for a fragment chunk
 HARD_LIVELINESS_PROBES = 3
+MAX_DOMAIN_ID = 232  # the highest DDS domain id with the default RTPS port mapping
 DEFAULT_PARTICIPANT_NAME = "MicroXRCEParticipant"
 
 _GROUP_KINDS = (C.OBJK_PUBLISHER, C.OBJK_SUBSCRIBER)
@@ -620,6 +621,10 @@ class Agent:
                     domain = profile_domain or 0
                 else:
                     domain = _domain_override()
+            if not 0 <= domain <= MAX_DOMAIN_ID:
+                # Fast DDS cannot compute ports beyond it and aborts the whole process (found by
+                # bench/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
+                raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
             mw.create_participant(key, domain, name)
         elif kind == C.OBJK_TOPIC:
             if fmt == C.REPRESENTATION_IN_BINARY:
