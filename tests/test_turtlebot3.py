@@ -310,3 +310,30 @@ def test_demo_prints_robot_topics_and_exits_cleanly_on_sigint(ros_domain, serial
     assert not [pid for pid in children if pid_alive(pid)]
     assert lines[-1].strip() == "xrce-agent demo: stopped"
     assert any("[robot] turtlebot3: x=" in l for l in lines)  # the robot's own clean-exit line
+
+
+@pytest.mark.timeout(60)
+def test_robot_pings_until_an_agent_appears_then_runs():
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    logged = []
+    robot = TurtleBot3(UdpTransport("127.0.0.1", port), log=logged.append)
+    outcome = {}
+    connecting = threading.Thread(target=lambda: outcome.setdefault("rtt", robot.connect(timeout_ms=200)),
+                                  daemon=True)
+    connecting.start()
+    try:
+        time.sleep(1.5)
+        assert connecting.is_alive() and logged  # still pinging, and saying so
+        with AgentProcess("udp4", "-m", "ced", "-p", str(port)):
+            connecting.join(10)
+            assert outcome.get("rtt") is not None
+            assert robot.setup() and robot.failed_topics == []  # ced: every type is accepted
+            robot.run(duration_ms=1000)
+            assert 9 <= robot.published["sensor_state"] <= 11  # 10 Hz over the 1 s run
+            robot.shutdown()
+    finally:
+        robot.transport.close()
