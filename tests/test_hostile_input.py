@@ -114,3 +114,33 @@ def test_mutations_inside_an_established_session(data):
         agent.tick()
     assert agent.stats.handler_errors == 0
     assert len(agent.clients) <= 8
+
+
+# ------------------------------------------------------------------------------------ quotas
+
+def test_object_quota_answers_err_resources_and_logs():
+    from agent_process import AgentProcess
+    from xrce.client.session import Session
+    from xrce.transports.udp import UdpTransport
+
+    with AgentProcess("udp4", "-m", "ced", "--max-objects", "3", "--max-clients", "1") as agent:
+        session = Session(UdpTransport("127.0.0.1", agent.port), auto_recover=False)
+        other = Session(UdpTransport("127.0.0.1", agent.port), auto_recover=False)
+        try:
+            assert session.create(attempts=3, timeout_ms=1000)
+            node = session.create_participant(name="greedy")
+            topic = session.create_topic(node, "rt/q", "std_msgs::msg::dds_::String_")
+            publisher = session.create_publisher(node)
+            assert session.run_until_all_status(3000)
+            session.create_datawriter(publisher, topic)
+            assert not session.run_until_all_status(3000)
+            assert list(session.last_statuses.values()) == [0x87]  # ERR_RESOURCES
+            # A second client while the only slot is held by a live one: refused, not evicted.
+            assert not other.create(attempts=1, timeout_ms=1000)
+            assert other.create_status == 0x87
+        finally:
+            session.close()
+            other.close()
+        assert agent.stop() == 0
+    log = "".join(agent.output)
+    assert "quota reached" in log and "refusing client" in log
