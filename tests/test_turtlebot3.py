@@ -13,7 +13,6 @@ wrong moment), not that the link is slow.
 
 import os
 import signal
-import statistics
 import subprocess
 import sys
 import threading
@@ -180,7 +179,7 @@ def run_flow(agent, ros_peer, domain, transport, cmd_vel_reliable):  # noqa: F81
         stopped_ns = time.time_ns()
         check_rate_and_stamps(imu, start_ns, stopped_ns, 10)
         if types is not None:
-            _, delays = check_rate_and_stamps(sensor_state, start_ns, stopped_ns, 10)
+            check_rate_and_stamps(sensor_state, start_ns, stopped_ns, 10)
             last = sensor_state.samples[-1][1]
             assert last.torque and 10.5 <= last.battery <= 12.4
             assert last.left_encoder == last.right_encoder > 0  # straight ahead: both wheels alike
