@@ -160,6 +160,16 @@ def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_doma
 
         started = time.monotonic()
         writer = client.create_writer(node, "/sensor_state", SensorState, reliable=True)
+        client.flush()
+        # While that CREATE waits for cmake, the agent keeps serving everybody else.
+        time.sleep(1.0)
+        other = Session(UdpTransport("127.0.0.1", agent.port))
+        try:
+            assert other.create(attempts=1, timeout_ms=1000) and other.ping(1000)
+            assert time.monotonic() - started < 5, "the build stalled the agent"
+            other.delete(attempts=1, timeout_ms=500)
+        finally:
+            other.close()
         assert client.run_until_all_status(90000), client.last_statuses
         lazy_s = time.monotonic() - started
         prefixes = [p for p in (cache_home / "xrce" / "interfaces").iterdir() if p.is_dir()]
@@ -195,5 +205,5 @@ def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_doma
             client.close()
         agent.stop()
     log = "".join(agent.output)
-    assert "built interface package turtlebot3_msgs" in log, log
+    assert "building interface package turtlebot3_msgs" in log, log
     assert "no_such_msgs is not installed" in log, log

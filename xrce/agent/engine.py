@@ -23,7 +23,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 from xrce import constants as C
 from xrce.agent import xmlrep
 from xrce.agent.middleware import (
-    EndpointQosSpec, EntityKey, Middleware, MiddlewareError, ServiceSpec, TopicSpec,
+    EndpointQosSpec, EntityKey, Middleware, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
 )
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
@@ -171,6 +171,9 @@ class ClientProxy:
         self.reassembly: Dict[int, bytearray] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored
+        # While a CREATE waits for its type to be built: the messages to process afterwards, in
+        # order, starting with the rest of the one that held the CREATE. None when not parked.
+        self.parked: Optional[list] = None
         # Per-client counters for xrce.agent.observability; plain ints so the hot path stays cheap.
         self.created_at = now
         self.messages_in = 0
@@ -202,6 +205,17 @@ class _StopMessage(Exception):
     """A submessage handler failed: the rest of this message is skipped (§5 processing quirk)."""
 
 
+class _Parked(Exception):
+    """A CREATE needs a type that is being built: this client's processing waits for ``future``."""
+
+    def __init__(self, future):
+        super().__init__()
+        self.future = future
+
+
+# Messages a parked client may queue while its type builds; more are dropped and counted.
+MAX_PARKED_MESSAGES = 512
+
 class Agent:
     def __init__(self, middleware: Middleware, *, refs: Optional[Dict[str, str]] = None,
                  heartbeat_period: float = 0.2, client_dead_time: float = CLIENT_DEAD_TIME,
@@ -230,6 +244,7 @@ class Agent:
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
         self._started = False
+        self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
@@ -256,8 +271,33 @@ class Agent:
             log.debug("dropped message from %s %r after %s: %s", link.name, endpoint,
                       exc.__class__.__name__, data.hex(), exc_info=True)
 
+    def _build_finished(self, client: ClientProxy) -> None:
+        """Called from the build's thread: hand the client back to the loop."""
+        self._resumable.append(client)
+        if self.loop is not None:
+            self.loop.call_soon_threadsafe(self._resume_parked)
+        # Without a loop (synchronous tests), tick() resumes it.
+
+    def _resume_parked(self) -> None:
+        while self._resumable:
+            client = self._resumable.popleft()
+            pending, client.parked = client.parked, None
+            if not client.alive or pending is None:
+                continue
+            while pending:
+                data, start, stream_id = pending.pop(0)
+                try:
+                    self._process_message(client, data, start, stream_id)
+                except Exception:
+                    self.stats.handler_errors += 1
+                    log.debug("resumed message of client %s failed", client.key.hex(), exc_info=True)
+                if client.parked is not None:  # parked again by another type being built
+                    client.parked.extend(pending)
+                    break
+
     def tick(self) -> None:
         """One round of periodic work: HEARTBEATs, liveliness probes, paced delivery."""
+        self._resume_parked()
         now = self.clock()
         for client in list(self.clients.values()):
             try:
@@ -267,6 +307,8 @@ class Agent:
                 log.debug("periodic work for client %s failed", client.key.hex(), exc_info=True)
 
     async def run(self) -> None:
+        if self.loop is None:
+            self.loop = asyncio.get_running_loop()
         if not self._started:
             self._started = True
             await self.middleware.start()
@@ -388,12 +430,25 @@ class Agent:
 
     def _process_message(self, client: ClientProxy, data: bytes, start: int, stream_id: int) -> None:
         """Submessages in order; the first failing one stops the rest of the message."""
+        if client.parked is not None and stream_id != C.STREAM_NONE:
+            if len(client.parked) >= MAX_PARKED_MESSAGES:
+                self.stats.dropped += 1
+            else:
+                client.parked.append((data, start, stream_id))
+            return
         try:
             for sub_id, flags, sub_start, sub_end in iter_submessages(data, start):
                 if not client.alive:
                     return
-                if not self._handle_submessage(client, stream_id, data, sub_id, flags, sub_start,
-                                               sub_end):
+                try:
+                    handled = self._handle_submessage(client, stream_id, data, sub_id, flags,
+                                                      sub_start, sub_end)
+                except _Parked as parked:
+                    # Resume at this CREATE's submessage header once the build is done.
+                    client.parked = [(data, sub_start - 4, stream_id)]
+                    parked.future.add_done_callback(lambda _, c=client: self._build_finished(c))
+                    return
+                if not handled:
                     return
         except DecodeError as exc:
             self.stats.decode_errors += 1
@@ -582,6 +637,8 @@ class Agent:
         entry = ObjectEntry(object_id, kind, parent, signature)
         try:
             status = self._build(client, request, entry)
+        except TypeNotReady as pending:
+            raise _Parked(pending.future)
         except (MiddlewareError, xmlrep.XmlRepresentationError) as exc:
             log.warning("client %s: creating %s 0x%04X failed: %s", client.key.hex(),
                         C.OBJECT_KIND_NAMES.get(kind), object_id, exc)

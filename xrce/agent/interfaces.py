@@ -456,11 +456,11 @@ def find_in_search_path(package_name):
     return find_packages(dirs).get(package_name) if dirs else None
 
 
-def ensure_package(package_name, timeout_s=None):
-    """Build ``package_name`` from the interface search path if it is there; True when built (or
-    cached) and registered, False when no such package is in the search path.
+def start_package_build(package_name):
+    """The future of building ``package_name`` from the interface search path (started now if no
+    build is under way or the last one failed), or None when the search path has no such package.
 
-    The build runs on a worker thread; concurrent calls for the same package wait for one build.
+    Builds run one at a time on a worker thread; concurrent requests for one package share a build.
     """
     global _lazy_executor
     import concurrent.futures
@@ -469,12 +469,23 @@ def ensure_package(package_name, timeout_s=None):
         future = _lazy_builds.get(package_name)
         if future is None or (future.done() and future.exception() is not None):
             if find_in_search_path(package_name) is None:
-                return False
+                return None
             if _lazy_executor is None:
                 _lazy_executor = concurrent.futures.ThreadPoolExecutor(
                     max_workers=1, thread_name_prefix="xrce-interfaces")
             future = _lazy_executor.submit(build, None, None, [package_name])
             _lazy_builds[package_name] = future
+    return future
+
+
+def ensure_package(package_name, timeout_s=None):
+    """Build ``package_name`` from the interface search path if it is there and wait for it; True
+    when built (or cached) and registered, False when no such package is in the search path."""
+    import concurrent.futures
+
+    future = start_package_build(package_name)
+    if future is None:
+        return False
     try:
         future.result(timeout=timeout_s if timeout_s is not None else LAZY_BUILD_TIMEOUT_S)
     except concurrent.futures.TimeoutError:

@@ -43,6 +43,15 @@ class UnknownTypeError(MiddlewareError):
     """The type named by a topic has no importable implementation."""
 
 
+class TypeNotReady(MiddlewareError):
+    """The type is being built (``future`` completes when it is): the engine parks the client's
+    processing and retries the CREATE then, instead of stalling every other client meanwhile."""
+
+    def __init__(self, message, future):
+        super().__init__(message)
+        self.future = future
+
+
 @dataclass(frozen=True)
 class EndpointQosSpec:
     """QoS of a writer/reader after XML/binary/reference have been normalised by the engine."""

@@ -16,7 +16,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 
-from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, UnknownTypeError
+from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, TypeNotReady, UnknownTypeError
 
 BUILD_HINT = "run `xrce-agent build-interfaces`"
 
@@ -75,20 +75,26 @@ def _split_type(dds_type: str) -> tuple[str, str, str]:
 
 
 def _build_missing_package(package: str) -> bool:
-    """Build ``package`` from the interface search path (xrce.agent.interfaces); False if absent.
+    """Make ``package`` importable from the interface search path (xrce.agent.interfaces).
 
-    The cmake run happens on the interfaces module's worker thread and this call waits for it;
-    concurrent requests for one package share that build.
+    False when the search path does not have it. A build that is not finished yet raises
+    TypeNotReady carrying its future: the engine retries once it is done, so a cmake run of
+    several seconds never stalls the agent's loop (other clients keep being served).
     """
     from xrce.agent import interfaces
 
-    try:
-        built = interfaces.ensure_package(package)
-    except interfaces.InterfaceBuildError as exc:
-        raise UnknownTypeError("building %s failed: %s" % (package, exc)) from None
-    if built:
-        log.info("built interface package %s", package)
-    return built
+    future = interfaces.start_package_build(package)
+    if future is None:
+        return False
+    if not future.done():
+        log.info("building interface package %s for a client; its CREATE waits for the build",
+                 package)
+        raise TypeNotReady("interface package %s is being built" % package, future)
+    error = future.exception()
+    if error is not None:
+        raise UnknownTypeError("building %s failed: %s" % (package, error)) from None
+    log.info("built interface package %s", package)
+    return True
 
 
 def _import_interface(package: str, kind: str, type_name: str):
