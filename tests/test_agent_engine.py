@@ -631,3 +631,44 @@ def test_ced_routes_only_within_a_domain(setup):
     a.write(b"zz")
     assert data_of(b.take()) == []
     logging.getLogger("xrce.agent").debug("domains isolated")
+
+
+class SlowTypeMiddleware(CedMiddleware):
+    """CED, except that topics of type ``slow::...`` need a build that finishes when told to."""
+
+    def __init__(self):
+        super().__init__()
+        import concurrent.futures
+        self.build = concurrent.futures.Future()
+
+    def create_topic(self, key, participant, topic):
+        if topic.type_name.startswith("slow::") and not self.build.done():
+            from xrce.agent.middleware import TypeNotReady
+            raise TypeNotReady("slow is being built", self.build)
+        return super().create_topic(key, participant, topic)
+
+
+def test_a_create_waiting_for_its_type_parks_only_its_client():
+    link = Link()
+    middleware = SlowTypeMiddleware()
+    agent = Agent(middleware)
+    agent.clock = Clock()
+    waiting, other = Peer(agent, link, "waiting"), Peer(agent, link, "other", key=b"\x01\x02\x03\x04")
+    assert waiting.connect()[1] == 0 and other.connect()[1] == 0
+    assert waiting.create(0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("p"), 0) == 0
+    # The topic and, in a later message, its writer's publisher: neither is answered yet.
+    topic_request = waiting.next_request()
+    waiting.send(0x80, Create(topic_request, 0x0012, C.OBJK_TOPIC, BIN,
+                              TopicBin("rt/slow", "slow::msg::dds_::Thing_"), 0x0011, 1))
+    publisher_request = waiting.next_request()
+    waiting.send(0x80, Create(publisher_request, 0x0013, C.OBJK_PUBLISHER, BIN, PubSubBin(), 0x0011, 1))
+    assert waiting.statuses() == []
+    # Meanwhile another client is served as usual.
+    other.build_pubsub("rt/fast")
+    other.read()
+    other.write(b"\x02\x00\x00\x00a\x00")
+    assert data_of(other.take()) == [b"\x02\x00\x00\x00a\x00"]
+    # The build finishes: the parked CREATE and everything queued behind it run, in order.
+    middleware.build.set_result(None)
+    agent.tick()
+    assert waiting.statuses() == [(0x80, topic_request, 0), (0x80, publisher_request, 0)]
