@@ -688,8 +688,9 @@ class Session:
     def run_until_all_status(self, timeout_ms=1000, request_ids=None):
         """Flush, wait for a STATUS for every pending request (or those given); True if all OK.
 
-        OK_MATCHED counts as success (an entity reused as it was). Statuses stay readable with
-        ``status_of`` until the next call collects them.
+        OK_MATCHED counts as success (an entity reused as it was). Requests still unanswered at the
+        timeout stay pending, so a later call waits for them again. ``last_statuses`` holds what
+        this call saw.
         """
         self.flush()
         ids = list(self._statuses) if request_ids is None else list(request_ids)
@@ -705,7 +706,9 @@ class Session:
         ok = True
         self.last_statuses = {}
         for rid in ids:
-            status = statuses.pop(rid, C.STATUS_NONE) if rid else C.STATUS_OK
+            status = statuses.get(rid, C.STATUS_NONE) if rid else C.STATUS_OK
+            if status != C.STATUS_NONE:
+                statuses.pop(rid, None)  # answered: collected now; unanswered ones stay pending
             self.last_statuses[rid] = status
             if status not in (C.STATUS_OK, C.STATUS_OK_MATCHED):
                 ok = False
