@@ -254,16 +254,7 @@ def test_data_takes_plain_values_for_one_field_types_and_yaml_otherwise():
     assert cli.format_message(twist) == "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1}}"
 
 
-def test_build_mpy_without_the_tools_module_exits_1_with_one_line(monkeypatch, capsys, tmp_path):
-    monkeypatch.setitem(sys.modules, "xrce.tools.mpy", None)  # makes the import raise ImportError
-    assert cli.main(["build-mpy", str(tmp_path)]) == 1
-    captured = capsys.readouterr()
-    assert captured.out == ""
-    assert len(captured.err.splitlines()) == 1 and "build-mpy is unavailable" in captured.err
-
-
 def test_build_mpy_passes_through_to_the_tools_module(tmp_path):
-    pytest.importorskip("xrce.tools.mpy")
     code, out, err = run_client("build-mpy", str(tmp_path / "mpy"), timeout=120)
     assert code == 0, err
     assert list((tmp_path / "mpy").rglob("*.mpy")), out

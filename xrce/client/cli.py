@@ -482,10 +482,8 @@ def run_sub(args):
 
 
 def run_build_mpy(args):
-    try:
-        from xrce.tools import mpy
-    except ImportError as error:
-        raise AgentError("build-mpy is unavailable: xrce.tools.mpy cannot be imported (%s)" % error)
+    from xrce.tools import mpy  # CPython-only tooling, imported only for this command
+
     return mpy.main(["build-mpy", args.outdir])
 
 
