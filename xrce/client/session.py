@@ -21,7 +21,7 @@ message exactly as with the C client.
 from xrce import constants as C
 from xrce.cdr import CdrReader
 from xrce.compat import epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
-from xrce.errors import DecodeError, EncodeError, XrceError
+from xrce.errors import DecodeError, XrceError
 from xrce.message import MessageWriter, SUBHEADER_SIZE, decode_header, header_size, iter_submessages
 from xrce.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, ReplierBin, RequesterBin,
