@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from ros_helpers import ros_domain  # noqa: F401
 from mp_harness import RUNNER, ensure_installed, node_executable, run_micropython
 
 
@@ -280,11 +281,9 @@ print("published", sent)
 """
 
 
-def test_micropython_client_publishes_to_ros_through_the_agent(tmp_path, monkeypatch):
+def test_micropython_client_publishes_to_ros_through_the_agent(tmp_path, ros_domain):  # noqa: F811
     """End to end: the client under MicroPython, the nodeudp bridge, the Python agent, rclpy."""
-    domain = 77
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    domain = ros_domain  # leased, with LOCALHOST discovery set by the fixture
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import String
