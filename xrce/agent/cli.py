@@ -25,7 +25,7 @@ import socket
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from xrce.agent import interfaces, observability, servers
+from xrce.agent import demo, interfaces, observability, servers
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -252,7 +252,6 @@ register(Subcommand("stats", "show a running agent's counters live (see --stats-
                     observability.add_stats_options, run=observability.run_stats))
 register(Subcommand("build-interfaces", "build ROS interface packages (.msg/.srv) for rclpy",
                     interfaces.add_build_options, run=interfaces.run_build_command))
-from xrce.agent import demo  # noqa: E402 (stdlib-only at import; rclpy loads when it runs)
 register(Subcommand("demo", "run the agent, a simulated TurtleBot3 and a ROS node driving it",
                     demo.add_options, run=demo.run))
 
