@@ -411,6 +411,14 @@ class Data(WriteData):
     ID = C.DATA
 
 
+def sample_ids(buf, start, end):
+    """``(request_id, object_id)`` of a WRITE_DATA/DATA payload in ``buf[start:end]``; its sample
+    starts at ``start + 4``. The agent's per-sample path uses this instead of building a WriteData."""
+    if end - start < 4:
+        raise DecodeError("WRITE_DATA shorter than its request and object ids")
+    return (buf[start] << 8) | buf[start + 1], (buf[start + 2] << 8) | buf[start + 3]
+
+
 class DeliveryControl:
     __slots__ = ("max_samples", "max_elapsed_time", "max_bytes_per_second", "min_pace_period")
 

@@ -34,7 +34,7 @@ from xrce.streams import (
 )
 from xrce.submessages import (
     AckNack, Create, Data, Delete, Fragment, GetInfo, Heartbeat, Info, ReadData, Status,
-    StatusAgent, TimestampReply, decode_payload, encode_message,
+    StatusAgent, TimestampReply, decode_payload, encode_message, sample_ids,
 )
 
 TRACE = 5
@@ -460,8 +460,8 @@ class Agent:
         if sub_id == C.WRITE_DATA:
             if flags & C.FLAG_FORMAT_MASK != C.FORMAT_DATA:
                 return False
-            payload = decode_payload(sub_id, flags, data, start, end)
-            return self._write_data(client, payload)
+            request_id, object_id = sample_ids(data, start, end)
+            return self._write_data(client, request_id, object_id, data[start + 4:end])
         if sub_id == C.FRAGMENT:
             return self._fragment(client, stream_id, data, flags, start, end)
         if sub_id not in _HANDLED:
@@ -780,11 +780,10 @@ class Agent:
 
     # ------------------------------------------------------------------ data --
 
-    def _write_data(self, client: ClientProxy, request) -> bool:
-        entry = client.objects.get(request.object_id)
+    def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
+        entry = client.objects.get(object_id)
         if entry is None:
             return False
-        data = request.data
         key = client.entity(entry.object_id)
         self.stats.samples_in += 1
         entry.samples += 1
@@ -792,7 +791,7 @@ class Agent:
         if entry.kind == C.OBJK_DATAWRITER:
             return bool(self.middleware.write(key, data))
         if entry.kind == C.OBJK_REQUESTER:
-            correlation_id = (entry.object_id << 16) + request.request_id
+            correlation_id = (entry.object_id << 16) + request_id
             return bool(self.middleware.write_request(key, correlation_id, data))
         if entry.kind == C.OBJK_REPLIER:
             if len(data) < 24:
