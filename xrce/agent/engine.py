@@ -20,7 +20,7 @@ from collections import deque
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
 
-from xrce import constants as C
+from xrce import constants as C, names as wire_names
 from xrce.agent import xmlrep
 from xrce.agent.middleware import (
     EndpointQosSpec, EntityKey, Middleware, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
@@ -641,7 +641,7 @@ class Agent:
             raise _Parked(pending.future)
         except (MiddlewareError, xmlrep.XmlRepresentationError) as exc:
             log.warning("client %s: creating %s 0x%04X failed: %s", client.key.hex(),
-                        C.OBJECT_KIND_NAMES.get(kind), object_id, exc)
+                        wire_names.OBJECT_KIND_NAMES.get(kind), object_id, exc)
             status = C.STATUS_ERR_DDS_ERROR
         if status == C.STATUS_OK:
             client.objects[object_id] = entry
@@ -1101,7 +1101,7 @@ class Agent:
 
     def _trace(self, direction: str, link: Link, endpoint: Hashable, data: bytes, start: int) -> None:
         try:
-            names = [C.SUBMESSAGE_NAMES.get(sub_id, str(sub_id))
+            names = [wire_names.SUBMESSAGE_NAMES.get(sub_id, str(sub_id))
                      for sub_id, _, _, _ in iter_submessages(data, start)]
         except DecodeError:
             names = ["<malformed>"]

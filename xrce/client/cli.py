@@ -22,7 +22,7 @@ import socket
 import sys
 import time
 
-from xrce import constants as C
+from xrce import constants as C, names as wire_names
 
 PROG = "xrce-client"
 EXIT_OK = 0
@@ -397,7 +397,7 @@ class _Connection:
 
 
 def _status_name(status):
-    return C.STATUS_NAMES.get(status, "0x%02X" % status)
+    return wire_names.STATUS_NAMES.get(status, "0x%02X" % status)
 
 
 def _require_statuses(session, what):
