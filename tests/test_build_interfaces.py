@@ -33,7 +33,9 @@ TYPE_HASH_SCRIPT = r"""
 import ctypes
 from turtlebot3_msgs.msg import SensorState
 from tf2_msgs.msg import TFMessage
+from turtlebot3_msgs.action import Patrol  # the package's action builds too
 assert TFMessage().transforms == []
+assert Patrol.Goal(radius=1.5).radius == 1.5 and Patrol.Feedback().left_time == 0.0
 # Loads the C type support exactly as rclpy does before it creates a publisher.
 SensorState.__class__.__import_type_support__()
 TFMessage.__class__.__import_type_support__()
