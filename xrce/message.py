@@ -16,10 +16,6 @@ HEADER_SIZE_WITH_KEY = 8
 SUBHEADER_SIZE = 4
 
 
-def has_key(session_id):
-    return session_id < SESSION_ID_WITHOUT_KEY_MASK
-
-
 def header_size(session_id):
     return HEADER_SIZE_WITH_KEY if session_id < SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
 
@@ -140,12 +136,6 @@ class MessageWriter:
             raise EncodeError("submessage payload longer than 65535 bytes")
         struct.pack_into("<H", w.buf, self._sub_start + 2, length)
         self._sub_start = -1
-
-    def submessage(self, sub_id, flags, payload):
-        """Append a submessage whose payload is already serialized bytes."""
-        w = self.begin_submessage(sub_id, flags)
-        w.raw(payload)
-        self.end_submessage()
 
     def pad_to_4(self):
         self.w.align(4)

@@ -23,10 +23,6 @@ def object_kind(oid):
     return oid & 0x0F
 
 
-def object_index(oid):
-    return oid >> 4
-
-
 def with_kind(oid, kind):
     return (oid & 0xFFF0) | kind
 

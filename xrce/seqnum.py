@@ -20,11 +20,3 @@ def seq_less(a, b):
     if a == b:
         return False
     return (a < b and b - a < _HALF) or (a > b and a - b > _HALF)
-
-
-def seq_less_equal(a, b):
-    return a == b or seq_less(a, b)
-
-
-def seq_max(a, b):
-    return b if seq_less(a, b) else a

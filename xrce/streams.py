@@ -18,10 +18,6 @@ def is_reliable(stream_id):
     return stream_id >= 0x80
 
 
-def is_best_effort(stream_id):
-    return 0 < stream_id < 0x80
-
-
 def _check_history(history):
     if history < 1 or history & (history - 1):
         raise EncodeError("stream history must be a power of two, got %r" % (history,))
@@ -143,18 +139,6 @@ class OutputReliableStream:
                         resend.append(message)
         self.retransmissions += len(resend)
         return resend
-
-    def unacked_messages(self):
-        """Every stored unacknowledged message, oldest first (for a resend-all policy)."""
-        out = []
-        seq = self.last_acknowledged
-        while seq != self.last_sent:
-            seq = seq_add(seq, 1)
-            message = self.slots[seq & (self.history - 1)]
-            if message is not None:
-                out.append(message)
-        return out
-
 
 class InputReliableStream:
     """Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order."""

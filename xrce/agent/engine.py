@@ -201,10 +201,6 @@ class ClientProxy:
         self.blocked_readers.clear()
 
 
-class _StopMessage(Exception):
-    """A submessage handler failed: the rest of this message is skipped (§5 processing quirk)."""
-
-
 class _Parked(Exception):
     """A CREATE needs a type that is being built: this client's processing waits for ``future``."""
 

@@ -684,9 +684,6 @@ class RosMiddleware(Middleware):
         record = self._record(reader, ("datareader",))
         return record.handoff.delivered, record.handoff.dropped
 
-    def node_of(self, participant: EntityKey) -> Node:
-        return self._record(participant, ("participant",)).node
-
     def domain_ids(self) -> list[int]:
         """The ROS domains the agent has joined (one per domain its clients asked for)."""
         return list(self._domains)

@@ -714,9 +714,6 @@ class Session:
                 ok = False
         return ok
 
-    def status_of(self, request_id):
-        return self._statuses.get(request_id, self.last_statuses.get(request_id, C.STATUS_NONE))
-
     def run_until_confirm_delivery(self, timeout_ms=1000):
         """Flush and wait until every reliable message sent has been acknowledged."""
         self.flush()
@@ -727,13 +724,6 @@ class Session:
             if out.reliable and out.state.pending():
                 return False
         return True
-
-    def run_until_data(self, timeout_ms, request_id):
-        """Flush and wait for the first DATA answering the READ_DATA ``request_id``."""
-        self.flush()
-        self._statuses[request_id] = C.STATUS_NONE
-        self._wait(timeout_ms, lambda: self._statuses.get(request_id) != C.STATUS_NONE)
-        return self._statuses.pop(request_id, C.STATUS_NONE) == C.STATUS_OK
 
     # ------------------------------------------------------------------ ping and time
 
