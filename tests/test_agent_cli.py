@@ -29,14 +29,6 @@ START_TIMEOUT = 30.0  # the venv's python re-executes itself once at start-up (R
 EXIT_TIMEOUT = 15.0
 REPLY_TIMEOUT = 5.0
 
-try:
-    import xrce.agent.engine  # noqa: F401
-    import xrce.agent.ced  # noqa: F401
-    HAVE_ENGINE = True
-except ImportError:
-    HAVE_ENGINE = False
-
-needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine / ced not there yet")
 
 
 def _env():
@@ -209,7 +201,6 @@ def test_refs_file_gives_one_xml_per_profile(tmp_path):
 
 # ------------------------------------------------------------------------------ start and stop
 
-@needs_engine
 @pytest.mark.parametrize("transport", ["udp4", "udp6", "tcp4", "tcp6"])
 def test_ip_subcommands_start_and_exit_0_on_sigint(agent, transport):
     if transport.endswith("6") and not ipv6_loopback():
@@ -221,7 +212,6 @@ def test_ip_subcommands_start_and_exit_0_on_sigint(agent, transport):
     assert "Traceback" not in process.stderr_text()
 
 
-@needs_engine
 def test_serial_and_multiserial_start_and_exit_0_on_sigint(agent, pty_pair):
     _, slave = pty_pair()
     process = agent("serial", "-D", slave, "-b", "57600", "-m", "ced")
@@ -235,7 +225,6 @@ def test_serial_and_multiserial_start_and_exit_0_on_sigint(agent, pty_pair):
     assert "Traceback" not in process.stderr_text()
 
 
-@needs_engine
 def test_pseudoterminal_prints_its_slave_and_links_dev(agent, tmp_path):
     link = tmp_path / "xrce_pty"
     process = agent("pseudoterminal", "-D", str(link), "-m", "ced")
@@ -246,7 +235,6 @@ def test_pseudoterminal_prints_its_slave_and_links_dev(agent, tmp_path):
     assert not os.path.lexists(link)
 
 
-@needs_engine
 def test_a_port_in_use_is_one_line_and_exit_1():
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
         busy.bind(("0.0.0.0", 0))
@@ -256,7 +244,6 @@ def test_a_port_in_use_is_one_line_and_exit_1():
     assert len(err.splitlines()) == 1 and err.startswith("xrce-agent: error: ")
 
 
-@needs_engine
 def test_serial_device_missing_is_one_line_and_exit_1(tmp_path):
     code, out, err = run_cli("serial", "-D", str(tmp_path / "ttyNOPE"), "-m", "ced", "-v", "0")
     assert code == 1 and out == ""
@@ -340,7 +327,6 @@ def _wait_readable(fd, timeout):
         return bool(selector.select(timeout))
 
 
-@needs_engine
 def test_end_to_end_over_udp(agent):
     process = agent("udp4", "-p", "0", "-m", "ced")
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
@@ -357,7 +343,6 @@ def test_end_to_end_over_udp(agent):
     assert process.stop() == 0
 
 
-@needs_engine
 def test_end_to_end_over_tcp(agent):
     process = agent("tcp4", "-p", "0", "-m", "ced")
     with socket.create_connection(("127.0.0.1", process.port()), timeout=REPLY_TIMEOUT) as client:
@@ -389,7 +374,6 @@ def _framed_conversation(fd):
     return Conversation(lambda m: os.write(fd, encode_frame(m, 1, 0)), receive)
 
 
-@needs_engine
 def test_end_to_end_over_serial_on_a_pty(agent, pty_pair):
     master, slave = pty_pair()
     process = agent("serial", "-D", slave, "-m", "ced")
@@ -413,7 +397,6 @@ def test_end_to_end_over_serial_on_a_pty(agent, pty_pair):
     assert process.stop() == 0
 
 
-@needs_engine
 def test_end_to_end_over_the_agents_pseudoterminal(agent):
     process = agent("pseudoterminal", "-m", "ced")
     slave_path = re.search(r"pseudoterminal at (/dev/\S+)", process.banner).group(1)
@@ -432,7 +415,6 @@ def _free_udp_port():
         return probe.getsockname()[1]
 
 
-@needs_engine
 def test_discovery_answers_with_the_agents_port(agent):
     discovery_port = _free_udp_port()
     process = agent("udp4", "-p", "0", "-d", str(discovery_port), "-m", "ced")
@@ -451,7 +433,6 @@ def test_discovery_answers_with_the_agents_port(agent):
     assert process.stop() == 0
 
 
-@needs_engine
 def test_the_ros_middleware_runs_section_13_and_exits_0(agent):
     pytest.importorskip("rclpy")
     process = agent("udp4", "-p", "0")  # -m dds is the default
@@ -478,7 +459,6 @@ def test_the_ros_middleware_runs_section_13_and_exits_0(agent):
     assert "Traceback" not in process.stderr_text()
 
 
-@needs_engine
 @pytest.mark.parametrize("verbosity, traced", [("6", True), ("0", False)])
 def test_verbosity_6_traces_every_message_and_0_is_silent(agent, verbosity, traced):
     process = agent("udp4", "-p", "0", "-m", "ced", "-v", verbosity)

@@ -140,7 +140,9 @@ def test_serial_device_unplugged_and_replugged_at_the_same_path(tmp_path):
     link = str(tmp_path / "ttyACM_board")
     device = PtyDevice(link)
     try:
-        with AgentProcess("serial", "-D", link, "-m", "ced") as agent:
+        # The agent is given a glob, as for /dev/serial/by-id/*OpenCR*: it must find the device
+        # through it at start and again after each re-plug.
+        with AgentProcess("serial", "-D", str(tmp_path / "ttyACM_*"), "-m", "ced") as agent:
             assert echo_round(device, "before")
             for plug in range(2):
                 device.unplug()
