@@ -672,3 +672,21 @@ def test_a_create_waiting_for_its_type_parks_only_its_client():
     middleware.build.set_result(None)
     agent.tick()
     assert waiting.statuses() == [(0x80, topic_request, 0), (0x80, publisher_request, 0)]
+
+
+def test_output_queue_quota_keeps_the_newest_samples_within_the_bound():
+    link = Link()
+    agent = Agent(CedMiddleware(), max_output_queue_bytes=200)
+    agent.clock = Clock()
+    peer = Peer(agent, link, "q")
+    assert peer.connect()[1] == 0
+    peer.build_pubsub(reader_depth=100)
+    samples = [bytes([i]) * 50 for i in range(10)]  # no READ_DATA yet: they queue for the reader
+    for sample in samples:
+        peer.write(sample)
+    client = agent.clients[peer.key]
+    assert client.queued_bytes <= 200
+    assert agent.stats.quota_output_dropped == 6
+    peer.take()
+    peer.read(delivery=DeliveryControl(0xFFFF, 0, 0, 0))
+    assert data_of(peer.take()) == samples[-4:]  # the newest that fit, oldest dropped first
