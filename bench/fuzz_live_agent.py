@@ -4,7 +4,7 @@
                                     [--seed 1] [--max-seconds 300] [--serial]
 
 Random datagrams and mutations of the golden captures (bit flips, byte overwrites, truncation,
-extension, splices; /work/shared/protocol/golden/wire_captures.json) go to the agent from several
+extension, splices; tests/golden/wire_captures.json) go to the agent from several
 UDP sockets (``--serial``: as byte soup and mutated frames into a second pseudoterminal of a
 ``multiserial`` agent), while a writer session publishes to a reader session through the same
 agent, alternating reliable and best-effort samples. Printed at the end: datagrams sent, the
@@ -38,7 +38,7 @@ from xrce.tools.relays import SerialRelay  # noqa: E402
 from xrce.transports.serial import SerialTransport  # noqa: E402
 from xrce.transports.udp import UdpTransport  # noqa: E402
 
-GOLDEN = Path("/work/shared/protocol/golden/wire_captures.json")
+GOLDEN = Path(__file__).resolve().parents[1] / "tests" / "golden" / "wire_captures.json"
 
 
 def golden_corpus():

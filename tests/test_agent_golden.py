@@ -32,7 +32,7 @@ from xrce.submessages import (
 )
 from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 
-CAPTURES = pathlib.Path("/work/shared/protocol/golden/wire_captures.json")
+CAPTURES = pathlib.Path(__file__).parent / "golden" / "wire_captures.json"
 SCENARIOS = json.loads(CAPTURES.read_text())["scenarios"]
 
 CLIENT = ("127.0.0.1", 40001)

@@ -17,7 +17,7 @@ from xrce.client.session import Session, discover_agents, ping_agent
 from xrce.message import decode_header, iter_submessages
 from xrce.submessages import Fragment, Timestamp, decode_message
 
-GOLDEN = Path(__file__).resolve().parents[1] / ".." / "shared" / "protocol" / "golden" / "wire_captures.json"
+GOLDEN = Path(__file__).parent / "golden" / "wire_captures.json"
 CAPTURES = json.loads(GOLDEN.read_text())["scenarios"]
 
 TWIST = "geometry_msgs::msg::dds_::Twist_"

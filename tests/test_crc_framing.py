@@ -21,9 +21,7 @@ from xrce.transports.framing import (
     encode_length_prefixed,
 )
 
-CAPTURES = "/work/shared/protocol/golden/wire_captures.json"
-if not os.path.exists(CAPTURES):
-    CAPTURES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "protocol", "golden", "wire_captures.json")
+CAPTURES = os.path.join(os.path.dirname(__file__), "golden", "wire_captures.json")
 
 CREATE_CLIENT = bytes.fromhex("80000000000110005852434501000" "10FAABBCCDD8100FC01")
 CREATE_CLIENT_FRAME = bytes.fromhex(

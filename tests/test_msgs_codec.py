@@ -16,7 +16,7 @@ from xrce.msgs import builtin_interfaces, geometry_msgs, lookup, nav_msgs, senso
 from xrce.msgs import turtlebot3_msgs
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CAPTURES = "/work/shared/protocol/golden/wire_captures.json"
+CAPTURES = os.path.join(os.path.dirname(__file__), "golden", "wire_captures.json")
 
 
 def _golden_twist_bodies():

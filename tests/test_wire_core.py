@@ -197,8 +197,7 @@ def test_requester_blob_roundtrip_and_padding_fill_is_only_padding():
     assert decoded[0].representation == TOPIC
 
 
-GOLDEN = json.loads((Path(__file__).resolve().parents[2] / "shared" / "protocol" / "golden"
-                     / "wire_captures.json").read_text())
+GOLDEN = json.loads((Path(__file__).parent / "golden" / "wire_captures.json").read_text())
 GOLDEN_DATAGRAMS = [bytes.fromhex(d["hex"]) for ds in GOLDEN["scenarios"].values() for d in ds]
 
 
