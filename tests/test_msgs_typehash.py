@@ -16,7 +16,7 @@ from rosidl_adapter.msg import convert_msg_to_idl
 from rosidl_adapter.srv import convert_srv_to_idl
 from rosidl_generator_type_description import generate_type_hash
 
-INTERFACES = Path(__file__).resolve().parent.parent / "interfaces"
+INTERFACES = Path(__file__).resolve().parent.parent / "xrce" / "ros_interfaces"
 SHARE = Path(sys.prefix) / "share"
 
 # From the jazzy build of ROBOTIS' turtlebot3_msgs (generated sensor_state__description.c).

@@ -779,7 +779,7 @@ def shipped_package_dirs():
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     share = os.path.join(sys.prefix, "share")
     dirs = [os.path.join(share, p) for p in SHIPPED_FROM_VENV]
-    dirs += [os.path.join(repo, "interfaces", p) for p in SHIPPED_FROM_REPO]
+    dirs += [os.path.join(repo, "xrce", "ros_interfaces", p) for p in SHIPPED_FROM_REPO]
     return dirs
 
 

@@ -146,8 +146,8 @@ def _add_common_options(parser):
                         help="Fast DDS XML profiles file for objects created by reference")
     parser.add_argument("--interfaces", action="append", default=[], metavar="DIR",
                         help="also look here for interface packages to build when a client names "
-                             "a type that is not installed (repeatable; the project's interfaces/ "
-                             "is always searched)")
+                             "a type that is not installed (repeatable; the packages shipped with "
+                             "xrce are always searched)")
     observability.add_agent_options(parser)
 
 
@@ -409,6 +409,14 @@ def main(argv=None):
         parser.error(str(exc))
     configure_logging(args.verbose)
     interfaces.add_search_dirs(args.interfaces)
+    if args.middleware == "dds":
+        from xrce.agent import rosenv
+        try:  # the one line saying which ROS 2, rclpy and RMW this agent joins
+            rosenv.log_ros_in_use(logging.getLogger("xrce.agent.rosenv"))
+        except rosenv.RosUnavailable as exc:
+            sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+            sys.stderr.flush()
+            return 1
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown

@@ -118,6 +118,16 @@ class _Square:
 
 
 def run(args):
+    from xrce.agent import rosenv
+
+    try:
+        line, warning = rosenv.describe()
+    except rosenv.RosUnavailable as exc:
+        sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+        return 1
+    _say("%s: %s" % (PROG, line))
+    if warning:
+        _say("%s: warning: %s" % (PROG, warning))
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     have_sensor_state = _ensure_interfaces()

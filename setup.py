@@ -1,0 +1,24 @@
+"""Dependencies are decided here, when pip builds xrce, because they depend on where rclpy comes from.
+
+With a ROS 2 sourced in the installing shell (ROS_DISTRO set) xrce runs on that ROS and must not pull
+a second one from PyPI; otherwise the ros-jazzy-* wheels from PyPI are a dependency (on the platforms
+PyPI has them for). XRCE_ROS=pypi|system overrides the guess. The rules live in
+xrce/agent/rosenv.py, loaded by path: the package itself is not importable in pip's build environment.
+"""
+
+import importlib.util
+import os
+
+from setuptools import setup
+
+_spec = importlib.util.spec_from_file_location(
+    "_xrce_rosenv", os.path.join(os.path.dirname(os.path.abspath(__file__)), "xrce", "agent", "rosenv.py"))
+_rosenv = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_rosenv)
+
+try:
+    _install_requires, _extras_require = _rosenv.install_requirements()
+except ValueError as exc:
+    raise SystemExit("xrce: %s" % exc) from None
+
+setup(install_requires=_install_requires, extras_require=_extras_require)
