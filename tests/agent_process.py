@@ -16,12 +16,13 @@ class AgentProcess:
     """``with AgentProcess("udp4", "-m", "ced") as agent: agent.port`` — the agent listens on a free
     port (``-p 0``) unless the arguments name one; the banner line tells which."""
 
-    def __init__(self, *args, env=None, start_timeout=60):
+    def __init__(self, *args, env=None, start_timeout=60, cwd=REPO):
         self.args = list(args)
         if self.args and self.args[0] in ("udp4", "udp6", "tcp4", "tcp6") and "-p" not in self.args:
             self.args += ["-p", "0"]
         self.env = dict(os.environ, **(env or {}))
         self.start_timeout = start_timeout
+        self.cwd = cwd  # the checkout's xrce is importable from there; an installed one elsewhere
         self.proc = None
         self.port = None
         self.device = None
@@ -29,7 +30,7 @@ class AgentProcess:
         self.output = []
 
     def __enter__(self):
-        self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *self.args], cwd=REPO,
+        self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *self.args], cwd=self.cwd,
                                      env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True)
         selector = selectors.DefaultSelector()

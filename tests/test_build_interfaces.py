@@ -1,9 +1,10 @@
-"""ROS interface packages from interfaces/ built against the pip-installed ROS (xrce.agent.interfaces).
+"""ROS interface packages shipped in xrce/ros_interfaces built against the pip-installed ROS
+(xrce.agent.interfaces).
 
-Everything runs in a fresh venv made by this module (``python -m venv`` + ``pip install -e`` of this
-repository, ~30 s from the local package index), so the registration the build writes into
-site-packages never touches the developer's venv, and "imports with no environment variables"
-is checked in a venv that had nothing before.
+Everything runs in the fresh venv of tests/install_env.py (``python -m venv`` + ``pip install`` of
+this repository's wheel, non-editable), so the registration the build writes into site-packages
+never touches the developer's venv, "imports with no environment variables" is checked in a venv
+that had nothing before, and the default package directory is the one a wheel install has.
 """
 
 import os
@@ -18,6 +19,7 @@ from unittest import mock
 import pytest
 
 from agent_process import AgentProcess
+from install_env import clean_env
 from ros_helpers import ros_domain, wait_until  # noqa: F401
 from xrce import constants as C
 from xrce.client.session import Session
@@ -75,25 +77,10 @@ rclpy.shutdown()
 """
 
 
-@pytest.fixture(scope="module")
-def venv(tmp_path_factory):
-    root = tmp_path_factory.mktemp("venv")
-    started = time.monotonic()
-    subprocess.run([sys._base_executable, "-m", "venv", str(root)], check=True, timeout=120)
-    python = root / "bin" / "python"
-    install = subprocess.run([str(python), "-m", "pip", "install", "-q", "-e", str(REPO)],
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
-    assert install.returncode == 0, install.stdout[-3000:]
-    print("fresh venv with pip install -e: %.1f s" % (time.monotonic() - started))
-    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                          stdout=subprocess.PIPE, text=True, check=True, timeout=60).stdout.strip()
-    return python, Path(site)
-
-
 @pytest.fixture
-def clean_venv(venv):
+def clean_venv(wheel_venv):
     """The module's venv with no interface package registered (each test builds its own)."""
-    python, site = venv
+    python, site = wheel_venv
     for name in ("xrce_interfaces.json", "xrce_interfaces.pth"):
         (site / name).unlink(missing_ok=True)
     return python, site
@@ -146,8 +133,10 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
 def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_domain):  # noqa: F811
     python, site = clean_venv
     cache_home = tmp_path / "xdg"
+    agent = AgentProcess("udp4", "-m", "dds", cwd=tmp_path)  # the wheel's xrce, not this checkout's
+    agent.env = clean_env(XDG_CACHE_HOME=str(cache_home))
     with mock.patch.object(sys, "executable", str(python)):
-        agent = AgentProcess("udp4", "-m", "dds", env={"XDG_CACHE_HOME": str(cache_home)}).__enter__()
+        agent.__enter__()
     listener = None
     client = None
     try:

@@ -296,7 +296,9 @@ def _toolchain_fingerprint():
     parts = ["python=%d.%d" % sys.version_info[:2], "machine=%s" % os.uname().machine]
     for package in _ROSIDL_PACKAGES:
         version, prefix = rosenv.package_version(package)
-        parts.append("%s=%s@%s" % (package, version or "none", prefix or "-"))
+        # Every venv with the same wheels shares builds; a sourced ROS is told apart by its prefix.
+        where = "venv" if prefix == sys.prefix else prefix or "-"
+        parts.append("%s=%s@%s" % (package, version or "none", where))
     with open(_PROJECT_INCLUDE, "rb") as f:
         parts.append("include=%s" % f.read().hex())
     return "\n".join(parts)

@@ -168,7 +168,7 @@ def _unavailable_reason(exc):
                     "that Python (python3 -m venv --system-site-packages, see README \"Install\")"
                     % (distro, where, " and ".join(versions), here))
         return ("cannot import rclpy of the sourced ROS 2 %s (%s): %s" % (distro, where, detail))
-    return ("-m dds needs ROS 2 (rclpy) and none is importable (%s): source your ROS 2 first "
+    return ("no ROS 2 to bridge to: rclpy is not importable (%s); source your ROS 2 first "
             "(source /opt/ros/jazzy/setup.bash), or install xrce on Linux x86_64 with CPython 3.11 "
             "or 3.12 to get ROS 2 from PyPI; -m ced runs without ROS" % detail)
 
