@@ -84,10 +84,16 @@ def _stop_child(proc, timeout_s=10.0):
 
 
 def _ensure_interfaces():
-    """Build turtlebot3_msgs and tf2_msgs (a cache hit after the first run); False if not possible."""
+    """Build turtlebot3_msgs and tf2_msgs (a cache hit after the first run) unless the ROS in use
+    has them already (apt's ros-jazzy-tf2-msgs, ...); False if not possible."""
+    import importlib.machinery
+
     try:
         from xrce.agent import interfaces
-        interfaces.build(names=["tf2_msgs", "turtlebot3_msgs"])
+        missing = [name for name in ("tf2_msgs", "turtlebot3_msgs")
+                   if importlib.machinery.PathFinder.find_spec(name) is None]
+        if missing:
+            interfaces.build(names=missing)
         from turtlebot3_msgs.msg import SensorState  # noqa: F401
         return True
     except Exception as exc:  # the demo still shows /odom without them
