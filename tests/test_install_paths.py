@@ -112,6 +112,20 @@ def test_without_any_rclpy_dds_fails_in_one_line_and_ced_runs(sourced_ros, tmp_p
             "importable (No module named 'rclpy')" in failed.stdout
         assert "source /opt/ros/jazzy/setup.bash" in failed.stdout and "Traceback" not in failed.stdout
 
+    built = run([agent, "build-interfaces"], env=env, timeout=60, cwd=tmp_path)
+    assert built.returncode == 1 and built.stdout.count("\n") == 1, built.stdout
+    assert built.stdout.startswith("xrce-agent: error: no ROS 2 to build against: source your ROS 2")
+
+    # ROS sourced, but built for another Python than the agent's: the error says so.
+    other = "python3.%d" % (sys.version_info[1] + 1)
+    (tmp_path / "ros" / "lib" / other / "site-packages" / "rclpy").mkdir(parents=True)
+    (tmp_path / "ros" / "share" / "ament_index" / "resource_index").mkdir(parents=True)
+    mismatched = run([agent, "udp4", "-p", "0"], timeout=60, cwd=tmp_path,
+                     env=dict(env, ROS_DISTRO="jazzy", AMENT_PREFIX_PATH=str(tmp_path / "ros")))
+    assert mismatched.returncode == 1 and mismatched.stdout.count("\n") == 1, mismatched.stdout
+    assert "the sourced ROS 2 jazzy (%s) has rclpy for %s, not for this python3.%d" % (
+        tmp_path / "ros", other, sys.version_info[1]) in mismatched.stdout
+
     ced = subprocess.Popen([str(agent), "udp4", "-p", "0", "-m", "ced"], env=env, cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

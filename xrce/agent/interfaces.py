@@ -446,6 +446,12 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
     if not dirs:
         raise InterfaceBuildError("no interface directories: pass one (this xrce ships no "
                                   "xrce/ros_interfaces)")
+    from xrce.agent import rosenv
+
+    if not rosenv.ament_prefixes():
+        raise InterfaceBuildError("no ROS 2 to build against: source your ROS 2 first (source "
+                                  "/opt/ros/jazzy/setup.bash), or install xrce on Linux x86_64 "
+                                  "with CPython 3.11 or 3.12 to get ROS 2 from PyPI")
     cache_root = os.path.abspath(cache_root or default_cache_root())
     packages = find_packages(dirs)
     fingerprint = _toolchain_fingerprint()
