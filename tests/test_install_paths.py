@@ -187,6 +187,7 @@ def test_sourced_ros_agent_bridges_into_that_ros_and_builds_types_against_it(
         assert line, log
         assert line.group(1).startswith("ROS 2 jazzy from the sourced ROS at %s: rclpy " % sourced_ros.prefix)
         assert "at %s, RMW rmw_fastrtps_cpp" % (sourced_ros.site / "rclpy") in line.group(1)
+        assert "two ROS installs" not in log, log
 
         client = Session(UdpTransport("127.0.0.1", agent.port), history=8)
         assert client.create(attempts=5, timeout_ms=1000)

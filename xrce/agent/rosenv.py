@@ -216,9 +216,21 @@ def describe(rclpy_module=None):
     warning = None
     if owner is None and wheel is not None and os.environ.get("ROS_DISTRO"):
         warning = ("a ROS 2 %s is sourced but rclpy comes from the PyPI wheels in %s: two ROS "
-                   "installs in one process; reinstall xrce from a shell with ROS sourced "
-                   "(README \"Install\")" % (os.environ["ROS_DISTRO"], sys.prefix))
+                   "installs in one process; install xrce into a fresh venv from a shell with "
+                   "ROS sourced (README \"Install\")" % (os.environ["ROS_DISTRO"], sys.prefix))
+    elif owner is not None and _venv_has_ros_wheels():
+        # pip does not remove the wheels an earlier install pulled in; their start-up hook still
+        # puts their libraries on LD_LIBRARY_PATH next to the sourced ROS's.
+        warning = ("this venv (%s) also holds the PyPI ROS wheels: two ROS installs in one "
+                   "process; install xrce into a fresh venv from a shell with ROS sourced "
+                   "(README \"Install\")" % sys.prefix)
     return line, warning
+
+
+def _venv_has_ros_wheels():
+    import sysconfig
+
+    return _wheel_distribution_at(sysconfig.get_paths()["purelib"]) is not None
 
 
 def log_ros_in_use(logger):
