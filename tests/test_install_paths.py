@@ -59,8 +59,9 @@ def test_wheel_dependencies_follow_the_ros_in_use(xrce_wheels, tmp_path):
     ros = [r for r in pypi if r.startswith("ros-")]
     assert "ros-jazzy-rclpy[fastrtps]; " + rosenv.PYPI_ROS_MARKER in ros, pypi
     assert all(r.endswith("; " + rosenv.PYPI_ROS_MARKER) for r in ros), ros
-    assert [r for r in wheel_requirements(xrce_wheels["pypi"]) if r.startswith("ros-jazzy-test-msgs;")
-            and 'platform_machine == "x86_64"' in r and 'extra == "test"' in r]
+    test_msgs = [r for r in wheel_requirements(xrce_wheels["pypi"]) if r.startswith("ros-jazzy-test-msgs;")]
+    assert len(test_msgs) == 1 and 'platform_machine == "x86_64"' in test_msgs[0] \
+        and 'extra == "test"' in test_msgs[0], test_msgs
 
     system = wheel_requirements(xrce_wheels["system"])
     assert not [r for r in system if r.startswith("ros-")], system
@@ -227,6 +228,13 @@ def test_sourced_ros_agent_bridges_into_that_ros_and_builds_types_against_it(
     assert "building interface package turtlebot3_msgs" in log, log
     built = list((tmp_path / "cache" / "xrce" / "interfaces").glob("*/.xrce-complete"))
     assert len(built) == 1, built
+
+    # An RMW this ROS lacks: one line naming the ones it has (rcl itself would just exit 102).
+    other_rmw = run([sourced_ros.venv / "bin" / "xrce-agent", "udp4", "-p", "0"], timeout=60, cwd=tmp_path,
+                    env=dict(env, RMW_IMPLEMENTATION="rmw_cyclonedds_cpp"))
+    assert other_rmw.returncode == 1 and other_rmw.stdout.count("\n") == 1, other_rmw.stdout
+    assert other_rmw.stdout == ("xrce-agent: error: RMW_IMPLEMENTATION=rmw_cyclonedds_cpp is not installed "
+                                "in this ROS 2 (%s has rmw_fastrtps_cpp)\n" % sourced_ros.prefix)
 
 
 @pytest.mark.timeout(300)

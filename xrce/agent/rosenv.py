@@ -145,8 +145,33 @@ def _rclpy_candidates(prefixes):
     return sorted(found)
 
 
+def installed_rmws(prefixes=None):
+    """RMW implementations registered in the ament index of ``prefixes`` (default: the ROS in use)."""
+    found = []
+    for prefix in ament_prefixes() if prefixes is None else prefixes:
+        index = os.path.join(prefix, "share", "ament_index", "resource_index", "rmw_typesupport")
+        try:
+            names = sorted(os.listdir(index))
+        except OSError:
+            continue
+        found += [n for n in names if n.startswith("rmw_") and n != "rmw_implementation" and n not in found]
+    return found
+
+
+def _check_requested_rmw():
+    # rcl ends the process (exit code 102) when RMW_IMPLEMENTATION names an RMW it cannot load.
+    requested = os.environ.get("RMW_IMPLEMENTATION")
+    if not requested:
+        return
+    available = installed_rmws()
+    if available and requested not in available:
+        raise RosUnavailable("RMW_IMPLEMENTATION=%s is not installed in this ROS 2 (%s has %s)"
+                             % (requested, ", ".join(ament_prefixes()), ", ".join(available)))
+
+
 def import_rclpy():
     """Import rclpy or raise RosUnavailable with a one-line explanation."""
+    _check_requested_rmw()
     try:
         import rclpy
         import rclpy.utilities  # noqa: F401  (loads the C extension: a wrong-ABI rclpy fails here)
