@@ -8,8 +8,12 @@ submessages to a reusable buffer, 4-aligned from the message start.
 import struct
 
 from xrce import cdr
-from xrce.constants import CREATE_CLIENT, SESSION_ID_WITHOUT_KEY_MASK
+from xrce.compat import const
 from xrce.errors import DecodeError, EncodeError
+
+# xrce.constants names these too; local constants fold into the code and spare a board that module.
+_CREATE_CLIENT = const(0)
+_SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 
 HEADER_SIZE_NO_KEY = 4
 HEADER_SIZE_WITH_KEY = 8
@@ -17,7 +21,7 @@ SUBHEADER_SIZE = 4
 
 
 def header_size(session_id):
-    return HEADER_SIZE_WITH_KEY if session_id < SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
+    return HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
 
 
 class Header:
@@ -46,7 +50,7 @@ def decode_header(buf, length=None):
         raise DecodeError("message shorter than its header")
     session_id = buf[0]
     key = None
-    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
         if n < HEADER_SIZE_WITH_KEY:
             raise DecodeError("keyed message shorter than its header")
         key = bytes(buf[4:8])
@@ -59,7 +63,7 @@ def encode_header(buf, session_id, stream_id, seq, key=None):
     buf[1] = stream_id
     buf[2] = seq & 0xFF
     buf[3] = (seq >> 8) & 0xFF
-    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
         if key is None or len(key) != 4:
             raise EncodeError("a session id below 0x80 needs a 4-byte client key")
         buf[4:8] = key
@@ -83,7 +87,7 @@ def iter_submessages(buf, start, end=None):
         length = buf[pos + 2] | (buf[pos + 3] << 8)
         payload_start = pos + SUBHEADER_SIZE
         payload_end = payload_start + length
-        if sub_id == CREATE_CLIENT:
+        if sub_id == _CREATE_CLIENT:
             payload_end = end
         elif payload_end > end:
             raise DecodeError("submessage %d length %d runs past the message end" % (sub_id, length))
