@@ -213,6 +213,21 @@ function makeNodeUdp(reply, bytesBridge) {
       const datagram = ring.shiftWaiting(wait);
       return datagram === null ? null : bytesBridge.toPythonBytes(datagram);
     }),
+    // The same with the bytes as a hex str, which crosses without a PyProxy: a proxied Python
+    // object stays referenced from the MicroPython heap until a JS collection finalizes the proxy,
+    // so a long run over send/recv would look like a leak (nodeudp_transport.py uses these).
+    send_hex: guarded((handle, hex) => {
+      ringOf(handle);
+      if (typeof hex !== "string") throw new TypeError("send_hex(handle, hex: str)");
+      const payload = new Uint8Array(Buffer.from(hex, "hex"));
+      return reply.request("send", { handle, payload }, [payload.buffer]);
+    }),
+    recv_hex: guarded((handle, timeoutMs) => {
+      const ring = ringOf(handle);
+      const wait = timeoutMs === null || timeoutMs === undefined ? Infinity : Math.max(0, timeoutMs);
+      const datagram = ring.shiftWaiting(wait);
+      return datagram === null ? null : Buffer.from(datagram.buffer, datagram.byteOffset, datagram.byteLength).toString("hex");
+    }),
     close: guarded((handle) => {
       if (!rings.delete(handle)) return 0;
       reply.request("close", { handle });
@@ -274,12 +289,15 @@ def _run_main(path):
         return 1
 
 def _step():
-    # Called by run.mjs once per step; None while the generator has more to do.
+    # Called by run.mjs once per step: None while the generator has more to do, else the exit status.
     global _steps
+    if _steps is None:
+        return 0
     grown = gc.mem_alloc() + gc.mem_free() - _heap_sum
     if grown > 0:
         _steps = None
         print("MemoryError: the heap had to grow by %d bytes past its --heap cap" % grown, file=sys.stderr)
+
         return 1
     import mpheap
     mpheap.live = gc.mem_alloc()
@@ -328,10 +346,17 @@ async function main() {
   try {
     mp.runPython(RUN_SCRIPT(scriptPath, [scriptPath, ...options.args], options.stepped));
     status = mp.globals.get("_exit_status");
-    while (options.stepped && status === 0 && mp.globals.get("_steps") !== null) {
-      mp.runPython("_exit_status = _step()");
-      const stepStatus = mp.globals.get("_exit_status");
-      if (stepStatus !== null && stepStatus !== undefined) status = stepStatus;
+    if (options.stepped && status === 0) {
+      // Only ints and None cross here: a Python object handed to JS (a PyProxy) would stay
+      // referenced from the MicroPython heap until JS finalizes the proxy.
+      for (;;) {
+        mp.runPython("_exit_status = _step()");
+        const stepStatus = mp.globals.get("_exit_status");
+        if (stepStatus !== null && stepStatus !== undefined) {
+          status = stepStatus;
+          break;
+        }
+      }
     }
   } catch (error) {
     // Only a failure of the harness prelude itself lands here; script errors are caught in Python.
