@@ -17,8 +17,8 @@ a single ``write_cb`` call.
 from xrce.compat import ticks_add, ticks_diff, ticks_ms
 from xrce.errors import EncodeError
 from xrce.transports import TransportError
-from xrce.transports.crc import get_crc
-from xrce.transports.framing import FrameDecoder, encode_frame
+
+# Framing and its CRC tables load only for framing=True: a packet link never pays for them.
 
 DEFAULT_MTU = 512
 # Bytes asked of read_cb per call with framing; the C client's ring is smaller still (42).
@@ -51,6 +51,7 @@ class CustomTransport:
         "_write_cb",
         "_read_cb",
         "_crc",
+        "_encode_frame",
         "_is_open",
         "_pending",
         "_buf",
@@ -79,7 +80,6 @@ class CustomTransport:
         self.local_addr = local_addr
         self.remote_addr = remote_addr
         self.user = user
-        self._crc = get_crc(crc)
         self.sent = 0
         self.received = 0
         self.send_errors = 0
@@ -87,9 +87,15 @@ class CustomTransport:
         self.wrong_source = 0
         self._pending = []
         if framing:
+            from xrce.transports.crc import get_crc
+            from xrce.transports.framing import FrameDecoder, encode_frame
+
+            self._crc = get_crc(crc)
+            self._encode_frame = encode_frame
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
             self._buf = bytearray(_FRAMED_READ_SIZE)
         else:
+            self._crc = self._encode_frame = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -124,7 +130,7 @@ class CustomTransport:
                 return False
             self.sent += 1
             return True
-        frame = memoryview(encode_frame(msg, self.local_addr, self.remote_addr, self._crc))
+        frame = memoryview(self._encode_frame(msg, self.local_addr, self.remote_addr, self._crc))
         position = 0
         while position < len(frame):
             written = self._write_cb(self.user, frame[position:])
