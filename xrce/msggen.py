@@ -454,7 +454,8 @@ def _gen_encode_step(step, package, out):
         out.append("        try:")
         out.append("            _pack_into(%r, w.buf, _put(w, %d, %d), %s)" % (fmt, align, _run_size(run), ", ".join(args)))
         out.append("        except _PACK_ERRORS:")
-        out.append("            _bad_values(self, %r)" % ", ".join(f.label for f in run))
+        # The message's repr names the culprit; a label string per run would cost every board heap.
+        out.append("            _bad_values(self)")
         return
     f = item
     ft = f.type

@@ -16,7 +16,7 @@ class Accel(_Message):
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.linear.x, self.linear.y, self.linear.z, self.angular.x, self.angular.y, self.angular.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'linear.x, linear.y, linear.z, angular.x, angular.y, angular.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -22,12 +22,12 @@ class AccelStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.accel.linear.x, self.accel.linear.y, self.accel.linear.z, self.accel.angular.x, self.accel.angular.y, self.accel.angular.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'accel.linear.x, accel.linear.y, accel.linear.z, accel.angular.x, accel.angular.y, accel.angular.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

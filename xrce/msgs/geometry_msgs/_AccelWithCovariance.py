@@ -20,7 +20,7 @@ class AccelWithCovariance(_Message):
         try:
             _pack_into('<42d', w.buf, _put(w, 8, 336), self.accel.linear.x, self.accel.linear.y, self.accel.linear.z, self.accel.angular.x, self.accel.angular.y, self.accel.angular.z, *self.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'accel.linear.x, accel.linear.y, accel.linear.z, accel.angular.x, accel.angular.y, accel.angular.z, covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -24,14 +24,14 @@ class AccelWithCovarianceStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         if len(self.accel.covariance) != 36:
             _bad_len('accel.covariance', 36)
         try:
             _pack_into('<42d', w.buf, _put(w, 8, 336), self.accel.accel.linear.x, self.accel.accel.linear.y, self.accel.accel.linear.z, self.accel.accel.angular.x, self.accel.accel.angular.y, self.accel.accel.angular.z, *self.accel.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'accel.accel.linear.x, accel.accel.linear.y, accel.accel.linear.z, accel.accel.angular.x, accel.accel.angular.y, accel.accel.angular.z, accel.covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -22,7 +22,7 @@ class Inertia(_Message):
         try:
             _pack_into('<10d', w.buf, _put(w, 8, 80), self.m, self.com.x, self.com.y, self.com.z, self.ixx, self.ixy, self.ixz, self.iyy, self.iyz, self.izz)
         except _PACK_ERRORS:
-            _bad_values(self, 'm, com.x, com.y, com.z, ixx, ixy, ixz, iyy, iyz, izz')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

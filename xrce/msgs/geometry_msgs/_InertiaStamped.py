@@ -22,12 +22,12 @@ class InertiaStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<10d', w.buf, _put(w, 8, 80), self.inertia.m, self.inertia.com.x, self.inertia.com.y, self.inertia.com.z, self.inertia.ixx, self.inertia.ixy, self.inertia.ixz, self.inertia.iyy, self.inertia.iyz, self.inertia.izz)
         except _PACK_ERRORS:
-            _bad_values(self, 'inertia.m, inertia.com.x, inertia.com.y, inertia.com.z, inertia.ixx, inertia.ixy, inertia.ixz, inertia.iyy, inertia.iyz, inertia.izz')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

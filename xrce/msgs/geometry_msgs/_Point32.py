@@ -16,7 +16,7 @@ class Point32(_Message):
         try:
             _pack_into('<3f', w.buf, _put(w, 4, 12), self.x, self.y, self.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'x, y, z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -17,7 +17,7 @@ class Pose(_Message):
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.position.x, self.position.y, self.position.z, self.orientation.x, self.orientation.y, self.orientation.z, self.orientation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'position.x, position.y, position.z, orientation.x, orientation.y, orientation.z, orientation.w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -16,7 +16,7 @@ class Pose2D(_Message):
         try:
             _pack_into('<3d', w.buf, _put(w, 8, 24), self.x, self.y, self.theta)
         except _PACK_ERRORS:
-            _bad_values(self, 'x, y, theta')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -21,7 +21,7 @@ class PoseWithCovariance(_Message):
         try:
             _pack_into('<43d', w.buf, _put(w, 8, 344), self.pose.position.x, self.pose.position.y, self.pose.position.z, self.pose.orientation.x, self.pose.orientation.y, self.pose.orientation.z, self.pose.orientation.w, *self.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'pose.position.x, pose.position.y, pose.position.z, pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w, covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -25,14 +25,14 @@ class PoseWithCovarianceStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         if len(self.pose.covariance) != 36:
             _bad_len('pose.covariance', 36)
         try:
             _pack_into('<43d', w.buf, _put(w, 8, 344), self.pose.pose.position.x, self.pose.pose.position.y, self.pose.pose.position.z, self.pose.pose.orientation.x, self.pose.pose.orientation.y, self.pose.pose.orientation.z, self.pose.pose.orientation.w, *self.pose.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'pose.pose.position.x, pose.pose.position.y, pose.pose.position.z, pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z, pose.pose.orientation.w, pose.covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

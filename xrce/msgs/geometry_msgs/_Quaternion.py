@@ -17,7 +17,7 @@ class Quaternion(_Message):
         try:
             _pack_into('<4d', w.buf, _put(w, 8, 32), self.x, self.y, self.z, self.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'x, y, z, w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -21,12 +21,12 @@ class QuaternionStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<4d', w.buf, _put(w, 8, 32), self.quaternion.x, self.quaternion.y, self.quaternion.z, self.quaternion.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'quaternion.x, quaternion.y, quaternion.z, quaternion.w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -17,7 +17,7 @@ class Transform(_Message):
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.translation.x, self.translation.y, self.translation.z, self.rotation.x, self.rotation.y, self.rotation.z, self.rotation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'translation.x, translation.y, translation.z, rotation.x, rotation.y, rotation.z, rotation.w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -24,13 +24,13 @@ class TransformStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         _put_string(w, self.child_frame_id, None)
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.transform.translation.x, self.transform.translation.y, self.transform.translation.z, self.transform.rotation.x, self.transform.rotation.y, self.transform.rotation.z, self.transform.rotation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'transform.translation.x, transform.translation.y, transform.translation.z, transform.rotation.x, transform.rotation.y, transform.rotation.z, transform.rotation.w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

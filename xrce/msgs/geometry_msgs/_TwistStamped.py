@@ -22,12 +22,12 @@ class TwistStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.twist.linear.x, self.twist.linear.y, self.twist.linear.z, self.twist.angular.x, self.twist.angular.y, self.twist.angular.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.x, twist.angular.y, twist.angular.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

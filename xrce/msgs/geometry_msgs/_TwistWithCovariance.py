@@ -20,7 +20,7 @@ class TwistWithCovariance(_Message):
         try:
             _pack_into('<42d', w.buf, _put(w, 8, 336), self.twist.linear.x, self.twist.linear.y, self.twist.linear.z, self.twist.angular.x, self.twist.angular.y, self.twist.angular.z, *self.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'twist.linear.x, twist.linear.y, twist.linear.z, twist.angular.x, twist.angular.y, twist.angular.z, covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -24,14 +24,14 @@ class TwistWithCovarianceStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         if len(self.twist.covariance) != 36:
             _bad_len('twist.covariance', 36)
         try:
             _pack_into('<42d', w.buf, _put(w, 8, 336), self.twist.twist.linear.x, self.twist.twist.linear.y, self.twist.twist.linear.z, self.twist.twist.angular.x, self.twist.twist.angular.y, self.twist.twist.angular.z, *self.twist.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'twist.twist.linear.x, twist.twist.linear.y, twist.twist.linear.z, twist.twist.angular.x, twist.twist.angular.y, twist.twist.angular.z, twist.covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -24,14 +24,14 @@ class VelocityStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         _put_string(w, self.body_frame_id, None)
         _put_string(w, self.reference_frame_id, None)
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.velocity.linear.x, self.velocity.linear.y, self.velocity.linear.z, self.velocity.angular.x, self.velocity.angular.y, self.velocity.angular.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'velocity.linear.x, velocity.linear.y, velocity.linear.z, velocity.angular.x, velocity.angular.y, velocity.angular.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

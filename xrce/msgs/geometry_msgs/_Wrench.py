@@ -16,7 +16,7 @@ class Wrench(_Message):
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.force.x, self.force.y, self.force.z, self.torque.x, self.torque.y, self.torque.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'force.x, force.y, force.z, torque.x, torque.y, torque.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -22,12 +22,12 @@ class WrenchStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<6d', w.buf, _put(w, 8, 48), self.wrench.force.x, self.wrench.force.y, self.wrench.force.z, self.wrench.torque.x, self.wrench.torque.y, self.wrench.torque.z)
         except _PACK_ERRORS:
-            _bad_values(self, 'wrench.force.x, wrench.force.y, wrench.force.z, wrench.torque.x, wrench.torque.y, wrench.torque.z')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

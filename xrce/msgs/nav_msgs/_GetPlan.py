@@ -27,17 +27,17 @@ class GetPlan_Request(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.start.header.stamp.sec, self.start.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'start.header.stamp.sec, start.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.start.header.frame_id, None)
         try:
             _pack_into('<7diI', w.buf, _put(w, 8, 64), self.start.pose.position.x, self.start.pose.position.y, self.start.pose.position.z, self.start.pose.orientation.x, self.start.pose.orientation.y, self.start.pose.orientation.z, self.start.pose.orientation.w, self.goal.header.stamp.sec, self.goal.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'start.pose.position.x, start.pose.position.y, start.pose.position.z, start.pose.orientation.x, start.pose.orientation.y, start.pose.orientation.z, start.pose.orientation.w, goal.header.stamp.sec, goal.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.goal.header.frame_id, None)
         try:
             _pack_into('<7df', w.buf, _put(w, 8, 60), self.goal.pose.position.x, self.goal.pose.position.y, self.goal.pose.position.z, self.goal.pose.orientation.x, self.goal.pose.orientation.y, self.goal.pose.orientation.z, self.goal.pose.orientation.w, self.tolerance)
         except _PACK_ERRORS:
-            _bad_values(self, 'goal.pose.position.x, goal.pose.position.y, goal.pose.position.z, goal.pose.orientation.x, goal.pose.orientation.y, goal.pose.orientation.z, goal.pose.orientation.w, tolerance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -61,7 +61,7 @@ class GetPlan_Response(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.plan.header.stamp.sec, self.plan.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'plan.header.stamp.sec, plan.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.plan.header.frame_id, None)
         w.u32(_seq_len(self.plan.poses, None, 'plan.poses'))
         for item in self.plan.poses:

@@ -25,12 +25,12 @@ class GridCells(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<2f', w.buf, _put(w, 4, 8), self.cell_width, self.cell_height)
         except _PACK_ERRORS:
-            _bad_values(self, 'cell_width, cell_height')
+            _bad_values(self)
         w.u32(_seq_len(self.cells, None, 'cells'))
         for item in self.cells:
             item.encode(w)

@@ -48,22 +48,22 @@ class LoadMap_Response(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.map.header.stamp.sec, self.map.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.header.stamp.sec, map.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.map.header.frame_id, None)
         try:
             _pack_into('<iIf2I', w.buf, _put(w, 4, 20), self.map.info.map_load_time.sec, self.map.info.map_load_time.nanosec, self.map.info.resolution, self.map.info.width, self.map.info.height)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.info.map_load_time.sec, map.info.map_load_time.nanosec, map.info.resolution, map.info.width, map.info.height')
+            _bad_values(self)
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.map.info.origin.position.x, self.map.info.origin.position.y, self.map.info.origin.position.z, self.map.info.origin.orientation.x, self.map.info.origin.orientation.y, self.map.info.origin.orientation.z, self.map.info.origin.orientation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.info.origin.position.x, map.info.origin.position.y, map.info.origin.position.z, map.info.origin.orientation.x, map.info.origin.orientation.y, map.info.origin.orientation.z, map.info.origin.orientation.w')
+            _bad_values(self)
         w.u32(_seq_len(self.map.data, None, 'map.data'))
         _put_array(w, self.map.data, 'b', 1)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.result)
         except _PACK_ERRORS:
-            _bad_values(self, 'result')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -22,11 +22,11 @@ class MapMetaData(_Message):
         try:
             _pack_into('<iIf2I', w.buf, _put(w, 4, 20), self.map_load_time.sec, self.map_load_time.nanosec, self.resolution, self.width, self.height)
         except _PACK_ERRORS:
-            _bad_values(self, 'map_load_time.sec, map_load_time.nanosec, resolution, width, height')
+            _bad_values(self)
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.origin.position.x, self.origin.position.y, self.origin.position.z, self.origin.orientation.x, self.origin.orientation.y, self.origin.orientation.z, self.origin.orientation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'origin.position.x, origin.position.y, origin.position.z, origin.orientation.x, origin.orientation.y, origin.orientation.z, origin.orientation.w')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -26,16 +26,16 @@ class OccupancyGrid(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<iIf2I', w.buf, _put(w, 4, 20), self.info.map_load_time.sec, self.info.map_load_time.nanosec, self.info.resolution, self.info.width, self.info.height)
         except _PACK_ERRORS:
-            _bad_values(self, 'info.map_load_time.sec, info.map_load_time.nanosec, info.resolution, info.width, info.height')
+            _bad_values(self)
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.info.origin.position.x, self.info.origin.position.y, self.info.origin.position.z, self.info.origin.orientation.x, self.info.origin.orientation.y, self.info.origin.orientation.z, self.info.origin.orientation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'info.origin.position.x, info.origin.position.y, info.origin.position.z, info.origin.orientation.x, info.origin.orientation.y, info.origin.orientation.z, info.origin.orientation.w')
+            _bad_values(self)
         w.u32(_seq_len(self.data, None, 'data'))
         _put_array(w, self.data, 'b', 1)
 

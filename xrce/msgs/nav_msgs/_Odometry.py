@@ -30,7 +30,7 @@ class Odometry(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         _put_string(w, self.child_frame_id, None)
         if len(self.pose.covariance) != 36:
@@ -40,7 +40,7 @@ class Odometry(_Message):
         try:
             _pack_into('<85d', w.buf, _put(w, 8, 680), self.pose.pose.position.x, self.pose.pose.position.y, self.pose.pose.position.z, self.pose.pose.orientation.x, self.pose.pose.orientation.y, self.pose.pose.orientation.z, self.pose.pose.orientation.w, *self.pose.covariance, self.twist.twist.linear.x, self.twist.twist.linear.y, self.twist.twist.linear.z, self.twist.twist.angular.x, self.twist.twist.angular.y, self.twist.twist.angular.z, *self.twist.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'pose.pose.position.x, pose.pose.position.y, pose.pose.position.z, pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z, pose.pose.orientation.w, pose.covariance, twist.twist.linear.x, twist.twist.linear.y, twist.twist.linear.z, twist.twist.angular.x, twist.twist.angular.y, twist.twist.angular.z, twist.covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

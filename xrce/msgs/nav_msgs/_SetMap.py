@@ -28,29 +28,29 @@ class SetMap_Request(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.map.header.stamp.sec, self.map.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.header.stamp.sec, map.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.map.header.frame_id, None)
         try:
             _pack_into('<iIf2I', w.buf, _put(w, 4, 20), self.map.info.map_load_time.sec, self.map.info.map_load_time.nanosec, self.map.info.resolution, self.map.info.width, self.map.info.height)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.info.map_load_time.sec, map.info.map_load_time.nanosec, map.info.resolution, map.info.width, map.info.height')
+            _bad_values(self)
         try:
             _pack_into('<7d', w.buf, _put(w, 8, 56), self.map.info.origin.position.x, self.map.info.origin.position.y, self.map.info.origin.position.z, self.map.info.origin.orientation.x, self.map.info.origin.orientation.y, self.map.info.origin.orientation.z, self.map.info.origin.orientation.w)
         except _PACK_ERRORS:
-            _bad_values(self, 'map.info.origin.position.x, map.info.origin.position.y, map.info.origin.position.z, map.info.origin.orientation.x, map.info.origin.orientation.y, map.info.origin.orientation.z, map.info.origin.orientation.w')
+            _bad_values(self)
         w.u32(_seq_len(self.map.data, None, 'map.data'))
         _put_array(w, self.map.data, 'b', 1)
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.initial_pose.header.stamp.sec, self.initial_pose.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'initial_pose.header.stamp.sec, initial_pose.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.initial_pose.header.frame_id, None)
         if len(self.initial_pose.pose.covariance) != 36:
             _bad_len('initial_pose.pose.covariance', 36)
         try:
             _pack_into('<43d', w.buf, _put(w, 8, 344), self.initial_pose.pose.pose.position.x, self.initial_pose.pose.pose.position.y, self.initial_pose.pose.pose.position.z, self.initial_pose.pose.pose.orientation.x, self.initial_pose.pose.pose.orientation.y, self.initial_pose.pose.pose.orientation.z, self.initial_pose.pose.pose.orientation.w, *self.initial_pose.pose.covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'initial_pose.pose.pose.position.x, initial_pose.pose.pose.position.y, initial_pose.pose.pose.position.z, initial_pose.pose.pose.orientation.x, initial_pose.pose.pose.orientation.y, initial_pose.pose.pose.orientation.z, initial_pose.pose.pose.orientation.w, initial_pose.pose.covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -85,7 +85,7 @@ class SetMap_Response(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.success else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'success')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

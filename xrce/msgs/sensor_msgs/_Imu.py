@@ -28,7 +28,7 @@ class Imu(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         if len(self.orientation_covariance) != 9:
             _bad_len('orientation_covariance', 9)
@@ -39,7 +39,7 @@ class Imu(_Message):
         try:
             _pack_into('<37d', w.buf, _put(w, 8, 296), self.orientation.x, self.orientation.y, self.orientation.z, self.orientation.w, *self.orientation_covariance, self.angular_velocity.x, self.angular_velocity.y, self.angular_velocity.z, *self.angular_velocity_covariance, self.linear_acceleration.x, self.linear_acceleration.y, self.linear_acceleration.z, *self.linear_acceleration_covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'orientation.x, orientation.y, orientation.z, orientation.w, orientation_covariance, angular_velocity.x, angular_velocity.y, angular_velocity.z, angular_velocity_covariance, linear_acceleration.x, linear_acceleration.y, linear_acceleration.z, linear_acceleration_covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

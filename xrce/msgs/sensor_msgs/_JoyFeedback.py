@@ -19,11 +19,11 @@ class JoyFeedback(_Message):
         try:
             _pack_into('<2B', w.buf, _put(w, 1, 2), self.type, self.id)
         except _PACK_ERRORS:
-            _bad_values(self, 'type, id')
+            _bad_values(self)
         try:
             _pack_into('<f', w.buf, _put(w, 4, 4), self.intensity)
         except _PACK_ERRORS:
-            _bad_values(self, 'intensity')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

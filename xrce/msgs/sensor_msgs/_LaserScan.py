@@ -29,12 +29,12 @@ class LaserScan(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<7f', w.buf, _put(w, 4, 28), self.angle_min, self.angle_max, self.angle_increment, self.time_increment, self.scan_time, self.range_min, self.range_max)
         except _PACK_ERRORS:
-            _bad_values(self, 'angle_min, angle_max, angle_increment, time_increment, scan_time, range_min, range_max')
+            _bad_values(self)
         w.u32(_seq_len(self.ranges, None, 'ranges'))
         _put_array(w, self.ranges, 'f', 4)
         w.u32(_seq_len(self.intensities, None, 'intensities'))

@@ -23,14 +23,14 @@ class MagneticField(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         if len(self.magnetic_field_covariance) != 9:
             _bad_len('magnetic_field_covariance', 9)
         try:
             _pack_into('<12d', w.buf, _put(w, 8, 96), self.magnetic_field.x, self.magnetic_field.y, self.magnetic_field.z, *self.magnetic_field_covariance)
         except _PACK_ERRORS:
-            _bad_values(self, 'magnetic_field.x, magnetic_field.y, magnetic_field.z, magnetic_field_covariance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

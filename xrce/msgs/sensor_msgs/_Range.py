@@ -27,16 +27,16 @@ class Range(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.radiation_type)
         except _PACK_ERRORS:
-            _bad_values(self, 'radiation_type')
+            _bad_values(self)
         try:
             _pack_into('<5f', w.buf, _put(w, 4, 20), self.field_of_view, self.min_range, self.max_range, self.range, self.variance)
         except _PACK_ERRORS:
-            _bad_values(self, 'field_of_view, min_range, max_range, range, variance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

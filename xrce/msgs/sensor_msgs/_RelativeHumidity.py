@@ -21,12 +21,12 @@ class RelativeHumidity(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<2d', w.buf, _put(w, 8, 16), self.relative_humidity, self.variance)
         except _PACK_ERRORS:
-            _bad_values(self, 'relative_humidity, variance')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

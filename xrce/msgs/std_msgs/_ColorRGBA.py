@@ -17,7 +17,7 @@ class ColorRGBA(_Message):
         try:
             _pack_into('<4f', w.buf, _put(w, 4, 16), self.r, self.g, self.b, self.a)
         except _PACK_ERRORS:
-            _bad_values(self, 'r, g, b, a')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
