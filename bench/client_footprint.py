@@ -28,27 +28,34 @@ sys.path.insert(0, str(REPO_ROOT / "tests"))
 from mp_harness import run_micropython  # noqa: E402
 from xrce.tools import mpy  # noqa: E402
 
-# Imported in this order so each delta is what the module adds on top of the ones before it.
+# Imported in this order so each delta is what the module adds on top of the ones before it: first
+# the core every firmware loads (a session over one transport), then each optional feature, then
+# the general codec the agent uses (no client module imports it).
 LAYERED_IMPORTS = (
     "xrce.errors",
     "xrce.compat",
     "xrce.cdr",
-    "xrce.constants",
-    "xrce.seqnum",
-    "xrce.objects",
-    "xrce.submessages",
     "xrce.message",
+    "xrce.seqnum",
     "xrce.streams",
+    "xrce.client",  # xrce.client.session and xrce.client.wire
     "xrce.transports",
+    "xrce.transports.udp",
+    "xrce.msgs",
+    # optional features
+    "xrce.client.recovery",
+    "xrce.client.fragments",
+    "xrce.client.services",
+    "xrce.client.discovery",
+    "xrce.transports.custom",
     "xrce.transports.crc",
     "xrce.transports.framing",
-    "xrce.transports.custom",
     "xrce.transports.serial",
-    "xrce.transports.udp",
     "xrce.transports.tcp",
-    "xrce.client.session",
-    "xrce.client",
-    "xrce.msgs",
+    # the general codec (agent side)
+    "xrce.constants",
+    "xrce.objects",
+    "xrce.submessages",
 )
 # Message classes load lazily, one module per type: their cost is measured per type.
 MESSAGE_TYPES = (

@@ -113,3 +113,32 @@ def test_session_control_submessages_match_the_codec():
     assert transport.sent[-1] == _control(AckNack(7, 0x8001, 0x80))
     session.delete(attempts=1, timeout_ms=0)
     assert transport.sent[-1] == _control(Delete(C.REQUEST_ID_LOGOUT, C.OBJECTID_CLIENT))
+
+
+@pytest.mark.parametrize("small", [0, 1, 3])
+def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
+    """A sample too big for any message is cut from the bytes already written into the open message
+    (not encoded again): the fragments must still carry exactly the general codec's submessage."""
+    from xrce.message import iter_submessages
+    from xrce.msgs.std_msgs import String
+    from xrce.submessages import WriteData
+
+    transport = _Capture()
+    session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False, history=8)
+    session.connected = True
+    for i in range(small):
+        session.write(0x15, String(data="r%d" % i))
+    rid = session.write(0x15, String(data="z" * 1500))
+    session.flush()
+    mw = MessageWriter(2048)
+    mw.begin(0x81, 0, 0)
+    write_submessage(mw, WriteData(rid, 0x15, String(data="z" * 1500).to_bytes()))
+    mw.pad_to_4()
+    expected = mw.getvalue()[4:]
+    carried = b""
+    for message in transport.sent:
+        for sub_id, flags, s, e in iter_submessages(message, 4):
+            if sub_id == C.FRAGMENT:
+                carried += message[s:e]
+    assert carried == expected
+    assert transport.sent[0][4] == (C.WRITE_DATA if small else C.FRAGMENT)

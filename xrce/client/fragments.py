@@ -6,7 +6,7 @@ arrives; a board whose samples always fit never pays for it.
 
 from xrce.compat import const
 from xrce.errors import DecodeError
-from xrce.message import MessageWriter, iter_submessages
+from xrce.message import iter_submessages
 
 _FRAGMENT = const(13)
 _FLAG_LITTLE_ENDIAN = const(0x01)
@@ -14,14 +14,10 @@ _FLAG_LAST_FRAGMENT = const(0x02)
 _SUBHEADER_SIZE = const(4)
 
 
-def write_fragmented(session, out, payload):
-    """Cut one submessage into FRAGMENTs, each alone in a fresh reliable message of ``out``."""
-    inner = MessageWriter(2 * session.max_message)
-    inner.begin(session.session_id, 0, 0, session._header_key)  # header only sets the origin phase
-    payload.encode(inner.begin_submessage(payload.ID, payload.flags))
-    inner.end_submessage()
-    inner.pad_to_4()
-    body = inner.view()[session.header_size:]
+def write_fragmented(session, out, body):
+    """Cut one encoded submessage (header, payload, padding to 4) into FRAGMENTs, each alone in a
+    fresh reliable message of ``out``."""
+    body = memoryview(body)
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)
     pos = 0

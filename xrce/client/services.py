@@ -6,12 +6,14 @@
 uses no service never loads this module.
 """
 
-from xrce.cdr import CdrWriter
+from xrce.cdr import CdrReader, CdrWriter
 from xrce.compat import const
+from xrce.errors import DecodeError
 
 _OBJK_REQUESTER = const(0x07)
 _OBJK_REPLIER = const(0x08)
 _REUSE_REPLACE = const(0x06)
+_SAMPLE_IDENTITY_SIZE = const(24)
 
 
 def _blob(service_name, request_type, reply_type, request_topic, reply_topic):
@@ -87,3 +89,22 @@ def send_request(session, requester_id, data, stream_id=None):
 def send_reply(session, replier_id, sample_identity, data, stream_id=None):
     """Answer the request ``sample_identity`` (as given to the replier's callback)."""
     return session._write_sample(replier_id, data, sample_identity, stream_id)
+
+
+def deliver(reader, data):
+    """DATA for a requester (a reply after its request id) or a replier (a request after its
+    sample identity), handed to the endpoint's callback."""
+    if reader.kind == _OBJK_REQUESTER:
+        if len(data) < 4:
+            raise DecodeError("reply without its request id")
+        reader.callback((data[0] << 8) | data[1], _decode(reader, data[4:]))
+    else:
+        if len(data) < _SAMPLE_IDENTITY_SIZE:
+            raise DecodeError("request without its sample identity")
+        reader.callback(bytes(data[:_SAMPLE_IDENTITY_SIZE]), _decode(reader, data[_SAMPLE_IDENTITY_SIZE:]))
+
+
+def _decode(reader, data):
+    if reader.msg_class is None:
+        return bytes(data)
+    return reader.msg_class.decode(CdrReader(data))

@@ -62,7 +62,6 @@ _OBJK_SUBSCRIBER = const(0x04)
 _OBJK_DATAWRITER = const(0x05)
 _OBJK_DATAREADER = const(0x06)
 _OBJK_REQUESTER = const(0x07)
-_OBJK_REPLIER = const(0x08)
 _OBJK_AGENT = const(0x0D)
 _OBJECTID_CLIENT = const(0xFFFE)
 _REPRESENTATION_BY_REFERENCE = const(0x01)
@@ -83,7 +82,6 @@ _CLIENT_PREFIX = b"XRCE\x01\x00\x01\x0F"  # cookie, version 1.0, vendor eProsima
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
 SLOT_OVERHEAD = const(4)
-SAMPLE_IDENTITY_SIZE = const(24)
 # Session methods that live in optional modules (see Session.__getattr__).
 _SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client",
                     "create_service_server", "send_request", "send_reply")
@@ -270,20 +268,6 @@ class Session:
     def _send_ping(self):
         self._send(self._ping_message())
 
-    def _restore(self):
-        """The agent accepted our CREATE_CLIENT again: re-create what we had and resume."""
-        self.connected = True
-        self._reset_streams()
-        self._last_heard = ticks_ms()
-        for create in self._creations:
-            create.request_id = self.next_request_id()
-            create.flags |= _REUSE_REPLACE
-            self._buffer(None, create)
-        for read in self._read_requests.values():
-            read.request_id = self.next_request_id()
-            self._buffer(None, read)
-        self.flush()
-
     @property
     def link_state(self):
         """'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating)."""
@@ -356,22 +340,9 @@ class Session:
         self._buffer(stream_id, payload)
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
-            self._forget(oid)
+            self.link.forget(oid)
             self._creations.append(payload)
         return oid
-
-    def _forget(self, object_id_):
-        """Drop an entity and everything created under it from the recovery log."""
-        gone = [object_id_]
-        kept = []
-        for create in self._creations:
-            if create.object_id in gone or (create.kind != _OBJK_PARTICIPANT and create.tail_id in gone):
-                gone.append(create.object_id)
-            else:
-                kept.append(create)
-        self._creations = kept
-        for oid in gone:
-            self._read_requests.pop(oid, None)
 
     @staticmethod
     def _representation(xml, ref, binary):
@@ -451,7 +422,7 @@ class Session:
         self._buffer(stream_id, wire.delete(rid, object_id_))
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
-            self._forget(object_id_)
+            self.link.forget(object_id_)
         return rid
 
     # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
@@ -573,17 +544,27 @@ class Session:
             mw = out.mw
             mark = mw.size
             _write_submessage(mw, payload)
-            if mw.size <= self.max_message:
+            end = mw.size
+            if end <= self.max_message:
                 out.has_content = True
                 return True
             mw.w.pos = mark
-            if not out.has_content:
+            mark = (mark + 3) & ~3  # where the submessage itself starts
+            if not out.has_content or self.header_size + end - mark > self.max_message:
                 break
             self._close_message(out)  # the open message is full: send it and retry in a fresh one
         if not out.reliable:
             return False  # a best-effort message cannot be fragmented (the C client refuses too)
+        # Too big for any message: fragment the submessage just written. Its bytes do not depend on
+        # where it starts (a sample aligns from its own first byte, and a submessage starts
+        # 4-aligned), so they are cut as they are instead of encoded again.
+        w = mw.w
+        w.pos = end
+        mw.pad_to_4()
+        body = bytes(w.buf[mark:w.pos])
+        w.pos = mark
         from xrce.client.fragments import write_fragmented
-        return write_fragmented(self, out, payload)
+        return write_fragmented(self, out, body)
 
     def _begin_with_room(self, out, timeout_ms=1000):
         if self._begin(out):
@@ -869,24 +850,11 @@ class Session:
             self.on_topic(self, oid, rid, buf[1], data)
         if reader is None:
             return
-        kind = reader.kind
-        if kind == _OBJK_REQUESTER:
-            if len(data) < 4:
-                raise DecodeError("reply without its request id")
-            reader.callback((data[0] << 8) | data[1], self._decode_sample(reader, data[4:]))
-        elif kind == _OBJK_REPLIER:
-            if len(data) < SAMPLE_IDENTITY_SIZE:
-                raise DecodeError("request without its sample identity")
-            reader.callback(bytes(data[:SAMPLE_IDENTITY_SIZE]),
-                            self._decode_sample(reader, data[SAMPLE_IDENTITY_SIZE:]))
+        if reader.kind >= _OBJK_REQUESTER:
+            from xrce.client.services import deliver
+            deliver(reader, data)
         else:
-            reader.callback(self._decode_sample(reader, data))
-
-    @staticmethod
-    def _decode_sample(reader, data):
-        if reader.msg_class is None:
-            return bytes(data)
-        return reader.msg_class.decode(CdrReader(data))
+            reader.callback(_decode_sample(reader, data))
 
     def _on_acknack(self, buf, flags, s, e):
         if e - s < 5:
@@ -942,6 +910,12 @@ _HANDLERS = {
     _HEARTBEAT: Session._on_heartbeat,
     _TIMESTAMP_REPLY: Session._on_timestamp_reply,
 }
+
+
+def _decode_sample(reader, data):
+    if reader.msg_class is None:
+        return bytes(data)
+    return reader.msg_class.decode(CdrReader(data))
 
 
 def _write_submessage(mw, payload):

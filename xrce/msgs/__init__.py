@@ -19,6 +19,7 @@ from xrce.compat import IS_MICROPYTHON
 from xrce.errors import DecodeError, EncodeError
 
 _unpack_from = struct.unpack_from
+_pack_floats = struct.pack_into  # float-only runs: nothing struct could truncate
 
 if IS_MICROPYTHON:
     _INT_CODES = "bBhHiIqQ"
