@@ -1,5 +1,5 @@
-"""Agent discovery (GET_INFO request 0x0009), apart from the session so boards that know their
-agent's address never load it. ``from xrce.client.session import discover_agents`` still works."""
+# Agent discovery (GET_INFO request 0x0009), apart from the session so boards that know their
+# agent's address never load it. ``from xrce.client.session import discover_agents`` still works.
 
 from xrce import constants as C
 from xrce.cdr import CdrReader
@@ -10,11 +10,10 @@ from xrce.submessages import GetInfo, Info, write_submessage
 
 
 def discover_agents(transport, attempts=1, period_ms=1000):
-    """``[(address_bytes, port), ...]`` of the agents that answer a discovery GET_INFO.
-
-    ``transport`` must reach the agents' discovery port (default 7400), unicast or, with a socket that
-    accepts replies from any source, the multicast group 239.255.0.2.
-    """
+    # ``[(address_bytes, port), ...]`` of the agents that answer a discovery GET_INFO.
+    #
+    # ``transport`` must reach the agents' discovery port (default 7400), unicast or, with a socket that
+    # accepts replies from any source, the multicast group 239.255.0.2.
     mw = MessageWriter(32)
     mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
     write_submessage(mw, GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT,

@@ -1,8 +1,7 @@
-"""Fragmentation (XRCE-WIRE.md §8): samples larger than one message, out and in.
-
-Loaded by the session the first time a reliable sample does not fit a message, or a FRAGMENT
-arrives; a board whose samples always fit never pays for it.
-"""
+# Fragmentation (XRCE-WIRE.md §8): samples larger than one message, out and in.
+#
+# Loaded by the session the first time a reliable sample does not fit a message, or a FRAGMENT
+# arrives; a board whose samples always fit never pays for it.
 
 from xrce.compat import const
 from xrce.errors import DecodeError
@@ -15,8 +14,8 @@ _SUBHEADER_SIZE = const(4)
 
 
 def write_fragmented(session, out, body):
-    """Cut one encoded submessage (header, payload, padding to 4) into FRAGMENTs, each alone in a
-    fresh reliable message of ``out``."""
+    # Cut one encoded submessage (header, payload, padding to 4) into FRAGMENTs, each alone in a
+    # fresh reliable message of ``out``.
     body = memoryview(body)
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)
@@ -47,7 +46,7 @@ def write_fragmented(session, out, body):
 
 
 def reassemble(session, message):
-    """Append the FRAGMENTs of one in-order reliable message; process the whole on the last one."""
+    # Append the FRAGMENTs of one in-order reliable message; process the whole on the last one.
     start = session.header_size
     for sub_id, flags, s, e in iter_submessages(message, start):
         if sub_id != _FRAGMENT:

@@ -1,14 +1,13 @@
-"""Link supervision and automatic recovery of a client session.
-
-The agent never tells a client that it went away: a restarted agent simply does not know the
-session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
-``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
-when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
-(INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
-the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
-agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
-session's run loops.
-"""
+# Link supervision and automatic recovery of a client session.
+#
+# The agent never tells a client that it went away: a restarted agent simply does not know the
+# session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
+# ``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
+# when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
+# (INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
+# the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
+# agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
+# session's run loops.
 
 from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 
@@ -52,7 +51,7 @@ class LinkMonitor:
         self._set(LINK_LOST)
 
     def _restore(self):
-        """The agent accepted our CREATE_CLIENT again: re-create what we had and resume."""
+        # The agent accepted our CREATE_CLIENT again: re-create what we had and resume.
         session = self.session
         session.connected = True
         session._reset_streams()
@@ -67,7 +66,7 @@ class LinkMonitor:
         session.flush()
 
     def forget(self, object_id):
-        """Drop an entity and everything created under it from the re-creation log."""
+        # Drop an entity and everything created under it from the re-creation log.
         session = self.session
         gone = [object_id]
         kept = []

@@ -1,10 +1,9 @@
-"""ROS services on a client session: requesters and repliers (micro-ROS' ``rq/…Request`` /
-``rr/…Reply`` naming), their requests and replies.
-
-``Session`` forwards ``create_requester``, ``create_replier``, ``create_service_client``,
-``create_service_server``, ``send_request`` and ``send_reply`` here on first use, so a board that
-uses no service never loads this module.
-"""
+# ROS services on a client session: requesters and repliers (micro-ROS' ``rq/…Request`` /
+# ``rr/…Reply`` naming), their requests and replies.
+#
+# ``Session`` forwards ``create_requester``, ``create_replier``, ``create_service_client``,
+# ``create_service_server``, ``send_request`` and ``send_reply`` here on first use, so a board that
+# uses no service never loads this module.
 
 from xrce.cdr import CdrReader, CdrWriter
 from xrce.compat import const
@@ -53,19 +52,18 @@ def create_replier(session, participant_id, service_name=None, request_type=None
 
 def create_service_client(session, participant_id, service, srv, callback, stream_id=None,
                           data_stream_id=None):
-    """A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
-
-    ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
-    ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
-    """
+    # A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
+    #
+    # ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
+    # ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
     return _service_endpoint(session, create_requester, participant_id, service, srv, callback,
                              srv.Response, stream_id, data_stream_id)
 
 
 def create_service_server(session, participant_id, service, srv, callback, stream_id=None,
                           data_stream_id=None):
-    """A replier for a ROS service; ``callback(sample_identity, request)`` answers with
-    ``send_reply(replier_id, sample_identity, response)``."""
+    # A replier for a ROS service; ``callback(sample_identity, request)`` answers with
+    # ``send_reply(replier_id, sample_identity, response)``.
     return _service_endpoint(session, create_replier, participant_id, service, srv, callback,
                              srv.Request, stream_id, data_stream_id)
 
@@ -82,18 +80,18 @@ def _service_endpoint(session, create, participant_id, service, srv, callback, m
 
 
 def send_request(session, requester_id, data, stream_id=None):
-    """A service request; the reply reaches the requester's callback with the returned id."""
+    # A service request; the reply reaches the requester's callback with the returned id.
     return session._write_sample(requester_id, data, None, stream_id)
 
 
 def send_reply(session, replier_id, sample_identity, data, stream_id=None):
-    """Answer the request ``sample_identity`` (as given to the replier's callback)."""
+    # Answer the request ``sample_identity`` (as given to the replier's callback).
     return session._write_sample(replier_id, data, sample_identity, stream_id)
 
 
 def deliver(reader, data):
-    """DATA for a requester (a reply after its request id) or a replier (a request after its
-    sample identity), handed to the endpoint's callback."""
+    # DATA for a requester (a reply after its request id) or a replier (a request after its
+    # sample identity), handed to the endpoint's callback.
     if reader.kind == _OBJK_REQUESTER:
         if len(data) < 4:
             raise DecodeError("reply without its request id")

@@ -1,27 +1,26 @@
-"""The XRCE client session: streams, entities, data, services, ping and time sync.
-
-Synchronous and MicroPython-safe. Nothing blocks without a bound: every ``run_until_*`` takes a
-timeout in milliseconds, and ``spin_once`` processes at most one incoming message.
-
-Shape of use (mirrors eProsima's ``uxr_*`` API so that traffic matches the real client)::
-
-    session = Session(UdpTransport("127.0.0.1", 8888))
-    session.create()                                   # CREATE_CLIENT until STATUS_AGENT
-    node = session.create_participant(name="talker")   # buffered on the reliable stream
-    writer = session.create_writer(node, "/chatter", String)
-    session.run_until_all_status(1000)                 # flush, wait for every STATUS
-    session.write(writer, String(data="hi"))
-    session.run_until_confirm_delivery(1000)
-
-Outgoing submessages are appended to the open message of their stream and sent when the message
-is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
-message exactly as with the C client.
-
-A board pays for what it imports: services (xrce.client.services), fragmentation
-(xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
-(xrce.client.recovery) load on first use; the submessages a session sends are written by the lean
-encoders of xrce.client.wire, not by the general codec the agent uses.
-"""
+# The XRCE client session: streams, entities, data, services, ping and time sync.
+#
+# Synchronous and MicroPython-safe. Nothing blocks without a bound: every ``run_until_*`` takes a
+# timeout in milliseconds, and ``spin_once`` processes at most one incoming message.
+#
+# Shape of use (mirrors eProsima's ``uxr_*`` API so that traffic matches the real client)::
+#
+#     session = Session(UdpTransport("127.0.0.1", 8888))
+#     session.create()                                   # CREATE_CLIENT until STATUS_AGENT
+#     node = session.create_participant(name="talker")   # buffered on the reliable stream
+#     writer = session.create_writer(node, "/chatter", String)
+#     session.run_until_all_status(1000)                 # flush, wait for every STATUS
+#     session.write(writer, String(data="hi"))
+#     session.run_until_confirm_delivery(1000)
+#
+# Outgoing submessages are appended to the open message of their stream and sent when the message
+# is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
+# message exactly as with the C client.
+#
+# A board pays for what it imports: services (xrce.client.services), fragmentation
+# (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
+# (xrce.client.recovery) load on first use; the submessages a session sends are written by the lean
+# encoders of xrce.client.wire, not by the general codec the agent uses.
 
 import struct
 
@@ -88,16 +87,17 @@ _SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client
 
 
 class SessionError(XrceError):
-    """The session is not usable for the requested operation (not created, window full, ...)."""
+    # The session is not usable for the requested operation (not created, window full, ...).
+    pass
 
 
 def _trunc_half(value):
-    """Halve an int rounding toward zero, as the C client's int64 division does."""
+    # Halve an int rounding toward zero, as the C client's int64 division does.
     return -((-value) // 2) if value < 0 else value // 2
 
 
 def ros_topic_name(name, prefix="rt"):
-    """'/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS)."""
+    # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
     return prefix + (name if name.startswith("/") else "/" + name)
 
 
@@ -113,8 +113,8 @@ class _Output:
 
 
 class _SampleWrite:
-    """WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
-    alignment origin. One instance per session is reused, so a write allocates nothing here."""
+    # WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
+    # alignment origin. One instance per session is reused, so a write allocates nothing here.
 
     ID = _WRITE_DATA
     __slots__ = ("flags", "request_id", "object_id", "prefix", "sample")
@@ -155,7 +155,7 @@ class _Reader:
 
 
 class Session:
-    """One XRCE client session over a transport (see ``xrce.transports``)."""
+    # One XRCE client session over a transport (see ``xrce.transports``).
 
     def __init__(self, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4,
                  mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
@@ -232,7 +232,7 @@ class Session:
     # ------------------------------------------------------------------ session lifecycle
 
     def create(self, attempts=10, timeout_ms=1000):
-        """CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session."""
+        # CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session.
         self._agent_status = None
         for _ in range(attempts):
             self._send_create_client()
@@ -270,7 +270,7 @@ class Session:
 
     @property
     def link_state(self):
-        """'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating)."""
+        # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
         from xrce.client.recovery import LINK_STATE_NAMES
         return LINK_STATE_NAMES[self.link.state] if self.link is not None else (
             "connected" if self.connected else "lost")
@@ -283,7 +283,7 @@ class Session:
         return self._agent_status
 
     def delete(self, attempts=10, timeout_ms=1000):
-        """DELETE of the client (logout) until the agent's STATUS; True when confirmed."""
+        # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
         self.flush()
         self._begin_control(_DELETE).raw(b"\x00\x02\xff\xfe")  # REQUEST_ID_LOGOUT, OBJECTID_CLIENT
         self._control.end_submessage()
@@ -354,7 +354,7 @@ class Session:
 
     def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
                            stream_id=None, flags=_REUSE_REPLACE):
-        """A participant (a ROS node on the agent). Returns its object id; the request is buffered."""
+        # A participant (a ROS node on the agent). Returns its object id; the request is buffered.
         fmt, rep = self._representation(xml, ref, None)
         if rep is None:
             rep = wire.participant_blob(name)
@@ -379,8 +379,8 @@ class Session:
 
     @staticmethod
     def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
-        """``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
-        take an ``xrce.objects.EndpointQos`` for QoS beyond these."""
+        # ``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
+        # take an ``xrce.objects.EndpointQos`` for QoS beyond these.
         flags = (_QOS_RELIABLE if reliable else 0) | (_QOS_KEEP_LAST if keep_last else 0)
         if transient_local:
             flags |= _QOS_TRANSIENT_LOCAL
@@ -417,7 +417,7 @@ class Session:
         raise AttributeError(name)
 
     def delete_entity(self, object_id_, stream_id=None):
-        """Buffer a DELETE of one entity (the agent deletes its children). Returns the request id."""
+        # Buffer a DELETE of one entity (the agent deletes its children). Returns the request id.
         rid = self.next_request_id()
         self._buffer(stream_id, wire.delete(rid, object_id_))
         self._statuses[rid] = _STATUS_NONE
@@ -429,7 +429,7 @@ class Session:
 
     def create_writer(self, participant_id, topic, msg_class, reliable=True, depth=10,
                       transient_local=False, stream_id=None):
-        """Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class."""
+        # Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class.
         topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
                                      stream_id=stream_id)
         publisher_id = self.create_publisher(participant_id, stream_id=stream_id)
@@ -439,11 +439,10 @@ class Session:
 
     def create_reader(self, participant_id, topic, msg_class, callback, reliable=True, depth=10,
                       transient_local=False, stream_id=None, data_stream_id=None):
-        """Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
-
-        ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
-        for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
-        """
+        # Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
+        #
+        # ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
+        # for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
         topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
                                      stream_id=stream_id)
         subscriber_id = self.create_subscriber(participant_id, stream_id=stream_id)
@@ -459,18 +458,17 @@ class Session:
     # ------------------------------------------------------------------ data
 
     def set_reader_callback(self, reader_id, callback, msg_class=None):
-        """``callback(data)`` for every DATA of this reader/requester/replier.
-
-        Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
-        Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
-        Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
-        """
+        # ``callback(data)`` for every DATA of this reader/requester/replier.
+        #
+        # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
+        # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
+        # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
         self._readers[reader_id] = _Reader(callback, msg_class, reader_id & 0x0F)
 
     def read_data(self, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_UNLIMITED,
                   max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
                   stream_id=None):
-        """Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``."""
+        # Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``.
         control = (max_samples, max_elapsed_time, max_bytes_per_second,
                    min_pace_period) if delivery else None
         rid = self.next_request_id()
@@ -483,18 +481,17 @@ class Session:
         return rid
 
     def cancel_data(self, reader_id, stream_id=None):
-        """Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0)."""
+        # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
         rid = self.next_request_id()
         self._buffer(stream_id, wire.read_data(rid, reader_id, _STREAM_NONE, (0, 0, 0, 0)))
         self._read_requests.pop(reader_id, None)
         return rid
 
     def write(self, writer_id, data, stream_id=None):
-        """Buffer one sample (a generated message object or its serialized bytes).
-
-        Reliable samples larger than a message are fragmented; when the window is full the session
-        spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
-        """
+        # Buffer one sample (a generated message object or its serialized bytes).
+        #
+        # Reliable samples larger than a message are fragmented; when the window is full the session
+        # spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
         return self._write_sample(writer_id, data, None, stream_id)
 
     def _write_sample(self, object_id_, data, prefix, stream_id):
@@ -524,7 +521,7 @@ class Session:
         return out
 
     def _begin(self, out):
-        """Open a new message on ``out``; False if a reliable window has no free slot."""
+        # Open a new message on ``out``; False if a reliable window has no free slot.
         if out.reliable:
             seq = out.state.next_seq()
             if seq is None:
@@ -536,7 +533,7 @@ class Session:
         return True
 
     def _buffer(self, stream_id, payload):
-        """Append ``payload`` to its stream's open message; True when it is buffered or sent."""
+        # Append ``payload`` to its stream's open message; True when it is buffered or sent.
         out = self._output(stream_id)
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):
@@ -577,7 +574,7 @@ class Session:
         return self._begin(out)
 
     def _close_message(self, out):
-        """Send the open message of ``out`` (trailing padding to 4, as the C client)."""
+        # Send the open message of ``out`` (trailing padding to 4, as the C client).
         if not out.has_content:
             return
         mw = out.mw
@@ -593,13 +590,13 @@ class Session:
         out.has_content = False
 
     def flush(self):
-        """Send every stream's open message."""
+        # Send every stream's open message.
         for out in self._outputs.values():
             if out.has_content:
                 self._close_message(out)
 
     def _begin_control(self, sub_id, session_id=None, key=None):
-        """Start a stream-0 message with one submessage; returns the writer for its payload."""
+        # Start a stream-0 message with one submessage; returns the writer for its payload.
         mw = self._control
         if session_id is None:
             session_id, key = self.session_id, self._header_key
@@ -635,7 +632,7 @@ class Session:
     # ------------------------------------------------------------------ running
 
     def _wait(self, timeout_ms, done):
-        """Process input until ``done()`` or ``timeout_ms``; True if done."""
+        # Process input until ``done()`` or ``timeout_ms``; True if done.
         start = ticks_ms()
         while True:
             if done():
@@ -657,7 +654,7 @@ class Session:
             self._periodic(ticks_ms())
 
     def spin_once(self, timeout_ms=0):
-        """Flush, then wait up to ``timeout_ms`` for one incoming message and process it."""
+        # Flush, then wait up to ``timeout_ms`` for one incoming message and process it.
         self.flush()
         data = self.transport.recv(timeout_ms)
         if data is not None:
@@ -671,17 +668,16 @@ class Session:
             self.link.poll(now)
 
     def run_until_timeout(self, timeout_ms):
-        """Flush and process everything that arrives for ``timeout_ms``."""
+        # Flush and process everything that arrives for ``timeout_ms``.
         self.flush()
         self._wait(timeout_ms, _never)
 
     def run_until_all_status(self, timeout_ms=1000, request_ids=None):
-        """Flush, wait for a STATUS for every pending request (or those given); True if all OK.
-
-        OK_MATCHED counts as success (an entity reused as it was). Requests still unanswered at the
-        timeout stay pending, so a later call waits for them again. ``last_statuses`` holds what
-        this call saw.
-        """
+        # Flush, wait for a STATUS for every pending request (or those given); True if all OK.
+        #
+        # OK_MATCHED counts as success (an entity reused as it was). Requests still unanswered at the
+        # timeout stay pending, so a later call waits for them again. ``last_statuses`` holds what
+        # this call saw.
         self.flush()
         ids = list(self._statuses) if request_ids is None else list(request_ids)
         statuses = self._statuses
@@ -705,7 +701,7 @@ class Session:
         return ok
 
     def run_until_confirm_delivery(self, timeout_ms=1000):
-        """Flush and wait until every reliable message sent has been acknowledged."""
+        # Flush and wait until every reliable message sent has been acknowledged.
         self.flush()
         return self._wait(timeout_ms, self._all_delivered)
 
@@ -718,7 +714,7 @@ class Session:
     # ------------------------------------------------------------------ ping and time
 
     def ping(self, timeout_ms=1000, attempts=1):
-        """GET_INFO inside the session: True only if the agent still knows this session."""
+        # GET_INFO inside the session: True only if the agent still knows this session.
         self.flush()
         message = bytes(self._ping_message())
         for _ in range(attempts):
@@ -734,7 +730,7 @@ class Session:
         return self._pong_in_session
 
     def sync_time(self, timeout_ms=1000, attempts=1):
-        """NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated."""
+        # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
         self.flush()
         for _ in range(attempts):
             originate = epoch_ns()
@@ -752,7 +748,7 @@ class Session:
         return self._sync_originate is None
 
     def epoch_ns(self):
-        """Nanoseconds since the epoch on the agent's clock (after ``sync_time``)."""
+        # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
         return epoch_ns() - self.time_offset_ns
 
     def epoch_ms(self):
@@ -761,7 +757,7 @@ class Session:
     # ------------------------------------------------------------------ input path
 
     def handle_message(self, buf):
-        """Process one incoming message (bytes-like). Malformed input is counted and dropped."""
+        # Process one incoming message (bytes-like). Malformed input is counted and dropped.
         self.messages_in += 1
         n = len(buf)
         if n < 4 or buf[0] != self.session_id or (self._header_key is not None and (
@@ -924,7 +920,7 @@ def _write_submessage(mw, payload):
 
 
 def _agent_activity(buf, flags, s, e):
-    """``(implementation status, availability or None)`` of an INFO payload in ``buf[s:e]``."""
+    # ``(implementation status, availability or None)`` of an INFO payload in ``buf[s:e]``.
     r = CdrReader(buf, s + 4, e, 0, bool(flags & 1))
     r.u8()  # status
     impl_status = r.u8()
@@ -943,10 +939,9 @@ def _agent_activity(buf, flags, s, e):
 
 
 def ping_agent(transport, timeout_ms=1000, attempts=1):
-    """Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
-
-    Any INFO reporting an available agent counts as the answer, as with the C client.
-    """
+    # Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
+    #
+    # Any INFO reporting an available agent counts as the answer, as with the C client.
     message = b"\x80\x00\x00\x00\x02\x01\x08\x00\x00\x0a\xff\xfd\x02\x00\x00\x00"
     for _ in range(attempts):
         sent = ticks_us()

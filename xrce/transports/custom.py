@@ -1,18 +1,17 @@
-"""User-supplied transport callbacks, shaped like micro-ROS' ``rmw_uros_set_custom_transport``.
-
-Callbacks (``user`` is passed through untouched):
-
-- ``open_cb(user) -> bool`` and ``close_cb(user) -> bool``
-- ``write_cb(user, data) -> int``: bytes written, possibly fewer than ``len(data)`` (the rest is
-  offered again); 0 or less means the link failed.
-- ``read_cb(user, buf, size, timeout_ms) -> int``: fill the preallocated bytearray ``buf`` with up
-  to ``size`` bytes, return the count, 0 on timeout.
-
-``framing=True`` (stream links: UART, USB CDC, pipes): bytes go through §11 framing with addresses
-``local_addr``/``remote_addr``, both 0 by default as micro-ROS custom transports use them.
-``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
-a single ``write_cb`` call.
-"""
+# User-supplied transport callbacks, shaped like micro-ROS' ``rmw_uros_set_custom_transport``.
+#
+# Callbacks (``user`` is passed through untouched):
+#
+# - ``open_cb(user) -> bool`` and ``close_cb(user) -> bool``
+# - ``write_cb(user, data) -> int``: bytes written, possibly fewer than ``len(data)`` (the rest is
+#   offered again); 0 or less means the link failed.
+# - ``read_cb(user, buf, size, timeout_ms) -> int``: fill the preallocated bytearray ``buf`` with up
+#   to ``size`` bytes, return the count, 0 on timeout.
+#
+# ``framing=True`` (stream links: UART, USB CDC, pipes): bytes go through §11 framing with addresses
+# ``local_addr``/``remote_addr``, both 0 by default as micro-ROS custom transports use them.
+# ``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
+# a single ``write_cb`` call.
 
 from xrce.compat import ticks_add, ticks_diff, ticks_ms
 from xrce.errors import EncodeError
@@ -26,13 +25,12 @@ _FRAMED_READ_SIZE = 256
 
 
 class CustomTransport:
-    """Synchronous transport over user callbacks; the constructor calls ``open_cb``.
-
-    ``send(msg) -> bool`` (False when ``write_cb`` reports failure; counted in ``send_errors``);
-    ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
-    ``received``, ``send_errors``, ``oversize`` (packets longer than ``mtu``, framing=False),
-    ``wrong_source`` and, with framing, the decoder's counters in ``decoder``.
-    """
+    # Synchronous transport over user callbacks; the constructor calls ``open_cb``.
+    #
+    # ``send(msg) -> bool`` (False when ``write_cb`` reports failure; counted in ``send_errors``);
+    # ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
+    # ``received``, ``send_errors``, ``oversize`` (packets longer than ``mtu``, framing=False),
+    # ``wrong_source`` and, with framing, the decoder's counters in ``decoder``.
 
     __slots__ = (
         "framing",
