@@ -7,6 +7,11 @@ fresh MicroPython interpreter (so heap deltas are not disturbed by earlier steps
 ``cpython=True``, also in-process under CPython for comparison. ``report(key, value)`` records a
 figure. To add a step (sessions, messages, ...), write its source and append a ``Step`` to STEPS.
 
+Heap figures are live heap, what a board keeps after its garbage collector ran: the WebAssembly
+port cannot collect while Python runs, so heap steps are generators run by the harness's stepped
+mode, which collects between ``yield``s; ``mpheap.live`` is the heap in use after that collection.
+(Plain ``gc.collect(); gc.mem_alloc()`` there counts every byte ever allocated, garbage included.)
+
 --mpy measures the mpy-cross output instead of the .py sources (what a board loading /lib/*.mpy
 pays: no compiler on import).
 """
@@ -23,27 +28,34 @@ sys.path.insert(0, str(REPO_ROOT / "tests"))
 from mp_harness import run_micropython  # noqa: E402
 from xrce.tools import mpy  # noqa: E402
 
-# Imported in this order so each delta is what the module adds on top of the ones before it.
+# Imported in this order so each delta is what the module adds on top of the ones before it: first
+# the core every firmware loads (a session over one transport), then each optional feature, then
+# the general codec the agent uses (no client module imports it).
 LAYERED_IMPORTS = (
     "xrce.errors",
     "xrce.compat",
     "xrce.cdr",
-    "xrce.constants",
-    "xrce.seqnum",
-    "xrce.objects",
-    "xrce.submessages",
     "xrce.message",
+    "xrce.seqnum",
     "xrce.streams",
+    "xrce.client",  # xrce.client.session and xrce.client.wire
     "xrce.transports",
+    "xrce.transports.udp",
+    "xrce.msgs",
+    # optional features
+    "xrce.client.recovery",
+    "xrce.client.fragments",
+    "xrce.client.services",
+    "xrce.client.discovery",
+    "xrce.transports.custom",
     "xrce.transports.crc",
     "xrce.transports.framing",
-    "xrce.transports.custom",
     "xrce.transports.serial",
-    "xrce.transports.udp",
     "xrce.transports.tcp",
-    "xrce.client.session",
-    "xrce.client",
-    "xrce.msgs",
+    # the general codec (agent side)
+    "xrce.constants",
+    "xrce.objects",
+    "xrce.submessages",
 )
 # Message classes load lazily, one module per type: their cost is measured per type.
 MESSAGE_TYPES = (
@@ -57,51 +69,53 @@ MESSAGE_TYPES = (
 
 
 class Step:
-    __slots__ = ("name", "source", "cpython", "argv")
+    __slots__ = ("name", "source", "cpython", "argv", "stepped")
 
-    def __init__(self, name, source, cpython=False, argv=()):
+    def __init__(self, name, source, cpython=False, argv=(), stepped=False):
         self.name = name
         self.source = source
         self.cpython = cpython
         self.argv = tuple(str(arg) for arg in argv)
+        self.stepped = stepped  # source defines a generator run(report, argv): live heap via mpheap
 
 
 IMPORTS_SOURCE = r"""
-import gc, sys
+import mpheap
 
 def run(report, argv):
-    gc.collect()
-    start = gc.mem_alloc()
+    yield
+    start = mpheap.live
     for name in argv:
-        gc.collect()
-        before = gc.mem_alloc()
+        before = mpheap.live
         try:
             __import__(name)
         except ImportError as error:
             report(name, "skipped (%s)" % error)
+            yield
             continue
-        gc.collect()
-        report(name, gc.mem_alloc() - before)
-    gc.collect()
-    report("total heap after imports", gc.mem_alloc() - start)
+        yield
+        report(name, mpheap.live - before)
+    report("total heap after imports", mpheap.live - start)
 """
 
 MESSAGE_TYPES_SOURCE = r"""
-import gc
+import mpheap
 
 def run(report, argv):
+    yield
     for spec in argv:
         package, type_name = spec.split(".")
-        gc.collect()
-        before = gc.mem_alloc()
+        before = mpheap.live
         try:
             module = __import__("xrce.msgs." + package, None, None, (type_name,))
             getattr(module, type_name)
         except (ImportError, AttributeError) as error:
             report(spec, "skipped (%s)" % error)
+            yield
             continue
-        gc.collect()
-        report(spec, gc.mem_alloc() - before)
+        module = None
+        yield
+        report(spec, mpheap.live - before)
 """
 
 CDR_TWIST_SOURCE = r"""
@@ -145,7 +159,7 @@ def run(report, argv):
 """
 
 SESSION_SOURCE = r"""
-import gc
+import mpheap
 
 class _NullTransport:
     # The heap figure is the client's, not a socket's: a board's UDP socket lives in its network stack.
@@ -158,13 +172,15 @@ class _NullTransport:
         pass
 
 def run(report, argv):
-    gc.collect()
-    start = gc.mem_alloc()
+    yield
+    start = mpheap.live
     from xrce.client.session import Session
+    yield
     from xrce.msgs.std_msgs import String
+    yield
     from xrce.msgs.geometry_msgs import Twist
-    gc.collect()
-    imported = gc.mem_alloc()
+    yield
+    imported = mpheap.live
     report("import: session + String + Twist", imported - start)
     session = Session(_NullTransport(), key=b"\x01\x02\x03\x04")
     node = session.create_participant(name="footprint")
@@ -173,9 +189,9 @@ def run(report, argv):
     session.flush()
     session.write(writer, String(data="hello"), stream_id=session.best_effort)
     session.flush()
-    gc.collect()
-    report("session + 1 publisher + 1 subscriber (runtime objects)", gc.mem_alloc() - imported)
-    report("TOTAL import + session + publisher + subscriber", gc.mem_alloc() - start)
+    yield
+    report("session + 1 publisher + 1 subscriber (runtime objects)", mpheap.live - imported)
+    report("TOTAL import + session + publisher + subscriber", mpheap.live - start)
 """
 
 MESSAGES_SOURCE = r"""
@@ -220,6 +236,14 @@ def _report(key, value):
 run(_report, sys.argv[1:])
 """
 
+STEPPED_RUNNER_TAIL = r"""
+import sys
+def _report(key, value):
+    print("REPORT\t%s\t%s" % (key, value))
+def main():
+    return run(_report, sys.argv[1:])
+"""
+
 
 def _is_message_module(name):
     return name.startswith("xrce.msgs.") and name != "xrce.msgs._dict" and name != "xrce.msgs._lookup"
@@ -233,19 +257,21 @@ def build_steps(iterations):
         if name not in names and name != "xrce" and not _is_message_module(name):
             names.append(name)
     return [
-        Step("imports", IMPORTS_SOURCE, argv=names),
+        Step("imports", IMPORTS_SOURCE, argv=names, stepped=True),
         # Each type in a fresh interpreter on top of the wire core would be purer; cumulative is
         # what an application importing them in this order pays.
-        Step("message_types", MESSAGE_TYPES_SOURCE, argv=MESSAGE_TYPES),
+        Step("message_types", MESSAGE_TYPES_SOURCE, argv=MESSAGE_TYPES, stepped=True),
         Step("cdr_twist", CDR_TWIST_SOURCE, cpython=True, argv=[iterations]),
-        Step("client_session", SESSION_SOURCE),
+        Step("client_session", SESSION_SOURCE, stepped=True),
         Step("messages", MESSAGES_SOURCE, cpython=True, argv=[iterations]),
     ]
 
 
 def run_on_micropython(step, mounts, default_mount):
-    result = run_micropython(step.source + RUNNER_TAIL, *step.argv, mounts=mounts,
-                             default_mount=default_mount, timeout=300)
+    tail = STEPPED_RUNNER_TAIL if step.stepped else RUNNER_TAIL
+    # The stepped steps run with a real heap cap: 1 MiB is far above what they need.
+    result = run_micropython(step.source + tail, *step.argv, mounts=mounts, default_mount=default_mount,
+                             timeout=300, stepped=step.stepped, heap=1024 * 1024)
     if result.returncode != 0:
         raise SystemExit("step %s failed under MicroPython:\n%s%s" % (step.name, result.stdout, result.stderr))
     figures = []

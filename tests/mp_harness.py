@@ -60,8 +60,13 @@ def ensure_installed():
             raise HarnessSetupError("npm ci in %s failed:\n%s%s" % (HARNESS_DIR, result.stdout, result.stderr))
 
 
-def run_micropython(script, *args, heap=DEFAULT_HEAP, timeout=60, mounts=(), default_mount=True):
+def run_micropython(script, *args, heap=DEFAULT_HEAP, timeout=60, mounts=(), default_mount=True, stepped=False):
     """Run ``script`` (a path, or Python source text) under MicroPython and wait for it.
+
+    ``stepped``: the script defines a generator function ``main()`` that the harness advances one
+    step at a time, collecting garbage between steps; the heap is then capped at ``heap`` for real
+    (the run fails with a MemoryError when it would have to grow) and ``mpheap.live`` holds the live
+    heap before each step (see tests/micropython/run.mjs).
 
     ``mounts`` is a sequence of ``(host_dir, micropython_dir)`` pairs copied into the MicroPython
     filesystem; by default the repo's ``xrce`` package is there as ``/lib/xrce``. Returns the
@@ -71,6 +76,8 @@ def run_micropython(script, *args, heap=DEFAULT_HEAP, timeout=60, mounts=(), def
     node = node_executable()
     ensure_installed()
     command = [node, str(RUNNER), "--heap", str(int(heap))]
+    if stepped:
+        command.append("--stepped")
     for host_dir, target in mounts:
         command += ["--mount", "%s:%s" % (os.fspath(host_dir), target)]
     if not default_mount:

@@ -1,12 +1,11 @@
-"""Plain CDR (XCDR1) reader and writer with an explicit alignment origin.
-
-Alignment of 2/4/8-byte primitives is counted from ``origin`` (XRCE-WIRE.md §0, §14): the message
-start for XRCE structures, the first byte for binary blobs and topic samples. Little-endian by
-default; a reader built with ``little=False`` decodes big-endian payloads (the E flag cleared).
-
-MicroPython-safe: only ``struct`` with explicit byte order, no ``?`` type code (MicroPython lacks it).
-Every read is bounds-checked first, so hostile input raises only ``DecodeError``.
-"""
+# Plain CDR (XCDR1) reader and writer with an explicit alignment origin.
+#
+# Alignment of 2/4/8-byte primitives is counted from ``origin`` (XRCE-WIRE.md §0, §14): the message
+# start for XRCE structures, the first byte for binary blobs and topic samples. Little-endian by
+# default; a reader built with ``little=False`` decodes big-endian payloads (the E flag cleared).
+#
+# MicroPython-safe: only ``struct`` with explicit byte order, no ``?`` type code (MicroPython lacks it).
+# Every read is bounds-checked first, so hostile input raises only ``DecodeError``.
 
 import struct
 
@@ -21,11 +20,10 @@ _BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
 
 
 class CdrWriter:
-    """Appends CDR values to a bytearray, growing it as needed.
-
-    ``buf`` may be a preallocated bytearray (reused between messages: call ``reset``); ``pos`` is
-    where writing starts and ``origin`` the offset alignment is counted from.
-    """
+    # Appends CDR values to a bytearray, growing it as needed.
+    #
+    # ``buf`` may be a preallocated bytearray (reused between messages: call ``reset``); ``pos`` is
+    # where writing starts and ``origin`` the offset alignment is counted from.
 
     __slots__ = ("buf", "pos", "origin")
 
@@ -101,21 +99,21 @@ class CdrWriter:
         self._put("<d", 8, value)
 
     def raw(self, data):
-        """Bytes copied verbatim, no alignment (ObjectId, RequestId, keys, blobs)."""
+        # Bytes copied verbatim, no alignment (ObjectId, RequestId, keys, blobs).
         n = len(data)
         self.reserve(n)
         self.buf[self.pos:self.pos + n] = data
         self.pos += n
 
     def string(self, text):
-        """uint32 length including the NUL, the bytes, the NUL."""
+        # uint32 length including the NUL, the bytes, the NUL.
         data = text.encode() if isinstance(text, str) else bytes(text)
         self.u32(len(data) + 1)
         self.raw(data)
         self.u8(0)
 
     def octets(self, data):
-        """sequence<octet>: uint32 count then the bytes."""
+        # sequence<octet>: uint32 count then the bytes.
         self.u32(len(data))
         self.raw(data)
 
@@ -124,7 +122,7 @@ class CdrWriter:
 
 
 class CdrReader:
-    """Reads CDR values from ``buf[pos:end]``; alignment counted from ``origin``."""
+    # Reads CDR values from ``buf[pos:end]``; alignment counted from ``origin``.
 
     __slots__ = ("buf", "pos", "end", "origin", "_fmt")
 

@@ -1,4 +1,4 @@
-"""Small shims so that the shared modules run unchanged on CPython and MicroPython."""
+# Small shims so that the shared modules run unchanged on CPython and MicroPython.
 
 import time
 
@@ -39,7 +39,7 @@ else:
 
 
 def epoch_ns():
-    """Wall-clock nanoseconds since the Unix epoch (CLOCK_REALTIME, as the C client's uxr_nanos)."""
+    # Wall-clock nanoseconds since the Unix epoch (CLOCK_REALTIME, as the C client's uxr_nanos).
     try:
         return time.time_ns()
     except AttributeError:  # very old MicroPython ports
@@ -55,7 +55,7 @@ else:
 
 
 def random_client_key():
-    """Four random bytes, never all zero (the agent rejects key 0)."""
+    # Four random bytes, never all zero (the agent rejects key 0).
     try:
         import os
         key = os.urandom(4)

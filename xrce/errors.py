@@ -1,8 +1,9 @@
-"""The project's error types, importable on MicroPython."""
+# The project's error types, importable on MicroPython.
 
 
 class XrceError(Exception):
-    """Base class of every error raised by this package."""
+    # Base class of every error raised by this package.
+    pass
 
 
 try:
@@ -14,12 +15,13 @@ except TypeError:
 
 
 class DecodeError(_ValueErrorBase):
-    """Bytes that cannot be decoded: truncated, out of range or inconsistent.
-
-    Every decoder in the wire core raises only this for hostile input, so a caller can drop and count
-    a bad datagram with a single ``except DecodeError``.
-    """
+    # Bytes that cannot be decoded: truncated, out of range or inconsistent.
+    #
+    # Every decoder in the wire core raises only this for hostile input, so a caller can drop and count
+    # a bad datagram with a single ``except DecodeError``.
+    pass
 
 
 class EncodeError(_ValueErrorBase):
-    """A value that cannot be put on the wire (out of range, too long, wrong type)."""
+    # A value that cannot be put on the wire (out of range, too long, wrong type).
+    pass

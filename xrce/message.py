@@ -1,15 +1,18 @@
-"""XRCE message header and submessage framing (XRCE-WIRE.md §1, §2).
-
-Decoding splits a message into ``(id, flags, start, end)`` spans over the original buffer, so the
-hot path (WRITE_DATA/DATA) never copies a payload it only forwards. ``MessageWriter`` appends
-submessages to a reusable buffer, 4-aligned from the message start.
-"""
+# XRCE message header and submessage framing (XRCE-WIRE.md §1, §2).
+#
+# Decoding splits a message into ``(id, flags, start, end)`` spans over the original buffer, so the
+# hot path (WRITE_DATA/DATA) never copies a payload it only forwards. ``MessageWriter`` appends
+# submessages to a reusable buffer, 4-aligned from the message start.
 
 import struct
 
 from xrce import cdr
-from xrce.constants import CREATE_CLIENT, SESSION_ID_WITHOUT_KEY_MASK
+from xrce.compat import const
 from xrce.errors import DecodeError, EncodeError
+
+# xrce.constants names these too; local constants fold into the code and spare a board that module.
+_CREATE_CLIENT = const(0)
+_SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 
 HEADER_SIZE_NO_KEY = 4
 HEADER_SIZE_WITH_KEY = 8
@@ -17,7 +20,7 @@ SUBHEADER_SIZE = 4
 
 
 def header_size(session_id):
-    return HEADER_SIZE_WITH_KEY if session_id < SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
+    return HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
 
 
 class Header:
@@ -40,13 +43,13 @@ class Header:
 
 
 def decode_header(buf, length=None):
-    """Header of the message in ``buf[:length]``; DecodeError if it is shorter than its header."""
+    # Header of the message in ``buf[:length]``; DecodeError if it is shorter than its header.
     n = len(buf) if length is None else length
     if n < HEADER_SIZE_NO_KEY:
         raise DecodeError("message shorter than its header")
     session_id = buf[0]
     key = None
-    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
         if n < HEADER_SIZE_WITH_KEY:
             raise DecodeError("keyed message shorter than its header")
         key = bytes(buf[4:8])
@@ -54,12 +57,12 @@ def decode_header(buf, length=None):
 
 
 def encode_header(buf, session_id, stream_id, seq, key=None):
-    """Write a header at buf[0:]; returns its size."""
+    # Write a header at buf[0:]; returns its size.
     buf[0] = session_id
     buf[1] = stream_id
     buf[2] = seq & 0xFF
     buf[3] = (seq >> 8) & 0xFF
-    if session_id < SESSION_ID_WITHOUT_KEY_MASK:
+    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
         if key is None or len(key) != 4:
             raise EncodeError("a session id below 0x80 needs a 4-byte client key")
         buf[4:8] = key
@@ -68,13 +71,12 @@ def encode_header(buf, session_id, stream_id, seq, key=None):
 
 
 def iter_submessages(buf, start, end=None):
-    """Yield ``(submessage_id, flags, payload_start, payload_end)`` for the submessages in buf[start:end].
-
-    Submessage headers sit at 4-aligned offsets from the message start (offset 0 of buf); parsing
-    stops when fewer than 4 bytes remain. A length running past the end is a DecodeError. The
-    CREATE_CLIENT length is not trusted (the eProsima client writes 16 even with properties), so its
-    span runs to the end of the message.
-    """
+    # Yield ``(submessage_id, flags, payload_start, payload_end)`` for the submessages in buf[start:end].
+    #
+    # Submessage headers sit at 4-aligned offsets from the message start (offset 0 of buf); parsing
+    # stops when fewer than 4 bytes remain. A length running past the end is a DecodeError. The
+    # CREATE_CLIENT length is not trusted (the eProsima client writes 16 even with properties), so its
+    # span runs to the end of the message.
     end = len(buf) if end is None else end
     pos = start
     while end - pos >= SUBHEADER_SIZE:
@@ -83,7 +85,7 @@ def iter_submessages(buf, start, end=None):
         length = buf[pos + 2] | (buf[pos + 3] << 8)
         payload_start = pos + SUBHEADER_SIZE
         payload_end = payload_start + length
-        if sub_id == CREATE_CLIENT:
+        if sub_id == _CREATE_CLIENT:
             payload_end = end
         elif payload_end > end:
             raise DecodeError("submessage %d length %d runs past the message end" % (sub_id, length))
@@ -92,11 +94,10 @@ def iter_submessages(buf, start, end=None):
 
 
 class MessageWriter:
-    """Builds one message in a reusable buffer.
-
-    ``begin`` writes the header; ``begin_submessage``/``end_submessage`` frame a payload written
-    with ``self.w`` (a CdrWriter whose origin is the message start, as both eProsima peers do).
-    """
+    # Builds one message in a reusable buffer.
+    #
+    # ``begin`` writes the header; ``begin_submessage``/``end_submessage`` frame a payload written
+    # with ``self.w`` (a CdrWriter whose origin is the message start, as both eProsima peers do).
 
     __slots__ = ("buf", "w", "_sub_start", "limit")
 
@@ -128,7 +129,7 @@ class MessageWriter:
         return w
 
     def end_submessage(self, length=None):
-        """Patch the length of the open submessage (``length`` overrides the measured one)."""
+        # Patch the length of the open submessage (``length`` overrides the measured one).
         w = self.w
         if length is None:
             length = w.pos - self._sub_start - SUBHEADER_SIZE

@@ -452,9 +452,13 @@ def _gen_encode_step(step, package, out):
                 args.append(f.expr)
         align = PRIMITIVES[run[0].type.base][1]
         out.append("        try:")
-        out.append("            _pack_into(%r, w.buf, _put(w, %d, %d), %s)" % (fmt, align, _run_size(run), ", ".join(args)))
+        # Floats cannot be truncated by struct, so float-only runs skip MicroPython's read-back
+        # range check (_pack_into), which allocates a tuple of every value per sample.
+        packer = "_pack_floats" if all(PRIMITIVES[f.type.base][0] in "fd" for f in run) else "_pack_into"
+        out.append("            %s(%r, w.buf, _put(w, %d, %d), %s)" % (packer, fmt, align, _run_size(run), ", ".join(args)))
         out.append("        except _PACK_ERRORS:")
-        out.append("            _bad_values(self, %r)" % ", ".join(f.label for f in run))
+        # The message's repr names the culprit; a label string per run would cost every board heap.
+        out.append("            _bad_values(self)")
         return
     f = item
     ft = f.type
@@ -634,8 +638,8 @@ def _gen_service(srv, out, class_name):
 # scalar and string fields need, _seq.py the array and sequence helpers. Each generated module
 # imports only the names its code uses, so a board does not load or bind what it never calls.
 RUNTIME_NAMES = (
-    ("xrce.msgs", ("_PACK_ERRORS", "_Message", "_bad_values", "_bool", "_get_string", "_pack_into", "_put",
-                   "_put_string", "_take", "_unpack_from")),
+    ("xrce.msgs", ("_PACK_ERRORS", "_Message", "_bad_values", "_bool", "_get_string", "_pack_floats",
+                   "_pack_into", "_put", "_put_string", "_take", "_unpack_from")),
     ("xrce.msgs._seq", ("_bad_len", "_count", "_get_array", "_put_array", "_put_octets", "_seq_len")),
 )
 

@@ -1,10 +1,9 @@
-"""Best-effort and reliable stream state (XRCE-WIRE.md §1, §7), shared by client and agent.
-
-These classes hold sequence numbers and history only; building, sending and parsing messages is
-the caller's job. ``history`` must be a power of two (slot = seq mod history). A reliable sender
-retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
-client resends everything unacknowledged, which is wire-compatible but wasteful).
-"""
+# Best-effort and reliable stream state (XRCE-WIRE.md §1, §7), shared by client and agent.
+#
+# These classes hold sequence numbers and history only; building, sending and parsing messages is
+# the caller's job. ``history`` must be a power of two (slot = seq mod history). A reliable sender
+# retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
+# client resends everything unacknowledged, which is wire-compatible but wasteful).
 
 from xrce.compat import ticks_diff
 from xrce.errors import EncodeError
@@ -49,7 +48,7 @@ class InputBestEffortStream:
         self.last_handled = SEQ_INITIAL
 
     def accept(self, seq):
-        """True for a strictly newer message; older and duplicate ones are dropped."""
+        # True for a strictly newer message; older and duplicate ones are dropped.
         if seq_less(self.last_handled, seq):
             self.last_handled = seq
             return True
@@ -57,7 +56,7 @@ class InputBestEffortStream:
 
 
 class OutputReliableStream:
-    """Sent messages kept until acknowledged; at most ``history`` in flight."""
+    # Sent messages kept until acknowledged; at most ``history`` in flight.
 
     __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
                  "retransmissions", "suppressed")
@@ -86,13 +85,13 @@ class OutputReliableStream:
         return self.in_flight() < self.history
 
     def next_seq(self):
-        """The sequence number the next message will carry, or None while the window is full."""
+        # The sequence number the next message will carry, or None while the window is full.
         if not self.has_room():
             return None
         return seq_add(self.last_sent, 1)
 
     def commit(self, seq, message):
-        """Record ``message`` (bytes, header already carrying ``seq``) as sent."""
+        # Record ``message`` (bytes, header already carrying ``seq``) as sent.
         if seq != seq_add(self.last_sent, 1) or not self.has_room():
             raise EncodeError("reliable stream out of order or full")
         self.slots[seq & (self.history - 1)] = message
@@ -103,19 +102,18 @@ class OutputReliableStream:
         return self.last_sent != self.last_acknowledged
 
     def heartbeat(self):
-        """``(first_unacked, last_unacked)`` while anything is unacknowledged, else None."""
+        # ``(first_unacked, last_unacked)`` while anything is unacknowledged, else None.
         if self.last_sent == self.last_acknowledged:
             return None
         return seq_add(self.last_acknowledged, 1), self.last_sent
 
     def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0):
-        """Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order.
-
-        A message is retransmitted at the first NACK that names it (so recovery is immediate, as
-        both eProsima peers do), but not again within ``holdoff_ms`` of that retransmission: a
-        receiver ACKNACKs every duplicate it gets, and on a lossy, reordering link answering each of
-        those NACKs again multiplies the traffic into a retransmission storm.
-        """
+        # Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order.
+        #
+        # A message is retransmitted at the first NACK that names it (so recovery is immediate, as
+        # both eProsima peers do), but not again within ``holdoff_ms`` of that retransmission: a
+        # receiver ACKNACKs every duplicate it gets, and on a lossy, reordering link answering each of
+        # those NACKs again multiplies the traffic into a retransmission storm.
         # An ACKNACK that acknowledges more than was ever sent is stale or forged: ignore the ack.
         if not seq_less(seq_add(self.last_sent, 1), first_unacked):
             while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
@@ -141,7 +139,7 @@ class OutputReliableStream:
         return resend
 
 class InputReliableStream:
-    """Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order."""
+    # Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order.
 
     __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates")
 
@@ -159,7 +157,7 @@ class InputReliableStream:
         self.stored.clear()
 
     def receive(self, seq, message):
-        """Messages now deliverable in order (possibly none); duplicates and out-of-window dropped."""
+        # Messages now deliverable in order (possibly none); duplicates and out-of-window dropped.
         if not seq_less(self.last_handled, seq) or seq_sub(seq, self.last_handled) > self.window:
             self.duplicates += 1
             return ()
@@ -187,7 +185,7 @@ class InputReliableStream:
             out.append(message)
 
     def on_heartbeat(self, first_unacked, last_unacked):
-        """Note what the sender has sent; skip what it no longer holds. Returns deliverable messages."""
+        # Note what the sender has sent; skip what it no longer holds. Returns deliverable messages.
         if seq_less(self.last_announced, last_unacked):
             self.last_announced = last_unacked
         out = []
@@ -202,7 +200,7 @@ class InputReliableStream:
         return out
 
     def acknack(self):
-        """``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream."""
+        # ``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream.
         first = seq_add(self.last_handled, 1)
         bitmap = 0
         for i in range(NACK_BITS):

@@ -17,6 +17,8 @@ for HDLC ``framing=True``) treats the datagrams as one byte stream and keeps the
 the next read.
 """
 
+from binascii import hexlify, unhexlify
+
 import nodeudp
 
 
@@ -45,7 +47,8 @@ def make_callbacks(host, port, stream=False):
         handle = state["handle"]
         if handle is None:
             return 0
-        written = nodeudp.send(handle, data)
+        # Hex strs cross the bridge without a PyProxy, which would pin the bytes on the heap.
+        written = nodeudp.send_hex(handle, hexlify(data).decode())
         return written if written > 0 else 0
 
     def read_cb(user, buf, size, timeout_ms):
@@ -55,9 +58,10 @@ def make_callbacks(host, port, stream=False):
         data = state["pending"]
         start = state["pending_at"]
         if start >= len(data):
-            data = nodeudp.recv(handle, timeout_ms)
+            data = nodeudp.recv_hex(handle, timeout_ms)
             if data is None or isinstance(data, int):  # timeout, or -1 on a bridge error
                 return 0
+            data = unhexlify(data)
             start = 0
         count = len(data) - start
         if count > size:

@@ -2,7 +2,14 @@
 // Runs a script under real MicroPython 1.27 (the WebAssembly port) with the repo's xrce package
 // and a synchronous UDP bridge.
 //
-//   node run.mjs [--heap BYTES] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]
+//   node run.mjs [--heap BYTES] [--stepped] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]
+//
+// --stepped: the script defines a generator function main(); the harness runs it one next() per
+// runPython call. This port cannot collect garbage while Python code runs (the wasm stack holds
+// roots it cannot scan), so on an exhausted heap it grows the heap instead of collecting; it
+// collects only when a runPython call returns. Stepping gives it that collection point after every
+// step, and the heap is then capped for real: the run fails with a MemoryError (exit 1) as soon as
+// the heap had to grow past --heap. Before each step /lib/mpheap.py gets the live heap.
 //
 // Default mount: the repo's xrce/ (.py files only) as /lib/xrce. The .py adapters next to this
 // file (e.g. nodeudp_transport.py) are always copied into /lib. Exit status: 0 on success, the
@@ -24,12 +31,12 @@ const SKIPPED_DIRS = new Set(["__pycache__", "node_modules"]);
 
 function usage(message) {
   process.stderr.write(`run.mjs: ${message}\n`);
-  process.stderr.write("usage: node run.mjs [--heap BYTES] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]\n");
+  process.stderr.write("usage: node run.mjs [--heap BYTES] [--stepped] [--mount HOSTDIR:MPDIR ...] [--no-default-mount] script.py [args]\n");
   process.exit(2);
 }
 
 function parseArgs(argv) {
-  const options = { heap: DEFAULT_HEAP, mounts: [], defaultMount: true, script: null, args: [] };
+  const options = { heap: DEFAULT_HEAP, stepped: false, mounts: [], defaultMount: true, script: null, args: [] };
   let i = 0;
   for (; i < argv.length && options.script === null; i++) {
     const arg = argv[i];
@@ -41,6 +48,8 @@ function parseArgs(argv) {
       const colon = spec.lastIndexOf(":");
       if (colon <= 0 || !spec.slice(colon + 1).startsWith("/")) usage(`--mount wants HOSTDIR:/MPDIR, got ${spec}`);
       options.mounts.push({ host: path.resolve(spec.slice(0, colon)), target: spec.slice(colon + 1), pyOnly: false });
+    } else if (arg === "--stepped") {
+      options.stepped = true;
     } else if (arg === "--no-default-mount") {
       options.defaultMount = false;
     } else if (arg.startsWith("--")) {
@@ -204,6 +213,21 @@ function makeNodeUdp(reply, bytesBridge) {
       const datagram = ring.shiftWaiting(wait);
       return datagram === null ? null : bytesBridge.toPythonBytes(datagram);
     }),
+    // The same with the bytes as a hex str, which crosses without a PyProxy: a proxied Python
+    // object stays referenced from the MicroPython heap until a JS collection finalizes the proxy,
+    // so a long run over send/recv would look like a leak (nodeudp_transport.py uses these).
+    send_hex: guarded((handle, hex) => {
+      ringOf(handle);
+      if (typeof hex !== "string") throw new TypeError("send_hex(handle, hex: str)");
+      const payload = new Uint8Array(Buffer.from(hex, "hex"));
+      return reply.request("send", { handle, payload }, [payload.buffer]);
+    }),
+    recv_hex: guarded((handle, timeoutMs) => {
+      const ring = ringOf(handle);
+      const wait = timeoutMs === null || timeoutMs === undefined ? Infinity : Math.max(0, timeoutMs);
+      const datagram = ring.shiftWaiting(wait);
+      return datagram === null ? null : Buffer.from(datagram.buffer, datagram.byteOffset, datagram.byteLength).toString("hex");
+    }),
     close: guarded((handle) => {
       if (!rings.delete(handle)) return 0;
       reply.request("close", { handle });
@@ -223,7 +247,7 @@ function pythonStr(text) {
   return JSON.stringify(text);
 }
 
-const RUN_SCRIPT = (scriptPath, argv) => `
+const RUN_SCRIPT = (scriptPath, argv, stepped) => `
 import sys
 if "/lib" not in sys.path:
     sys.path.append("/lib")
@@ -233,23 +257,65 @@ for _arg in [${argv.map(pythonStr).join(", ")}]:
     sys.argv.append(_arg)
 del _arg
 
+import gc
+# gc.mem_free() counts the heap the port may still add ("max new split"), a constant: the sum only
+# changes when the heap grows.
+_heap_sum = gc.mem_alloc() + gc.mem_free()
+_steps = None
+
+def _exit_code(stop):
+    status = stop.args[0] if stop.args else None
+    if status is None:
+        return 0
+    if isinstance(status, int):
+        return status
+    print(status, file=sys.stderr)
+    return 1
+
 def _run_main(path):
+    global _steps
     try:
         with open(path) as source:
             code = compile(source.read(), path, "exec")
-        exec(code, {"__name__": "__main__", "__file__": path})
+        namespace = {"__name__": "__main__", "__file__": path}
+        exec(code, namespace)
+        if ${stepped ? "True" : "False"}:
+            _steps = namespace["main"]()
         return 0
     except SystemExit as stop:
-        status = stop.args[0] if stop.args else None
-        if status is None:
-            return 0
-        if isinstance(status, int):
-            return status
-        print(status, file=sys.stderr)
-        return 1
+        return _exit_code(stop)
     except BaseException as error:
         sys.print_exception(error, sys.stderr)
         return 1
+
+def _step():
+    # Called by run.mjs once per step: None while the generator has more to do, else the exit status.
+    global _steps
+    if _steps is None:
+        return 0
+    grown = gc.mem_alloc() + gc.mem_free() - _heap_sum
+    if grown > 0:
+        _steps = None
+        print("MemoryError: the heap had to grow by %d bytes past its --heap cap" % grown, file=sys.stderr)
+
+        return 1
+    import mpheap
+    mpheap.live = gc.mem_alloc()
+    mpheap.steps += 1
+    try:
+        next(_steps)
+    except StopIteration:
+        _steps = None
+        return 0
+    except SystemExit as stop:
+        _steps = None
+        return _exit_code(stop)
+    except BaseException as error:
+        _steps = None
+        sys.print_exception(error, sys.stderr)
+        return 1
+    gc.collect()  # in this port: asks for a collection when this runPython call returns
+    return None
 
 _exit_status = _run_main(${pythonStr(scriptPath)})
 `;
@@ -278,8 +344,20 @@ async function main() {
   mp.registerJsModule("nodeudp", makeNodeUdp(reply, makeBytesBridge(mp)));
   let status;
   try {
-    mp.runPython(RUN_SCRIPT(scriptPath, [scriptPath, ...options.args]));
+    mp.runPython(RUN_SCRIPT(scriptPath, [scriptPath, ...options.args], options.stepped));
     status = mp.globals.get("_exit_status");
+    if (options.stepped && status === 0) {
+      // Only ints and None cross here: a Python object handed to JS (a PyProxy) would stay
+      // referenced from the MicroPython heap until JS finalizes the proxy.
+      for (;;) {
+        mp.runPython("_exit_status = _step()");
+        const stepStatus = mp.globals.get("_exit_status");
+        if (stepStatus !== null && stepStatus !== undefined) {
+          status = stepStatus;
+          break;
+        }
+      }
+    }
   } catch (error) {
     // Only a failure of the harness prelude itself lands here; script errors are caught in Python.
     stderr.put(new TextEncoder().encode(`run.mjs: ${error.stack || error}\n`));

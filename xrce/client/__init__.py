@@ -1,4 +1,4 @@
-"""The constrained XRCE client (runs on MicroPython and CPython)."""
+# The constrained XRCE client (runs on MicroPython and CPython).
 
 from xrce.client.session import Session, SessionError, ping_agent
 

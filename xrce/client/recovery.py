@@ -1,16 +1,18 @@
-"""Link supervision and automatic recovery of a client session.
+# Link supervision and automatic recovery of a client session.
+#
+# The agent never tells a client that it went away: a restarted agent simply does not know the
+# session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
+# ``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
+# when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
+# (INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
+# the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
+# agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
+# session's run loops.
 
-The agent never tells a client that it went away: a restarted agent simply does not know the
-session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
-``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
-when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
-(INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
-the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
-agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
-session's run loops.
-"""
+from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 
-from xrce.compat import ticks_add, ticks_diff
+_OBJK_PARTICIPANT = const(0x01)
+_REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
 
 LINK_CONNECTED = 0
 LINK_SILENT = 1  # the agent has been quiet for a while; pings are out
@@ -48,13 +50,42 @@ class LinkMonitor:
         self.next_attempt = now
         self._set(LINK_LOST)
 
+    def _restore(self):
+        # The agent accepted our CREATE_CLIENT again: re-create what we had and resume.
+        session = self.session
+        session.connected = True
+        session._reset_streams()
+        session._last_heard = ticks_ms()
+        for create in session._creations:
+            create.request_id = session.next_request_id()
+            create.flags |= _REUSE_REPLACE
+            session._buffer(None, create)
+        for read in session._read_requests.values():
+            read.request_id = session.next_request_id()
+            session._buffer(None, read)
+        session.flush()
+
+    def forget(self, object_id):
+        # Drop an entity and everything created under it from the re-creation log.
+        session = self.session
+        gone = [object_id]
+        kept = []
+        for create in session._creations:
+            if create.object_id in gone or (create.kind != _OBJK_PARTICIPANT and create.tail_id in gone):
+                gone.append(create.object_id)
+            else:
+                kept.append(create)
+        session._creations = kept
+        for oid in gone:
+            session._read_requests.pop(oid, None)
+
     def poll(self, now):
         session = self.session
         if self.state == LINK_LOST:
             if session._agent_status == 0:  # STATUS_OK to our CREATE_CLIENT
                 self.missed = 0
                 self.recoveries += 1
-                session._restore()
+                self._restore()
                 self._set(LINK_CONNECTED)
             elif ticks_diff(now, self.next_attempt) >= 0:
                 session._send_create_client()

@@ -1,57 +1,103 @@
-"""The XRCE client session: streams, entities, data, services, ping and time sync.
+# The XRCE client session: streams, entities, data, services, ping and time sync.
+#
+# Synchronous and MicroPython-safe. Nothing blocks without a bound: every ``run_until_*`` takes a
+# timeout in milliseconds, and ``spin_once`` processes at most one incoming message.
+#
+# Shape of use (mirrors eProsima's ``uxr_*`` API so that traffic matches the real client)::
+#
+#     session = Session(UdpTransport("127.0.0.1", 8888))
+#     session.create()                                   # CREATE_CLIENT until STATUS_AGENT
+#     node = session.create_participant(name="talker")   # buffered on the reliable stream
+#     writer = session.create_writer(node, "/chatter", String)
+#     session.run_until_all_status(1000)                 # flush, wait for every STATUS
+#     session.write(writer, String(data="hi"))
+#     session.run_until_confirm_delivery(1000)
+#
+# Outgoing submessages are appended to the open message of their stream and sent when the message
+# is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
+# message exactly as with the C client.
+#
+# A board pays for what it imports: services (xrce.client.services), fragmentation
+# (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
+# (xrce.client.recovery) load on first use; the submessages a session sends are written by the lean
+# encoders of xrce.client.wire, not by the general codec the agent uses.
 
-Synchronous and MicroPython-safe. Nothing blocks without a bound: every ``run_until_*`` takes a
-timeout in milliseconds, and ``spin_once`` processes at most one incoming message.
+import struct
 
-Shape of use (mirrors eProsima's ``uxr_*`` API so that traffic matches the real client)::
-
-    session = Session(UdpTransport("127.0.0.1", 8888))
-    session.create()                                   # CREATE_CLIENT until STATUS_AGENT
-    node = session.create_participant(name="talker")   # buffered on the reliable stream
-    writer = session.create_writer(node, "/chatter", String)
-    session.run_until_all_status(1000)                 # flush, wait for every STATUS
-    session.write(writer, String(data="hi"))
-    session.run_until_confirm_delivery(1000)
-
-Outgoing submessages are appended to the open message of their stream and sent when the message
-is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
-message exactly as with the C client.
-"""
-
-from xrce import constants as C
 from xrce.cdr import CdrReader
-from xrce.compat import epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
+from xrce.client import wire
+from xrce.compat import const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce.errors import DecodeError, XrceError
-from xrce.message import MessageWriter, SUBHEADER_SIZE, decode_header, header_size, iter_submessages
-from xrce.objects import (
-    DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, ReplierBin, RequesterBin,
-    TopicBin, object_id, object_kind,
-)
+from xrce.message import MessageWriter, header_size, iter_submessages
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )
-from xrce.submessages import (
-    AckNack, Create, CreateClient, Delete, DeliveryControl, GetInfo, Heartbeat, Info, ReadData,
-    Timestamp, TimestampReply, write_submessage,
-)
+
+# Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
+_SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
+_DEFAULT_SESSION_ID = const(0x81)
+_STREAM_NONE = const(0x00)
+_BUILTIN_BEST_EFFORT = const(0x01)
+_BUILTIN_RELIABLE = const(0x80)
+_CREATE_CLIENT = const(0)
+_GET_INFO = const(2)
+_DELETE = const(3)
+_STATUS_AGENT = const(4)
+_STATUS = const(5)
+_INFO = const(6)
+_WRITE_DATA = const(7)
+_DATA = const(9)
+_ACKNACK = const(10)
+_HEARTBEAT = const(11)
+_FRAGMENT = const(13)
+_TIMESTAMP = const(14)
+_TIMESTAMP_REPLY = const(15)
+_FLAG_LITTLE_ENDIAN = const(0x01)
+_REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
+_OBJK_PARTICIPANT = const(0x01)
+_OBJK_TOPIC = const(0x02)
+_OBJK_PUBLISHER = const(0x03)
+_OBJK_SUBSCRIBER = const(0x04)
+_OBJK_DATAWRITER = const(0x05)
+_OBJK_DATAREADER = const(0x06)
+_OBJK_REQUESTER = const(0x07)
+_OBJK_AGENT = const(0x0D)
+_OBJECTID_CLIENT = const(0xFFFE)
+_REPRESENTATION_BY_REFERENCE = const(0x01)
+_REPRESENTATION_AS_XML_STRING = const(0x02)
+_REPRESENTATION_IN_BINARY = const(0x03)
+_STATUS_OK = const(0x00)
+_STATUS_OK_MATCHED = const(0x01)
+_STATUS_NONE = const(0xFF)
+_REQUEST_ID_LOGOUT = const(0x0002)
+_FIRST_REQUEST_ID = const(0x000A)
+_INFO_ACTIVITY = const(0x02)
+_QOS_RELIABLE = const(0x0001)
+_QOS_KEEP_LAST = const(0x0002)
+_QOS_TRANSIENT_LOCAL = const(0x0008)
+_MAX_SAMPLES_UNLIMITED = const(0xFFFF)
+_CLIENT_PREFIX = b"XRCE\x01\x00\x01\x0F"  # cookie, version 1.0, vendor eProsima
 
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
-SLOT_OVERHEAD = 4
-SAMPLE_IDENTITY_SIZE = 24
+SLOT_OVERHEAD = const(4)
+# Session methods that live in optional modules (see Session.__getattr__).
+_SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client",
+                    "create_service_server", "send_request", "send_reply")
 
 
 class SessionError(XrceError):
-    """The session is not usable for the requested operation (not created, window full, ...)."""
+    # The session is not usable for the requested operation (not created, window full, ...).
+    pass
 
 
 def _trunc_half(value):
-    """Halve an int rounding toward zero, as the C client's int64 division does."""
+    # Halve an int rounding toward zero, as the C client's int64 division does.
     return -((-value) // 2) if value < 0 else value // 2
 
 
 def ros_topic_name(name, prefix="rt"):
-    """'/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS)."""
+    # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
     return prefix + (name if name.startswith("/") else "/" + name)
 
 
@@ -67,14 +113,14 @@ class _Output:
 
 
 class _SampleWrite:
-    """WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
-    alignment origin. One instance per session is reused, so a write allocates nothing here."""
+    # WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
+    # alignment origin. One instance per session is reused, so a write allocates nothing here.
 
-    ID = C.WRITE_DATA
+    ID = _WRITE_DATA
     __slots__ = ("flags", "request_id", "object_id", "prefix", "sample")
 
     def __init__(self):
-        self.flags = C.FLAG_LITTLE_ENDIAN | C.FORMAT_DATA
+        self.flags = _FLAG_LITTLE_ENDIAN  # | FORMAT_DATA (0)
         self.request_id = 0
         self.object_id = 0
         self.prefix = None
@@ -109,9 +155,9 @@ class _Reader:
 
 
 class Session:
-    """One XRCE client session over a transport (see ``xrce.transports``)."""
+    # One XRCE client session over a transport (see ``xrce.transports``).
 
-    def __init__(self, transport, key=None, session_id=C.DEFAULT_SESSION_ID, history=4,
+    def __init__(self, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4,
                  mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
                  max_reassembly=None, on_topic=None, auto_recover=True, liveliness_ms=500,
                  on_link_state=None):
@@ -140,19 +186,19 @@ class Session:
         self._outputs = {}
         self._inputs = {}
         for i in range(best_effort_streams):
-            sid = C.BUILTIN_BEST_EFFORT + i
+            sid = _BUILTIN_BEST_EFFORT + i
             self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), self.max_message)
             self._inputs[sid] = InputBestEffortStream(sid)
         for i in range(reliable_streams):
-            sid = C.BUILTIN_RELIABLE + i
+            sid = _BUILTIN_RELIABLE + i
             self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), self.max_message)
             self._inputs[sid] = InputReliableStream(sid, history)
-        self.best_effort = C.BUILTIN_BEST_EFFORT if best_effort_streams else None
-        self.reliable = C.BUILTIN_RELIABLE if reliable_streams else None
+        self.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
+        self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
         self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
         self._sample = _SampleWrite()
-        self._last_request_id = C.FIRST_REQUEST_ID - 1
+        self._last_request_id = _FIRST_REQUEST_ID - 1
         self._object_counters = {}
         self._statuses = {}
         self._readers = {}
@@ -186,7 +232,7 @@ class Session:
     # ------------------------------------------------------------------ session lifecycle
 
     def create(self, attempts=10, timeout_ms=1000):
-        """CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session."""
+        # CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session.
         self._agent_status = None
         for _ in range(attempts):
             self._send_create_client()
@@ -194,38 +240,37 @@ class Session:
                 break
         if self._agent_status is None:
             return False
-        self.connected = self._agent_status == C.STATUS_OK
+        self.connected = self._agent_status == _STATUS_OK
         if self.connected:
             self._reset_streams()
             self._last_heard = ticks_ms()
         return self.connected
 
     def _send_create_client(self):
-        payload = CreateClient(self.key, self.session_id, self.max_message)
-        header_session = self.session_id & C.SESSION_ID_WITHOUT_KEY_MASK
-        self._send(self._control_message(payload, header_session,
-                                         self.key if header_session == 0 else None))
+        header_session = self.session_id & _SESSION_ID_WITHOUT_KEY_MASK
+        w = self._begin_control(_CREATE_CLIENT, header_session, self.key if header_session == 0 else None)
+        w.raw(_CLIENT_PREFIX)
+        w.raw(self.key)
+        w.u8(self.session_id)
+        w.u8(0)  # no properties
+        w.u16(self.max_message)
+        # The eProsima client writes length 16 for CREATE_CLIENT even when properties follow (§3).
+        self._control.end_submessage(16)
+        self._send(self._control.view())
+
+    def _ping_message(self):
+        w = self._begin_control(_GET_INFO)
+        w.raw(b"\x00\x0a\xff\xfd")  # REQUEST_ID_PING, OBJECTID_AGENT
+        w.u32(_INFO_ACTIVITY)
+        self._control.end_submessage()
+        return self._control.view()
 
     def _send_ping(self):
-        self._send_control(GetInfo())
-
-    def _restore(self):
-        """The agent accepted our CREATE_CLIENT again: re-create what we had and resume."""
-        self.connected = True
-        self._reset_streams()
-        self._last_heard = ticks_ms()
-        for create in self._creations:
-            create.request_id = self.next_request_id()
-            create.flags |= C.FLAG_REUSE | C.FLAG_REPLACE
-            self._buffer(None, create)
-        for read in self._read_requests.values():
-            read.request_id = self.next_request_id()
-            self._buffer(None, read)
-        self.flush()
+        self._send(self._ping_message())
 
     @property
     def link_state(self):
-        """'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating)."""
+        # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
         from xrce.client.recovery import LINK_STATE_NAMES
         return LINK_STATE_NAMES[self.link.state] if self.link is not None else (
             "connected" if self.connected else "lost")
@@ -238,9 +283,11 @@ class Session:
         return self._agent_status
 
     def delete(self, attempts=10, timeout_ms=1000):
-        """DELETE of the client (logout) until the agent's STATUS; True when confirmed."""
+        # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
         self.flush()
-        message = self._control_message(Delete(C.REQUEST_ID_LOGOUT, C.OBJECTID_CLIENT))
+        self._begin_control(_DELETE).raw(b"\x00\x02\xff\xfe")  # REQUEST_ID_LOGOUT, OBJECTID_CLIENT
+        self._control.end_submessage()
+        message = self._control.getvalue()
         self._delete_status = None
         for _ in range(attempts):
             self._send(message)
@@ -269,7 +316,7 @@ class Session:
     def next_request_id(self):
         rid = self._last_request_id + 1
         if rid > 0xFFFF:
-            rid = C.FIRST_REQUEST_ID
+            rid = _FIRST_REQUEST_ID
         self._last_request_id = rid
         return rid
 
@@ -279,111 +326,110 @@ class Session:
 
     def new_object_id(self, kind):
         index = self._object_counters.get(kind, 0) + 1
+        if index > 0xFFF:
+            raise SessionError("object index must be 0..4095")
         self._object_counters[kind] = index
-        return object_id(index, kind)
+        return (index << 4) | kind
 
     # ------------------------------------------------------------------ entity creation
 
     def _create(self, kind, fmt, representation, tail_id, object_id_, stream_id, flags):
         oid = self.new_object_id(kind) if object_id_ is None else object_id_
         rid = self.next_request_id()
-        payload = Create(rid, oid, kind, fmt, representation, tail_id, C.FLAG_LITTLE_ENDIAN | flags)
+        payload = wire.create(rid, oid, kind, fmt, representation, tail_id, _FLAG_LITTLE_ENDIAN | flags)
         self._buffer(stream_id, payload)
-        self._statuses[rid] = C.STATUS_NONE
+        self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
-            self._forget(oid)
+            self.link.forget(oid)
             self._creations.append(payload)
         return oid
-
-    def _forget(self, object_id_):
-        """Drop an entity and everything created under it from the recovery log."""
-        gone = [object_id_]
-        kept = []
-        for create in self._creations:
-            if create.object_id in gone or (create.kind != C.OBJK_PARTICIPANT and create.tail_id in gone):
-                gone.append(create.object_id)
-            else:
-                kept.append(create)
-        self._creations = kept
-        for oid in gone:
-            self._read_requests.pop(oid, None)
 
     @staticmethod
     def _representation(xml, ref, binary):
         if ref is not None:
-            return C.REPRESENTATION_BY_REFERENCE, ref
+            return _REPRESENTATION_BY_REFERENCE, ref
         if xml is not None:
-            return C.REPRESENTATION_AS_XML_STRING, xml
-        return C.REPRESENTATION_IN_BINARY, binary
+            return _REPRESENTATION_AS_XML_STRING, xml
+        return _REPRESENTATION_IN_BINARY, binary
 
     def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
-                           stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        """A participant (a ROS node on the agent). Returns its object id; the request is buffered."""
-        fmt, rep = self._representation(xml, ref, ParticipantBin(name))
-        return self._create(C.OBJK_PARTICIPANT, fmt, rep, domain_id, object_id, stream_id, flags)
+                           stream_id=None, flags=_REUSE_REPLACE):
+        # A participant (a ROS node on the agent). Returns its object id; the request is buffered.
+        fmt, rep = self._representation(xml, ref, None)
+        if rep is None:
+            rep = wire.participant_blob(name)
+        return self._create(_OBJK_PARTICIPANT, fmt, rep, domain_id, object_id, stream_id, flags)
 
     def create_topic(self, participant_id, topic_name=None, type_name=None, xml=None, ref=None,
-                     object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        fmt, rep = self._representation(xml, ref, TopicBin(topic_name, type_name))
-        return self._create(C.OBJK_TOPIC, fmt, rep, participant_id, object_id, stream_id, flags)
+                     object_id=None, stream_id=None, flags=_REUSE_REPLACE):
+        fmt, rep = self._representation(xml, ref, None)
+        if rep is None:
+            rep = wire.topic_blob(topic_name, type_name)
+        return self._create(_OBJK_TOPIC, fmt, rep, participant_id, object_id, stream_id, flags)
 
     def create_publisher(self, participant_id, xml=None, object_id=None, stream_id=None,
-                         flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        fmt, rep = self._representation(xml, None, PubSubBin())
-        return self._create(C.OBJK_PUBLISHER, fmt, rep, participant_id, object_id, stream_id, flags)
+                         flags=_REUSE_REPLACE):
+        fmt, rep = self._representation(xml, None, wire.PUBSUB_BLOB)
+        return self._create(_OBJK_PUBLISHER, fmt, rep, participant_id, object_id, stream_id, flags)
 
     def create_subscriber(self, participant_id, xml=None, object_id=None, stream_id=None,
-                          flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        fmt, rep = self._representation(xml, None, PubSubBin())
-        return self._create(C.OBJK_SUBSCRIBER, fmt, rep, participant_id, object_id, stream_id, flags)
+                          flags=_REUSE_REPLACE):
+        fmt, rep = self._representation(xml, None, wire.PUBSUB_BLOB)
+        return self._create(_OBJK_SUBSCRIBER, fmt, rep, participant_id, object_id, stream_id, flags)
 
     @staticmethod
     def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
-        flags = (C.QOS_RELIABLE if reliable else 0) | (C.QOS_KEEP_LAST if keep_last else 0)
+        # ``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
+        # take an ``xrce.objects.EndpointQos`` for QoS beyond these.
+        flags = (_QOS_RELIABLE if reliable else 0) | (_QOS_KEEP_LAST if keep_last else 0)
         if transient_local:
-            flags |= C.QOS_TRANSIENT_LOCAL
-        return EndpointQos(flags, depth if depth else None)
+            flags |= _QOS_TRANSIENT_LOCAL
+        return flags, depth if depth else None
+
+    def _endpoint(self, kind, parent_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
+        fmt, rep = self._representation(xml, ref, None)
+        if rep is None:
+            if qos is None:
+                qos = self.endpoint_qos()
+            if isinstance(qos, tuple):
+                rep = wire.endpoint_blob(topic_id, qos[0], qos[1], kind == _OBJK_DATAREADER)
+            else:  # a full EndpointQos (deadline, lifespan, user data): the general codec
+                from xrce.objects import DataReaderBin, DataWriterBin
+                rep = (DataReaderBin if kind == _OBJK_DATAREADER else DataWriterBin)(topic_id, qos).to_blob()
+        return self._create(kind, fmt, rep, parent_id, object_id_, stream_id, flags)
 
     def create_datawriter(self, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        binary = DataWriterBin(topic_id, qos if qos is not None else self.endpoint_qos())
-        fmt, rep = self._representation(xml, ref, binary)
-        return self._create(C.OBJK_DATAWRITER, fmt, rep, publisher_id, object_id, stream_id, flags)
+                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
+        return self._endpoint(_OBJK_DATAWRITER, publisher_id, topic_id, qos, xml, ref, object_id,
+                              stream_id, flags)
 
     def create_datareader(self, subscriber_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        binary = DataReaderBin(topic_id, qos if qos is not None else self.endpoint_qos())
-        fmt, rep = self._representation(xml, ref, binary)
-        return self._create(C.OBJK_DATAREADER, fmt, rep, subscriber_id, object_id, stream_id, flags)
+                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
+        return self._endpoint(_OBJK_DATAREADER, subscriber_id, topic_id, qos, xml, ref, object_id,
+                              stream_id, flags)
 
-    def create_requester(self, participant_id, service_name=None, request_type=None,
-                         reply_type=None, request_topic=None, reply_topic=None, xml=None, ref=None,
-                         object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        binary = RequesterBin(service_name, request_type, reply_type, request_topic, reply_topic)
-        fmt, rep = self._representation(xml, ref, binary)
-        return self._create(C.OBJK_REQUESTER, fmt, rep, participant_id, object_id, stream_id, flags)
-
-    def create_replier(self, participant_id, service_name=None, request_type=None,
-                       reply_type=None, request_topic=None, reply_topic=None, xml=None, ref=None,
-                       object_id=None, stream_id=None, flags=C.FLAG_REUSE | C.FLAG_REPLACE):
-        binary = ReplierBin(service_name, request_type, reply_type, request_topic, reply_topic)
-        fmt, rep = self._representation(xml, ref, binary)
-        return self._create(C.OBJK_REPLIER, fmt, rep, participant_id, object_id, stream_id, flags)
+    def __getattr__(self, name):
+        # Services cost a board nothing until the first service call imports them.
+        if name in _SERVICE_METHODS:
+            from xrce.client import services
+            function = getattr(services, name)
+            return lambda *args, **kwargs: function(self, *args, **kwargs)
+        raise AttributeError(name)
 
     def delete_entity(self, object_id_, stream_id=None):
-        """Buffer a DELETE of one entity (the agent deletes its children). Returns the request id."""
+        # Buffer a DELETE of one entity (the agent deletes its children). Returns the request id.
         rid = self.next_request_id()
-        self._buffer(stream_id, Delete(rid, object_id_))
-        self._statuses[rid] = C.STATUS_NONE
+        self._buffer(stream_id, wire.delete(rid, object_id_))
+        self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
-            self._forget(object_id_)
+            self.link.forget(object_id_)
         return rid
 
     # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
 
     def create_writer(self, participant_id, topic, msg_class, reliable=True, depth=10,
                       transient_local=False, stream_id=None):
-        """Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class."""
+        # Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class.
         topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
                                      stream_id=stream_id)
         publisher_id = self.create_publisher(participant_id, stream_id=stream_id)
@@ -393,11 +439,10 @@ class Session:
 
     def create_reader(self, participant_id, topic, msg_class, callback, reliable=True, depth=10,
                       transient_local=False, stream_id=None, data_stream_id=None):
-        """Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
-
-        ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
-        for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
-        """
+        # Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
+        #
+        # ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
+        # for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
         topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
                                      stream_id=stream_id)
         subscriber_id = self.create_subscriber(participant_id, stream_id=stream_id)
@@ -410,81 +455,44 @@ class Session:
         self.read_data(reader_id, data_stream_id, stream_id=stream_id)
         return reader_id
 
-    def create_service_client(self, participant_id, service, srv, callback, stream_id=None,
-                              data_stream_id=None):
-        """A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
-
-        ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
-        ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
-        """
-        return self._service_endpoint(self.create_requester, participant_id, service, srv, callback,
-                                      srv.Response, stream_id, data_stream_id)
-
-    def create_service_server(self, participant_id, service, srv, callback, stream_id=None,
-                              data_stream_id=None):
-        """A replier for a ROS service; ``callback(sample_identity, request)`` answers with
-        ``send_reply(replier_id, sample_identity, response)``."""
-        return self._service_endpoint(self.create_replier, participant_id, service, srv, callback,
-                                      srv.Request, stream_id, data_stream_id)
-
-    def _service_endpoint(self, create, participant_id, service, srv, callback, msg_class,
-                          stream_id, data_stream_id):
-        name = service if service.startswith("/") else "/" + service
-        object_id_ = create(participant_id, name, srv.TYPE_NAME_REQUEST, srv.TYPE_NAME_RESPONSE,
-                            "rq" + name + "Request", "rr" + name + "Reply", stream_id=stream_id)
-        self.set_reader_callback(object_id_, callback, msg_class)
-        self.read_data(object_id_, self.reliable if data_stream_id is None else data_stream_id,
-                       stream_id=stream_id)
-        return object_id_
-
     # ------------------------------------------------------------------ data
 
     def set_reader_callback(self, reader_id, callback, msg_class=None):
-        """``callback(data)`` for every DATA of this reader/requester/replier.
+        # ``callback(data)`` for every DATA of this reader/requester/replier.
+        #
+        # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
+        # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
+        # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
+        self._readers[reader_id] = _Reader(callback, msg_class, reader_id & 0x0F)
 
-        Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
-        Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
-        Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
-        """
-        self._readers[reader_id] = _Reader(callback, msg_class, object_kind(reader_id))
-
-    def read_data(self, reader_id, data_stream_id=None, max_samples=C.MAX_SAMPLES_UNLIMITED,
+    def read_data(self, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_UNLIMITED,
                   max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
                   stream_id=None):
-        """Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``."""
-        control = DeliveryControl(max_samples, max_elapsed_time, max_bytes_per_second,
-                                  min_pace_period) if delivery else None
+        # Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``.
+        control = (max_samples, max_elapsed_time, max_bytes_per_second,
+                   min_pace_period) if delivery else None
         rid = self.next_request_id()
         if data_stream_id is None:
             data_stream_id = self.reliable
-        request = ReadData(rid, reader_id, data_stream_id, control)
+        request = wire.read_data(rid, reader_id, data_stream_id, control)
         self._buffer(stream_id, request)
         if self.link is not None:
             self._read_requests[reader_id] = request
         return rid
 
     def cancel_data(self, reader_id, stream_id=None):
-        """Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0)."""
+        # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
         rid = self.next_request_id()
-        self._buffer(stream_id, ReadData(rid, reader_id, C.STREAM_NONE, DeliveryControl(0, 0, 0, 0)))
+        self._buffer(stream_id, wire.read_data(rid, reader_id, _STREAM_NONE, (0, 0, 0, 0)))
         self._read_requests.pop(reader_id, None)
         return rid
 
     def write(self, writer_id, data, stream_id=None):
-        """Buffer one sample (a generated message object or its serialized bytes).
-
-        Reliable samples larger than a message are fragmented; when the window is full the session
-        spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
-        """
+        # Buffer one sample (a generated message object or its serialized bytes).
+        #
+        # Reliable samples larger than a message are fragmented; when the window is full the session
+        # spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
         return self._write_sample(writer_id, data, None, stream_id)
-
-    def send_request(self, requester_id, data, stream_id=None):
-        """A service request; the reply reaches the requester's callback with the returned id."""
-        return self._write_sample(requester_id, data, None, stream_id)
-
-    def send_reply(self, replier_id, sample_identity, data, stream_id=None):
-        """Answer the request ``sample_identity`` (as given to the replier's callback)."""
-        return self._write_sample(replier_id, data, sample_identity, stream_id)
 
     def _write_sample(self, object_id_, data, prefix, stream_id):
         sample = self._sample
@@ -513,7 +521,7 @@ class Session:
         return out
 
     def _begin(self, out):
-        """Open a new message on ``out``; False if a reliable window has no free slot."""
+        # Open a new message on ``out``; False if a reliable window has no free slot.
         if out.reliable:
             seq = out.state.next_seq()
             if seq is None:
@@ -525,24 +533,35 @@ class Session:
         return True
 
     def _buffer(self, stream_id, payload):
-        """Append ``payload`` to its stream's open message; True when it is buffered or sent."""
+        # Append ``payload`` to its stream's open message; True when it is buffered or sent.
         out = self._output(stream_id)
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):
                 return False
             mw = out.mw
             mark = mw.size
-            write_submessage(mw, payload)
-            if mw.size <= self.max_message:
+            _write_submessage(mw, payload)
+            end = mw.size
+            if end <= self.max_message:
                 out.has_content = True
                 return True
             mw.w.pos = mark
-            if not out.has_content:
+            mark = (mark + 3) & ~3  # where the submessage itself starts
+            if not out.has_content or self.header_size + end - mark > self.max_message:
                 break
             self._close_message(out)  # the open message is full: send it and retry in a fresh one
         if not out.reliable:
             return False  # a best-effort message cannot be fragmented (the C client refuses too)
-        return self._write_fragmented(out, payload)
+        # Too big for any message: fragment the submessage just written. Its bytes do not depend on
+        # where it starts (a sample aligns from its own first byte, and a submessage starts
+        # 4-aligned), so they are cut as they are instead of encoded again.
+        w = mw.w
+        w.pos = end
+        mw.pad_to_4()
+        body = bytes(w.buf[mark:w.pos])
+        w.pos = mark
+        from xrce.client.fragments import write_fragmented
+        return write_fragmented(self, out, body)
 
     def _begin_with_room(self, out, timeout_ms=1000):
         if self._begin(out):
@@ -555,7 +574,7 @@ class Session:
         return self._begin(out)
 
     def _close_message(self, out):
-        """Send the open message of ``out`` (trailing padding to 4, as the C client)."""
+        # Send the open message of ``out`` (trailing padding to 4, as the C client).
         if not out.has_content:
             return
         mw = out.mw
@@ -570,63 +589,27 @@ class Session:
             self._send(mw.view())
         out.has_content = False
 
-    def _write_fragmented(self, out, payload):
-        """Cut one submessage into FRAGMENTs, each alone in a fresh reliable message (§8)."""
-        inner = MessageWriter(2 * self.max_message)
-        inner.begin(self.session_id, 0, 0, self._header_key)  # header only sets the origin phase
-        write_submessage(inner, payload)
-        inner.pad_to_4()
-        body = inner.view()[self.header_size:]
-        chunk_size = self.max_message - self.header_size - SUBHEADER_SIZE
-        total = len(body)
-        pos = 0
-        while pos < total:
-            end = pos + chunk_size
-            last = end >= total
-            while True:
-                # A callback run while waiting for room may have opened a message: send it first.
-                if out.has_content:
-                    self._close_message(out)
-                if not self._begin_with_room(out):
-                    return False  # the remainder is lost; the agent discards the incomplete message
-                if not out.has_content:
-                    break
-            mw = out.mw
-            w = mw.begin_submessage(C.FRAGMENT, C.FLAG_LITTLE_ENDIAN | (C.FLAG_LAST_FRAGMENT if last else 0))
-            w.raw(body[pos:end])
-            mw.end_submessage()
-            out.has_content = True
-            message = mw.getvalue()  # fragments are not padded (§2)
-            out.state.commit(out.state.next_seq(), message)
-            self._send(message)
-            out.has_content = False
-            pos = end
-        self._schedule_heartbeat(out.stream_id)
-        return True
-
     def flush(self):
-        """Send every stream's open message."""
+        # Send every stream's open message.
         for out in self._outputs.values():
             if out.has_content:
                 self._close_message(out)
 
-    def _control_message(self, payload, session_id=None, key=None):
+    def _begin_control(self, sub_id, session_id=None, key=None):
+        # Start a stream-0 message with one submessage; returns the writer for its payload.
         mw = self._control
         if session_id is None:
             session_id, key = self.session_id, self._header_key
-        mw.begin(session_id, C.STREAM_NONE, 0, key)
-        write_submessage(mw, payload)
-        return mw.getvalue()
+        mw.begin(session_id, _STREAM_NONE, 0, key)
+        return mw.begin_submessage(sub_id, _FLAG_LITTLE_ENDIAN)
 
     def _send(self, message):
         self.messages_out += 1
         self.transport.send(message)
 
-    def _send_control(self, payload):
-        mw = self._control
-        mw.begin(self.session_id, C.STREAM_NONE, 0, self._header_key)
-        write_submessage(mw, payload)
-        self._send(mw.view())
+    def _send_control(self):
+        self._control.end_submessage()
+        self._send(self._control.view())
 
     def _schedule_heartbeat(self, stream_id):
         if stream_id not in self._next_heartbeat:
@@ -639,13 +622,17 @@ class Session:
             if bounds is None:
                 del self._next_heartbeat[stream_id]
             elif ticks_diff(now, due) >= 0:
-                self._send_control(Heartbeat(bounds[0], bounds[1], stream_id))
+                w = self._begin_control(_HEARTBEAT)
+                w.u16(bounds[0])
+                w.u16(bounds[1])
+                w.u8(stream_id)
+                self._send_control()
                 self._next_heartbeat[stream_id] = ticks_add(now, self.heartbeat_ms)
 
     # ------------------------------------------------------------------ running
 
     def _wait(self, timeout_ms, done):
-        """Process input until ``done()`` or ``timeout_ms``; True if done."""
+        # Process input until ``done()`` or ``timeout_ms``; True if done.
         start = ticks_ms()
         while True:
             if done():
@@ -667,7 +654,7 @@ class Session:
             self._periodic(ticks_ms())
 
     def spin_once(self, timeout_ms=0):
-        """Flush, then wait up to ``timeout_ms`` for one incoming message and process it."""
+        # Flush, then wait up to ``timeout_ms`` for one incoming message and process it.
         self.flush()
         data = self.transport.recv(timeout_ms)
         if data is not None:
@@ -681,24 +668,23 @@ class Session:
             self.link.poll(now)
 
     def run_until_timeout(self, timeout_ms):
-        """Flush and process everything that arrives for ``timeout_ms``."""
+        # Flush and process everything that arrives for ``timeout_ms``.
         self.flush()
         self._wait(timeout_ms, _never)
 
     def run_until_all_status(self, timeout_ms=1000, request_ids=None):
-        """Flush, wait for a STATUS for every pending request (or those given); True if all OK.
-
-        OK_MATCHED counts as success (an entity reused as it was). Requests still unanswered at the
-        timeout stay pending, so a later call waits for them again. ``last_statuses`` holds what
-        this call saw.
-        """
+        # Flush, wait for a STATUS for every pending request (or those given); True if all OK.
+        #
+        # OK_MATCHED counts as success (an entity reused as it was). Requests still unanswered at the
+        # timeout stay pending, so a later call waits for them again. ``last_statuses`` holds what
+        # this call saw.
         self.flush()
         ids = list(self._statuses) if request_ids is None else list(request_ids)
         statuses = self._statuses
 
         def done():
             for rid in ids:
-                if statuses.get(rid, C.STATUS_NONE) == C.STATUS_NONE and rid != 0:
+                if statuses.get(rid, _STATUS_NONE) == _STATUS_NONE and rid != 0:
                     return False
             return True
 
@@ -706,16 +692,16 @@ class Session:
         ok = True
         self.last_statuses = {}
         for rid in ids:
-            status = statuses.get(rid, C.STATUS_NONE) if rid else C.STATUS_OK
-            if status != C.STATUS_NONE:
+            status = statuses.get(rid, _STATUS_NONE) if rid else _STATUS_OK
+            if status != _STATUS_NONE:
                 statuses.pop(rid, None)  # answered: collected now; unanswered ones stay pending
             self.last_statuses[rid] = status
-            if status not in (C.STATUS_OK, C.STATUS_OK_MATCHED):
+            if status != _STATUS_OK and status != _STATUS_OK_MATCHED:
                 ok = False
         return ok
 
     def run_until_confirm_delivery(self, timeout_ms=1000):
-        """Flush and wait until every reliable message sent has been acknowledged."""
+        # Flush and wait until every reliable message sent has been acknowledged.
         self.flush()
         return self._wait(timeout_ms, self._all_delivered)
 
@@ -728,9 +714,9 @@ class Session:
     # ------------------------------------------------------------------ ping and time
 
     def ping(self, timeout_ms=1000, attempts=1):
-        """GET_INFO inside the session: True only if the agent still knows this session."""
+        # GET_INFO inside the session: True only if the agent still knows this session.
         self.flush()
-        message = self._control_message(GetInfo())
+        message = bytes(self._ping_message())
         for _ in range(attempts):
             self._pong_in_session = False
             sent = ticks_us()
@@ -744,12 +730,15 @@ class Session:
         return self._pong_in_session
 
     def sync_time(self, timeout_ms=1000, attempts=1):
-        """NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated."""
+        # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
         self.flush()
         for _ in range(attempts):
             originate = epoch_ns()
             self._sync_originate = originate
-            self._send_control(Timestamp.from_ns(originate))
+            w = self._begin_control(_TIMESTAMP)
+            w.i32(originate // 1000000000)
+            w.u32(originate % 1000000000)
+            self._send_control()
             if self._wait(timeout_ms, self._sync_done):
                 return True
         self._sync_originate = None
@@ -759,7 +748,7 @@ class Session:
         return self._sync_originate is None
 
     def epoch_ns(self):
-        """Nanoseconds since the epoch on the agent's clock (after ``sync_time``)."""
+        # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
         return epoch_ns() - self.time_offset_ns
 
     def epoch_ms(self):
@@ -768,7 +757,7 @@ class Session:
     # ------------------------------------------------------------------ input path
 
     def handle_message(self, buf):
-        """Process one incoming message (bytes-like). Malformed input is counted and dropped."""
+        # Process one incoming message (bytes-like). Malformed input is counted and dropped.
         self.messages_in += 1
         n = len(buf)
         if n < 4 or buf[0] != self.session_id or (self._header_key is not None and (
@@ -778,7 +767,7 @@ class Session:
         self._last_heard = ticks_ms()
         stream_id = buf[1]
         try:
-            if stream_id == C.STREAM_NONE:
+            if stream_id == _STREAM_NONE:
                 self._process(buf, n)
             elif stream_id < 0x80:
                 stream = self._inputs.get(stream_id)
@@ -800,24 +789,18 @@ class Session:
 
     def _send_acknack(self, stream):
         first, bitmap = stream.acknack()
-        self._send_control(AckNack(first, bitmap, stream.stream_id))
+        w = self._begin_control(_ACKNACK)
+        w.u16(first)
+        w.u8(bitmap >> 8)
+        w.u8(bitmap & 0xFF)
+        w.u8(stream.stream_id)
+        self._send_control()
 
     def _process_reliable(self, message):
         start = self.header_size
-        if len(message) >= start + SUBHEADER_SIZE and message[start] == C.FRAGMENT:
-            for sub_id, flags, s, e in iter_submessages(message, start):
-                if sub_id != C.FRAGMENT:
-                    raise DecodeError("FRAGMENT mixed with other submessages")
-                if self._reassembly is None:
-                    self._reassembly = bytearray(message[:start])
-                if len(self._reassembly) + (e - s) > self.max_reassembly:
-                    self._reassembly = None
-                    raise DecodeError("fragmented message larger than max_reassembly")
-                self._reassembly.extend(message[s:e])
-                if flags & C.FLAG_LAST_FRAGMENT:
-                    whole = self._reassembly
-                    self._reassembly = None
-                    self._process(whole, len(whole))
+        if len(message) >= start + 4 and message[start] == _FRAGMENT:
+            from xrce.client.fragments import reassemble
+            reassemble(self, message)
             return
         self._process(message, len(message))
 
@@ -836,16 +819,16 @@ class Session:
         if e - s < 6:
             raise DecodeError("short STATUS")
         rid = (buf[s] << 8) | buf[s + 1]
-        if rid == C.REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == C.OBJECTID_CLIENT:
+        if rid == _REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == _OBJECTID_CLIENT:
             self._delete_status = buf[s + 4]
             return
         if rid in self._statuses:  # only requests someone waits for (not re-creations)
             self._statuses[rid] = buf[s + 4]
 
     def _on_info(self, buf, flags, s, e):
-        info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
-        if info.availability is not None and info.availability > 0:
-            if info.impl_status == 1:
+        impl_status, availability = _agent_activity(buf, flags, s, e)
+        if availability is not None and availability > 0:
+            if impl_status == 1:
                 self._pong_in_session = True
             elif self.connected:
                 self._session_unknown = True  # an agent answers but no longer knows this session
@@ -856,31 +839,18 @@ class Session:
         rid = (buf[s] << 8) | buf[s + 1]
         oid = (buf[s + 2] << 8) | buf[s + 3]
         if rid in self._statuses:
-            self._statuses[rid] = C.STATUS_OK  # a DATA answers its READ_DATA (§5)
+            self._statuses[rid] = _STATUS_OK  # a DATA answers its READ_DATA (§5)
         reader = self._readers.get(oid)
         data = memoryview(buf)[s + 4:e]
         if self.on_topic is not None:
             self.on_topic(self, oid, rid, buf[1], data)
         if reader is None:
             return
-        kind = reader.kind
-        if kind == C.OBJK_REQUESTER:
-            if len(data) < 4:
-                raise DecodeError("reply without its request id")
-            reader.callback((data[0] << 8) | data[1], self._decode_sample(reader, data[4:]))
-        elif kind == C.OBJK_REPLIER:
-            if len(data) < SAMPLE_IDENTITY_SIZE:
-                raise DecodeError("request without its sample identity")
-            reader.callback(bytes(data[:SAMPLE_IDENTITY_SIZE]),
-                            self._decode_sample(reader, data[SAMPLE_IDENTITY_SIZE:]))
+        if reader.kind >= _OBJK_REQUESTER:
+            from xrce.client.services import deliver
+            deliver(reader, data)
         else:
-            reader.callback(self._decode_sample(reader, data))
-
-    @staticmethod
-    def _decode_sample(reader, data):
-        if reader.msg_class is None:
-            return bytes(data)
-        return reader.msg_class.decode(CdrReader(data))
+            reader.callback(_decode_sample(reader, data))
 
     def _on_acknack(self, buf, flags, s, e):
         if e - s < 5:
@@ -909,13 +879,16 @@ class Session:
             self._process_reliable(message)
 
     def _on_timestamp_reply(self, buf, flags, s, e):
-        reply = TimestampReply.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
+        # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
+        if e - s < 24:
+            raise DecodeError("short TIMESTAMP_REPLY")
+        t = struct.unpack_from("<iIiIiI" if flags & 1 else ">iIiIiI", buf, s)
         t0 = self._sync_originate
-        if t0 is None or reply.originate_ns != t0:
+        if t0 is None or t[4] * 1000000000 + t[5] != t0:
             self.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
             return
         t3 = epoch_ns()
-        self.time_offset_ns = _trunc_half((t0 + t3) - (reply.receive_ns + reply.transmit_ns))
+        self.time_offset_ns = _trunc_half((t0 + t3) - (t[2] * 1000000000 + t[3] + t[0] * 1000000000 + t[1]))
         self.time_synced = True
         self._sync_originate = None
 
@@ -925,25 +898,51 @@ def _never():
 
 
 _HANDLERS = {
-    C.STATUS_AGENT: Session._on_status_agent,
-    C.STATUS: Session._on_status,
-    C.INFO: Session._on_info,
-    C.DATA: Session._on_data,
-    C.ACKNACK: Session._on_acknack,
-    C.HEARTBEAT: Session._on_heartbeat,
-    C.TIMESTAMP_REPLY: Session._on_timestamp_reply,
+    _STATUS_AGENT: Session._on_status_agent,
+    _STATUS: Session._on_status,
+    _INFO: Session._on_info,
+    _DATA: Session._on_data,
+    _ACKNACK: Session._on_acknack,
+    _HEARTBEAT: Session._on_heartbeat,
+    _TIMESTAMP_REPLY: Session._on_timestamp_reply,
 }
 
 
-def ping_agent(transport, timeout_ms=1000, attempts=1):
-    """Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
+def _decode_sample(reader, data):
+    if reader.msg_class is None:
+        return bytes(data)
+    return reader.msg_class.decode(CdrReader(data))
 
-    Any INFO reporting an available agent counts as the answer, as with the C client.
-    """
-    mw = MessageWriter(32)
-    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
-    write_submessage(mw, GetInfo())
-    message = mw.getvalue()
+
+def _write_submessage(mw, payload):
+    payload.encode(mw.begin_submessage(payload.ID, payload.flags))
+    mw.end_submessage()
+
+
+def _agent_activity(buf, flags, s, e):
+    # ``(implementation status, availability or None)`` of an INFO payload in ``buf[s:e]``.
+    r = CdrReader(buf, s + 4, e, 0, bool(flags & 1))
+    r.u8()  # status
+    impl_status = r.u8()
+    if r.boolean():  # the agent's configuration: kind, cookie, version, vendor, properties
+        r.u8()
+        r.raw(8)
+        if r.boolean():  # properties: the general decoder knows how to skip them
+            from xrce.submessages import Info
+            info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
+            return info.impl_status, info.availability
+    if not r.boolean():
+        return impl_status, None
+    if r.u8() != _OBJK_AGENT:
+        raise DecodeError("INFO activity is not an agent's")
+    return impl_status, r.i16()
+
+
+def ping_agent(transport, timeout_ms=1000, attempts=1):
+    # Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
+    #
+    # Any INFO reporting an available agent counts as the answer, as with the C client.
+    message = b"\x80\x00\x00\x00\x02\x01\x08\x00\x00\x0a\xff\xfd\x02\x00\x00\x00"
     for _ in range(attempts):
         sent = ticks_us()
         transport.send(message)
@@ -960,52 +959,21 @@ def ping_agent(transport, timeout_ms=1000, attempts=1):
 
 def _is_pong(data):
     try:
-        header = decode_header(data)
-        for sub_id, flags, s, e in iter_submessages(data, header.size):
-            if sub_id == C.INFO:
-                info = Info.decode(CdrReader(data, s, e, 0, bool(flags & 1)), flags)
-                return info.availability is not None and info.availability > 0
+        if len(data) < 4:
+            return False
+        for sub_id, flags, s, e in iter_submessages(data, header_size(data[0])):
+            if sub_id == _INFO:
+                availability = _agent_activity(data, flags, s, e)[1]
+                return availability is not None and availability > 0
     except DecodeError:
         pass
     return False
 
 
-def discover_agents(transport, attempts=1, period_ms=1000):
-    """GET_INFO discovery (request 0x0009): ``[(address_bytes, port), ...]`` of the agents that answer.
-
-    ``transport`` must reach the agents' discovery port (default 7400), unicast or, with a socket that
-    accepts replies from any source, the multicast group 239.255.0.2.
-    """
-    mw = MessageWriter(32)
-    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
-    write_submessage(mw, GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT,
-                                 C.INFO_CONFIGURATION | C.INFO_ACTIVITY))
-    message = mw.getvalue()
-    found = []
-    for _ in range(attempts):
-        transport.send(message)
-        deadline = ticks_add(ticks_ms(), period_ms)
-        while True:
-            remaining = ticks_diff(deadline, ticks_ms())
-            if remaining <= 0:
-                break
-            data = transport.recv(remaining)
-            if data is None:
-                continue
-            for locator in _info_locators(data):
-                if locator not in found:
-                    found.append(locator)
-    return found
-
-
-def _info_locators(data):
-    try:
-        header = decode_header(data)
-        for sub_id, flags, s, e in iter_submessages(data, header.size):
-            if sub_id == C.INFO:
-                info = Info.decode(CdrReader(data, s, e, 0, bool(flags & 1)), flags)
-                if info.config is not None and info.config[1] == C.XRCE_VERSION:
-                    return [(loc.address, loc.port) for loc in info.locators if loc.fmt != C.LOCATOR_STRING]
-    except DecodeError:
-        pass
-    return []
+def __getattr__(name):
+    # discover_agents lives in its own module; this keeps `from xrce.client.session import
+    # discover_agents` working without every board paying for it.
+    if name == "discover_agents":
+        from xrce.client.discovery import discover_agents
+        return discover_agents
+    raise AttributeError(name)

@@ -1,1 +1,2 @@
-"""Example firmware built on the XRCE client (MicroPython-safe, like the client itself)."""
+# Example firmware built on the XRCE client (MicroPython-safe, like the client itself).
+pass

@@ -1,23 +1,22 @@
-"""A simulated TurtleBot3 (burger) firmware on the XRCE client, written the way MCU firmware is.
-
-One loop, no threads: wait for input a few milliseconds at a time, integrate the wheels, publish
-whatever is due. It runs unchanged under MicroPython (give it any transport object) and under
-CPython::
-
-    python -m xrce.examples.turtlebot3 udp4 --agent 127.0.0.1 -p 8888
-    python -m xrce.examples.turtlebot3 serial --dev /dev/pts/5 [-b 115200]
-
-Node ``turtlebot3_node``. Publishes ``/sensor_state`` (turtlebot3_msgs/SensorState),
-``/imu``, ``/battery_state``, ``/odom`` and ``/tf`` (odom → base_footprint), every header stamped
-with the agent's clock (``Session.epoch_ns`` after ``sync_time``, repeated periodically).
-Subscribes ``/cmd_vel``: commands drive a differential-drive model whose wheel speeds give the
-encoder counts and the odometry; without a command for ``failsafe_ms`` the wheels stop.
-
-Topic QoS follows what ROS 2 subscribers of each topic expect, because a best-effort writer never
-matches a reliable reader: sensor streams (sensor_state, imu, battery_state) are best-effort,
-``/odom`` and ``/tf`` reliable. ``/odom`` is larger than one 512-byte message and is fragmented,
-which only the reliable stream can do.
-"""
+# A simulated TurtleBot3 (burger) firmware on the XRCE client, written the way MCU firmware is.
+#
+# One loop, no threads: wait for input a few milliseconds at a time, integrate the wheels, publish
+# whatever is due. It runs unchanged under MicroPython (give it any transport object) and under
+# CPython::
+#
+#     python -m xrce.examples.turtlebot3 udp4 --agent 127.0.0.1 -p 8888
+#     python -m xrce.examples.turtlebot3 serial --dev /dev/pts/5 [-b 115200]
+#
+# Node ``turtlebot3_node``. Publishes ``/sensor_state`` (turtlebot3_msgs/SensorState),
+# ``/imu``, ``/battery_state``, ``/odom`` and ``/tf`` (odom → base_footprint), every header stamped
+# with the agent's clock (``Session.epoch_ns`` after ``sync_time``, repeated periodically).
+# Subscribes ``/cmd_vel``: commands drive a differential-drive model whose wheel speeds give the
+# encoder counts and the odometry; without a command for ``failsafe_ms`` the wheels stop.
+#
+# Topic QoS follows what ROS 2 subscribers of each topic expect, because a best-effort writer never
+# matches a reliable reader: sensor streams (sensor_state, imu, battery_state) are best-effort,
+# ``/odom`` and ``/tf`` reliable. ``/odom`` is larger than one 512-byte message and is fragmented,
+# which only the reliable stream can do.
 
 import math
 
@@ -83,7 +82,7 @@ def _set_yaw(quaternion, yaw):
 
 
 class _Periodic:
-    """A drift-free period: the next deadline advances by whole periods, not from 'now'."""
+    # A drift-free period: the next deadline advances by whole periods, not from 'now'.
 
     __slots__ = ("period_ms", "due")
 
@@ -92,7 +91,7 @@ class _Periodic:
         self.due = now
 
     def take(self, now):
-        """True once per elapsed period; a late loop catches up by skipping, never by bursting."""
+        # True once per elapsed period; a late loop catches up by skipping, never by bursting.
         if ticks_diff(now, self.due) < 0:
             return False
         self.due = ticks_add(self.due, self.period_ms)
@@ -105,13 +104,12 @@ class _Periodic:
 
 
 class TurtleBot3:
-    """The robot: ``connect()``, ``setup()``, then ``step()`` in a loop (or ``run()``).
-
-    Counters for observers and tests: ``commands_received``, ``last_command`` ((linear.x,
-    angular.z) as received), ``failsafe_trips``, ``published`` (topic → samples written),
-    ``failed_topics`` (topics the agent refused), ``time_syncs``; the state: ``x``, ``y``, ``yaw``,
-    ``linear``, ``angular`` (the velocities being driven), ``left_ticks``, ``right_ticks``.
-    """
+    # The robot: ``connect()``, ``setup()``, then ``step()`` in a loop (or ``run()``).
+    #
+    # Counters for observers and tests: ``commands_received``, ``last_command`` ((linear.x,
+    # angular.z) as received), ``failsafe_trips``, ``published`` (topic → samples written),
+    # ``failed_topics`` (topics the agent refused), ``time_syncs``; the state: ``x``, ``y``, ``yaw``,
+    # ``linear``, ``angular`` (the velocities being driven), ``left_ticks``, ``right_ticks``.
 
     def __init__(self, transport, domain_id=0, node_name=NODE_NAME, cmd_vel_reliable=True,
                  periods_ms=None, failsafe_ms=FAILSAFE_MS, time_sync_period_ms=TIME_SYNC_PERIOD_MS,
@@ -181,8 +179,8 @@ class TurtleBot3:
     # ------------------------------------------------------------------ start-up
 
     def connect(self, timeout_ms=1000, attempts=0):
-        """Ping the agent until it answers (``attempts`` 0: forever, as the OpenCR firmware).
-        Returns the round-trip time in µs, or None when the attempts ran out."""
+        # Ping the agent until it answers (``attempts`` 0: forever, as the OpenCR firmware).
+        # Returns the round-trip time in µs, or None when the attempts ran out.
         tried = 0
         while attempts <= 0 or tried < attempts:
             rtt = ping_agent(self.transport, timeout_ms, 1)
@@ -194,9 +192,9 @@ class TurtleBot3:
         return None
 
     def setup(self, timeout_ms=5000):
-        """Session, clock, node, publishers and the /cmd_vel subscription. Topics the agent refuses
-        (e.g. a message package it cannot load) are logged and left out; the robot runs without
-        them. Returns False if the session or node could not be created."""
+        # Session, clock, node, publishers and the /cmd_vel subscription. Topics the agent refuses
+        # (e.g. a message package it cannot load) are logged and left out; the robot runs without
+        # them. Returns False if the session or node could not be created.
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
@@ -257,7 +255,7 @@ class TurtleBot3:
         self._last_command_ms = ticks_ms()
 
     def _move(self, now):
-        """Integrate the differential drive from the last update to ``now``."""
+        # Integrate the differential drive from the last update to ``now``.
         last = self._last_motion_ms
         self._last_motion_ms = now
         if last is None:
@@ -349,7 +347,7 @@ class TurtleBot3:
     # ------------------------------------------------------------------ the loop
 
     def step(self):
-        """One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications."""
+        # One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications.
         session = self.session
         now = ticks_ms()
         wait = MAX_WAIT_MS
@@ -371,7 +369,7 @@ class TurtleBot3:
             self.sync_clock()
 
     def run(self, duration_ms=None, should_stop=None):
-        """Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true."""
+        # Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true.
         start = ticks_ms()
         while True:
             if duration_ms is not None and ticks_diff(ticks_ms(), start) >= duration_ms:
@@ -381,7 +379,7 @@ class TurtleBot3:
             self.step()
 
     def shutdown(self):
-        """Delete the session on the agent (its ROS entities go with it) and close the transport."""
+        # Delete the session on the agent (its ROS entities go with it) and close the transport.
         try:
             self.session.delete(attempts=2, timeout_ms=300)
         finally:

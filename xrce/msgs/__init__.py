@@ -19,6 +19,7 @@ from xrce.compat import IS_MICROPYTHON
 from xrce.errors import DecodeError, EncodeError
 
 _unpack_from = struct.unpack_from
+_pack_floats = struct.pack_into  # float-only runs: nothing struct could truncate
 
 if IS_MICROPYTHON:
     _INT_CODES = "bBhHiIqQ"
@@ -105,8 +106,8 @@ def _get_string(r, bound):
     return text
 
 
-def _bad_values(msg, labels):
-    raise EncodeError("%s: cannot encode %s (wrong type or out of range)" % (msg.ROS_TYPE, labels))
+def _bad_values(msg):
+    raise EncodeError("%s: a field has the wrong type or is out of range: %r" % (msg.ROS_TYPE, msg))
 
 
 # Behaviour every generated message shares; subclasses add __slots__, __init__, encode and decode.

@@ -1,13 +1,12 @@
-"""CRC-16 functions for stream framing (XRCE-WIRE.md §11).
-
-The XRCE wire uses CRC-16/ARC (poly 0x8005 reflected, init 0, xorout 0, check 0xBB3D) over the
-unescaped payload. CRC-16/X.25 (the HDLC/PPP FCS, check 0x906E) is offered for links that want the
-HDLC flavour; both ends must agree, so "arc" is the default everywhere.
-
-On CPython crcmod is used (its C extension is several times faster than any Python loop); on
-MicroPython, or when crcmod is missing, a 256-entry table loop is used. Both are always importable
-under their own names so tests can compare them.
-"""
+# CRC-16 functions for stream framing (XRCE-WIRE.md §11).
+#
+# The XRCE wire uses CRC-16/ARC (poly 0x8005 reflected, init 0, xorout 0, check 0xBB3D) over the
+# unescaped payload. CRC-16/X.25 (the HDLC/PPP FCS, check 0x906E) is offered for links that want the
+# HDLC flavour; both ends must agree, so "arc" is the default everywhere.
+#
+# On CPython crcmod is used (its C extension is several times faster than any Python loop); on
+# MicroPython, or when crcmod is missing, a 256-entry table loop is used. Both are always importable
+# under their own names so tests can compare them.
 
 try:
     from array import array
@@ -34,7 +33,7 @@ _X25_TABLE = _make_reflected_table(0x8408)
 
 
 def crc16_arc_table(data, crc=0):
-    """CRC-16/ARC of ``data`` (bytes-like), continuing from ``crc``; pure-Python table version."""
+    # CRC-16/ARC of ``data`` (bytes-like), continuing from ``crc``; pure-Python table version.
     table = _ARC_TABLE
     for byte in data:
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
@@ -42,7 +41,7 @@ def crc16_arc_table(data, crc=0):
 
 
 def crc16_x25_table(data):
-    """CRC-16/X.25 of ``data`` (bytes-like); pure-Python table version."""
+    # CRC-16/X.25 of ``data`` (bytes-like); pure-Python table version.
     table = _X25_TABLE
     crc = 0xFFFF
     for byte in data:
@@ -74,7 +73,7 @@ CRC_FUNCTIONS = {"arc": crc16_arc, "ccitt": crc16_x25}
 
 
 def get_crc(name_or_function="arc"):
-    """The CRC function for a name in CRC_FUNCTIONS ("arc", "ccitt"), or a callable passed through."""
+    # The CRC function for a name in CRC_FUNCTIONS ("arc", "ccitt"), or a callable passed through.
     if callable(name_or_function):
         return name_or_function
     try:

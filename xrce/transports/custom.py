@@ -1,24 +1,23 @@
-"""User-supplied transport callbacks, shaped like micro-ROS' ``rmw_uros_set_custom_transport``.
-
-Callbacks (``user`` is passed through untouched):
-
-- ``open_cb(user) -> bool`` and ``close_cb(user) -> bool``
-- ``write_cb(user, data) -> int``: bytes written, possibly fewer than ``len(data)`` (the rest is
-  offered again); 0 or less means the link failed.
-- ``read_cb(user, buf, size, timeout_ms) -> int``: fill the preallocated bytearray ``buf`` with up
-  to ``size`` bytes, return the count, 0 on timeout.
-
-``framing=True`` (stream links: UART, USB CDC, pipes): bytes go through §11 framing with addresses
-``local_addr``/``remote_addr``, both 0 by default as micro-ROS custom transports use them.
-``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
-a single ``write_cb`` call.
-"""
+# User-supplied transport callbacks, shaped like micro-ROS' ``rmw_uros_set_custom_transport``.
+#
+# Callbacks (``user`` is passed through untouched):
+#
+# - ``open_cb(user) -> bool`` and ``close_cb(user) -> bool``
+# - ``write_cb(user, data) -> int``: bytes written, possibly fewer than ``len(data)`` (the rest is
+#   offered again); 0 or less means the link failed.
+# - ``read_cb(user, buf, size, timeout_ms) -> int``: fill the preallocated bytearray ``buf`` with up
+#   to ``size`` bytes, return the count, 0 on timeout.
+#
+# ``framing=True`` (stream links: UART, USB CDC, pipes): bytes go through §11 framing with addresses
+# ``local_addr``/``remote_addr``, both 0 by default as micro-ROS custom transports use them.
+# ``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
+# a single ``write_cb`` call.
 
 from xrce.compat import ticks_add, ticks_diff, ticks_ms
 from xrce.errors import EncodeError
 from xrce.transports import TransportError
-from xrce.transports.crc import get_crc
-from xrce.transports.framing import FrameDecoder, encode_frame
+
+# Framing and its CRC tables load only for framing=True: a packet link never pays for them.
 
 DEFAULT_MTU = 512
 # Bytes asked of read_cb per call with framing; the C client's ring is smaller still (42).
@@ -26,13 +25,12 @@ _FRAMED_READ_SIZE = 256
 
 
 class CustomTransport:
-    """Synchronous transport over user callbacks; the constructor calls ``open_cb``.
-
-    ``send(msg) -> bool`` (False when ``write_cb`` reports failure; counted in ``send_errors``);
-    ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
-    ``received``, ``send_errors``, ``oversize`` (packets longer than ``mtu``, framing=False),
-    ``wrong_source`` and, with framing, the decoder's counters in ``decoder``.
-    """
+    # Synchronous transport over user callbacks; the constructor calls ``open_cb``.
+    #
+    # ``send(msg) -> bool`` (False when ``write_cb`` reports failure; counted in ``send_errors``);
+    # ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
+    # ``received``, ``send_errors``, ``oversize`` (packets longer than ``mtu``, framing=False),
+    # ``wrong_source`` and, with framing, the decoder's counters in ``decoder``.
 
     __slots__ = (
         "framing",
@@ -51,6 +49,7 @@ class CustomTransport:
         "_write_cb",
         "_read_cb",
         "_crc",
+        "_encode_frame",
         "_is_open",
         "_pending",
         "_buf",
@@ -79,7 +78,6 @@ class CustomTransport:
         self.local_addr = local_addr
         self.remote_addr = remote_addr
         self.user = user
-        self._crc = get_crc(crc)
         self.sent = 0
         self.received = 0
         self.send_errors = 0
@@ -87,9 +85,15 @@ class CustomTransport:
         self.wrong_source = 0
         self._pending = []
         if framing:
+            from xrce.transports.crc import get_crc
+            from xrce.transports.framing import FrameDecoder, encode_frame
+
+            self._crc = get_crc(crc)
+            self._encode_frame = encode_frame
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
             self._buf = bytearray(_FRAMED_READ_SIZE)
         else:
+            self._crc = self._encode_frame = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -124,7 +128,7 @@ class CustomTransport:
                 return False
             self.sent += 1
             return True
-        frame = memoryview(encode_frame(msg, self.local_addr, self.remote_addr, self._crc))
+        frame = memoryview(self._encode_frame(msg, self.local_addr, self.remote_addr, self._crc))
         position = 0
         while position < len(frame):
             written = self._write_cb(self.user, frame[position:])

@@ -1,16 +1,15 @@
-"""Byte-stream framing for XRCE messages: HDLC-like serial frames and the TCP length prefix.
-
-Pure: bytes in, messages out, no I/O, so the asyncio agent and the MicroPython client share it.
-
-Serial frame (XRCE-WIRE.md §11)::
-
-    7E | src | dst | len_lo | len_hi | payload (len bytes) | crc_lo | crc_hi
-
-Only the leading 0x7E is a flag; there is no end flag. Every byte after it equal to 0x7E or 0x7D
-is sent as 0x7D, byte ^ 0x20. The CRC (CRC-16/ARC by default) covers the unescaped payload only.
-
-TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
-"""
+# Byte-stream framing for XRCE messages: HDLC-like serial frames and the TCP length prefix.
+#
+# Pure: bytes in, messages out, no I/O, so the asyncio agent and the MicroPython client share it.
+#
+# Serial frame (XRCE-WIRE.md §11)::
+#
+#     7E | src | dst | len_lo | len_hi | payload (len bytes) | crc_lo | crc_hi
+#
+# Only the leading 0x7E is a flag; there is no end flag. Every byte after it equal to 0x7E or 0x7D
+# is sent as 0x7D, byte ^ 0x20. The CRC (CRC-16/ARC by default) covers the unescaped payload only.
+#
+# TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
 
 from xrce.compat import const
 from xrce.errors import EncodeError
@@ -39,7 +38,7 @@ _CRC_HI = const(7)
 
 
 def encode_frame(payload, src, dst, crc=crc16_arc):
-    """One serial frame carrying ``payload`` (one complete XRCE message) from ``src`` to ``dst``."""
+    # One serial frame carrying ``payload`` (one complete XRCE message) from ``src`` to ``dst``.
     length = len(payload)
     if length > MAX_FRAME_PAYLOAD:
         raise EncodeError("frame payload of %d bytes exceeds 65535" % length)
@@ -62,20 +61,19 @@ def encode_frame(payload, src, dst, crc=crc16_arc):
 
 
 class FrameDecoder:
-    """Streaming decoder of serial frames, fed arbitrary chunks of the byte stream.
-
-    ``feed(data)`` returns a list (possibly empty) of ``(src, dst, payload)`` tuples, one per complete
-    frame, payload as ``bytes``, in stream order. Chunk boundaries may fall anywhere.
-
-    It hunts for 0x7E; a 0x7E inside a frame abandons that frame and starts a new one (``resyncs``).
-    Frames with a bad CRC (``crc_errors``), a length above ``max_payload`` (``oversize``; the decoder
-    then hunts for the next flag) or, when ``local_addr`` is not None, a dst other than
-    ``local_addr`` (``wrong_address``, counted only for frames whose CRC is good) are dropped.
-    ``dropped_bytes`` counts raw bytes discarded while hunting plus the raw bytes (flag included) of
-    every dropped or abandoned frame. ``frames`` counts frames returned.
-
-    Memory is one preallocated ``max_payload`` buffer plus the returned payloads, whatever is fed.
-    """
+    # Streaming decoder of serial frames, fed arbitrary chunks of the byte stream.
+    #
+    # ``feed(data)`` returns a list (possibly empty) of ``(src, dst, payload)`` tuples, one per complete
+    # frame, payload as ``bytes``, in stream order. Chunk boundaries may fall anywhere.
+    #
+    # It hunts for 0x7E; a 0x7E inside a frame abandons that frame and starts a new one (``resyncs``).
+    # Frames with a bad CRC (``crc_errors``), a length above ``max_payload`` (``oversize``; the decoder
+    # then hunts for the next flag) or, when ``local_addr`` is not None, a dst other than
+    # ``local_addr`` (``wrong_address``, counted only for frames whose CRC is good) are dropped.
+    # ``dropped_bytes`` counts raw bytes discarded while hunting plus the raw bytes (flag included) of
+    # every dropped or abandoned frame. ``frames`` counts frames returned.
+    #
+    # Memory is one preallocated ``max_payload`` buffer plus the returned payloads, whatever is fed.
 
     __slots__ = (
         "local_addr",
@@ -122,11 +120,11 @@ class FrameDecoder:
 
     @property
     def pending_bytes(self):
-        """Raw bytes of the frame in progress (neither returned nor counted as dropped yet)."""
+        # Raw bytes of the frame in progress (neither returned nor counted as dropped yet).
         return self._raw
 
     def reset(self):
-        """Forget any frame in progress (its bytes count as dropped) and hunt for the next flag."""
+        # Forget any frame in progress (its bytes count as dropped) and hunt for the next flag.
         self.dropped_bytes += self._raw
         self._raw = 0
         self._state = _HUNT
@@ -250,7 +248,7 @@ class FrameDecoder:
 
 
 def encode_length_prefixed(msg):
-    """``msg`` preceded by its 2-byte little-endian length (the TCP mapping)."""
+    # ``msg`` preceded by its 2-byte little-endian length (the TCP mapping).
     length = len(msg)
     if not 0 < length <= 0xFFFF:
         raise EncodeError("length-prefixed message must be 1..65535 bytes, not %d" % length)
@@ -258,17 +256,16 @@ def encode_length_prefixed(msg):
 
 
 class LengthPrefixDecoder:
-    """Streaming decoder of 2-byte-LE-length-prefixed messages (TCP), fed arbitrary chunks.
-
-    ``feed(data)`` returns a list (possibly empty) of complete messages as ``bytes``, in order.
-
-    A length of zero (``zero_length``) or above ``max_len`` (``oversize``) means the peer is not
-    speaking this framing or the stream lost sync. A byte stream has no flag to hunt for, so there
-    is no way to find the next message boundary: the decoder sets ``broken = True``, counts every
-    later byte in ``dropped_bytes`` and returns nothing more; the owner should close the connection.
-
-    Memory is one preallocated ``max_len`` buffer plus the returned messages.
-    """
+    # Streaming decoder of 2-byte-LE-length-prefixed messages (TCP), fed arbitrary chunks.
+    #
+    # ``feed(data)`` returns a list (possibly empty) of complete messages as ``bytes``, in order.
+    #
+    # A length of zero (``zero_length``) or above ``max_len`` (``oversize``) means the peer is not
+    # speaking this framing or the stream lost sync. A byte stream has no flag to hunt for, so there
+    # is no way to find the next message boundary: the decoder sets ``broken = True``, counts every
+    # later byte in ``dropped_bytes`` and returns nothing more; the owner should close the connection.
+    #
+    # Memory is one preallocated ``max_len`` buffer plus the returned messages.
 
     __slots__ = (
         "max_len",

@@ -1,9 +1,8 @@
-"""Serial client transport: XRCE messages in HDLC-like frames (XRCE-WIRE.md §11).
-
-CPython uses pyserial; MicroPython uses ``machine.UART`` (``device`` is then the UART id, or an
-already configured UART object). The client's address defaults to 1 and the agent's to 0, as
-``uxr_init_serial_transport`` is used by the examples and by rmw's serial transport.
-"""
+# Serial client transport: XRCE messages in HDLC-like frames (XRCE-WIRE.md §11).
+#
+# CPython uses pyserial; MicroPython uses ``machine.UART`` (``device`` is then the UART id, or an
+# already configured UART object). The client's address defaults to 1 and the agent's to 0, as
+# ``uxr_init_serial_transport`` is used by the examples and by rmw's serial transport.
 
 from xrce.compat import IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.errors import EncodeError
@@ -29,14 +28,13 @@ _CHUNK = 256
 
 
 class SerialTransport:
-    """Synchronous framed serial link to the agent; the constructor opens the port.
-
-    Frames sent carry src=``local_addr``, dst=``remote_addr``. Received frames whose dst is not
-    ``local_addr`` (``decoder.wrong_address``) or whose src is not ``remote_addr``
-    (``wrong_source``) are dropped, as the C client does. ``send(msg) -> bool``;
-    ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
-    ``received``, ``send_errors``, ``wrong_source`` and the framing counters in ``decoder``.
-    """
+    # Synchronous framed serial link to the agent; the constructor opens the port.
+    #
+    # Frames sent carry src=``local_addr``, dst=``remote_addr``. Received frames whose dst is not
+    # ``local_addr`` (``decoder.wrong_address``) or whose src is not ``remote_addr``
+    # (``wrong_source``) are dropped, as the C client does. ``send(msg) -> bool``;
+    # ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
+    # ``received``, ``send_errors``, ``wrong_source`` and the framing counters in ``decoder``.
 
     __slots__ = (
         "device",
@@ -150,7 +148,7 @@ class SerialTransport:
         return position
 
     def _read_available(self, wait_ms):
-        """Up to _CHUNK bytes read within wait_ms (possibly none), as a memoryview."""
+        # Up to _CHUNK bytes read within wait_ms (possibly none), as a memoryview.
         if self._uart is not None:
             uart = self._uart
             available = uart.any()

@@ -1,8 +1,7 @@
-"""TCP client transport: each message preceded by its 2-byte LE length, both ways (XRCE-WIRE.md §12).
-
-No reconnection: after a broken stream or the agent closing, the session is gone anyway (the agent
-ties it to the connection), so errors surface as TransportError and the owner starts over.
-"""
+# TCP client transport: each message preceded by its 2-byte LE length, both ways (XRCE-WIRE.md §12).
+#
+# No reconnection: after a broken stream or the agent closing, the session is gone anyway (the agent
+# ties it to the connection), so errors surface as TransportError and the owner starts over.
 
 try:
     import socket
@@ -18,13 +17,12 @@ DEFAULT_MTU = 512
 
 
 class TcpTransport:
-    """Synchronous TCP link to one agent; the constructor connects.
-
-    ``send(msg) -> bool``; ``recv(timeout_ms)`` -> bytes of one message, or None after the timeout;
-    raises TransportError when the agent closed the connection or the stream lost sync. One segment
-    may carry several messages: the extra ones are queued and returned by the next recv calls.
-    Counters: ``sent``, ``received``, ``send_errors``, and the decoder's in ``decoder``.
-    """
+    # Synchronous TCP link to one agent; the constructor connects.
+    #
+    # ``send(msg) -> bool``; ``recv(timeout_ms)`` -> bytes of one message, or None after the timeout;
+    # raises TransportError when the agent closed the connection or the stream lost sync. One segment
+    # may carry several messages: the extra ones are queued and returned by the next recv calls.
+    # Counters: ``sent``, ``received``, ``send_errors``, and the decoder's in ``decoder``.
 
     __slots__ = (
         "host",

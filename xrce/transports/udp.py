@@ -1,9 +1,8 @@
-"""UDP client transport: one XRCE message per datagram, no extra header (XRCE-WIRE.md §12).
-
-The socket is connect()ed to the agent so the kernel drops datagrams from anyone else, as the C
-client does. The agent keys sessions >= 0x80 on the source port, so a new UdpTransport needs a new
-CREATE_CLIENT.
-"""
+# UDP client transport: one XRCE message per datagram, no extra header (XRCE-WIRE.md §12).
+#
+# The socket is connect()ed to the agent so the kernel drops datagrams from anyone else, as the C
+# client does. The agent keys sessions >= 0x80 on the source port, so a new UdpTransport needs a new
+# CREATE_CLIENT.
 
 try:
     import socket
@@ -26,14 +25,13 @@ except NameError:  # MicroPython reports it as a plain OSError(ECONNREFUSED)
 
 
 class UdpTransport:
-    """Synchronous UDP link to one agent; the constructor opens it.
-
-    ``family`` is ``socket.AF_INET``, ``socket.AF_INET6`` or 0 (whatever ``host`` resolves to first).
-    ``send(msg) -> bool``; ``recv(timeout_ms)`` -> bytes of one message, or None after the timeout.
-    Counters: ``sent``, ``received``, ``send_errors``, ``oversize`` (datagrams longer than ``mtu``,
-    dropped), ``refused`` (ICMP port unreachable while no agent listens; recv keeps waiting),
-    ``recv_errors`` (other socket errors; recv returns None).
-    """
+    # Synchronous UDP link to one agent; the constructor opens it.
+    #
+    # ``family`` is ``socket.AF_INET``, ``socket.AF_INET6`` or 0 (whatever ``host`` resolves to first).
+    # ``send(msg) -> bool``; ``recv(timeout_ms)`` -> bytes of one message, or None after the timeout.
+    # Counters: ``sent``, ``received``, ``send_errors``, ``oversize`` (datagrams longer than ``mtu``,
+    # dropped), ``refused`` (ICMP port unreachable while no agent listens; recv keeps waiting),
+    # ``recv_errors`` (other socket errors; recv returns None).
 
     __slots__ = (
         "host",

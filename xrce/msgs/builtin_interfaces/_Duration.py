@@ -15,7 +15,7 @@ class Duration(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.sec, self.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'sec, nanosec')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

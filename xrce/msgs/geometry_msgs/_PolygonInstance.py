@@ -21,7 +21,7 @@ class PolygonInstance(_Message):
         try:
             _pack_into('<q', w.buf, _put(w, 8, 8), self.id)
         except _PACK_ERRORS:
-            _bad_values(self, 'id')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -24,7 +24,7 @@ class PolygonInstanceStamped(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         w.u32(_seq_len(self.polygon.polygon.points, None, 'polygon.polygon.points'))
         for item in self.polygon.polygon.points:
@@ -32,7 +32,7 @@ class PolygonInstanceStamped(_Message):
         try:
             _pack_into('<q', w.buf, _put(w, 8, 8), self.polygon.id)
         except _PACK_ERRORS:
-            _bad_values(self, 'polygon.id')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

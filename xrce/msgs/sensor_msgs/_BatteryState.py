@@ -58,12 +58,12 @@ class BatteryState(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<7f4B', w.buf, _put(w, 4, 32), self.voltage, self.temperature, self.current, self.charge, self.capacity, self.design_capacity, self.percentage, self.power_supply_status, self.power_supply_health, self.power_supply_technology, 1 if self.present else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'voltage, temperature, current, charge, capacity, design_capacity, percentage, power_supply_status, power_supply_health, power_supply_technology, present')
+            _bad_values(self)
         w.u32(_seq_len(self.cell_voltage, None, 'cell_voltage'))
         _put_array(w, self.cell_voltage, 'f', 4)
         w.u32(_seq_len(self.cell_temperature, None, 'cell_temperature'))

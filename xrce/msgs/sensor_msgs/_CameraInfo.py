@@ -31,12 +31,12 @@ class CameraInfo(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.height, self.width)
         except _PACK_ERRORS:
-            _bad_values(self, 'height, width')
+            _bad_values(self)
         _put_string(w, self.distortion_model, None)
         w.u32(_seq_len(self.d, None, 'd'))
         _put_array(w, self.d, 'd', 8)
@@ -49,7 +49,7 @@ class CameraInfo(_Message):
         try:
             _pack_into('<30d6IB', w.buf, _put(w, 8, 265), *self.k, *self.r, *self.p, self.binning_x, self.binning_y, self.roi.x_offset, self.roi.y_offset, self.roi.height, self.roi.width, 1 if self.roi.do_rectify else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'k, r, p, binning_x, binning_y, roi.x_offset, roi.y_offset, roi.height, roi.width, roi.do_rectify')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

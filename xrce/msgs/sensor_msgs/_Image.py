@@ -26,21 +26,21 @@ class Image(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.height, self.width)
         except _PACK_ERRORS:
-            _bad_values(self, 'height, width')
+            _bad_values(self)
         _put_string(w, self.encoding, None)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.is_bigendian)
         except _PACK_ERRORS:
-            _bad_values(self, 'is_bigendian')
+            _bad_values(self)
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.step)
         except _PACK_ERRORS:
-            _bad_values(self, 'step')
+            _bad_values(self)
         _put_octets(w, self.data, None, None, 'data')
 
     @classmethod

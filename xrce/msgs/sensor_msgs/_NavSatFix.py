@@ -31,22 +31,22 @@ class NavSatFix(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<b', w.buf, _put(w, 1, 1), self.status.status)
         except _PACK_ERRORS:
-            _bad_values(self, 'status.status')
+            _bad_values(self)
         try:
             _pack_into('<H', w.buf, _put(w, 2, 2), self.status.service)
         except _PACK_ERRORS:
-            _bad_values(self, 'status.service')
+            _bad_values(self)
         if len(self.position_covariance) != 9:
             _bad_len('position_covariance', 9)
         try:
             _pack_into('<12dB', w.buf, _put(w, 8, 97), self.latitude, self.longitude, self.altitude, *self.position_covariance, self.position_covariance_type)
         except _PACK_ERRORS:
-            _bad_values(self, 'latitude, longitude, altitude, position_covariance, position_covariance_type')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -25,11 +25,11 @@ class NavSatStatus(_Message):
         try:
             _pack_into('<b', w.buf, _put(w, 1, 1), self.status)
         except _PACK_ERRORS:
-            _bad_values(self, 'status')
+            _bad_values(self)
         try:
             _pack_into('<H', w.buf, _put(w, 2, 2), self.service)
         except _PACK_ERRORS:
-            _bad_values(self, 'service')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

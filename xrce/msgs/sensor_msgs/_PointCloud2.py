@@ -30,28 +30,28 @@ class PointCloud2(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.height, self.width)
         except _PACK_ERRORS:
-            _bad_values(self, 'height, width')
+            _bad_values(self)
         w.u32(_seq_len(self.fields, None, 'fields'))
         for item in self.fields:
             item.encode(w)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.is_bigendian else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'is_bigendian')
+            _bad_values(self)
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.point_step, self.row_step)
         except _PACK_ERRORS:
-            _bad_values(self, 'point_step, row_step')
+            _bad_values(self)
         _put_octets(w, self.data, None, None, 'data')
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.is_dense else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'is_dense')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

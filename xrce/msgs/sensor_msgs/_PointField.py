@@ -29,11 +29,11 @@ class PointField(_Message):
         try:
             _pack_into('<IB', w.buf, _put(w, 4, 5), self.offset, self.datatype)
         except _PACK_ERRORS:
-            _bad_values(self, 'offset, datatype')
+            _bad_values(self)
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.count)
         except _PACK_ERRORS:
-            _bad_values(self, 'count')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

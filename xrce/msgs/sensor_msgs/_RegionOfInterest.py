@@ -18,7 +18,7 @@ class RegionOfInterest(_Message):
         try:
             _pack_into('<4IB', w.buf, _put(w, 4, 17), self.x_offset, self.y_offset, self.height, self.width, 1 if self.do_rectify else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'x_offset, y_offset, height, width, do_rectify')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -22,12 +22,12 @@ class SetCameraInfo_Request(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.camera_info.header.stamp.sec, self.camera_info.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'camera_info.header.stamp.sec, camera_info.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.camera_info.header.frame_id, None)
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.camera_info.height, self.camera_info.width)
         except _PACK_ERRORS:
-            _bad_values(self, 'camera_info.height, camera_info.width')
+            _bad_values(self)
         _put_string(w, self.camera_info.distortion_model, None)
         w.u32(_seq_len(self.camera_info.d, None, 'camera_info.d'))
         _put_array(w, self.camera_info.d, 'd', 8)
@@ -40,7 +40,7 @@ class SetCameraInfo_Request(_Message):
         try:
             _pack_into('<30d6IB', w.buf, _put(w, 8, 265), *self.camera_info.k, *self.camera_info.r, *self.camera_info.p, self.camera_info.binning_x, self.camera_info.binning_y, self.camera_info.roi.x_offset, self.camera_info.roi.y_offset, self.camera_info.roi.height, self.camera_info.roi.width, 1 if self.camera_info.roi.do_rectify else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'camera_info.k, camera_info.r, camera_info.p, camera_info.binning_x, camera_info.binning_y, camera_info.roi.x_offset, camera_info.roi.y_offset, camera_info.roi.height, camera_info.roi.width, camera_info.roi.do_rectify')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -76,7 +76,7 @@ class SetCameraInfo_Response(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.success else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'success')
+            _bad_values(self)
         _put_string(w, self.status_message, None)
 
     @classmethod

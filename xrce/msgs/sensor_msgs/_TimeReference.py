@@ -21,12 +21,12 @@ class TimeReference(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.time_ref.sec, self.time_ref.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'time_ref.sec, time_ref.nanosec')
+            _bad_values(self)
         _put_string(w, self.source, None)
 
     @classmethod

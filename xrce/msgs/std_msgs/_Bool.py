@@ -14,7 +14,7 @@ class Bool(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.data else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'data')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

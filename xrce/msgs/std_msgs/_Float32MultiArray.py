@@ -21,7 +21,7 @@ class Float32MultiArray(_Message):
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.layout.data_offset)
         except _PACK_ERRORS:
-            _bad_values(self, 'layout.data_offset')
+            _bad_values(self)
         w.u32(_seq_len(self.data, None, 'data'))
         _put_array(w, self.data, 'f', 4)
 

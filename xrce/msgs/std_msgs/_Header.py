@@ -19,7 +19,7 @@ class Header(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.stamp.sec, self.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'stamp.sec, stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.frame_id, None)
 
     @classmethod

@@ -14,7 +14,7 @@ class Int8(_Message):
         try:
             _pack_into('<b', w.buf, _put(w, 1, 1), self.data)
         except _PACK_ERRORS:
-            _bad_values(self, 'data')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -20,7 +20,7 @@ class MultiArrayDimension(_Message):
         try:
             _pack_into('<2I', w.buf, _put(w, 4, 8), self.size, self.stride)
         except _PACK_ERRORS:
-            _bad_values(self, 'size, stride')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -21,7 +21,7 @@ class MultiArrayLayout(_Message):
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.data_offset)
         except _PACK_ERRORS:
-            _bad_values(self, 'data_offset')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

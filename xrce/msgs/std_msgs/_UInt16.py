@@ -14,7 +14,7 @@ class UInt16(_Message):
         try:
             _pack_into('<H', w.buf, _put(w, 2, 2), self.data)
         except _PACK_ERRORS:
-            _bad_values(self, 'data')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

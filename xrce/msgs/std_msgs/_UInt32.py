@@ -14,7 +14,7 @@ class UInt32(_Message):
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.data)
         except _PACK_ERRORS:
-            _bad_values(self, 'data')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

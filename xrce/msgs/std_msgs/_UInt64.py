@@ -14,7 +14,7 @@ class UInt64(_Message):
         try:
             _pack_into('<Q', w.buf, _put(w, 8, 8), self.data)
         except _PACK_ERRORS:
-            _bad_values(self, 'data')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -21,7 +21,7 @@ class UInt8MultiArray(_Message):
         try:
             _pack_into('<I', w.buf, _put(w, 4, 4), self.layout.data_offset)
         except _PACK_ERRORS:
-            _bad_values(self, 'layout.data_offset')
+            _bad_values(self)
         _put_octets(w, self.data, None, None, 'data')
 
     @classmethod

@@ -33,12 +33,12 @@ class LookupTransform_Request(_Message):
         try:
             _pack_into('<iIiIiI', w.buf, _put(w, 4, 24), self.source_time.sec, self.source_time.nanosec, self.timeout.sec, self.timeout.nanosec, self.target_time.sec, self.target_time.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'source_time.sec, source_time.nanosec, timeout.sec, timeout.nanosec, target_time.sec, target_time.nanosec')
+            _bad_values(self)
         _put_string(w, self.fixed_frame, None)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.advanced else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'advanced')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -64,13 +64,13 @@ class LookupTransform_Response(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.transform.header.stamp.sec, self.transform.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'transform.header.stamp.sec, transform.header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.transform.header.frame_id, None)
         _put_string(w, self.transform.child_frame_id, None)
         try:
             _pack_into('<7dB', w.buf, _put(w, 8, 57), self.transform.transform.translation.x, self.transform.transform.translation.y, self.transform.transform.translation.z, self.transform.transform.rotation.x, self.transform.transform.rotation.y, self.transform.transform.rotation.z, self.transform.transform.rotation.w, self.error.error)
         except _PACK_ERRORS:
-            _bad_values(self, 'transform.transform.translation.x, transform.transform.translation.y, transform.transform.translation.z, transform.transform.rotation.x, transform.transform.rotation.y, transform.transform.rotation.z, transform.transform.rotation.w, error.error')
+            _bad_values(self)
         _put_string(w, self.error.error_string, None)
 
     @classmethod

@@ -25,7 +25,7 @@ class TF2Error(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.error)
         except _PACK_ERRORS:
-            _bad_values(self, 'error')
+            _bad_values(self)
         _put_string(w, self.error_string, None)
 
     @classmethod

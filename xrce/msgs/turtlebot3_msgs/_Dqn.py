@@ -16,7 +16,7 @@ class Dqn_Request(_Message):
         try:
             _pack_into('<2B', w.buf, _put(w, 1, 2), self.action, 1 if self.init else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'action, init')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -41,7 +41,7 @@ class Dqn_Response(_Message):
         try:
             _pack_into('<fB', w.buf, _put(w, 4, 5), self.reward, 1 if self.done else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'reward, done')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -33,7 +33,7 @@ class Goal_Response(_Message):
         try:
             _pack_into('<2fB', w.buf, _put(w, 4, 9), self.pose_x, self.pose_y, 1 if self.success else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'pose_x, pose_y, success')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

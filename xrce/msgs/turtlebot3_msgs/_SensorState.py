@@ -40,20 +40,20 @@ class SensorState(_Message):
         try:
             _pack_into('<iI', w.buf, _put(w, 4, 8), self.header.stamp.sec, self.header.stamp.nanosec)
         except _PACK_ERRORS:
-            _bad_values(self, 'header.stamp.sec, header.stamp.nanosec')
+            _bad_values(self)
         _put_string(w, self.header.frame_id, None)
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.bumper)
         except _PACK_ERRORS:
-            _bad_values(self, 'bumper')
+            _bad_values(self)
         try:
             _pack_into('<3f3B', w.buf, _put(w, 4, 15), self.cliff, self.sonar, self.illumination, self.led, self.button, 1 if self.torque else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'cliff, sonar, illumination, led, button, torque')
+            _bad_values(self)
         try:
             _pack_into('<2if', w.buf, _put(w, 4, 12), self.left_encoder, self.right_encoder, self.battery)
         except _PACK_ERRORS:
-            _bad_values(self, 'left_encoder, right_encoder, battery')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -20,7 +20,7 @@ class Sound(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.value)
         except _PACK_ERRORS:
-            _bad_values(self, 'value')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):

@@ -17,7 +17,7 @@ class Sound_Request(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), self.value)
         except _PACK_ERRORS:
-            _bad_values(self, 'value')
+            _bad_values(self)
 
     @classmethod
     def decode(cls, r):
@@ -38,7 +38,7 @@ class Sound_Response(_Message):
         try:
             _pack_into('<B', w.buf, _put(w, 1, 1), 1 if self.success else 0)
         except _PACK_ERRORS:
-            _bad_values(self, 'success')
+            _bad_values(self)
         _put_string(w, self.message, None)
 
     @classmethod

@@ -1,0 +1,80 @@
+"""Run under MicroPython by tests/test_turtlebot3_heap.py with run.mjs --stepped, i.e. with a real
+heap cap: the unmodified xrce/examples/turtlebot3.py over a custom transport bridged to Node's UDP
+socket, against a real xrce-agent.
+
+argv: agent_port run_seconds settle_seconds client_key_hex
+The harness collects garbage between the steps of main() (one robot.step() per step) and fails the
+run with a MemoryError as soon as a step needed more heap than the cap. Prints "key value" lines:
+heap figures are live bytes (after collection) above the interpreter's own baseline.
+"""
+
+import sys
+
+import mpheap
+from xrce.compat import ticks_diff, ticks_ms
+
+# The example's modules, one per step: the harness can collect only between steps, while a board's
+# collector also runs in the middle of an import.
+MODULES = ("nodeudp_transport", "xrce.compat", "xrce.errors", "xrce.cdr", "xrce.message",
+           "xrce.seqnum", "xrce.streams", "xrce.client.wire", "xrce.client.session",
+           "xrce.client.recovery", "xrce.transports.custom", "xrce.msgs")
+TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),
+         ("xrce.msgs.turtlebot3_msgs", "SensorState"), ("xrce.msgs.sensor_msgs", "Imu"),
+         ("xrce.msgs.sensor_msgs", "BatteryState"), ("xrce.msgs.nav_msgs", "Odometry"),
+         ("xrce.msgs.tf2_msgs", "TFMessage"))
+
+
+def main():
+    port = int(sys.argv[1])
+    run_ms = int(float(sys.argv[2]) * 1000)
+    settle_ms = int(float(sys.argv[3]) * 1000)
+    key = bytes(int(sys.argv[4][i:i + 2], 16) for i in (0, 2, 4, 6))
+    yield
+    baseline = mpheap.live
+    for name in MODULES:
+        __import__(name)
+        yield
+    for package, type_name in TYPES:
+        getattr(__import__(package, None, None, (type_name,)), type_name)
+        yield
+    from nodeudp_transport import make_callbacks
+    from xrce.examples.turtlebot3 import TurtleBot3
+    from xrce.transports.custom import CustomTransport
+    yield
+    print("imported", mpheap.live - baseline)
+    transport = CustomTransport(*make_callbacks("127.0.0.1", port), framing=False)
+    # Time sync every second instead of 10 s, so the periodic path runs often during the run.
+    robot = TurtleBot3(transport, cmd_vel_reliable=True, key=key, time_sync_period_ms=1000)
+    print("connect", robot.connect(timeout_ms=500, attempts=20) is not None)
+    yield
+    print("setup", robot.setup())
+    yield
+    print("after_setup", mpheap.live - baseline)
+    start = ticks_ms()
+    settled = None
+    low = high = 0
+    while ticks_diff(ticks_ms(), start) < run_ms:
+        robot.step()
+        yield
+        live = mpheap.live
+        if settled is None:
+            if ticks_diff(ticks_ms(), start) >= settle_ms:
+                settled = low = high = live
+        elif live < low:
+            low = live
+        elif live > high:
+            high = live
+    print("settled", settled - baseline)
+    print("settled_low", low - baseline)
+    print("settled_high", high - baseline)
+    print("steps", mpheap.steps)
+    print("commands_received", robot.commands_received)
+    print("last_command", "%r,%r" % robot.last_command if robot.last_command else "-")
+    print("time_syncs", robot.time_syncs)
+    for topic in ("sensor_state", "imu", "odom", "tf", "battery_state"):
+        print("published_" + topic, robot.published.get(topic, 0))
+    print("dropped_writes", robot.session.dropped_writes)
+    print("failed_topics", ",".join(robot.failed_topics) or "-")
+    print("x", robot.x)
+    robot.shutdown()
+    print("done", True)

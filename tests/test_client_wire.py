@@ -1,0 +1,144 @@
+"""The client's lean encoders (xrce/client/wire.py, the session's control submessages) write the
+same bytes as the general codec the agent decodes with (xrce/submessages.py, xrce/objects.py)."""
+
+import pytest
+
+from xrce import constants as C
+from xrce.client import wire
+from xrce.client.session import Session
+from xrce.message import MessageWriter
+from xrce.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.submessages import (
+    AckNack, Create, DeliveryControl, Delete, GetInfo, ReadData, Timestamp, decode_message,
+    write_submessage,
+)
+
+
+def _message(payload, session_id=0x81):
+    mw = MessageWriter(64)
+    mw.begin(session_id, 0x80, 3)
+    write_submessage(mw, payload)
+    return mw.getvalue()
+
+
+@pytest.mark.parametrize("name", [None, "", "talker", "a_node_with_a_longer_name"])
+def test_participant_blob(name):
+    assert wire.participant_blob(name) == ParticipantBin(name).to_blob()
+
+
+@pytest.mark.parametrize("type_name", [None, "std_msgs::msg::dds_::String_"])
+def test_topic_blob(type_name):
+    assert wire.topic_blob("rt/chatter", type_name) == TopicBin("rt/chatter", type_name).to_blob()
+
+
+def test_pubsub_blob():
+    assert wire.PUBSUB_BLOB == PubSubBin().to_blob()
+
+
+@pytest.mark.parametrize("flags", [0, C.QOS_RELIABLE | C.QOS_KEEP_LAST, C.QOS_KEEP_LAST | C.QOS_TRANSIENT_LOCAL])
+@pytest.mark.parametrize("depth", [None, 1, 10, 0xFFFF])
+def test_endpoint_blobs(flags, depth):
+    qos = EndpointQos(flags, depth)
+    assert wire.endpoint_blob(0x12, flags, depth, False) == DataWriterBin(0x12, qos).to_blob()
+    assert wire.endpoint_blob(0x12, flags, depth, True) == DataReaderBin(0x12, qos).to_blob()
+
+
+@pytest.mark.parametrize("kind, rep, tail", [
+    (C.OBJK_PARTICIPANT, ParticipantBin("n"), 42),
+    (C.OBJK_PARTICIPANT, ParticipantBin(None), -1),
+    (C.OBJK_TOPIC, TopicBin("rt/x", "T"), 0x11),
+    (C.OBJK_PUBLISHER, PubSubBin(), 0x11),
+    (C.OBJK_DATAWRITER, DataWriterBin(0x12, EndpointQos(3, 10)), 0x13),
+    (C.OBJK_DATAREADER, DataReaderBin(0x12, EndpointQos(2, None)), 0x14),
+])
+def test_create_binary(kind, rep, tail):
+    flags = C.FLAG_LITTLE_ENDIAN | C.FLAG_REUSE | C.FLAG_REPLACE
+    lean = wire.create(0x1234, 0x0156, kind, C.REPRESENTATION_IN_BINARY, rep.to_blob(), tail, flags)
+    assert _message(lean) == _message(Create(0x1234, 0x0156, kind, C.REPRESENTATION_IN_BINARY, rep, tail, flags))
+
+
+@pytest.mark.parametrize("fmt, text", [(C.REPRESENTATION_AS_XML_STRING, "<dds/>"),
+                                       (C.REPRESENTATION_BY_REFERENCE, "profile"),
+                                       (C.REPRESENTATION_AS_XML_STRING, "")])
+def test_create_text(fmt, text):
+    lean = wire.create(11, 0x0011, C.OBJK_TOPIC, fmt, text, 0x0001, 1)
+    assert _message(lean) == _message(Create(11, 0x0011, C.OBJK_TOPIC, fmt, text, 0x0001, 1))
+
+
+@pytest.mark.parametrize("delivery", [None, (0xFFFF, 0, 0, 0), (3, 2, 100, 7), (0, 0, 0, 0)])
+def test_read_data_and_delete(delivery):
+    control = DeliveryControl(*delivery) if delivery is not None else None
+    assert _message(wire.read_data(12, 0x0016, 0x80, delivery)) == _message(ReadData(12, 0x0016, 0x80, control))
+    assert _message(wire.delete(13, 0x0016)) == _message(Delete(13, 0x0016))
+
+
+class _Capture:
+    mtu = 512
+
+    def __init__(self):
+        self.sent = []
+
+    def send(self, data):
+        self.sent.append(bytes(data))
+        return True
+
+    def recv(self, timeout_ms):
+        return None
+
+    def close(self):
+        pass
+
+
+def _control(payload):
+    mw = MessageWriter(64)
+    mw.begin(0x81, 0, 0)
+    write_submessage(mw, payload)
+    return mw.getvalue()
+
+
+def test_session_control_submessages_match_the_codec():
+    transport = _Capture()
+    session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False)
+    session._send_ping()
+    assert transport.sent[-1] == _control(GetInfo())
+    assert session.sync_time(timeout_ms=0) is False
+    stamp = decode_message(transport.sent[-1])[1][0]
+    assert isinstance(stamp, Timestamp) and transport.sent[-1] == _control(stamp)
+    w = session._begin_control(C.ACKNACK)
+    w.u16(7)
+    w.u8(0x80)
+    w.u8(0x01)
+    w.u8(0x80)
+    session._send_control()
+    assert transport.sent[-1] == _control(AckNack(7, 0x8001, 0x80))
+    session.delete(attempts=1, timeout_ms=0)
+    assert transport.sent[-1] == _control(Delete(C.REQUEST_ID_LOGOUT, C.OBJECTID_CLIENT))
+
+
+@pytest.mark.parametrize("small", [0, 1, 3])
+def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
+    """A sample too big for any message is cut from the bytes already written into the open message
+    (not encoded again): the fragments must still carry exactly the general codec's submessage."""
+    from xrce.message import iter_submessages
+    from xrce.msgs.std_msgs import String
+    from xrce.submessages import WriteData
+
+    transport = _Capture()
+    session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False, history=8)
+    session.connected = True
+    for i in range(small):
+        session.write(0x15, String(data="r%d" % i))
+    rid = session.write(0x15, String(data="z" * 1500))
+    session.flush()
+    mw = MessageWriter(2048)
+    mw.begin(0x81, 0, 0)
+    write_submessage(mw, WriteData(rid, 0x15, String(data="z" * 1500).to_bytes()))
+    mw.pad_to_4()
+    expected = mw.getvalue()[4:]
+    carried = b""
+    for message in transport.sent:
+        for sub_id, flags, s, e in iter_submessages(message, 4):
+            if sub_id == C.FRAGMENT:
+                carried += message[s:e]
+    assert carried == expected
+    assert transport.sent[0][4] == (C.WRITE_DATA if small else C.FRAGMENT)

@@ -1,0 +1,112 @@
+"""The TurtleBot3 firmware (xrce/examples/turtlebot3.py, unmodified) under MicroPython with its heap
+capped for real, against a real xrce-agent, for a minute: loaded from .mpy and from .py.
+
+run.mjs --stepped collects garbage after every robot.step() and fails the run with a MemoryError as
+soon as a step needs more heap than the cap (see tests/micropython/README.md); that is stricter than
+a board, whose collector also runs inside a step (during setup, which is one step here, and inside
+an import). A CPython client drives /cmd_vel (reliable) the whole time through the same agent.
+
+Both runs go side by side to keep the test near one minute. Heap caps: issue 10 asks for 64 KB from
+.mpy and 128 KB from .py; the firmware's live heap alone is higher (~91 KB, README "The client on
+MicroPython"), so the caps below are what it fits today in this harness, and the test keeps it from
+growing past them.
+"""
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from agent_process import AgentProcess
+from mp_harness import run_micropython
+from xrce.client.session import Session
+from xrce.msgs.geometry_msgs import Twist, Vector3
+from xrce.tools import mpy
+from xrce.transports.udp import UdpTransport
+
+SCRIPT = Path(__file__).resolve().parent / "micropython" / "turtlebot3_capped.py"
+RUN_S = 60
+SETTLE_S = 10
+# The live heap settles at ~91 KB from .mpy and ~92 KB from .py. Inside a step the harness cannot
+# collect, and the nodeudp bridge makes ~4 bytes of garbage per byte received or sent, so a step
+# that waits (setup: ~33 KB; a full reliable window or a time-sync reply under load) needs room
+# above the live heap that a board's collector would not.
+MPY_HEAP_CAP = 160 * 1024
+PY_HEAP_CAP = 176 * 1024
+DRIFT_BOUND = 1024  # live heap after the first 10 s may move by at most this much
+EXAMPLE_FILES = ("xrce/examples/__init__.py", "xrce/examples/turtlebot3.py")
+
+
+class CmdVelDriver(threading.Thread):
+    """Publishes Twist(linear.x=0.1) on /cmd_vel, reliable, at 10 Hz until stopped."""
+
+    def __init__(self, port):
+        super().__init__(daemon=True)
+        self.session = Session(UdpTransport("127.0.0.1", port), history=8)
+        assert self.session.create(attempts=5, timeout_ms=500)
+        node = self.session.create_participant(name="driver")
+        self.writer = self.session.create_writer(node, "/cmd_vel", Twist, reliable=True)
+        assert self.session.run_until_all_status(2000)
+        self.halt = threading.Event()
+
+    def run(self):
+        command = Twist(linear=Vector3(x=0.1))
+        while not self.halt.is_set():
+            self.session.write(self.writer, command)
+            deadline = time.monotonic() + 0.1
+            while time.monotonic() < deadline:
+                self.session.spin_once(10)
+
+    def close(self):
+        self.halt.set()
+        self.join(5)
+        self.session.delete(attempts=1, timeout_ms=200)
+        self.session.close()
+
+
+def _lines(result):
+    return dict(line.split(" ", 1) for line in result.stdout.splitlines() if " " in line)
+
+
+@pytest.mark.timeout(240)
+def test_turtlebot3_runs_a_minute_in_a_capped_heap_from_mpy_and_from_py(tmp_path):
+    mpy.build_mpy(tmp_path, files=mpy.client_files() + list(EXAMPLE_FILES))
+    runs = {
+        # key: (heap cap, mounts, default mount, client key)
+        "mpy": (MPY_HEAP_CAP, [(tmp_path, "/lib")], False, "54420001"),
+        "py": (PY_HEAP_CAP, [], True, "54420002"),
+    }
+    results = {}
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        driver = CmdVelDriver(agent.port)
+        driver.start()
+        try:
+            threads = [threading.Thread(target=lambda name=name, spec=spec: results.setdefault(name, run_micropython(
+                SCRIPT, agent.port, RUN_S, SETTLE_S, spec[3], heap=spec[0], mounts=spec[1],
+                default_mount=spec[2], stepped=True, timeout=RUN_S + 90)), daemon=True)
+                for name, spec in runs.items()]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join(RUN_S + 100)
+        finally:
+            driver.close()
+    for name in runs:
+        result = results[name]
+        assert result.returncode == 0, (name, result.stdout, result.stderr)  # no MemoryError
+        lines = _lines(result)
+        print(name, {key: lines.get(key) for key in ("imported", "after_setup", "settled_low", "settled_high",
+                                                      "commands_received", "published_odom", "time_syncs")})
+        assert lines["connect"] == lines["setup"] == lines["done"] == "True", (name, result.stdout)
+        assert lines["failed_topics"] == "-", (name, result.stdout)
+        drift = int(lines["settled_high"]) - int(lines["settled_low"])
+        assert drift <= DRIFT_BOUND, (name, drift, result.stdout)
+        # 10 Hz topics over ~60 s; rates are checked in test_turtlebot3.py, here only that the
+        # firmware kept working (two interpreters in WebAssembly share a loaded machine).
+        for topic in ("sensor_state", "imu", "odom", "tf"):
+            assert int(lines["published_" + topic]) >= 0.5 * 10 * RUN_S, (name, topic, result.stdout)
+        assert int(lines["time_syncs"]) >= RUN_S // 4, (name, result.stdout)
+        assert int(lines["commands_received"]) >= 0.5 * 10 * (RUN_S - 5), (name, result.stdout)
+        assert lines["last_command"] == "0.1,0.0", (name, result.stdout)
+        assert float(lines["x"]) > 0.1 * (RUN_S - 10), (name, result.stdout)

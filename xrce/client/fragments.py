@@ -1,0 +1,63 @@
+# Fragmentation (XRCE-WIRE.md §8): samples larger than one message, out and in.
+#
+# Loaded by the session the first time a reliable sample does not fit a message, or a FRAGMENT
+# arrives; a board whose samples always fit never pays for it.
+
+from xrce.compat import const
+from xrce.errors import DecodeError
+from xrce.message import iter_submessages
+
+_FRAGMENT = const(13)
+_FLAG_LITTLE_ENDIAN = const(0x01)
+_FLAG_LAST_FRAGMENT = const(0x02)
+_SUBHEADER_SIZE = const(4)
+
+
+def write_fragmented(session, out, body):
+    # Cut one encoded submessage (header, payload, padding to 4) into FRAGMENTs, each alone in a
+    # fresh reliable message of ``out``.
+    body = memoryview(body)
+    chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
+    total = len(body)
+    pos = 0
+    while pos < total:
+        end = pos + chunk_size
+        last = end >= total
+        while True:
+            # A callback run while waiting for room may have opened a message: send it first.
+            if out.has_content:
+                session._close_message(out)
+            if not session._begin_with_room(out):
+                return False  # the remainder is lost; the agent discards the incomplete message
+            if not out.has_content:
+                break
+        mw = out.mw
+        w = mw.begin_submessage(_FRAGMENT, _FLAG_LITTLE_ENDIAN | (_FLAG_LAST_FRAGMENT if last else 0))
+        w.raw(body[pos:end])
+        mw.end_submessage()
+        out.has_content = True
+        message = mw.getvalue()  # fragments are not padded (§2)
+        out.state.commit(out.state.next_seq(), message)
+        session._send(message)
+        out.has_content = False
+        pos = end
+    session._schedule_heartbeat(out.stream_id)
+    return True
+
+
+def reassemble(session, message):
+    # Append the FRAGMENTs of one in-order reliable message; process the whole on the last one.
+    start = session.header_size
+    for sub_id, flags, s, e in iter_submessages(message, start):
+        if sub_id != _FRAGMENT:
+            raise DecodeError("FRAGMENT mixed with other submessages")
+        if session._reassembly is None:
+            session._reassembly = bytearray(message[:start])
+        if len(session._reassembly) + (e - s) > session.max_reassembly:
+            session._reassembly = None
+            raise DecodeError("fragmented message larger than max_reassembly")
+        session._reassembly.extend(message[s:e])
+        if flags & _FLAG_LAST_FRAGMENT:
+            whole = session._reassembly
+            session._reassembly = None
+            session._process(whole, len(whole))

@@ -1,0 +1,108 @@
+# ROS services on a client session: requesters and repliers (micro-ROS' ``rq/…Request`` /
+# ``rr/…Reply`` naming), their requests and replies.
+#
+# ``Session`` forwards ``create_requester``, ``create_replier``, ``create_service_client``,
+# ``create_service_server``, ``send_request`` and ``send_reply`` here on first use, so a board that
+# uses no service never loads this module.
+
+from xrce.cdr import CdrReader, CdrWriter
+from xrce.compat import const
+from xrce.errors import DecodeError
+
+_OBJK_REQUESTER = const(0x07)
+_OBJK_REPLIER = const(0x08)
+_REUSE_REPLACE = const(0x06)
+_SAMPLE_IDENTITY_SIZE = const(24)
+
+
+def _blob(service_name, request_type, reply_type, request_topic, reply_topic):
+    # Requester and replier share one binary representation (XRCE-WIRE.md §4).
+    w = CdrWriter(bytearray(128))
+    w.string(service_name)
+    w.string(request_type)
+    w.string(reply_type)
+    for topic in (request_topic, reply_topic):
+        w.u8(topic is not None)
+        if topic is not None:
+            w.string(topic)
+    return w.getvalue()
+
+
+def _endpoint(session, kind, participant_id, service_name, request_type, reply_type, request_topic,
+              reply_topic, xml, ref, object_id, stream_id, flags):
+    fmt, rep = session._representation(xml, ref, None)
+    if rep is None:
+        rep = _blob(service_name, request_type, reply_type, request_topic, reply_topic)
+    return session._create(kind, fmt, rep, participant_id, object_id, stream_id, flags)
+
+
+def create_requester(session, participant_id, service_name=None, request_type=None, reply_type=None,
+                     request_topic=None, reply_topic=None, xml=None, ref=None, object_id=None,
+                     stream_id=None, flags=_REUSE_REPLACE):
+    return _endpoint(session, _OBJK_REQUESTER, participant_id, service_name, request_type, reply_type,
+                     request_topic, reply_topic, xml, ref, object_id, stream_id, flags)
+
+
+def create_replier(session, participant_id, service_name=None, request_type=None, reply_type=None,
+                   request_topic=None, reply_topic=None, xml=None, ref=None, object_id=None,
+                   stream_id=None, flags=_REUSE_REPLACE):
+    return _endpoint(session, _OBJK_REPLIER, participant_id, service_name, request_type, reply_type,
+                     request_topic, reply_topic, xml, ref, object_id, stream_id, flags)
+
+
+def create_service_client(session, participant_id, service, srv, callback, stream_id=None,
+                          data_stream_id=None):
+    # A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
+    #
+    # ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
+    # ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
+    return _service_endpoint(session, create_requester, participant_id, service, srv, callback,
+                             srv.Response, stream_id, data_stream_id)
+
+
+def create_service_server(session, participant_id, service, srv, callback, stream_id=None,
+                          data_stream_id=None):
+    # A replier for a ROS service; ``callback(sample_identity, request)`` answers with
+    # ``send_reply(replier_id, sample_identity, response)``.
+    return _service_endpoint(session, create_replier, participant_id, service, srv, callback,
+                             srv.Request, stream_id, data_stream_id)
+
+
+def _service_endpoint(session, create, participant_id, service, srv, callback, msg_class, stream_id,
+                      data_stream_id):
+    name = service if service.startswith("/") else "/" + service
+    object_id = create(session, participant_id, name, srv.TYPE_NAME_REQUEST, srv.TYPE_NAME_RESPONSE,
+                       "rq" + name + "Request", "rr" + name + "Reply", stream_id=stream_id)
+    session.set_reader_callback(object_id, callback, msg_class)
+    session.read_data(object_id, session.reliable if data_stream_id is None else data_stream_id,
+                      stream_id=stream_id)
+    return object_id
+
+
+def send_request(session, requester_id, data, stream_id=None):
+    # A service request; the reply reaches the requester's callback with the returned id.
+    return session._write_sample(requester_id, data, None, stream_id)
+
+
+def send_reply(session, replier_id, sample_identity, data, stream_id=None):
+    # Answer the request ``sample_identity`` (as given to the replier's callback).
+    return session._write_sample(replier_id, data, sample_identity, stream_id)
+
+
+def deliver(reader, data):
+    # DATA for a requester (a reply after its request id) or a replier (a request after its
+    # sample identity), handed to the endpoint's callback.
+    if reader.kind == _OBJK_REQUESTER:
+        if len(data) < 4:
+            raise DecodeError("reply without its request id")
+        reader.callback((data[0] << 8) | data[1], _decode(reader, data[4:]))
+    else:
+        if len(data) < _SAMPLE_IDENTITY_SIZE:
+            raise DecodeError("request without its sample identity")
+        reader.callback(bytes(data[:_SAMPLE_IDENTITY_SIZE]), _decode(reader, data[_SAMPLE_IDENTITY_SIZE:]))
+
+
+def _decode(reader, data):
+    if reader.msg_class is None:
+        return bytes(data)
+    return reader.msg_class.decode(CdrReader(data))

@@ -1,0 +1,137 @@
+# What a client session writes: the submessages it sends and the binary object representations of
+# the entities it creates, lean enough for a board.
+#
+# The general codec (xrce/submessages.py, xrce/objects.py) has one class per submessage and per
+# object kind, each with encode and decode and a repr: what the agent needs, and ~22 KB of heap on
+# a board that would only ever use a few encoders. These functions write the same bytes for the
+# cases a client produces; tests/test_client_wire.py checks them against the general codec, so
+# the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
+
+from xrce.cdr import CdrWriter
+
+try:
+    from micropython import const
+except ImportError:
+    def const(value):
+        return value
+
+_CREATE = const(1)
+_DELETE = const(3)
+_READ_DATA = const(8)
+_OBJK_PARTICIPANT = const(1)
+_OBJK_REPLIER = const(8)
+_REPRESENTATION_IN_BINARY = const(3)
+
+
+# CREATE, DELETE and READ_DATA: the ids, then a body prepared once. A session keeps its CREATEs and
+# READ_DATAs to send again after the agent lost the session, with a new request id and flags.
+class Request:
+    __slots__ = ("ID", "flags", "request_id", "object_id", "kind", "tail_id", "body")
+
+    def __init__(self, sub_id, flags, request_id, object_id, body, kind=0, tail_id=0):
+        self.ID = sub_id
+        self.flags = flags
+        self.request_id = request_id
+        self.object_id = object_id
+        self.body = body
+        self.kind = kind
+        self.tail_id = tail_id
+
+    def encode(self, w):
+        rid = self.request_id
+        oid = self.object_id
+        w.u8(rid >> 8)
+        w.u8(rid & 0xFF)
+        w.u8(oid >> 8)
+        w.u8(oid & 0xFF)
+        w.raw(self.body)
+
+
+# A payload starts 4-aligned in its message and the ids take 4 bytes, so a body written from
+# offset 4 of a scratch buffer aligns exactly as it will in any message.
+def _body_writer():
+    return CdrWriter(bytearray(48), 4, 0)
+
+
+def _body(w):
+    return bytes(w.buf[4:w.pos])
+
+
+def create(request_id, object_id, kind, fmt, representation, tail_id, flags):
+    # representation: blob bytes (fmt binary) or the XML/reference text.
+    w = _body_writer()
+    w.u8(kind)
+    w.u8(fmt)
+    if fmt == _REPRESENTATION_IN_BINARY:
+        w.octets(representation)
+    else:
+        w.string(representation)
+    if kind == _OBJK_PARTICIPANT:
+        w.i16(tail_id)
+    elif kind <= _OBJK_REPLIER:
+        w.u8(tail_id >> 8)
+        w.u8(tail_id & 0xFF)
+    return Request(_CREATE, flags, request_id, object_id, _body(w), kind, tail_id)
+
+
+def delete(request_id, object_id):
+    return Request(_DELETE, 1, request_id, object_id, b"")
+
+
+# READ_DATA with an optional DeliveryControl (max_samples, max_elapsed_time, max_bytes_per_second,
+# min_pace_period), FORMAT_DATA and no content filter.
+def read_data(request_id, object_id, stream_id, delivery):
+    w = _body_writer()
+    w.u8(stream_id)
+    w.u8(0)
+    w.u8(0)
+    w.u8(delivery is not None)
+    if delivery is not None:
+        for value in delivery:
+            w.u16(value)
+    return Request(_READ_DATA, 1, request_id, object_id, _body(w))
+
+
+# Binary object representations (XRCE-WIRE.md §4): CDR blobs aligned from their own first byte.
+
+def _opt_string(w, value):
+    w.u8(value is not None)
+    if value is not None:
+        w.string(value)
+
+
+def participant_blob(name):
+    w = CdrWriter(bytearray(32))
+    w.u8(0)  # no domain reference
+    _opt_string(w, name)
+    return w.getvalue()
+
+
+def topic_blob(topic_name, type_name):
+    w = CdrWriter(bytearray(64))
+    w.string(topic_name)
+    w.u8(0)  # no type reference
+    _opt_string(w, type_name)
+    return w.getvalue()
+
+
+PUBSUB_BLOB = b"\x00\x00"  # no name, no QoS
+
+
+# Datawriter (reader False) or datareader: topic id, QoS flags and history depth, nothing else.
+def endpoint_blob(topic_id, qos_flags, depth, reader):
+    w = CdrWriter(bytearray(16))
+    w.u8(topic_id >> 8)
+    w.u8(topic_id & 0xFF)
+    w.u8(1)
+    w.u16(qos_flags)
+    w.u8(depth is not None)
+    if depth is not None:
+        w.u16(depth)
+    w.u8(0)  # deadline
+    w.u8(0)  # lifespan
+    w.u8(0)  # user data
+    w.u8(0)  # ownership strength / time-based filter
+    if reader:
+        w.u8(0)  # content filter
+    return w.getvalue()
