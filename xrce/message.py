@@ -23,39 +23,6 @@ def header_size(session_id):
     return HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
 
 
-class Header:
-    __slots__ = ("session_id", "stream_id", "seq", "key", "size")
-
-    def __init__(self, session_id, stream_id, seq, key=None):
-        self.session_id = session_id
-        self.stream_id = stream_id
-        self.seq = seq
-        self.key = key
-        self.size = header_size(session_id)
-
-    def __eq__(self, other):
-        return (isinstance(other, Header) and self.session_id == other.session_id
-                and self.stream_id == other.stream_id and self.seq == other.seq and self.key == other.key)
-
-    def __repr__(self):
-        return "Header(session=0x%02X, stream=0x%02X, seq=%d, key=%r)" % (
-            self.session_id, self.stream_id, self.seq, self.key)
-
-
-def decode_header(buf, length=None):
-    # Header of the message in ``buf[:length]``; DecodeError if it is shorter than its header.
-    n = len(buf) if length is None else length
-    if n < HEADER_SIZE_NO_KEY:
-        raise DecodeError("message shorter than its header")
-    session_id = buf[0]
-    key = None
-    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
-        if n < HEADER_SIZE_WITH_KEY:
-            raise DecodeError("keyed message shorter than its header")
-        key = bytes(buf[4:8])
-    return Header(session_id, buf[1], buf[2] | (buf[3] << 8), key)
-
-
 def encode_header(buf, session_id, stream_id, seq, key=None):
     # Write a header at buf[0:]; returns its size.
     buf[0] = session_id
@@ -68,6 +35,18 @@ def encode_header(buf, session_id, stream_id, seq, key=None):
         buf[4:8] = key
         return HEADER_SIZE_WITH_KEY
     return HEADER_SIZE_NO_KEY
+
+
+# Header and decode_header live in xrce/message_header.py and load on first use: the agent decodes
+# headers, a client checks the few header bytes it needs inline and never pays for them.
+def __getattr__(name):
+    if name == "Header" or name == "decode_header":
+        from xrce import message_header
+
+        value = getattr(message_header, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(name)
 
 
 def iter_submessages(buf, start, end=None):

@@ -45,7 +45,7 @@ class LinkMonitor:
     def lose(self, now):
         session = self.session
         session.connected = False
-        session._agent_status = None
+        session.create_status = None
         session._session_unknown = False
         self.next_attempt = now
         self._set(LINK_LOST)
@@ -82,7 +82,7 @@ class LinkMonitor:
     def poll(self, now):
         session = self.session
         if self.state == LINK_LOST:
-            if session._agent_status == 0:  # STATUS_OK to our CREATE_CLIENT
+            if session.create_status == 0:  # STATUS_OK to our CREATE_CLIENT
                 self.missed = 0
                 self.recoveries += 1
                 self._restore()
@@ -109,3 +109,10 @@ class LinkMonitor:
             self.missed += 1
             session._send_ping()
             self.next_ping = ticks_add(now, self.liveliness_ms)
+
+
+def link_state(session):
+    # Session.link_state: 'connected', 'silent' (the agent is quiet, pings are out) or 'lost'
+    # (re-creating).
+    return LINK_STATE_NAMES[session.link.state] if session.link is not None else (
+        "connected" if session.connected else "lost")

@@ -84,6 +84,7 @@ SLOT_OVERHEAD = const(4)
 # Session methods that live in optional modules (see Session.__getattr__).
 _SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client",
                     "create_service_server", "send_request", "send_reply")
+_TEARDOWN_METHODS = ("delete_entity", "cancel_data")
 
 
 class SessionError(XrceError):
@@ -198,11 +199,11 @@ class Session:
 
         self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
         self._sample = _SampleWrite()
-        self._last_request_id = _FIRST_REQUEST_ID - 1
+        self.last_request_id = _FIRST_REQUEST_ID - 1
         self._object_counters = {}
         self._statuses = {}
         self._readers = {}
-        self._agent_status = None
+        self.create_status = None
         self._pong_in_session = False
         self._delete_status = None
         self._sync_originate = None
@@ -233,14 +234,14 @@ class Session:
 
     def create(self, attempts=10, timeout_ms=1000):
         # CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session.
-        self._agent_status = None
+        self.create_status = None
         for _ in range(attempts):
             self._send_create_client()
-            if self._wait(timeout_ms, self._has_agent_status):
+            if self._wait(timeout_ms, self._has_create_status):
                 break
-        if self._agent_status is None:
+        if self.create_status is None:
             return False
-        self.connected = self._agent_status == _STATUS_OK
+        self.connected = self.create_status == _STATUS_OK
         if self.connected:
             self._reset_streams()
             self._last_heard = ticks_ms()
@@ -268,19 +269,8 @@ class Session:
     def _send_ping(self):
         self._send(self._ping_message())
 
-    @property
-    def link_state(self):
-        # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
-        from xrce.client.recovery import LINK_STATE_NAMES
-        return LINK_STATE_NAMES[self.link.state] if self.link is not None else (
-            "connected" if self.connected else "lost")
-
-    def _has_agent_status(self):
-        return self._agent_status is not None
-
-    @property
-    def create_status(self):
-        return self._agent_status
+    def _has_create_status(self):
+        return self.create_status is not None
 
     def delete(self, attempts=10, timeout_ms=1000):
         # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
@@ -314,15 +304,11 @@ class Session:
     # ------------------------------------------------------------------ request and object ids
 
     def next_request_id(self):
-        rid = self._last_request_id + 1
+        rid = self.last_request_id + 1
         if rid > 0xFFFF:
             rid = _FIRST_REQUEST_ID
-        self._last_request_id = rid
+        self.last_request_id = rid
         return rid
-
-    @property
-    def last_request_id(self):
-        return self._last_request_id
 
     def new_object_id(self, kind):
         index = self._object_counters.get(kind, 0) + 1
@@ -409,21 +395,18 @@ class Session:
                               stream_id, flags)
 
     def __getattr__(self, name):
-        # Services cost a board nothing until the first service call imports them.
+        # Services, entity deletion and the link state cost a board nothing until first used.
         if name in _SERVICE_METHODS:
-            from xrce.client import services
-            function = getattr(services, name)
-            return lambda *args, **kwargs: function(self, *args, **kwargs)
-        raise AttributeError(name)
-
-    def delete_entity(self, object_id_, stream_id=None):
-        # Buffer a DELETE of one entity (the agent deletes its children). Returns the request id.
-        rid = self.next_request_id()
-        self._buffer(stream_id, wire.delete(rid, object_id_))
-        self._statuses[rid] = _STATUS_NONE
-        if self.link is not None:
-            self.link.forget(object_id_)
-        return rid
+            from xrce.client import services as module
+        elif name in _TEARDOWN_METHODS:
+            from xrce.client import teardown as module
+        elif name == "link_state":
+            from xrce.client.recovery import link_state
+            return link_state(self)
+        else:
+            raise AttributeError(name)
+        function = getattr(module, name)
+        return lambda *args, **kwargs: function(self, *args, **kwargs)
 
     # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
 
@@ -478,13 +461,6 @@ class Session:
         self._buffer(stream_id, request)
         if self.link is not None:
             self._read_requests[reader_id] = request
-        return rid
-
-    def cancel_data(self, reader_id, stream_id=None):
-        # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
-        rid = self.next_request_id()
-        self._buffer(stream_id, wire.read_data(rid, reader_id, _STREAM_NONE, (0, 0, 0, 0)))
-        self._read_requests.pop(reader_id, None)
         return rid
 
     def write(self, writer_id, data, stream_id=None):
@@ -813,7 +789,7 @@ class Session:
     def _on_status_agent(self, buf, flags, s, e):
         if e - s < 1:
             raise DecodeError("empty STATUS_AGENT")
-        self._agent_status = buf[s]
+        self.create_status = buf[s]
 
     def _on_status(self, buf, flags, s, e):
         if e - s < 6:

@@ -124,8 +124,7 @@ class _Message:
                 return False
         return True
 
-    def __ne__(self, other):
-        return not self.__eq__(other)
+    # No __ne__: both CPython and MicroPython answer != from __eq__.
 
     def __repr__(self):
         return "%s(%s)" % (self.ROS_TYPE, ", ".join("%s=%r" % (name, getattr(self, name)) for name in self.__slots__))
