@@ -5,7 +5,8 @@
 # ``create_service_server``, ``send_request`` and ``send_reply`` here on first use, so a board that
 # uses no service never loads this module.
 
-from xrce.cdr import CdrReader, CdrWriter
+from xrce.cdr import CdrWriter
+from xrce.client.session import _decode_sample
 from xrce.compat import const
 from xrce.errors import DecodeError
 
@@ -89,20 +90,14 @@ def send_reply(session, replier_id, sample_identity, data, stream_id=None):
     return session._write_sample(replier_id, data, sample_identity, stream_id)
 
 
-def deliver(reader, data):
+def deliver(kind, callback, msg_class, data):
     # DATA for a requester (a reply after its request id) or a replier (a request after its
     # sample identity), handed to the endpoint's callback.
-    if reader.kind == _OBJK_REQUESTER:
+    if kind == _OBJK_REQUESTER:
         if len(data) < 4:
             raise DecodeError("reply without its request id")
-        reader.callback((data[0] << 8) | data[1], _decode(reader, data[4:]))
+        callback((data[0] << 8) | data[1], _decode_sample(msg_class, data[4:]))
     else:
         if len(data) < _SAMPLE_IDENTITY_SIZE:
             raise DecodeError("request without its sample identity")
-        reader.callback(bytes(data[:_SAMPLE_IDENTITY_SIZE]), _decode(reader, data[_SAMPLE_IDENTITY_SIZE:]))
-
-
-def _decode(reader, data):
-    if reader.msg_class is None:
-        return bytes(data)
-    return reader.msg_class.decode(CdrReader(data))
+        callback(bytes(data[:_SAMPLE_IDENTITY_SIZE]), _decode_sample(msg_class, data[_SAMPLE_IDENTITY_SIZE:]))

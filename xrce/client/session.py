@@ -146,15 +146,6 @@ class _SampleWrite:
                 w.origin = saved
 
 
-class _Reader:
-    __slots__ = ("callback", "msg_class", "kind")
-
-    def __init__(self, callback, msg_class, kind):
-        self.callback = callback
-        self.msg_class = msg_class
-        self.kind = kind
-
-
 class Session:
     # One XRCE client session over a transport (see ``xrce.transports``).
 
@@ -446,7 +437,7 @@ class Session:
         # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
         # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
         # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
-        self._readers[reader_id] = _Reader(callback, msg_class, reader_id & 0x0F)
+        self._readers[reader_id] = (callback, msg_class)  # a tuple: no class for a board to load
 
     def read_data(self, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_UNLIMITED,
                   max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
@@ -822,11 +813,12 @@ class Session:
             self.on_topic(self, oid, rid, buf[1], data)
         if reader is None:
             return
-        if reader.kind >= _OBJK_REQUESTER:
+        callback, msg_class = reader
+        if oid & 0x0F >= _OBJK_REQUESTER:
             from xrce.client.services import deliver
-            deliver(reader, data)
+            deliver(oid & 0x0F, callback, msg_class, data)
         else:
-            reader.callback(_decode_sample(reader, data))
+            callback(_decode_sample(msg_class, data))
 
     def _on_acknack(self, buf, flags, s, e):
         if e - s < 5:
@@ -884,10 +876,10 @@ _HANDLERS = {
 }
 
 
-def _decode_sample(reader, data):
-    if reader.msg_class is None:
+def _decode_sample(msg_class, data):
+    if msg_class is None:
         return bytes(data)
-    return reader.msg_class.decode(CdrReader(data))
+    return msg_class.decode(CdrReader(data))
 
 
 def _write_submessage(mw, payload):

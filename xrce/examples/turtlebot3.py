@@ -195,20 +195,38 @@ class TurtleBot3:
         # Session, clock, node, publishers and the /cmd_vel subscription. Topics the agent refuses
         # (e.g. a message package it cannot load) are logged and left out; the robot runs without
         # them. Returns False if the session or node could not be created.
+        ok = False
+        for ok in self.setup_stages(timeout_ms):
+            pass
+        return ok
+
+    def setup_stages(self, timeout_ms=5000):
+        # ``setup`` one exchange with the agent at a time, for a firmware loop that does other work
+        # (or collects its garbage) in between: yields None after each stage, then True or False.
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
-            return False
+            yield False
+            return
+        yield
         self.sync_clock()
+        yield
         node = session.create_participant(domain_id=self.domain_id, name=self.node_name)
         if not session.run_until_all_status(timeout_ms):
             self.log("turtlebot3: node not created: %r" % (session.last_statuses,))
-            return False
+            yield False
+            return
+        yield
         self._add_writer(node, "sensor_state", "/sensor_state", SensorState, False, timeout_ms)
+        yield
         self._add_writer(node, "imu", "/imu", Imu, False, timeout_ms)
+        yield
         self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
+        yield
         self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
+        yield
         self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
+        yield
         session.create_reader(node, "/cmd_vel", Twist, self._on_cmd_vel,
                               reliable=self.cmd_vel_reliable, depth=10)
         if not session.run_until_all_status(timeout_ms):
@@ -223,7 +241,7 @@ class TurtleBot3:
         for index, topic in enumerate(self._writers):
             self._schedule.append((topic, _Periodic(self.periods_ms[topic],
                                                     ticks_add(now, index * PHASE_STEP_MS))))
-        return True
+        yield True
 
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
         session = self.session
