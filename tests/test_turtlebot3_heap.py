@@ -1,15 +1,16 @@
 """The TurtleBot3 firmware (xrce/examples/turtlebot3.py, unmodified) under MicroPython with its heap
 capped for real, against a real xrce-agent, for a minute: loaded from .mpy and from .py.
 
-run.mjs --stepped collects garbage after every robot.step() and fails the run with a MemoryError as
-soon as a step needs more heap than the cap (see tests/micropython/README.md); that is stricter than
-a board, whose collector also runs inside a step (during setup, which is one step here, and inside
-an import). A CPython client drives /cmd_vel (reliable) the whole time through the same agent.
+run.mjs --stepped collects garbage after every robot.step() (and every stage of
+robot.setup_stages()) and fails the run with a MemoryError as soon as a step needs more heap than
+the cap (see tests/micropython/README.md); that is stricter than a board, whose collector also runs
+inside a step and inside an import. A CPython client drives /cmd_vel (reliable) the whole time
+through the same agent.
 
 Both runs go side by side to keep the test near one minute. Heap caps: issue 10 asks for 64 KB from
-.mpy and 128 KB from .py; the firmware's live heap alone is higher (~88 KB, README "The client on
-MicroPython"), so the caps below are what it fits today in this harness, and the test keeps it from
-growing past them.
+.mpy and 128 KB from .py. The .py run meets its 128 KB; from .mpy the firmware's live heap alone is
+~88 KB (message types ~37 KB of it; README "The client on MicroPython"), so that cap is what it fits
+today in this harness, and the test keeps it from growing past it.
 """
 
 import threading
@@ -31,11 +32,12 @@ SETTLE_S = 10
 # The live heap settles at ~88 KB from .mpy and ~92 KB from .py. Inside a step the harness cannot
 # collect, and the nodeudp bridge makes ~4 bytes of garbage per byte received or sent, so a step
 # that waits (a full reliable window or a time-sync reply under load) needs room above the live
-# heap that a board's collector would not; the setup runs one exchange per step (setup_stages).
-# 104 KB from .mpy was too little for some loop step; 128 KB passes.
+# heap that a board's collector would not. The heap the runs needed (mpheap.peak: live heap plus
+# one step's garbage) was ~102 KB from .mpy and ~105-107 KB from .py; with fragmentation, caps of
+# 104 and 112 KB from .mpy failed in the loop, 120 and 128 KB passed.
 MPY_HEAP_CAP = 128 * 1024
-PY_HEAP_CAP = 144 * 1024
-DRIFT_BOUND = 1024  # live heap after the first 10 s may move by at most this much
+PY_HEAP_CAP = 128 * 1024
+DRIFT_BOUND = 1024  # the live heap's low-water mark after the first 10 s may move by at most this much
 EXAMPLE_FILES = ("xrce/examples/__init__.py", "xrce/examples/turtlebot3.py")
 
 
@@ -97,11 +99,15 @@ def test_turtlebot3_runs_a_minute_in_a_capped_heap_from_mpy_and_from_py(tmp_path
         result = results[name]
         assert result.returncode == 0, (name, result.stdout, result.stderr)  # no MemoryError
         lines = _lines(result)
-        print(name, {key: lines.get(key) for key in ("imported", "after_setup", "settled_low", "settled_high",
-                                                      "commands_received", "published_odom", "time_syncs")})
+        print(name, {key: lines.get(key) for key in (
+            "imported", "after_setup", "settled_low", "settled_high", "low_first_10s", "low_last_10s",
+            "peak_setup", "peak", "commands_received", "published_odom", "time_syncs")})
         assert lines["connect"] == lines["setup"] == lines["done"] == "True", (name, result.stdout)
         assert lines["failed_topics"] == "-", (name, result.stdout)
-        drift = int(lines["settled_high"]) - int(lines["settled_low"])
+        # Drift: how far the live heap's low-water mark moved from the first 10 s after settling to
+        # the last 10 s. The spread of single samples (settled_high - settled_low, ~0.8-1.1 KB) also
+        # counts the messages a step happened to leave in flight, which is not a leak.
+        drift = abs(int(lines["low_last_10s"]) - int(lines["low_first_10s"]))
         assert drift <= DRIFT_BOUND, (name, drift, result.stdout)
         # 10 Hz topics over ~60 s; rates are checked in test_turtlebot3.py, here only that the
         # firmware kept working (two interpreters in WebAssembly share a loaded machine).

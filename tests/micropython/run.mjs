@@ -314,6 +314,10 @@ def _step():
         _steps = None
         sys.print_exception(error, sys.stderr)
         return 1
+    # Nothing was collected during the step: what is allocated now is its high-water mark.
+    high = gc.mem_alloc()
+    if high > mpheap.peak:
+        mpheap.peak = high
     gc.collect()  # in this port: asks for a collection when this runPython call returns
     return None
 

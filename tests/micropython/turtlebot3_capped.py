@@ -53,24 +53,37 @@ def main():
         yield
     print("setup", ok)
     print("after_setup", mpheap.live - baseline)
+    print("peak_setup", mpheap.peak)  # absolute, as the --heap cap
     start = ticks_ms()
     settled = None
     low = high = 0
+    # The live heap's low-water mark over the 10 s after settling and over the last 10 s: a leak
+    # raises it, while messages that happen to be in flight (unacknowledged in a reliable window,
+    # fragments being reassembled) when a step ends only move single samples.
+    first_low = last_low = None
     while ticks_diff(ticks_ms(), start) < run_ms:
         robot.step()
         yield
         live = mpheap.live
+        elapsed = ticks_diff(ticks_ms(), start)
         if settled is None:
-            if ticks_diff(ticks_ms(), start) >= settle_ms:
+            if elapsed >= settle_ms:
                 settled = low = high = live
         elif live < low:
             low = live
         elif live > high:
             high = live
+        if settled is not None and elapsed < settle_ms + 10000 and (first_low is None or live < first_low):
+            first_low = live
+        if elapsed >= run_ms - 10000 and (last_low is None or live < last_low):
+            last_low = live
     print("settled", settled - baseline)
     print("settled_low", low - baseline)
     print("settled_high", high - baseline)
+    print("low_first_10s", first_low - baseline)
+    print("low_last_10s", last_low - baseline)
     print("steps", mpheap.steps)
+    print("peak", mpheap.peak)
     print("commands_received", robot.commands_received)
     print("last_command", "%r,%r" % robot.last_command if robot.last_command else "-")
     print("time_syncs", robot.time_syncs)

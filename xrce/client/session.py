@@ -17,10 +17,11 @@
 # is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
 # message exactly as with the C client.
 #
-# A board pays for what it imports: services (xrce.client.services), fragmentation
-# (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
-# (xrce.client.recovery) load on first use; the submessages a session sends are written by the lean
-# encoders of xrce.client.wire, not by the general codec the agent uses.
+# A board pays for what it imports: services (xrce.client.services), deleting single entities and
+# cancelling delivery (xrce.client.teardown), fragmentation (xrce.client.fragments), agent discovery
+# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
+# submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
+# general codec the agent uses.
 
 import struct
 
