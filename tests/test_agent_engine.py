@@ -618,6 +618,40 @@ def test_run_sends_heartbeats_and_close_deletes_everything():
     asyncio.run(asyncio.wait_for(scenario(), 5))
 
 
+def test_timed_work_is_scheduled_when_due_and_nothing_runs_when_idle():
+    async def scenario():
+        link = Link()
+        agent = Agent(CedMiddleware(), heartbeat_period=0.02, client_dead_time=0.3)
+        ticks = []
+        tick = agent.tick
+        agent.tick = lambda: (ticks.append(agent.clock()), tick())[1]
+        task = asyncio.ensure_future(agent.run())
+        await asyncio.sleep(0.2)
+        assert len(ticks) == 1 and agent.next_wakeup is None  # no client: no timer at all
+        peer = Peer(agent, link, ("h", 1))
+        peer.connect()  # a session: its dead time is due
+        assert agent.next_wakeup == pytest.approx(agent.clock() + 0.3, abs=0.05)
+        peer.build_pubsub()  # acknowledged output: still only the dead time
+        peer.take()
+        peer.read(0x80, DeliveryControl())
+        peer.send(0x80, WriteData(0x60, 0x0015, b"unacknowledged"))
+        assert agent.next_wakeup == pytest.approx(agent.clock() + 0.02, abs=0.01)
+        await asyncio.sleep(0.1)
+        heartbeats = [ps[0] for _, ps in peer.take() if ps[0].ID == C.HEARTBEAT]
+        assert len(heartbeats) >= 2  # sent by the timer, nobody called tick()
+        peer.ack_all()
+        del ticks[:]
+        await asyncio.sleep(0.1)
+        assert len(ticks) <= 1 and not [1 for _, ps in peer.take() if ps[0].ID == C.HEARTBEAT]
+        await asyncio.sleep(0.3)  # past the dead time: dead, and nothing more to do for it
+        assert agent.stats.clients_dead == 1 and agent.next_wakeup is None
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        await agent.close()
+    asyncio.run(asyncio.wait_for(scenario(), 5))
+
+
 def test_ced_routes_only_within_a_domain(setup):
     agent, link = setup
     a = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")

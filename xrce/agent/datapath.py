@@ -30,8 +30,8 @@ class DataPath:
     """Mixin of ``Agent``: sample input, per-reader queues, READ_DATA delivery and stream output.
 
     Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``max_reassembly_bytes`` and
-    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status`` and
-    ``_quota_warning``.
+    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status``,
+    ``_quota_warning``, and ``_wake_at``/``_heartbeat_soon`` (liveliness: when timed work is due).
     """
 
     def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
@@ -132,6 +132,8 @@ class DataPath:
             return
         reader.active = ReadRequest(request.request_id, request.stream_id, remaining, deadline, rate,
                                     now)
+        if deadline is not None:
+            self._wake_at(deadline)
         self._pump(client, entry)
 
     def _pump(self, client: ClientProxy, entry: ObjectEntry) -> None:
@@ -150,6 +152,7 @@ class DataPath:
                 active.refilled = now
                 # A sample larger than one second's budget goes out whenever the bucket is full.
                 if active.tokens < min(len(sample), active.rate):
+                    self._wake_at(now + (min(len(sample), active.rate) - active.tokens) / active.rate)
                     break
                 active.tokens -= len(sample)
             if not self._send_on_stream(client, active.stream_id,
@@ -240,6 +243,7 @@ class DataPath:
             message = _with_seq(message, seq)
             stream.commit(seq, message)
             self._send_client(client, message)
+            self._heartbeat_soon()
             return True
         return self._send_fragmented(client, stream, message)
 
@@ -265,6 +269,7 @@ class DataPath:
             stream.commit(seq, fragment)
             self.stats.fragments_out += 1
             self._send_client(client, fragment)
+        self._heartbeat_soon()
         return True
 
 

@@ -28,7 +28,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
 
 from xrce import constants as C, names as wire_names
 from xrce.agent.datapath import DataPath
-from xrce.agent.liveliness import HARD_LIVELINESS_PROBES, Liveliness  # noqa: F401 (re-exported)
+from xrce.agent.liveliness import NEVER, Liveliness
 from xrce.agent.middleware import Middleware
 from xrce.agent.registry import ObjectRegistry, Parked
 from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
@@ -78,6 +78,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
         self._started = False
+        self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
+        self._timer_due = NEVER
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
@@ -130,29 +132,47 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     break
 
     def tick(self) -> None:
-        """One round of periodic work: HEARTBEATs, liveliness probes, paced delivery."""
+        """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
+        loop timer for the next (``run()`` calls it from there; tests call it directly)."""
         self._resume_parked()
         now = self.clock()
+        due = NEVER
         for client in list(self.clients.values()):
             try:
-                self._tick_client(client, now)
+                client_due = self._tick_client(client, now)
             except Exception:
                 self.stats.handler_errors += 1
                 log.debug("periodic work for client %s failed", client.key.hex(), exc_info=True)
+                client_due = now + self.heartbeat_period
+            if client_due < due:
+                due = client_due
+        if due < NEVER:
+            self._wake_at(due)
+
+    @property
+    def next_wakeup(self) -> Optional[float]:
+        """When (agent clock) the timed work next runs; None when nothing is scheduled."""
+        return None if self._timer is None else self._timer_due
 
     async def run(self) -> None:
+        """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent
+        for traffic and for the timer of the next due work (see ``xrce.agent.liveliness``)."""
         if self.loop is None:
             self.loop = asyncio.get_running_loop()
         if not self._started:
             self._started = True
             await self.middleware.start()
-        while True:
-            await asyncio.sleep(self.heartbeat_period)
-            self.tick()
+        self.tick()
+        try:
+            await self.loop.create_future()
+        finally:
+            self._cancel_timer()
 
     async def close(self) -> None:
+        self._cancel_timer()
         for client in list(self.clients.values()):
             self._delete_client(client)
+        self._cancel_timer()  # deleting clients may have scheduled replies' HEARTBEATs
         await self.middleware.close()
 
     # ------------------------------------------------------------------ input dispatch --
@@ -179,6 +199,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             client.dead = False
             self.stats.clients_revived += 1
             log.info("client %s is alive again", client.key.hex())
+            self._wake_at(client.last_seen + (client.hard_liveliness or self.client_dead_time))
         client.messages_in += 1
         client.bytes_in += len(data)
         stream_id = header.stream_id

@@ -180,7 +180,8 @@ class SessionTable:
     """Mixin of ``Agent``: session establishment and teardown.
 
     Uses the agent's ``clients``, ``endpoints``, ``stats``, ``clock``, ``max_clients`` and
-    ``client_dead_time``; ``_send_raw`` (data path) and ``_delete_object`` (object registry).
+    ``client_dead_time``; ``_send_raw`` (data path), ``_delete_object`` (object registry) and
+    ``_wake_at`` (liveliness: a new session's dead time is due).
     """
 
     def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
@@ -243,6 +244,7 @@ class SessionTable:
                      link.name, endpoint, client.mtu)
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
+        self._wake_at(now + (client.hard_liveliness or self.client_dead_time))
 
     def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
         """True if a session for ``key`` fits under max_clients, evicting the longest-silent dead
