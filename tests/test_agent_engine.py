@@ -652,6 +652,28 @@ def test_timed_work_is_scheduled_when_due_and_nothing_runs_when_idle():
     asyncio.run(asyncio.wait_for(scenario(), 5))
 
 
+def test_best_effort_samples_take_the_short_path_with_the_same_accounting(setup):
+    agent, link = setup
+    talker = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")
+    listener = Peer(agent, link, ("h", 2), key=b"\x02\x00\x00\x02")
+    for peer in (talker, listener):
+        peer.connect()
+        peer.build_pubsub(reliable=False)
+    listener.read(0x01, DeliveryControl())
+    general = []
+    receive = agent._receive
+    agent._receive = lambda *args: (general.append(args[2]), receive(*args))[1]
+    for index in range(3):
+        talker.write(bytes([index]), stream_id=0x01)
+    talker.send(0x01, WriteData(0x50, 0x0015, b"stale"), seq=1)  # older than the last: dropped
+    assert len(general) == 1  # only the stream's first message went the general way
+    assert data_of(listener.take()) == [b"\x00", b"\x01", b"\x02"]
+    writer = agent.clients[talker.key].objects[0x0015]
+    assert (writer.samples, writer.sample_bytes, agent.stats.dropped) == (3, 3, 1)
+    client = agent.clients[talker.key]
+    assert client.messages_in == len(general) + 3 + 7  # 7 messages built the entities
+
+
 def test_ced_routes_only_within_a_domain(setup):
     agent, link = setup
     a = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")

@@ -80,6 +80,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self._started = False
         self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
         self._timer_due = NEVER
+        self._acks_due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
@@ -90,12 +91,15 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def receive(self, link: Link, endpoint: Hashable, data) -> None:
         """Handle one whole XRCE message from ``endpoint`` on ``link``. Never raises."""
         data = bytes(data)
-        self.stats.messages_in += 1
-        self.stats.bytes_in += len(data)
+        stats = self.stats
+        stats.messages_in += 1
+        stats.bytes_in += len(data)
         if self.tap is not None:
             self.tap("in", link, endpoint, data)
         try:
-            self._receive(link, endpoint, data)
+            # At -v 6 every message goes the general way, which traces it.
+            if log.isEnabledFor(TRACE) or not self._fast_write(link, endpoint, data):
+                self._receive(link, endpoint, data)
         except DecodeError as exc:
             self.stats.decode_errors += 1
             self.stats.dropped += 1
@@ -228,7 +232,29 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self.stats.duplicates += stream.duplicates - duplicates
             client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
-                self._send_acknack(client, stream)
+                self._acknack_soon(client, stream)
+
+    def _acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
+        """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
+        cumulative, so one sent after the batch says what one per message would have said last.
+        Without a loop (synchronous use, tests, golden replays) it goes out at once."""
+        if self.loop is None:
+            self._send_acknack(client, stream)
+            return
+        if not self._acks_due:
+            self.loop.call_soon(self._send_due_acknacks)
+        self._acks_due[(client.key, stream.stream_id)] = (client, stream)
+
+    def _send_due_acknacks(self) -> None:
+        due, self._acks_due = self._acks_due, {}
+        for client, stream in due.values():
+            if client.alive and self.clients.get(client.key) is client and \
+                    client.in_reliable.get(stream.stream_id) is stream:
+                try:
+                    self._send_acknack(client, stream)
+                except Exception:
+                    self.stats.handler_errors += 1
+                    log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
 
     def _process_reliable_message(self, client: ClientProxy, stream_id: int, message: bytes) -> None:
         size = header_size(message[0])

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import dataclass, fields
-from typing import Any, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
+from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
 
 from xrce import constants as C
 from xrce.agent.middleware import EntityKey, TopicSpec
@@ -117,6 +117,8 @@ class ObjectEntry:
     reader: Optional[ReaderState] = None
     samples: int = 0  # written into the middleware (writers) or delivered to the client (readers)
     sample_bytes: int = 0
+    # Writers: the middleware's publish for this entity, looked up once (see datapath._fast_write).
+    write: Optional[Callable[[bytes], bool]] = None
 
 
 class ClientProxy:
