@@ -51,7 +51,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.service import Service
 from rclpy.signals import SignalHandlerOptions
-from std_msgs.msg import Empty
+from builtin_interfaces.msg import Time as _WakeType  # rclpy imports it anyway: costs no memory
 
 from xrce.agent.middleware import (
     DataCallback,
@@ -74,11 +74,11 @@ from xrce.agent.rostypes import (
 )
 
 log = logging.getLogger("xrce.agent.ros")
-_EMPTY_SAMPLE = b"\x00\x01\x00\x00\x00\x00\x00\x00"  # std_msgs/Empty: CDR_LE + one padding byte
 
 # CDR_LE, options 0: what the XRCE agent always puts in front of a sample going into DDS (§14).
 ENCAPSULATION_LE = b"\x00\x01\x00\x00"
 _ENCAPSULATION_SIZE = 4
+_WAKE_SAMPLE = ENCAPSULATION_LE + bytes(8)  # builtin_interfaces/Time zero; the content is unused
 
 _NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # How long the executor thread waits in rclpy when nothing happens; it only bounds how late a
@@ -141,10 +141,10 @@ class _DomainRuntime:
             topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
             profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  history=HistoryPolicy.KEEP_LAST)
-            node.create_subscription(Empty, topic, self._on_wake, profile, raw=True)
-            publisher = node.create_publisher(Empty, topic, profile)
+            node.create_subscription(_WakeType, topic, self._on_wake, profile, raw=True)
+            publisher = node.create_publisher(_WakeType, topic, profile)
             publish = publisher.publish
-            self._wake_publisher = lambda: publish(_EMPTY_SAMPLE)
+            self._wake_publisher = lambda: publish(_WAKE_SAMPLE)
 
     def _on_wake(self, _sample) -> None:
         """Wake topic callback (executor thread)."""

@@ -37,6 +37,7 @@ CLIENT_DEAD_TIME = 30.0
 CLIENT_EXPIRE_TIME = 0.0
 MIN_MTU = 24  # smaller CREATE_CLIENT mtu values would leave no room for a fragment chunk
 DEFAULT_MTU = 508  # what eProsima assumes when CREATE_CLIENT carries none
+INFO_CACHE_SIZE = 256  # encoded INFO replies kept (a ping repeats one question)
 
 
 class Link(Protocol):
@@ -295,9 +296,25 @@ class SessionTable:
         log.info("client %s deleted", client.key.hex())
 
     def _reply_info(self, link: Link, endpoint: Hashable, header, request, impl_status: int) -> None:
-        self._send_raw(link, endpoint, encode_message(
-            header.session_id, header.stream_id, header.seq, header.key,
-            [self._info(request, impl_status, getattr(link, "info_locators", ()))]))
+        self._send_raw(link, endpoint, self._info_message(
+            link, header.session_id, header.stream_id, header.seq, header.key, request,
+            impl_status))
+
+    def _info_message(self, link: Optional[Link], session_id: int, stream_id: int, seq: int,
+                      key: Optional[bytes], request: GetInfo, impl_status: int) -> bytes:
+        """The INFO answering a GET_INFO, encoded once per distinct question: pings repeat the
+        same one, and encoding an INFO is most of what answering it costs (~12 of 17 µs)."""
+        cache_key = (link, session_id, stream_id, seq, key, request.request_id, request.object_id,
+                     impl_status)
+        message = self._info_cache.get(cache_key)
+        if message is None:
+            locators = getattr(link, "info_locators", ()) if link is not None else ()
+            message = encode_message(session_id, stream_id, seq, key,
+                                     [self._info(request, impl_status, locators)])
+            if len(self._info_cache) >= INFO_CACHE_SIZE:
+                self._info_cache.clear()
+            self._info_cache[cache_key] = message
+        return message
 
     @staticmethod
     def _info(request: GetInfo, impl_status: int, locators=()) -> Info:
