@@ -672,6 +672,17 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(setup)
     assert (writer.samples, writer.sample_bytes, agent.stats.dropped) == (3, 3, 1)
     client = agent.clients[talker.key]
     assert client.messages_in == len(general) + 3 + 7  # 7 messages built the entities
+    # Reliable: the next message in order goes the short way and is acknowledged; a gap does not.
+    del general[:]
+    base = talker.seqs[0x80]
+    talker.write(b"r0")
+    talker.take()
+    talker.write(b"r1")
+    (_, (acknack,)), = talker.take()
+    assert acknack.ID == C.ACKNACK and acknack.first_unacked == (base + 2) & 0xFFFF
+    talker.send(0x80, WriteData(0x51, 0x0015, b"r3"), seq=base + 3)  # r2 missing
+    talker.send(0x80, WriteData(0x52, 0x0015, b"r2"), seq=base + 2)
+    assert len(general) == 2 and writer.samples == 7
 
 
 def test_ced_routes_only_within_a_domain(setup):

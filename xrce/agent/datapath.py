@@ -36,11 +36,12 @@ class DataPath:
     """
 
     def _fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
-        """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) on
-        a best-effort stream of a live session, to a writer created earlier. Anything else, and
-        the first message of a stream, returns False untouched and takes the general path
-        (``Agent._receive``), which keeps exactly the same counters and checks; this one only
-        skips the header object, the submessage iterator and three layers of calls."""
+        """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) of
+        a live session, to a writer created earlier, on a best-effort stream or as the next
+        message in order of a reliable one. Anything else (and each stream's first message)
+        returns False untouched and takes the general path (``Agent._receive``), which keeps
+        exactly the same counters and checks; this one skips the header object, the submessage
+        iterator and several layers of calls."""
         if len(data) < 12:
             return False  # too short to hold a WRITE_DATA
         session_id = data[0]
@@ -54,29 +55,40 @@ class DataPath:
             start = 8
         client = self.clients.get(key)
         stream_id = data[1]
-        if client is None or client.dead or client.parked is not None or not 0 < stream_id < 0x80:
-            return False
-        if len(data) < start + 8:
+        if client is None or client.dead or client.parked is not None or stream_id == 0 \
+                or len(data) < start + 8:
             return False
         length = data[start + 2] | (data[start + 3] << 8)
         if data[start] != C_WRITE_DATA or data[start + 1] & C.FLAG_FORMAT_MASK != C.FORMAT_DATA \
                 or start + 4 + length != len(data) or length < 4:
             return False
-        stream = client.in_best_effort.get(stream_id)
         entry = client.objects.get((data[start + 6] << 8) | data[start + 7])
-        if stream is None or entry is None or entry.write is None:
+        if entry is None or entry.write is None:
             return False
+        seq = data[2] | (data[3] << 8)
+        if stream_id & 0x80:
+            stream = client.in_reliable.get(stream_id)
+            if stream is None or stream.stored or seq != (stream.last_handled + 1) & 0xFFFF:
+                return False  # out of order, a gap to fill, or a duplicate: the general path
+        else:
+            stream = client.in_best_effort.get(stream_id)
+            if stream is None:
+                return False
         client.last_seen = self.clock()
         client.probes = 0
         client.messages_in += 1
         client.bytes_in += len(data)
-        if not stream.accept(data[2] | (data[3] << 8)):
+        if stream_id & 0x80:
+            stream.receive(seq, data)  # in order, nothing stored: hands back this one message
+        elif not stream.accept(seq):
             self.stats.dropped += 1
             return True
         self.stats.samples_in += 1
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:])
+        if stream_id & 0x80 and client.alive:
+            self._acknack_soon(client, stream)
         return True
 
     def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
