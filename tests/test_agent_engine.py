@@ -685,6 +685,24 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(setup)
     assert len(general) == 2 and writer.samples == 7
 
 
+@settings(max_examples=200, deadline=None)
+@given(session_id=st.sampled_from([0x01, 0x7F, 0x81, 0xFF]), stream_id=st.integers(0, 255),
+       request_id=st.integers(0, 0xFFFF), object_id=st.integers(0, 0xFFFF),
+       sample=st.binary(max_size=600))
+def test_the_direct_data_encoding_is_byte_exact(session_id, stream_id, request_id, object_id,
+                                               sample):
+    from xrce.agent.datapath import data_message
+    from xrce.submessages import Data
+
+    class Client:
+        pass
+    client = Client()
+    client.session_id = session_id
+    client.header_key = b"\x0a\x0b\x0c\x0d" if session_id < 0x80 else None
+    assert data_message(client, stream_id, request_id, object_id, sample) == encode_message(
+        session_id, stream_id, 0, client.header_key, [Data(request_id, object_id, sample)])
+
+
 def test_ced_routes_only_within_a_domain(setup):
     agent, link = setup
     a = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")
