@@ -84,7 +84,6 @@ _NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # How long the executor thread waits in rclpy when nothing happens; it only bounds how late a
 # stop request is seen if its wake-up sample were lost, nothing else runs on this period.
 IDLE_WAIT_S = 5.0
-START_TIMEOUT_S = 10.0
 
 EXECUTOR_EVENTS = "events"
 EXECUTOR_SINGLE = "single"
@@ -120,13 +119,7 @@ class _DomainRuntime:
         self.agent_node: Node | None = None
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
-        self._ready = threading.Event()
-        self._start_error: BaseException | None = None
         self.thread.start()
-        if not self._ready.wait(START_TIMEOUT_S) or self._start_error is not None:
-            self._running = False
-            raise MiddlewareError("ROS domain %d did not start: %s"
-                                  % (domain_id, self._start_error or "timeout"))
 
     def _make_agent_node(self) -> None:
         node = Node("xrce_agent", context=self.context, start_parameter_services=False,
@@ -158,26 +151,29 @@ class _DomainRuntime:
             if not self._wake_pending:
                 self._wake_pending = True
                 self._wake_publisher()
-        # Before the wake topic exists, jobs are run by _run before it first waits.
+        # Before the first job the thread blocks on the queue itself: no wake-up needed.
 
     def _run_jobs(self) -> None:
         while True:
             try:
-                result, job = self._jobs.get_nowait()
+                item = self._jobs.get_nowait()
             except queue.Empty:
                 return
-            if result is not None and not result.set_running_or_notify_cancel():
-                continue
-            try:
-                value = job()
-            except BaseException as exc:  # handed to the submitter, never lost
-                if result is not None:
-                    result.set_exception(exc)
-                else:
-                    log.exception("ROS job failed in domain %d", self.domain_id)
+            self._run_job(*item)
+
+    def _run_job(self, result, job) -> None:
+        if result is not None and not result.set_running_or_notify_cancel():
+            return
+        try:
+            value = job()
+        except BaseException as exc:  # handed to the submitter, never lost
+            if result is not None:
+                result.set_exception(exc)
             else:
-                if result is not None:
-                    result.set_result(value)
+                log.exception("ROS job failed in domain %d", self.domain_id)
+        else:
+            if result is not None:
+                result.set_result(value)
 
     def _stop_spinning(self) -> None:
         self._running = False
@@ -185,13 +181,17 @@ class _DomainRuntime:
             self._stopped.set_result(True)
 
     def _run(self) -> None:
-        try:
-            self._make_agent_node()  # on this thread, before any spin: the wake topic is ready
-        except BaseException as exc:
-            self._start_error = exc
-            return
-        finally:
-            self._ready.set()
+        # Until the first job there is nothing to spin for: wait on the queue. The agent node and
+        # its wake topic are made then, while a client's CREATE waits anyway, rather than at
+        # start-up, where building them held the GIL while the loop answered the first clients
+        # (a robot's first time sync over a pty came out up to 2 ms off).
+        result, job = self._jobs.get()
+        if job != self._finish:
+            try:
+                self._make_agent_node()
+            except Exception:  # jobs are then only seen when each wait times out
+                log.exception("cannot create the agent node of ROS domain %d", self.domain_id)
+        self._run_job(result, job)
         while self._running:
             self._run_jobs()
             try:
