@@ -54,6 +54,7 @@ from xrce.agent.middleware import (
     RequestCallback,
     ServiceSpec,
     TopicSpec,
+    TypeNotReady,
 )
 from xrce.agent.rostypes import (
     dds_topic_to_ros,
@@ -392,6 +393,8 @@ class RosMiddleware(Middleware):
         self._closed = False
         # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
         self._agent_publishers: dict[tuple, object] = {}
+        # Domains being joined at start-up (asyncio futures of their _DomainRuntime).
+        self._joining: dict[int, asyncio.Future] = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -444,6 +447,9 @@ class RosMiddleware(Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         self._get_loop()
+        joining = self._joining.get(domain_id)
+        if joining is not None and not joining.done():
+            raise TypeNotReady("ROS domain %d is being joined" % domain_id, joining)
         domain = self._domain(domain_id)
         fallback = "xrce_%08x_%04x" % (key[0] & 0xFFFFFFFF, key[1] & 0xFFFF)
         node_name, namespace = node_name_and_namespace(name or "", fallback)
@@ -777,12 +783,20 @@ class RosMiddleware(Middleware):
         # of waiting for a new participant to be discovered: measured 0.2-2.4 s before this, after
         # an agent restart, from the session being back to the first sample reaching a subscriber.
         domain_id = _default_domain_id()
+        joining = self._loop.run_in_executor(
+            None, _DomainRuntime, domain_id, self.executor_kind, self.spin_slice_s)
+        # A client that reconnects the moment the agent is back must not start a second context
+        # for this domain meanwhile (create_participant parks it until this join is done): two
+        # participants born together, one torn down at once, left the survivor undiscovered by
+        # the ROS peers for 2-4 s (issue 12, measured with bench/restart_gap.py).
+        self._joining[domain_id] = joining
         try:
-            runtime = await self._loop.run_in_executor(
-                None, _DomainRuntime, domain_id, self.executor_kind, self.spin_slice_s)
+            runtime = await joining
         except Exception as exc:  # the agent still serves; the domain starts on first use
             log.warning("could not join ROS domain %d at start-up: %s", domain_id, exc)
             return
+        finally:
+            self._joining.pop(domain_id, None)
         if self._closed or domain_id in self._domains:
             await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
         else:
