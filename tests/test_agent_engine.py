@@ -7,7 +7,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from xrce import constants as C
-from xrce.agent import engine as engine_module
 from xrce.agent.ced import CedMiddleware
 from xrce.agent.engine import TRACE, Agent
 from xrce.agent.xmlrep import refs_from_profiles
@@ -458,7 +457,7 @@ def test_fragmentation_out_at_small_mtu(setup):
     assert listener.take_raw() == [] and agent.stats.oversize_dropped == 1
 
 
-def test_fragment_reassembly_in(setup, monkeypatch):
+def test_fragment_reassembly_in(setup):
     agent, link = setup
     talker = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")
     listener = Peer(agent, link, ("h", 2), key=b"\x02\x00\x00\x02", mtu=4096)
@@ -476,7 +475,7 @@ def test_fragment_reassembly_in(setup, monkeypatch):
         talker.send(0x80, Fragment(chunks[index], flags), seq=base + index)
     assert data_of(listener.take()) == [sample]
     # A reassembly growing past the bound is abandoned and counted.
-    monkeypatch.setattr(engine_module, "MAX_REASSEMBLY", 600)
+    agent.max_reassembly_bytes = 600
     talker.seqs[0x80] = base + 3
     for index, chunk in enumerate(chunks):
         talker.send(0x80, Fragment(chunk, 0x03 if index == len(chunks) - 1 else 0x01))

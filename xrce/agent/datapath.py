@@ -1,0 +1,273 @@
+"""The per-message data path: samples in (WRITE_DATA, FRAGMENT) and out (READ_DATA delivery, DATA) (XRCE-WIRE.md §6–§8).
+
+Everything a sample touches between the dispatcher (``xrce.agent.engine``) and the middleware is
+here, so this module is the one to read and profile for throughput:
+
+- in: ``_write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``_fragment`` reassembles
+  FRAGMENTs of a reliable stream and feeds the whole message back to the dispatcher;
+- out: the middleware's callbacks queue samples per reader (``_enqueue``, bounded per client);
+  ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
+  ``_send_on_stream`` numbers, stores (reliable) and fragments output.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Hashable, Optional
+
+from xrce import constants as C
+from xrce.agent.session import (
+    MAX_REASSEMBLY, STREAM_WINDOW, TRACE, ClientProxy, Link, ObjectEntry, ReadRequest,
+)
+from xrce.message import header_size
+from xrce.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
+from xrce.submessages import Data, Fragment, ReadData, encode_message
+
+log = logging.getLogger("xrce.agent")
+
+
+class DataPath:
+    """Mixin of ``Agent``: sample input, per-reader queues, READ_DATA delivery and stream output.
+
+    Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``max_reassembly_bytes`` and
+    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status`` and
+    ``_quota_warning``.
+    """
+
+    def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
+        entry = client.objects.get(object_id)
+        if entry is None:
+            return False
+        key = client.entity(entry.object_id)
+        self.stats.samples_in += 1
+        entry.samples += 1
+        entry.sample_bytes += len(data)
+        if entry.kind == C.OBJK_DATAWRITER:
+            return bool(self.middleware.write(key, data))
+        if entry.kind == C.OBJK_REQUESTER:
+            correlation_id = (entry.object_id << 16) + request_id
+            return bool(self.middleware.write_request(key, correlation_id, data))
+        if entry.kind == C.OBJK_REPLIER:
+            if len(data) < 24:
+                return False
+            return bool(self.middleware.write_reply(key, data[:24], data[24:]))
+        return False
+
+    def _sample_callback(self, client: ClientProxy, object_id: int):
+        def on_data(sample: bytes) -> None:
+            self._enqueue(client, object_id, bytes(sample))
+        return on_data
+
+    def _request_callback(self, client: ClientProxy, object_id: int):
+        def on_request(sample_identity: bytes, request: bytes) -> None:
+            self._enqueue(client, object_id, bytes(sample_identity) + bytes(request))
+        return on_request
+
+    def _reply_callback(self, client: ClientProxy, object_id: int):
+        def on_reply(correlation_id: int, reply: bytes) -> None:
+            # The reply travels behind the BaseObjectRequest of the WRITE_DATA that asked (§6).
+            request_id = correlation_id & 0xFFFF
+            prefix = bytes((request_id >> 8, request_id & 0xFF, object_id >> 8, object_id & 0xFF))
+            self._enqueue(client, object_id, prefix + bytes(reply))
+        return on_reply
+
+    def _enqueue(self, client: ClientProxy, object_id: int, payload: bytes) -> None:
+        if not client.alive:
+            return
+        entry = client.objects.get(object_id)
+        if entry is None or entry.reader is None:
+            return
+        queue = entry.reader.queue
+        if queue.maxlen is not None and len(queue) == queue.maxlen:
+            self.stats.samples_overwritten += 1
+            client.queued_bytes -= len(queue[0])  # append() below pushes it out
+        if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+            dropped = 0
+            while queue and client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+                client.queued_bytes -= len(queue.popleft())
+                dropped += 1
+            if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+                dropped += 1  # other readers hold the space: the new sample is the one to go
+                self.stats.quota_output_dropped += dropped
+                self._quota_warning(client, "output", "output queue quota (%d bytes) full, "
+                                    "sample for 0x%04X dropped", self.max_output_queue_bytes,
+                                    object_id)
+                return
+            self.stats.quota_output_dropped += dropped
+            self._quota_warning(client, "output", "output queue quota (%d bytes) full, %d oldest "
+                                "samples of 0x%04X dropped", self.max_output_queue_bytes, dropped,
+                                object_id)
+        queue.append(payload)
+        client.queued_bytes += len(payload)
+        try:
+            self._pump(client, entry)
+        except Exception:
+            self.stats.handler_errors += 1
+            log.debug("delivering to reader 0x%04X failed", object_id, exc_info=True)
+
+    def _read_data(self, client: ClientProxy, request: ReadData) -> None:
+        entry = client.objects.get(request.object_id)
+        if entry is None or entry.reader is None:
+            # Failed READ_DATA is answered on the reliable built-in stream whatever it came on.
+            self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, C.BUILTIN_RELIABLE)
+            return
+        reader = entry.reader
+        delivery = request.delivery
+        now = self.clock()
+        reader.active = None  # a new READ_DATA stops the previous one first
+        client.blocked_readers.discard(entry.object_id)
+        if delivery is None:
+            remaining: Optional[int] = 1
+            deadline = None
+            rate = 0
+        else:
+            if request.stream_id == C.STREAM_NONE and delivery.max_samples == 0 and \
+                    delivery.max_elapsed_time == 0 and delivery.max_bytes_per_second == 0 and \
+                    delivery.min_pace_period == 0:
+                return  # uxr_buffer_cancel_data
+            remaining = None if delivery.max_samples == C.MAX_SAMPLES_UNLIMITED else delivery.max_samples
+            deadline = now + delivery.max_elapsed_time if delivery.max_elapsed_time else None
+            rate = delivery.max_bytes_per_second
+        if remaining == 0:
+            return
+        reader.active = ReadRequest(request.request_id, request.stream_id, remaining, deadline, rate,
+                                    now)
+        self._pump(client, entry)
+
+    def _pump(self, client: ClientProxy, entry: ObjectEntry) -> None:
+        """Deliver queued samples while the active READ_DATA allows and the stream has room."""
+        reader = entry.reader
+        while reader.active is not None and reader.queue:
+            active = reader.active
+            now = self.clock()
+            if active.deadline is not None and now >= active.deadline:
+                reader.active = None
+                break
+            sample = reader.queue[0]
+            if active.rate:
+                active.tokens = min(float(active.rate),
+                                    active.tokens + (now - active.refilled) * active.rate)
+                active.refilled = now
+                # A sample larger than one second's budget goes out whenever the bucket is full.
+                if active.tokens < min(len(sample), active.rate):
+                    break
+                active.tokens -= len(sample)
+            if not self._send_on_stream(client, active.stream_id,
+                                        Data(active.request_id, entry.object_id, sample)):
+                if active.rate:
+                    active.tokens += len(sample)
+                client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
+                break
+            client.queued_bytes -= len(reader.queue.popleft())
+            self.stats.samples_out += 1
+            entry.samples += 1
+            entry.sample_bytes += len(sample)
+            if active.remaining is not None:
+                active.remaining -= 1
+                if active.remaining <= 0:
+                    reader.active = None
+
+    def _fragment(self, client: ClientProxy, stream_id: int, data: bytes, flags: int, start: int,
+                  end: int) -> bool:
+        if not is_reliable(stream_id):
+            return False  # the agent only reassembles on reliable streams
+        self.stats.fragments_in += 1
+        buffer = client.reassembly.get(stream_id)
+        if buffer is None:
+            buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
+        limit = self.max_reassembly_bytes or MAX_REASSEMBLY
+        if len(buffer) + (end - start) > limit:
+            del client.reassembly[stream_id]
+            self.stats.reassembly_overflows += 1
+            self._quota_warning(client, "reassembly", "reassembly on stream 0x%02X exceeds the "
+                                "%d-byte quota, message abandoned", stream_id, limit)
+            return False
+        buffer += data[start:end]
+        if flags & C.FLAG_LAST_FRAGMENT:
+            del client.reassembly[stream_id]
+            message = bytes(buffer)
+            self._process_message(client, message, header_size(message[0]), stream_id)
+        return True
+
+    # ------------------------------------------------------------------ output --
+
+    def _send_raw(self, link: Link, endpoint: Hashable, message: bytes) -> None:
+        self.stats.messages_out += 1
+        self.stats.bytes_out += len(message)
+        if log.isEnabledFor(TRACE):
+            self._trace("out", link, endpoint, message, header_size(message[0]))
+        if self.tap is not None:
+            self.tap("out", link, endpoint, message)
+        link.send(endpoint, message)
+
+    def _send_client(self, client: ClientProxy, message: bytes) -> None:
+        client.messages_out += 1
+        client.bytes_out += len(message)
+        self._send_raw(client.link, client.endpoint, message)
+
+    def _send_stream0(self, client: ClientProxy, payload) -> None:
+        self._send_client(client, encode_message(
+            client.session_id, C.STREAM_NONE, 0, client.header_key, [payload]))
+
+    def _send_on_stream(self, client: ClientProxy, stream_id: int, payload) -> bool:
+        """Send one submessage alone in a message on ``stream_id``.
+
+        False only when a reliable window has no room (the caller decides whether to keep it);
+        best-effort output larger than the mtu is dropped, counted, and reported as handled.
+        """
+        if stream_id == C.STREAM_NONE:
+            self._send_stream0(client, payload)
+            return True
+        message = encode_message(client.session_id, stream_id, 0, client.header_key, [payload])
+        if not is_reliable(stream_id):
+            if len(message) > client.mtu:
+                self.stats.oversize_dropped += 1
+                log.warning("client %s: %d-byte best-effort message exceeds mtu %d, dropped",
+                            client.key.hex(), len(message), client.mtu)
+                return True
+            stream = client.out_best_effort.get(stream_id)
+            if stream is None:
+                stream = client.out_best_effort[stream_id] = OutputBestEffortStream(stream_id)
+            self._send_client(client, _with_seq(message, stream.next_seq()))
+            return True
+        stream = client.out_reliable.get(stream_id)
+        if stream is None:
+            stream = client.out_reliable[stream_id] = OutputReliableStream(stream_id, STREAM_WINDOW)
+        if len(message) <= client.mtu:
+            seq = stream.next_seq()
+            if seq is None:
+                return False
+            message = _with_seq(message, seq)
+            stream.commit(seq, message)
+            self._send_client(client, message)
+            return True
+        return self._send_fragmented(client, stream, message)
+
+    def _send_fragmented(self, client: ClientProxy, stream: OutputReliableStream,
+                         message: bytes) -> bool:
+        head = header_size(message[0])
+        inner = message[head:]
+        chunk = client.mtu - head - 4
+        count = (len(inner) + chunk - 1) // chunk
+        if count > stream.history:
+            self.stats.oversize_dropped += 1
+            log.warning("client %s: %d-byte message needs %d fragments, more than the window",
+                        client.key.hex(), len(message), count)
+            return True
+        if stream.history - stream.in_flight() < count:
+            return False
+        for index in range(count):
+            last = index == count - 1
+            flags = C.FLAG_LITTLE_ENDIAN | (C.FLAG_LAST_FRAGMENT if last else 0)
+            seq = stream.next_seq()
+            fragment = encode_message(client.session_id, stream.stream_id, seq, client.header_key,
+                                      [Fragment(inner[index * chunk:(index + 1) * chunk], flags)])
+            stream.commit(seq, fragment)
+            self.stats.fragments_out += 1
+            self._send_client(client, fragment)
+        return True
+
+
+
+def _with_seq(message: bytes, seq: int) -> bytes:
+    return message[:2] + bytes((seq & 0xFF, seq >> 8)) + message[4:]

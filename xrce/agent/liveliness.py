@@ -1,0 +1,109 @@
+"""Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead and expired clients (XRCE-WIRE.md §9, §10).
+
+``Liveliness`` is the part of ``xrce.agent.engine.Agent`` that answers a client's HEARTBEAT with
+an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
+HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead/expired clients
+and paced READ_DATA delivery.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from xrce import constants as C
+from xrce.agent.session import STREAM_WINDOW, ClientProxy
+from xrce.streams import InputReliableStream, is_reliable
+from xrce.submessages import AckNack, GetInfo, Heartbeat
+
+log = logging.getLogger("xrce.agent")
+
+HARD_LIVELINESS_PROBES = 3
+
+
+class Liveliness:
+    """Mixin of ``Agent``. Uses the agent's ``stats``, ``clock``, ``heartbeat_period``,
+    ``client_dead_time`` and ``client_expire_time``; ``_send_client``/``_send_stream0`` and
+    ``_pump`` (data path), ``_process_reliable_message`` (dispatcher), ``_delete_client``."""
+
+    def _on_acknack(self, client: ClientProxy, acknack: AckNack) -> None:
+        stream = client.out_reliable.get(acknack.stream_id)
+        if stream is None:
+            return
+        now = self.clock()
+        if client.heartbeat_sent_at is not None:
+            client.rtt_s = now - client.heartbeat_sent_at
+            client.heartbeat_sent_at = None
+        now_ms = int(now * 1000)
+        holdoff_ms = int(self.heartbeat_period * 1000) // 2
+        for message in stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms,
+                                         holdoff_ms):
+            self.stats.retransmissions += 1
+            client.retransmissions += 1
+            self._send_client(client, message)
+        if client.blocked_readers and stream.has_room():
+            self._unblock(client)
+
+    def _unblock(self, client: ClientProxy) -> None:
+        blocked = list(client.blocked_readers)
+        client.blocked_readers.clear()
+        for object_id in blocked:
+            entry = client.objects.get(object_id)
+            if entry is not None and entry.reader is not None:
+                self._pump(client, entry)
+
+    def _on_heartbeat(self, client: ClientProxy, heartbeat: Heartbeat) -> None:
+        stream_id = heartbeat.stream_id
+        if not is_reliable(stream_id):
+            return
+        stream = client.in_reliable.get(stream_id)
+        if stream is None:
+            stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
+        for message in stream.on_heartbeat(heartbeat.first_unacked, heartbeat.last_unacked):
+            self._process_reliable_message(client, stream_id, message)
+        if client.alive:
+            self._send_acknack(client, stream)
+
+    def _send_acknack(self, client: ClientProxy, stream: InputReliableStream) -> None:
+        first, bitmap = stream.acknack()
+        self.stats.acknacks_out += 1
+        self._send_stream0(client, AckNack(first, bitmap, stream.stream_id))
+
+    def _tick_client(self, client: ClientProxy, now: float) -> None:
+        dead_time = client.hard_liveliness or self.client_dead_time
+        silent = now - client.last_seen
+        if silent >= dead_time:
+            if not client.dead:
+                client.dead = True
+                self.stats.clients_dead += 1
+                log.info("client %s silent for %d ms: dead (no more HEARTBEATs)", client.key.hex(),
+                         int(silent * 1000))
+            if not client.hard_liveliness and self.client_expire_time and \
+                    silent >= self.client_expire_time:
+                self.stats.clients_expired += 1
+                log.info("client %s silent for %d ms: expired, deleting its %d objects",
+                         client.key.hex(), int(silent * 1000), len(client.objects))
+                self._delete_client(client)
+                return
+            if client.hard_liveliness:
+                if client.probes >= HARD_LIVELINESS_PROBES:
+                    log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
+                    self._delete_client(client)
+                    return
+                client.probes += 1
+                self._send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
+                                                   C.INFO_CONFIGURATION))
+            return  # dead clients get no HEARTBEATs
+        for stream in list(client.out_reliable.values()):
+            span = stream.heartbeat()
+            if span is not None:
+                self.stats.heartbeats_out += 1
+                client.heartbeat_sent_at = now
+                self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
+        for object_id, entry in list(client.objects.items()):
+            reader = entry.reader
+            if reader is not None and reader.active is not None:
+                if reader.queue:
+                    self._pump(client, entry)
+                elif reader.active.deadline is not None and now >= reader.active.deadline:
+                    reader.active = None
+

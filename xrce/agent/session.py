@@ -1,0 +1,313 @@
+"""Session state: what the agent knows about each client, and how sessions begin and end (XRCE-WIRE.md §3, §4).
+
+``ClientProxy`` is one client: its key, where replies go, its streams, its XRCE objects and its
+per-client counters. ``SessionTable`` is the part of ``xrce.agent.engine.Agent`` that answers
+CREATE_CLIENT and GET_INFO, binds sessions to endpoints, enforces ``max_clients`` and deletes
+clients. The agent-wide counters (``AgentStats``) and the per-client quota defaults live here too.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from dataclasses import dataclass, fields
+from typing import Any, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
+
+from xrce import constants as C
+from xrce.agent.middleware import EntityKey, TopicSpec
+from xrce.streams import (
+    InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
+)
+from xrce.submessages import GetInfo, Info, StatusAgent, encode_message
+
+TRACE = 5  # log level of the per-message trace (-v 6)
+logging.addLevelName(TRACE, "TRACE")
+log = logging.getLogger("xrce.agent")
+
+STREAM_WINDOW = 16  # RELIABLE_STREAM_DEPTH of the eProsima agent, both directions
+# Per-client quotas (defaults; ``Agent`` takes each as a constructor argument, the CLI as a flag).
+MAX_REASSEMBLY = 256 * 1024  # a fragmented message larger than this is abandoned
+MAX_OBJECTS_PER_CLIENT = 4096  # beyond this CREATE answers ERR_RESOURCES
+MAX_OUTPUT_QUEUE_BYTES = 1024 * 1024  # samples waiting for one client; the oldest go first
+MAX_CLIENTS = 1024  # CREATE_CLIENT of a new key beyond this evicts a dead client or is refused
+QUOTA_LOG_INTERVAL = 1.0  # seconds between repeated quota log lines for one client and quota
+# eProsima's UAGENT_CONFIG_CLIENT_DEAD_TIME; eProsima never destroys a silent client's entities
+# unless it asked for hard liveliness (uxr_hl), hence expiry off by default.
+CLIENT_DEAD_TIME = 30.0
+CLIENT_EXPIRE_TIME = 0.0
+MIN_MTU = 24  # smaller CREATE_CLIENT mtu values would leave no room for a fragment chunk
+DEFAULT_MTU = 508  # what eProsima assumes when CREATE_CLIENT carries none
+
+
+class Link(Protocol):
+    """A transport server as the engine sees it."""
+
+    name: str
+
+    def send(self, endpoint: Any, data: bytes) -> None: ...
+
+
+@dataclass
+class AgentStats:
+    messages_in: int = 0
+    messages_out: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    decode_errors: int = 0
+    dropped: int = 0  # whole input messages not processed (malformed, unknown client, stale)
+    handler_errors: int = 0  # unexpected exceptions while handling a message
+    duplicates: int = 0
+    retransmissions: int = 0
+    heartbeats_out: int = 0
+    acknacks_out: int = 0
+    fragments_in: int = 0
+    fragments_out: int = 0
+    reassembly_overflows: int = 0
+    oversize_dropped: int = 0  # best-effort output larger than the client's mtu
+    status_lost: int = 0  # STATUS that found the reliable window full (eProsima drops them too)
+    samples_in: int = 0
+    samples_out: int = 0
+    samples_overwritten: int = 0  # reader queue full: oldest sample dropped
+    clients_created: int = 0
+    clients_deleted: int = 0
+    clients_dead: int = 0  # times a client went silent for client_dead_time
+    clients_revived: int = 0  # dead clients that spoke again
+    clients_expired: int = 0  # silent for client_expire_time: deleted with their entities
+    clients_refused: int = 0  # CREATE_CLIENT beyond max_clients with no dead client to evict
+    endpoints_closed: int = 0  # TCP connections / serial ports that went away under a session
+    quota_objects: int = 0  # CREATE refused with ERR_RESOURCES
+    quota_output_dropped: int = 0  # samples dropped because a client's output queue was full
+
+    def as_dict(self) -> Dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+class ReadRequest:
+    """An active READ_DATA: where to deliver and when to stop."""
+
+    __slots__ = ("request_id", "stream_id", "remaining", "deadline", "rate", "tokens", "refilled")
+
+    def __init__(self, request_id: int, stream_id: int, remaining: Optional[int],
+                 deadline: Optional[float], rate: int, now: float):
+        self.request_id = request_id
+        self.stream_id = stream_id
+        self.remaining = remaining  # None = unlimited
+        self.deadline = deadline
+        self.rate = rate  # bytes per second, 0 = unlimited
+        self.tokens = float(rate)
+        self.refilled = now
+
+
+class ReaderState:
+    __slots__ = ("queue", "active")
+
+    def __init__(self, bound: int):
+        self.queue: Deque[bytes] = deque(maxlen=bound)
+        self.active: Optional[ReadRequest] = None
+
+
+@dataclass
+class ObjectEntry:
+    object_id: int
+    kind: int
+    parent: Optional[int]
+    signature: Tuple[int, bytes, int]  # (format, representation bytes, tail) for REUSE
+    topic: Optional[int] = None  # the topic object a writer/reader uses
+    topic_spec: Optional[TopicSpec] = None
+    reader: Optional[ReaderState] = None
+    samples: int = 0  # written into the middleware (writers) or delivered to the client (readers)
+    sample_bytes: int = 0
+
+
+class ClientProxy:
+    """One client session: key, destination, streams and XRCE objects."""
+
+    def __init__(self, key: bytes, session_id: int, mtu: int, link: Link, endpoint: Hashable,
+                 now: float, hard_liveliness: Optional[float]):
+        self.key = key
+        self.key_int = int.from_bytes(key, "big")
+        self.session_id = session_id
+        self.header_key = key if session_id < C.SESSION_ID_WITHOUT_KEY_MASK else None
+        self.mtu = max(mtu, MIN_MTU)
+        self.link = link
+        self.endpoint = endpoint
+        self.last_seen = now
+        self.hard_liveliness = hard_liveliness
+        self.probes = 0
+        self.dead = False  # silent for the dead time: no HEARTBEATs until it speaks again
+        self.queued_bytes = 0  # sample bytes waiting in this client's reader queues
+        self.quota_logged: Dict[str, float] = {}
+        self.objects: Dict[int, ObjectEntry] = {}
+        self.in_best_effort: Dict[int, InputBestEffortStream] = {}
+        self.in_reliable: Dict[int, InputReliableStream] = {}
+        self.out_best_effort: Dict[int, OutputBestEffortStream] = {}
+        self.out_reliable: Dict[int, OutputReliableStream] = {}
+        self.reassembly: Dict[int, bytearray] = {}
+        self.blocked_readers: Set[int] = set()
+        self.alive = True  # False once deleted: late middleware callbacks are ignored
+        # While a CREATE waits for its type to be built: the messages to process afterwards, in
+        # order, starting with the rest of the one that held the CREATE. None when not parked.
+        self.parked: Optional[list] = None
+        # Per-client counters for xrce.agent.observability; plain ints so the hot path stays cheap.
+        self.created_at = now
+        self.messages_in = 0
+        self.bytes_in = 0
+        self.messages_out = 0
+        self.bytes_out = 0
+        self.decode_errors = 0
+        self.duplicates = 0
+        self.retransmissions = 0
+        # The agent cannot know the client's clock offset; it can time HEARTBEAT -> ACKNACK and
+        # see how far a client's TIMESTAMP is from its own clock on arrival (skew + one-way delay).
+        self.heartbeat_sent_at: Optional[float] = None
+        self.rtt_s: Optional[float] = None
+        self.timestamp_skew_ns: Optional[int] = None
+
+    def entity(self, object_id: int) -> EntityKey:
+        return (self.key_int, object_id)
+
+    def reset_streams(self) -> None:
+        self.in_best_effort.clear()
+        self.in_reliable.clear()
+        self.out_best_effort.clear()
+        self.out_reliable.clear()
+        self.reassembly.clear()
+        self.blocked_readers.clear()
+
+
+
+class SessionTable:
+    """Mixin of ``Agent``: session establishment and teardown.
+
+    Uses the agent's ``clients``, ``endpoints``, ``stats``, ``clock``, ``max_clients`` and
+    ``client_dead_time``; ``_send_raw`` (data path) and ``_delete_object`` (object registry).
+    """
+
+    def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
+        """A TCP connection or serial port went away: sessions identified by that endpoint need a
+        new CREATE_CLIENT (as a new UDP socket would). Their objects stay for REUSE; liveliness
+        decides when a client that never comes back is forgotten."""
+        key = self.endpoints.pop((link, endpoint), None)
+        for client in self.clients.values():
+            if client.link is link and client.endpoint == endpoint:
+                self.stats.endpoints_closed += 1
+                log.info("client %s: %s %r closed; its entities are kept until it returns or expires",
+                         client.key.hex(), link.name, endpoint)
+        if key is not None and key not in self.clients:
+            log.debug("endpoint %s %r was mapped to unknown client %s", link.name, endpoint, key.hex())
+
+    def _create_client(self, link: Link, endpoint: Hashable, header, request) -> None:
+        session_id = request.session_id
+        reply_key = bytes(request.client_key) if session_id < C.SESSION_ID_WITHOUT_KEY_MASK else None
+        status = C.STATUS_OK
+        if request.client_key == b"\x00\x00\x00\x00" or request.cookie != C.XRCE_COOKIE:
+            status = C.STATUS_ERR_INVALID_DATA
+        elif request.version[0] != C.XRCE_VERSION_MAJOR:
+            status = C.STATUS_ERR_INCOMPATIBLE
+        elif not self._room_for_client(bytes(request.client_key), link, endpoint, session_id):
+            status = C.STATUS_ERR_RESOURCES
+        if status == C.STATUS_OK:
+            self._establish(link, endpoint, request)
+        self._send_raw(link, endpoint, encode_message(session_id, C.STREAM_NONE, 0, reply_key,
+                                                      [StatusAgent(status)]))
+
+    def _establish(self, link: Link, endpoint: Hashable, request) -> None:
+        key = bytes(request.client_key)
+        session_id = request.session_id
+        now = self.clock()
+        if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
+            bound = self.endpoints.get((link, endpoint))
+            if bound is not None and bound != key and bound in self.clients:
+                log.info("endpoint %s %r re-bound from client %s to %s", link.name, endpoint,
+                         bound.hex(), key.hex())
+                self._delete_client(self.clients[bound])
+        client = self.clients.get(key)
+        if client is not None and client.session_id == session_id:
+            client.reset_streams()  # session restart: objects survive for REUSE
+            self._unbind(client)
+            client.link, client.endpoint, client.last_seen, client.probes = link, endpoint, now, 0
+            client.dead = False
+            log.info("client %s session 0x%02X restarted on %s %r, %d objects kept for reuse",
+                     key.hex(), session_id, link.name, endpoint, len(client.objects))
+        else:
+            if client is not None:
+                log.info("client %s replaced (session 0x%02X → 0x%02X)", key.hex(),
+                         client.session_id, session_id)
+                self._delete_client(client)
+            mtu = request.mtu if request.mtu is not None else DEFAULT_MTU
+            client = ClientProxy(key, session_id, mtu, link, endpoint, now,
+                                 _hard_liveliness(request.properties))
+            self.clients[key] = client
+            self.stats.clients_created += 1
+            log.info("client %s session 0x%02X created on %s %r (mtu %d)", key.hex(), session_id,
+                     link.name, endpoint, client.mtu)
+        if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
+            self.endpoints[(link, endpoint)] = key
+
+    def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
+        """True if a session for ``key`` fits under max_clients, evicting the longest-silent dead
+        client if that is what it takes (a hostile or buggy peer must not grow the table forever)."""
+        if key in self.clients or len(self.clients) < self.max_clients:
+            return True
+        if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK and self.endpoints.get((link, endpoint)) \
+                in self.clients:
+            return True  # re-binding this endpoint deletes its current client first
+        now = self.clock()
+        silent = [c for c in self.clients.values()
+                  if now - c.last_seen >= (c.hard_liveliness or self.client_dead_time)]
+        if silent:
+            victim = min(silent, key=lambda c: c.last_seen)
+            log.warning("%d clients: evicting dead client %s to admit %s", len(self.clients),
+                        victim.key.hex(), key.hex())
+            self._delete_client(victim)
+            return True
+        self.stats.clients_refused += 1
+        log.warning("%d clients, none dead: refusing client %s (max_clients)", len(self.clients),
+                    key.hex())
+        return False
+
+    def _quota_warning(self, client: ClientProxy, quota: str, message: str, *args) -> None:
+        now = self.clock()
+        last = client.quota_logged.get(quota)
+        if last is None or now - last >= QUOTA_LOG_INTERVAL:
+            client.quota_logged[quota] = now
+            log.warning("client %s: " + message, client.key.hex(), *args)
+
+    def _unbind(self, client: ClientProxy) -> None:
+        if self.endpoints.get((client.link, client.endpoint)) == client.key:
+            del self.endpoints[(client.link, client.endpoint)]
+
+    def _delete_client(self, client: ClientProxy) -> None:
+        for object_id in [oid for oid, e in client.objects.items() if e.parent is None]:
+            if object_id in client.objects:
+                self._delete_object(client, object_id)
+        for object_id in list(client.objects):
+            self._delete_object(client, object_id)
+        client.alive = False
+        self._unbind(client)
+        if self.clients.get(client.key) is client:
+            del self.clients[client.key]
+        self.stats.clients_deleted += 1
+        log.info("client %s deleted", client.key.hex())
+
+    def _reply_info(self, link: Link, endpoint: Hashable, header, request, impl_status: int) -> None:
+        self._send_raw(link, endpoint, encode_message(
+            header.session_id, header.stream_id, header.seq, header.key,
+            [self._info(request, impl_status, getattr(link, "info_locators", ()))]))
+
+    @staticmethod
+    def _info(request: GetInfo, impl_status: int, locators=()) -> Info:
+        # The eProsima agent ignores the mask and object id and always reports both parts.
+        return Info(request.request_id, request.object_id, C.STATUS_OK, impl_status,
+                    locators=list(locators))
+
+
+
+def _hard_liveliness(properties) -> Optional[float]:
+    for name, value in properties or ():
+        if name == "uxr_hl":
+            try:
+                return int(value) / 1000.0 or None
+            except ValueError:
+                return None
+    return None
