@@ -43,7 +43,10 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += len(data)
         if entry.kind == C.OBJK_DATAWRITER:
-            return bool(self.middleware.write(key, data))
+            written = bool(self.middleware.write(key, data))
+            if written and self.timelines.pending:
+                self.timelines.sample_into_ros(client)
+            return written
         if entry.kind == C.OBJK_REQUESTER:
             correlation_id = (entry.object_id << 16) + request_id
             return bool(self.middleware.write_request(key, correlation_id, data))
@@ -132,6 +135,8 @@ class DataPath:
             return
         reader.active = ReadRequest(request.request_id, request.stream_id, remaining, deadline, rate,
                                     now)
+        if self.timelines.pending:
+            self.timelines.read_data(client)
         self._pump(client, entry)
 
     def _pump(self, client: ClientProxy, entry: ObjectEntry) -> None:

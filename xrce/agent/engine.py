@@ -31,6 +31,7 @@ from xrce.agent.datapath import DataPath
 from xrce.agent.liveliness import HARD_LIVELINESS_PROBES, Liveliness  # noqa: F401 (re-exported)
 from xrce.agent.middleware import Middleware
 from xrce.agent.registry import ObjectRegistry, Parked
+from xrce.agent.timeline import RecoveryTimelines
 from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, STREAM_WINDOW, TRACE, AgentStats, ClientProxy, Link,
@@ -82,6 +83,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
+        self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -133,6 +135,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         """One round of periodic work: HEARTBEATs, liveliness probes, paced delivery."""
         self._resume_parked()
         now = self.clock()
+        if self.timelines.pending:
+            self.timelines.tick(now)
         for client in list(self.clients.values()):
             try:
                 self._tick_client(client, now)
@@ -233,6 +237,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             return  # only the first submessage of a session-less message counts
 
     def _receive_unknown_client(self, link: Link, endpoint: Hashable, data: bytes, header) -> None:
+        self.timelines.unknown_traffic(link, endpoint, header)
         answered = False
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             if sub_id == C.DELETE:
