@@ -360,6 +360,18 @@ class _ReplierRecord:
             self.closed = True
 
 
+def _agent_node(domain: _DomainRuntime) -> Node:
+    """The agent's own node in ``domain`` (made on first use; executor thread only)."""
+    if domain.agent_node is None:
+        node = Node("xrce_agent", context=domain.context, start_parameter_services=False,
+                    enable_rosout=False, use_global_arguments=False,
+                    parameter_overrides=[_NO_TYPE_DESCRIPTION])
+        domain.executor.add_node(node)
+        domain.nodes.add(node)
+        domain.agent_node = node
+    return domain.agent_node
+
+
 def _default_domain_id() -> int:
     try:
         return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
@@ -706,15 +718,7 @@ class RosMiddleware(Middleware):
             return publisher
 
         def make_publisher():
-            node = domain.agent_node
-            if node is None:
-                node = Node("xrce_agent", context=domain.context, start_parameter_services=False,
-                            enable_rosout=False, use_global_arguments=False,
-                            parameter_overrides=[_NO_TYPE_DESCRIPTION])
-                domain.executor.add_node(node)
-                domain.nodes.add(node)
-                domain.agent_node = node
-            return node.create_publisher(msg_class, topic, depth)
+            return _agent_node(domain).create_publisher(msg_class, topic, depth)
 
         publisher = domain.call(make_publisher, self.entity_timeout_s)
         self._agent_publishers[(domain_id, topic)] = publisher
@@ -778,17 +782,26 @@ class RosMiddleware(Middleware):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        # Join the default ROS domain now. A client that connects (or reconnects after an agent
-        # restart) then only adds a node to a DDS participant its peers already discovered, instead
-        # of waiting for a new participant to be discovered: measured 0.2-2.4 s before this, after
-        # an agent restart, from the session being back to the first sample reaching a subscriber.
+        # Join the default ROS domain now, with the agent's own node in it: rmw_fastrtps creates
+        # the DDS participant with a context's first node, not with the context. A client that
+        # connects (or reconnects after an agent restart) then only adds a node to a participant
+        # its peers already discovered, instead of waiting for a new participant to be discovered.
         domain_id = _default_domain_id()
-        joining = self._loop.run_in_executor(
-            None, _DomainRuntime, domain_id, self.executor_kind, self.spin_slice_s)
+
+        def join():
+            runtime = _DomainRuntime(domain_id, self.executor_kind, self.spin_slice_s)
+            try:
+                runtime.call(lambda: _agent_node(runtime), self.entity_timeout_s)
+            except Exception:
+                runtime.stop(self.entity_timeout_s)
+                raise
+            return runtime
+
+        joining = self._loop.run_in_executor(None, join)
         # A client that reconnects the moment the agent is back must not start a second context
-        # for this domain meanwhile (create_participant parks it until this join is done): two
-        # participants born together, one torn down at once, left the survivor undiscovered by
-        # the ROS peers for 2-4 s (issue 12, measured with bench/restart_gap.py).
+        # for this domain meanwhile: create_participant parks it until this join is done
+        # (measured with bench/restart_gap.py, a cold start with the client already waiting:
+        # 2.4-3.3 s to the first sample in ROS before, 0.4-0.5 s after).
         self._joining[domain_id] = joining
         try:
             runtime = await joining
