@@ -235,6 +235,21 @@ def summary(values):
     return statistics.median(values), max(values)
 
 
+def report(record, env, runs=5, downtime=1.0):
+    """For bench/run.py: ``record(name, value, unit, baseline, baseline_name, target, note)``."""
+    figures = measure(env, runs, downtime, log=lambda line: print(line, flush=True))
+    cold = statistics.median(figures["cold"])
+    for name, target in (("agent_gap", "<= 2.5 median, <= 3.5 max"), ("reset_gap", "")):
+        median, worst = summary(figures[name])
+        label = ("agent SIGKILL + restart %.0f s later: longest gap" % downtime if name == "agent_gap"
+                 else "board reset (same key): longest gap")
+        values = ", ".join("%.2f" % v for v in figures[name])
+        record(label + " (median of %d)" % runs, median, "s", cold,
+               "cold start to first sample (median)", target, "runs: %s" % values)
+        record(label + " (max of %d)" % runs, worst, "s", max(figures["cold"]),
+               "cold start to first sample (max)", target)
+
+
 def main(argv=None):
     import argparse
 

@@ -4,7 +4,7 @@
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
 "baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-serial, sessions, footprint.
+serial, sessions, footprint, restart.
 
 Agents (``xrce-agent``), the rclpy peers (bench/ros_peer.py) and client swarms
 (bench/session_swarm.py) each run in their own process; ROS traffic stays on a leased ROS domain
@@ -474,7 +474,7 @@ def _text(value):
     return str(value)
 
 
-GROUPS = ("ros", "latency", "serial", "sessions", "footprint")
+GROUPS = ("ros", "latency", "serial", "sessions", "footprint", "restart")
 
 
 def main(argv=None):
@@ -505,6 +505,9 @@ def main(argv=None):
                 concurrent_sessions(count, seconds=3.0 if quick else 20.0)
         if "footprint" in groups:
             footprint()
+        if "restart" in groups:  # bench/restart_gap.py: agent SIGKILL + restart, board reset
+            import restart_gap
+            restart_gap.report(record, env, runs=3 if quick else 5)
     finally:
         lease.release()
     print_table()
