@@ -31,12 +31,12 @@ from xrce.agent.datapath import DataPath
 from xrce.agent.liveliness import HARD_LIVELINESS_PROBES, Liveliness  # noqa: F401 (re-exported)
 from xrce.agent.middleware import Middleware
 from xrce.agent.registry import ObjectRegistry, Parked
-from xrce.agent.timeline import RecoveryTimelines
 from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, STREAM_WINDOW, TRACE, AgentStats, ClientProxy, Link,
     SessionTable,
 )
+from xrce.agent.timeline import RecoveryTimelines
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
 from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable
