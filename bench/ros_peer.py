@@ -3,18 +3,22 @@
 It is the "ROS side" of every ROS benchmark, in its own process (its own GIL), on the domain given
 by ROS_DOMAIN_ID. Replies are one line each on stdout. Commands:
 
-    sub TOPIC be|rel         raw Twist subscription counting arrivals (EventsExecutor)
+    sub TOPIC be|rel [TYPE]  raw subscription counting arrivals (EventsExecutor); TYPE as
+                             pkg/msg/Name, default geometry_msgs/msg/Twist
     lat TOPIC be|rel         Twist subscription recording now - linear.x (CLOCK_MONOTONIC seconds)
     count TOPIC              -> "N FIRST LAST": arrivals so far and first/last arrival times
     latency TOPIC            -> JSON list of the latencies recorded, in seconds
     publishers TOPIC         -> how many publishers this peer sees on TOPIC
     subscribers TOPIC        -> how many subscribers this peer sees on TOPIC
-    flood TOPIC be|rel SECONDS   publish pre-serialized Twists flat out -> "N ELAPSED"
+    flood TOPIC be|rel SECONDS   publish pre-serialized Twists flat out -> "N ELAPSED CPU"
+                             (CPU: this process's user+system seconds during the flood)
     stamped TOPIC be|rel COUNT HZ  publish COUNT Twists with linear.x = send time -> "N"
     quit
 """
 
+import importlib
 import json
+import os
 import struct
 import sys
 import threading
@@ -30,6 +34,16 @@ from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 
 _MONOTONIC = time.monotonic
+
+
+def process_cpu_seconds():
+    times = os.times()
+    return times.user + times.system
+
+
+def message_class(type_name):
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module("%s.%s" % (package, kind)), name)
 
 
 def qos(kind):
@@ -77,7 +91,8 @@ class Peer:
             raise done[0]
         return done[0]
 
-    def subscribe(self, topic, kind):
+    def subscribe(self, topic, kind, type_name=None):
+        msg_class = Twist if type_name is None else message_class(type_name)
         record = self.arrivals[topic] = [0, 0.0, 0.0]
 
         def arrived(_raw):
@@ -87,8 +102,8 @@ class Peer:
             record[0] += 1
             record[2] = now
 
-        self.on_executor(lambda: self.node.create_subscription(Twist, topic, arrived, qos(kind),
-                                                               raw=True))
+        self.on_executor(lambda: self.node.create_subscription(msg_class, topic, arrived,
+                                                               qos(kind), raw=True))
 
     def measure_latency(self, topic, kind):
         samples = self.latencies[topic] = []
@@ -105,6 +120,7 @@ class Peer:
         body = serialize_message(Twist())
         publish = publisher.publish
         sent = 0
+        cpu_before = process_cpu_seconds()
         start = time.monotonic()
         end = start + seconds
         while True:
@@ -113,7 +129,7 @@ class Peer:
             sent += 100
             if time.monotonic() >= end:
                 break
-        return sent, time.monotonic() - start
+        return sent, time.monotonic() - start, process_cpu_seconds() - cpu_before
 
     def publisher(self, topic, kind):
         publisher = self.publishers.get(topic)
@@ -160,7 +176,7 @@ def main():
             if command == "quit":
                 break
             if command == "sub":
-                peer.subscribe(args[0], args[1])
+                peer.subscribe(args[0], args[1], args[2] if len(args) > 2 else None)
                 reply = "ok"
             elif command == "lat":
                 peer.measure_latency(args[0], args[1])
@@ -177,8 +193,8 @@ def main():
             elif command == "stamped":
                 reply = str(peer.stamped(args[0], args[1], int(args[2]), float(args[3])))
             elif command == "flood":
-                sent, elapsed = peer.flood(args[0], args[1], float(args[2]))
-                reply = "%d %.6f" % (sent, elapsed)
+                sent, elapsed, cpu = peer.flood(args[0], args[1], float(args[2]))
+                reply = "%d %.6f %.6f" % (sent, elapsed, cpu)
             else:
                 reply = "error unknown command %r" % command
             print(reply, flush=True)

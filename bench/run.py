@@ -4,7 +4,10 @@
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
 "baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-serial, sessions, footprint, restart.
+cost, serial, sessions, footprint, restart. ``cost`` (bench/agent_cost.py) is what the agent costs the
+robot's computer: CPU per message at fixed offered rates, idle CPU, the TurtleBot3 load, memory,
+ping; ``--reference DIR`` measures another source tree's agent beside it in the same run.
+``restart`` (bench/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
 
 Agents (``xrce-agent``), the rclpy peers (bench/ros_peer.py) and client swarms
 (bench/session_swarm.py) each run in their own process; ROS traffic stays on a leased ROS domain
@@ -226,7 +229,7 @@ def ros_benchmarks(env, domain_id, seconds, latency_count, ping_count, groups):
             while flood.is_alive():
                 session.spin_once(10)
             session.run_until_timeout(500)
-            published, published_s = answer[0].split()
+            published, published_s = answer[0].split()[:2]
             baseline = int(published) / float(published_s)
             rate = (len(got) - 1) / (got[-1] - got[0]) if len(got) > 1 else 0.0
             record("ROS->client best-effort", rate, "msg/s", baseline, "bare rclpy publish rate",
@@ -474,7 +477,7 @@ def _text(value):
     return str(value)
 
 
-GROUPS = ("ros", "latency", "serial", "sessions", "footprint", "restart")
+GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart")
 
 
 def main(argv=None):
@@ -482,6 +485,8 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="short runs (under 2 minutes)")
     parser.add_argument("--only", default=",".join(GROUPS),
                         help="comma-separated groups: %s" % ", ".join(GROUPS))
+    parser.add_argument("--reference", metavar="DIR",
+                        help="cost group: also measure the agent of this source tree (baseline)")
     args = parser.parse_args(argv)
     groups = set(args.only.split(","))
     unknown = groups - set(GROUPS)
@@ -497,6 +502,10 @@ def main(argv=None):
             ros_benchmarks(env, lease.domain_id, seconds=2.0 if quick else 5.0,
                            latency_count=300 if quick else 2000,
                            ping_count=300 if quick else 2000, groups=groups)
+        if "cost" in groups:
+            sys.modules.setdefault("run", sys.modules[__name__])  # one FIGURES list for both
+            from agent_cost import cost_benchmarks
+            cost_benchmarks(env, lease.domain_id, quick, args.reference)
         if "serial" in groups:
             for baudrate in (115200, 921600):
                 serial_goodput(baudrate, seconds=2.0 if quick else 8.0)

@@ -618,6 +618,91 @@ def test_run_sends_heartbeats_and_close_deletes_everything():
     asyncio.run(asyncio.wait_for(scenario(), 5))
 
 
+def test_timed_work_is_scheduled_when_due_and_nothing_runs_when_idle():
+    async def scenario():
+        link = Link()
+        agent = Agent(CedMiddleware(), heartbeat_period=0.02, client_dead_time=0.3)
+        ticks = []
+        tick = agent.tick
+        agent.tick = lambda: (ticks.append(agent.clock()), tick())[1]
+        task = asyncio.ensure_future(agent.run())
+        await asyncio.sleep(0.2)
+        assert len(ticks) == 1 and agent.next_wakeup is None  # no client: no timer at all
+        peer = Peer(agent, link, ("h", 1))
+        peer.connect()  # a session: its dead time is due
+        assert agent.next_wakeup == pytest.approx(agent.clock() + 0.3, abs=0.05)
+        peer.build_pubsub()  # acknowledged output: still only the dead time
+        peer.take()
+        peer.read(0x80, DeliveryControl())
+        peer.send(0x80, WriteData(0x60, 0x0015, b"unacknowledged"))
+        assert agent.next_wakeup == pytest.approx(agent.clock() + 0.02, abs=0.01)
+        await asyncio.sleep(0.1)
+        heartbeats = [ps[0] for _, ps in peer.take() if ps[0].ID == C.HEARTBEAT]
+        assert len(heartbeats) >= 2  # sent by the timer, nobody called tick()
+        peer.ack_all()
+        del ticks[:]
+        await asyncio.sleep(0.1)
+        assert len(ticks) <= 1 and not [1 for _, ps in peer.take() if ps[0].ID == C.HEARTBEAT]
+        await asyncio.sleep(0.3)  # past the dead time: dead, and nothing more to do for it
+        assert agent.stats.clients_dead == 1 and agent.next_wakeup is None
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        await agent.close()
+    asyncio.run(asyncio.wait_for(scenario(), 5))
+
+
+def test_best_effort_samples_take_the_short_path_with_the_same_accounting(setup):
+    agent, link = setup
+    talker = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")
+    listener = Peer(agent, link, ("h", 2), key=b"\x02\x00\x00\x02")
+    for peer in (talker, listener):
+        peer.connect()
+        peer.build_pubsub(reliable=False)
+    listener.read(0x01, DeliveryControl())
+    general = []
+    receive = agent._receive
+    agent._receive = lambda *args: (general.append(args[2]), receive(*args))[1]
+    for index in range(3):
+        talker.write(bytes([index]), stream_id=0x01)
+    talker.send(0x01, WriteData(0x50, 0x0015, b"stale"), seq=1)  # older than the last: dropped
+    assert len(general) == 1  # only the stream's first message went the general way
+    assert data_of(listener.take()) == [b"\x00", b"\x01", b"\x02"]
+    writer = agent.clients[talker.key].objects[0x0015]
+    assert (writer.samples, writer.sample_bytes, agent.stats.dropped) == (3, 3, 1)
+    client = agent.clients[talker.key]
+    assert client.messages_in == len(general) + 3 + 7  # 7 messages built the entities
+    # Reliable: the next message in order goes the short way and is acknowledged; a gap does not.
+    del general[:]
+    base = talker.seqs[0x80]
+    talker.write(b"r0")
+    talker.take()
+    talker.write(b"r1")
+    (_, (acknack,)), = talker.take()
+    assert acknack.ID == C.ACKNACK and acknack.first_unacked == (base + 2) & 0xFFFF
+    talker.send(0x80, WriteData(0x51, 0x0015, b"r3"), seq=base + 3)  # r2 missing
+    talker.send(0x80, WriteData(0x52, 0x0015, b"r2"), seq=base + 2)
+    assert len(general) == 2 and writer.samples == 7
+
+
+@settings(max_examples=200, deadline=None)
+@given(session_id=st.sampled_from([0x01, 0x7F, 0x81, 0xFF]), stream_id=st.integers(0, 255),
+       request_id=st.integers(0, 0xFFFF), object_id=st.integers(0, 0xFFFF),
+       sample=st.binary(max_size=600))
+def test_the_direct_data_encoding_is_byte_exact(session_id, stream_id, request_id, object_id,
+                                               sample):
+    from xrce.agent.datapath import data_message
+    from xrce.submessages import Data
+
+    class Client:
+        pass
+    client = Client()
+    client.session_id = session_id
+    client.header_key = b"\x0a\x0b\x0c\x0d" if session_id < 0x80 else None
+    assert data_message(client, stream_id, request_id, object_id, sample) == encode_message(
+        session_id, stream_id, 0, client.header_key, [Data(request_id, object_id, sample)])
+
+
 def test_ced_routes_only_within_a_domain(setup):
     agent, link = setup
     a = Peer(agent, link, ("h", 1), key=b"\x01\x00\x00\x01")

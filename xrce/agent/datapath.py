@@ -24,15 +24,74 @@ from xrce.streams import OutputBestEffortStream, OutputReliableStream, is_reliab
 from xrce.submessages import Data, Fragment, ReadData, encode_message
 
 log = logging.getLogger("xrce.agent")
+C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
 
 
 class DataPath:
     """Mixin of ``Agent``: sample input, per-reader queues, READ_DATA delivery and stream output.
 
     Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``max_reassembly_bytes`` and
-    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status`` and
-    ``_quota_warning``.
+    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status``,
+    ``_quota_warning``, and ``_wake_at``/``_heartbeat_soon`` (liveliness: when timed work is due).
     """
+
+    def _fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
+        """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) of
+        a live session, to a writer created earlier, on a best-effort stream or as the next
+        message in order of a reliable one. Anything else (and each stream's first message)
+        returns False untouched and takes the general path (``Agent._receive``), which keeps
+        exactly the same counters and checks; this one skips the header object, the submessage
+        iterator and several layers of calls."""
+        if len(data) < 12:
+            return False  # too short to hold a WRITE_DATA
+        session_id = data[0]
+        if session_id & 0x7F == 0:
+            return False  # session-less
+        if session_id & 0x80:
+            key = self.endpoints.get((link, endpoint))
+            start = 4
+        else:
+            key = data[4:8]
+            start = 8
+        client = self.clients.get(key)
+        stream_id = data[1]
+        if client is None or client.dead or client.parked is not None or stream_id == 0 \
+                or len(data) < start + 8:
+            return False
+        if self.timelines.pending and client.key in self.timelines.pending:
+            return False  # a client coming back: _write_data notes its first sample into ROS
+        length = data[start + 2] | (data[start + 3] << 8)
+        if data[start] != C_WRITE_DATA or data[start + 1] & C.FLAG_FORMAT_MASK != C.FORMAT_DATA \
+                or start + 4 + length != len(data) or length < 4:
+            return False
+        entry = client.objects.get((data[start + 6] << 8) | data[start + 7])
+        if entry is None or entry.write is None:
+            return False
+        seq = data[2] | (data[3] << 8)
+        if stream_id & 0x80:
+            stream = client.in_reliable.get(stream_id)
+            if stream is None or stream.stored or seq != (stream.last_handled + 1) & 0xFFFF:
+                return False  # out of order, a gap to fill, or a duplicate: the general path
+        else:
+            stream = client.in_best_effort.get(stream_id)
+            if stream is None:
+                return False
+        client.last_seen = self.clock()
+        client.probes = 0
+        client.messages_in += 1
+        client.bytes_in += len(data)
+        if stream_id & 0x80:
+            stream.receive(seq, data)  # in order, nothing stored: hands back this one message
+        elif not stream.accept(seq):
+            self.stats.dropped += 1
+            return True
+        self.stats.samples_in += 1
+        entry.samples += 1
+        entry.sample_bytes += length - 4
+        entry.write(data[start + 8:])
+        if stream_id & 0x80 and client.alive:
+            self._acknack_soon(client, stream)
+        return True
 
     def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
         entry = client.objects.get(object_id)
@@ -135,6 +194,8 @@ class DataPath:
             return
         reader.active = ReadRequest(request.request_id, request.stream_id, remaining, deadline, rate,
                                     now)
+        if deadline is not None:
+            self._wake_at(deadline)
         if self.timelines.pending:
             self.timelines.read_data(client)
         self._pump(client, entry)
@@ -155,10 +216,12 @@ class DataPath:
                 active.refilled = now
                 # A sample larger than one second's budget goes out whenever the bucket is full.
                 if active.tokens < min(len(sample), active.rate):
+                    self._wake_at(now + (min(len(sample), active.rate) - active.tokens) / active.rate)
                     break
                 active.tokens -= len(sample)
-            if not self._send_on_stream(client, active.stream_id,
-                                        Data(active.request_id, entry.object_id, sample)):
+            if not self._send_on_stream(client, active.stream_id, None,
+                                        data_message(client, active.stream_id, active.request_id,
+                                                     entry.object_id, sample)):
                 if active.rate:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
@@ -214,16 +277,22 @@ class DataPath:
         self._send_client(client, encode_message(
             client.session_id, C.STREAM_NONE, 0, client.header_key, [payload]))
 
-    def _send_on_stream(self, client: ClientProxy, stream_id: int, payload) -> bool:
-        """Send one submessage alone in a message on ``stream_id``.
+    def _send_on_stream(self, client: ClientProxy, stream_id: int, payload,
+                        message: Optional[bytes] = None) -> bool:
+        """Send one submessage alone in a message on ``stream_id`` (``message``: that message
+        already encoded with sequence number 0, e.g. by ``data_message``).
 
         False only when a reliable window has no room (the caller decides whether to keep it);
         best-effort output larger than the mtu is dropped, counted, and reported as handled.
         """
         if stream_id == C.STREAM_NONE:
-            self._send_stream0(client, payload)
+            if message is not None:
+                self._send_client(client, message)
+            else:
+                self._send_stream0(client, payload)
             return True
-        message = encode_message(client.session_id, stream_id, 0, client.header_key, [payload])
+        if message is None:
+            message = encode_message(client.session_id, stream_id, 0, client.header_key, [payload])
         if not is_reliable(stream_id):
             if len(message) > client.mtu:
                 self.stats.oversize_dropped += 1
@@ -245,6 +314,7 @@ class DataPath:
             message = _with_seq(message, seq)
             stream.commit(seq, message)
             self._send_client(client, message)
+            self._heartbeat_soon()
             return True
         return self._send_fragmented(client, stream, message)
 
@@ -270,9 +340,33 @@ class DataPath:
             stream.commit(seq, fragment)
             self.stats.fragments_out += 1
             self._send_client(client, fragment)
+        self._heartbeat_soon()
         return True
 
 
 
 def _with_seq(message: bytes, seq: int) -> bytes:
     return message[:2] + bytes((seq & 0xFF, seq >> 8)) + message[4:]
+
+
+_DATA_FLAGS = C.FLAG_LITTLE_ENDIAN | C.FORMAT_DATA
+_MAX_SHORT_SAMPLE = 0xFFFF - 4  # what one submessage's 16-bit length holds besides the ids
+
+
+def data_message(client: ClientProxy, stream_id: int, request_id: int, object_id: int,
+                 sample: bytes) -> bytes:
+    """The message carrying one DATA (FORMAT_DATA) alone, sequence number 0: the bytes
+    ``encode_message(session, stream_id, 0, key, [Data(request_id, object_id, sample)])`` gives
+    (a test holds them equal), assembled directly because the generic encoder's objects and CDR
+    writer were most of the cost of delivering a sample to a client."""
+    if len(sample) > _MAX_SHORT_SAMPLE:
+        return encode_message(client.session_id, stream_id, 0, client.header_key,
+                              [Data(request_id, object_id, sample)])
+    length = 4 + len(sample)
+    head = bytes((client.session_id, stream_id, 0, 0, C.DATA, _DATA_FLAGS, length & 0xFF,
+                  length >> 8, request_id >> 8, request_id & 0xFF, object_id >> 8,
+                  object_id & 0xFF))
+    if client.header_key is not None:
+        head = head[:4] + client.header_key + head[4:]
+    return head + sample
+

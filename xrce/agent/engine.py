@@ -21,6 +21,7 @@ keeps the XRCE view: ids, parents, REUSE/REPLACE signatures and the READ_DATA st
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import time
 from collections import deque
@@ -28,7 +29,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
 
 from xrce import constants as C, names as wire_names
 from xrce.agent.datapath import DataPath
-from xrce.agent.liveliness import HARD_LIVELINESS_PROBES, Liveliness  # noqa: F401 (re-exported)
+from xrce.agent.liveliness import NEVER, Liveliness
 from xrce.agent.middleware import Middleware
 from xrce.agent.registry import ObjectRegistry, Parked
 from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
@@ -36,7 +37,7 @@ from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents t
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, STREAM_WINDOW, TRACE, AgentStats, ClientProxy, Link,
     SessionTable,
 )
-from xrce.agent.timeline import RecoveryTimelines
+from xrce.agent.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
 from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable
@@ -79,6 +80,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
         self._started = False
+        self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
+        self._timer_due = NEVER
+        self._info_cache: Dict[tuple, bytes] = {}  # see SessionTable._info_message
+        self._acks_due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
@@ -90,12 +95,15 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def receive(self, link: Link, endpoint: Hashable, data) -> None:
         """Handle one whole XRCE message from ``endpoint`` on ``link``. Never raises."""
         data = bytes(data)
-        self.stats.messages_in += 1
-        self.stats.bytes_in += len(data)
+        stats = self.stats
+        stats.messages_in += 1
+        stats.bytes_in += len(data)
         if self.tap is not None:
             self.tap("in", link, endpoint, data)
         try:
-            self._receive(link, endpoint, data)
+            # At -v 6 every message goes the general way, which traces it.
+            if log.isEnabledFor(TRACE) or not self._fast_write(link, endpoint, data):
+                self._receive(link, endpoint, data)
         except DecodeError as exc:
             self.stats.decode_errors += 1
             self.stats.dropped += 1
@@ -132,31 +140,54 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     break
 
     def tick(self) -> None:
-        """One round of periodic work: HEARTBEATs, liveliness probes, paced delivery."""
+        """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
+        loop timer for the next (``run()`` calls it from there; tests call it directly)."""
         self._resume_parked()
         now = self.clock()
+        due = NEVER
         if self.timelines.pending:
             self.timelines.tick(now)
+            if self.timelines.pending:  # reported by a later tick at the latest
+                due = now + TIMELINE_CHECK_S
         for client in list(self.clients.values()):
             try:
-                self._tick_client(client, now)
+                client_due = self._tick_client(client, now)
             except Exception:
                 self.stats.handler_errors += 1
                 log.debug("periodic work for client %s failed", client.key.hex(), exc_info=True)
+                client_due = now + self.heartbeat_period
+            if client_due < due:
+                due = client_due
+        if due < NEVER:
+            self._wake_at(due)
+
+    @property
+    def next_wakeup(self) -> Optional[float]:
+        """When (agent clock) the timed work next runs; None when nothing is scheduled."""
+        return None if self._timer is None else self._timer_due
 
     async def run(self) -> None:
+        """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent
+        for traffic and for the timer of the next due work (see ``xrce.agent.liveliness``)."""
         if self.loop is None:
             self.loop = asyncio.get_running_loop()
         if not self._started:
             self._started = True
             await self.middleware.start()
-        while True:
-            await asyncio.sleep(self.heartbeat_period)
-            self.tick()
+            # Everything built so far (rclpy, message classes, the ROS context) lives as long as
+            # the agent: out of the collector's sight, full collections stay short (ping p99).
+            gc.freeze()
+        self.tick()
+        try:
+            await self.loop.create_future()
+        finally:
+            self._cancel_timer()
 
     async def close(self) -> None:
+        self._cancel_timer()
         for client in list(self.clients.values()):
             self._delete_client(client)
+        self._cancel_timer()  # deleting clients may have scheduled replies' HEARTBEATs
         await self.middleware.close()
 
     # ------------------------------------------------------------------ input dispatch --
@@ -183,6 +214,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             client.dead = False
             self.stats.clients_revived += 1
             log.info("client %s is alive again", client.key.hex())
+            self._wake_at(client.last_seen + (client.hard_liveliness or self.client_dead_time))
         client.messages_in += 1
         client.bytes_in += len(data)
         stream_id = header.stream_id
@@ -211,7 +243,29 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self.stats.duplicates += stream.duplicates - duplicates
             client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
-                self._send_acknack(client, stream)
+                self._acknack_soon(client, stream)
+
+    def _acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
+        """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
+        cumulative, so one sent after the batch says what one per message would have said last.
+        Without a loop (synchronous use, tests, golden replays) it goes out at once."""
+        if self.loop is None:
+            self._send_acknack(client, stream)
+            return
+        if not self._acks_due:
+            self.loop.call_soon(self._send_due_acknacks)
+        self._acks_due[(client.key, stream.stream_id)] = (client, stream)
+
+    def _send_due_acknacks(self) -> None:
+        due, self._acks_due = self._acks_due, {}
+        for client, stream in due.values():
+            if client.alive and self.clients.get(client.key) is client and \
+                    client.in_reliable.get(stream.stream_id) is stream:
+                try:
+                    self._send_acknack(client, stream)
+                except Exception:
+                    self.stats.handler_errors += 1
+                    log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
 
     def _process_reliable_message(self, client: ClientProxy, stream_id: int, message: bytes) -> None:
         size = header_size(message[0])
@@ -304,7 +358,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         elif sub_id == C.HEARTBEAT:
             self._on_heartbeat(client, payload)
         elif sub_id == C.GET_INFO:
-            self._send_stream0(client, self._info(payload, 1))
+            self._send_client(client, self._info_message(None, client.session_id, C.STREAM_NONE, 0,
+                                                         client.header_key, payload, 1))
         elif sub_id == C.TIMESTAMP:
             receive_ns = time.time_ns()
             client.timestamp_skew_ns = receive_ns - payload.ns()

@@ -4,11 +4,18 @@
 an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
 HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead/expired clients
 and paced READ_DATA delivery.
+
+Nothing is polled: that work runs from one loop timer (``loop.call_at``) set for the earliest time
+something is due, HEARTBEATs ``heartbeat_period`` after unacknowledged output, a client's dead time
+after it was last heard, a READ_DATA's deadline. With no client, or clients whose output is all
+acknowledged, the agent wakes at most once per dead time per client.
 """
 
 from __future__ import annotations
 
 import logging
+
+import math
 
 from xrce import constants as C
 from xrce.agent.session import STREAM_WINDOW, ClientProxy
@@ -18,12 +25,43 @@ from xrce.submessages import AckNack, GetInfo, Heartbeat
 log = logging.getLogger("xrce.agent")
 
 HARD_LIVELINESS_PROBES = 3
+NEVER = math.inf
 
 
 class Liveliness:
     """Mixin of ``Agent``. Uses the agent's ``stats``, ``clock``, ``heartbeat_period``,
     ``client_dead_time`` and ``client_expire_time``; ``_send_client``/``_send_stream0`` and
     ``_pump`` (data path), ``_process_reliable_message`` (dispatcher), ``_delete_client``."""
+
+    # ------------------------------------------------------------------ timer --
+
+    def _wake_at(self, due: float) -> None:
+        """Run ``tick()`` at ``due`` (agent clock) unless it is already set to run sooner."""
+        if due >= self._timer_due or self.loop is None:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_due = due
+        delay = due - self.clock()
+        self._timer = self.loop.call_at(self.loop.time() + (delay if delay > 0 else 0.0),
+                                        self._on_timer)
+
+    def _heartbeat_soon(self) -> None:
+        """Reliable output went out: its HEARTBEAT round is due one period from now."""
+        due = self.clock() + self.heartbeat_period
+        if due < self._timer_due:
+            self._wake_at(due)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._timer_due = NEVER
+        self.tick()
+
+    def _cancel_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = None
+        self._timer_due = NEVER
 
     def _on_acknack(self, client: ClientProxy, acknack: AckNack) -> None:
         stream = client.out_reliable.get(acknack.stream_id)
@@ -68,7 +106,9 @@ class Liveliness:
         self.stats.acknacks_out += 1
         self._send_stream0(client, AckNack(first, bitmap, stream.stream_id))
 
-    def _tick_client(self, client: ClientProxy, now: float) -> None:
+    def _tick_client(self, client: ClientProxy, now: float) -> float:
+        """The timed work for one client; returns when it next has some (``NEVER``: only when
+        the client speaks again)."""
         dead_time = client.hard_liveliness or self.client_dead_time
         silent = now - client.last_seen
         if silent >= dead_time:
@@ -77,33 +117,46 @@ class Liveliness:
                 self.stats.clients_dead += 1
                 log.info("client %s silent for %d ms: dead (no more HEARTBEATs)", client.key.hex(),
                          int(silent * 1000))
-            if not client.hard_liveliness and self.client_expire_time and \
-                    silent >= self.client_expire_time:
-                self.stats.clients_expired += 1
-                log.info("client %s silent for %d ms: expired, deleting its %d objects",
-                         client.key.hex(), int(silent * 1000), len(client.objects))
-                self._delete_client(client)
-                return
+            if not client.hard_liveliness and self.client_expire_time:
+                if silent >= self.client_expire_time:
+                    self.stats.clients_expired += 1
+                    log.info("client %s silent for %d ms: expired, deleting its %d objects",
+                             client.key.hex(), int(silent * 1000), len(client.objects))
+                    self._delete_client(client)
+                    return NEVER
+                return client.last_seen + self.client_expire_time
             if client.hard_liveliness:
                 if client.probes >= HARD_LIVELINESS_PROBES:
                     log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
                     self._delete_client(client)
-                    return
+                    return NEVER
                 client.probes += 1
                 self._send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
                                                    C.INFO_CONFIGURATION))
-            return  # dead clients get no HEARTBEATs
+                return now + self.heartbeat_period
+            return NEVER  # dead clients get no HEARTBEATs
+        due = client.last_seen + dead_time
+        soon = now + self.heartbeat_period
         for stream in list(client.out_reliable.values()):
             span = stream.heartbeat()
             if span is not None:
                 self.stats.heartbeats_out += 1
                 client.heartbeat_sent_at = now
                 self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
-        for object_id, entry in list(client.objects.items()):
+                due = soon
+        for entry in list(client.objects.values()):
             reader = entry.reader
             if reader is not None and reader.active is not None:
                 if reader.queue:
                     self._pump(client, entry)
-                elif reader.active.deadline is not None and now >= reader.active.deadline:
-                    reader.active = None
-
+                active = reader.active
+                if active is None:
+                    continue
+                if reader.queue:
+                    due = soon if soon < due else due
+                elif active.deadline is not None:
+                    if now >= active.deadline:
+                        reader.active = None
+                    elif active.deadline < due:
+                        due = active.deadline
+        return due

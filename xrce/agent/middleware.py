@@ -22,6 +22,7 @@ bytes on receive.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
@@ -116,6 +117,12 @@ class Middleware:
 
     def write(self, writer: EntityKey, sample: bytes) -> bool:
         raise NotImplementedError
+
+    def writer(self, writer: EntityKey) -> Callable[[bytes], bool]:
+        """``write`` bound to one writer, taken once when it is created: the engine's per-sample
+        path calls it without looking the writer up again. Backends may return something faster;
+        it is never called after ``delete(writer)``."""
+        return functools.partial(self.write, writer)
 
     def write_request(self, requester: EntityKey, correlation_id: int, sample: bytes) -> bool:
         raise NotImplementedError

@@ -174,6 +174,7 @@ class ObjectRegistry:
             entry.topic_spec = client.objects[topic].topic_spec
             if writer:
                 mw.create_datawriter(key, client.entity(entry.parent), client.entity(topic), qos)
+                entry.write = mw.writer(key)
             else:
                 entry.reader = ReaderState(_queue_bound(qos))
                 mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,

@@ -36,6 +36,7 @@ MAX_UNKNOWN = 1024  # unknown sessions remembered at once (oldest forgotten firs
 UNKNOWN_TTL_S = 30.0  # traffic older than this does not count as the start of a comeback
 SETTLE_S = 1.0  # a client without writers: done this long after its last READ_DATA
 GIVE_UP_S = 10.0  # report whatever was reached by then
+TIMELINE_CHECK_S = 0.5  # how often the engine's timer looks at pending timelines
 
 
 class Timeline:
