@@ -4,9 +4,10 @@
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
 "baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-cost, serial, sessions, footprint. ``cost`` (bench/agent_cost.py) is what the agent costs the
+cost, serial, sessions, footprint, restart. ``cost`` (bench/agent_cost.py) is what the agent costs the
 robot's computer: CPU per message at fixed offered rates, idle CPU, the TurtleBot3 load, memory,
 ping; ``--reference DIR`` measures another source tree's agent beside it in the same run.
+``restart`` (bench/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
 
 Agents (``xrce-agent``), the rclpy peers (bench/ros_peer.py) and client swarms
 (bench/session_swarm.py) each run in their own process; ROS traffic stays on a leased ROS domain
@@ -476,7 +477,7 @@ def _text(value):
     return str(value)
 
 
-GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint")
+GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart")
 
 
 def main(argv=None):
@@ -513,6 +514,9 @@ def main(argv=None):
                 concurrent_sessions(count, seconds=3.0 if quick else 20.0)
         if "footprint" in groups:
             footprint()
+        if "restart" in groups:  # bench/restart_gap.py: agent SIGKILL + restart, board reset
+            import restart_gap
+            restart_gap.report(record, env, runs=3 if quick else 5)
     finally:
         lease.release()
     print_table()

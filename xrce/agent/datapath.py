@@ -58,6 +58,8 @@ class DataPath:
         if client is None or client.dead or client.parked is not None or stream_id == 0 \
                 or len(data) < start + 8:
             return False
+        if self.timelines.pending and client.key in self.timelines.pending:
+            return False  # a client coming back: _write_data notes its first sample into ROS
         length = data[start + 2] | (data[start + 3] << 8)
         if data[start] != C_WRITE_DATA or data[start + 1] & C.FLAG_FORMAT_MASK != C.FORMAT_DATA \
                 or start + 4 + length != len(data) or length < 4:
@@ -100,7 +102,10 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += len(data)
         if entry.kind == C.OBJK_DATAWRITER:
-            return bool(self.middleware.write(key, data))
+            written = bool(self.middleware.write(key, data))
+            if written and self.timelines.pending:
+                self.timelines.sample_into_ros(client)
+            return written
         if entry.kind == C.OBJK_REQUESTER:
             correlation_id = (entry.object_id << 16) + request_id
             return bool(self.middleware.write_request(key, correlation_id, data))
@@ -191,6 +196,8 @@ class DataPath:
                                     now)
         if deadline is not None:
             self._wake_at(deadline)
+        if self.timelines.pending:
+            self.timelines.read_data(client)
         self._pump(client, entry)
 
     def _pump(self, client: ClientProxy, entry: ObjectEntry) -> None:

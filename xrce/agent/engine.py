@@ -37,6 +37,7 @@ from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents t
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, STREAM_WINDOW, TRACE, AgentStats, ClientProxy, Link,
     SessionTable,
 )
+from xrce.agent.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
 from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable
@@ -87,6 +88,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
+        self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -143,6 +145,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self._resume_parked()
         now = self.clock()
         due = NEVER
+        if self.timelines.pending:
+            self.timelines.tick(now)
+            if self.timelines.pending:  # reported by a later tick at the latest
+                due = now + TIMELINE_CHECK_S
         for client in list(self.clients.values()):
             try:
                 client_due = self._tick_client(client, now)
@@ -285,6 +291,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             return  # only the first submessage of a session-less message counts
 
     def _receive_unknown_client(self, link: Link, endpoint: Hashable, data: bytes, header) -> None:
+        self.timelines.unknown_traffic(link, endpoint, header)
         answered = False
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             if sub_id == C.DELETE:

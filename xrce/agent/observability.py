@@ -35,6 +35,7 @@ import sys
 import time
 
 from xrce import constants as C
+from xrce.agent.timeline import format_timeline
 
 log = logging.getLogger("xrce.agent.observability")
 
@@ -161,9 +162,11 @@ class Observer:
             row.update(link.stats.as_dict())
             row["crc_errors"] = _link_crc_errors(link)
             links.append(row)
+        timelines = getattr(agent, "timelines", None)
         return {"time": time.time(), "uptime_s": round(now - self.started, 3),
                 "agent": agent.stats.as_dict(), "links": links, "clients": clients,
-                "topics": topics}
+                "topics": topics,
+                "recoveries": timelines.snapshot() if timelines is not None else []}
 
 
 # ------------------------------------------------------------------------------------ rendering
@@ -189,7 +192,7 @@ def _table(headers, rows) -> list:
     return lines
 
 
-def format_snapshot(snapshot: dict, max_clients: int = 40) -> str:
+def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5) -> str:
     """The stats view: links, clients (busiest first) and topics as plain-text tables."""
     agent = snapshot["agent"]
     lines = ["xrce-agent up %.0f s: %d clients, in %d msg / %d B, out %d msg / %d B, "
@@ -216,6 +219,10 @@ def format_snapshot(snapshot: dict, max_clients: int = 40) -> str:
     lines += _table(("topic", "direction", "type", "endpoints", "samples", "samples/s", "B/s"),
                     [(t["topic"], t["direction"], t["type"], t["endpoints"], t["samples"],
                       t["samples_per_s"], t["bytes_per_s"]) for t in snapshot["topics"]])
+    recoveries = snapshot.get("recoveries") or []
+    if recoveries:
+        lines += ["", "recoveries (latest last):"]
+        lines += ["  " + format_timeline(t) for t in recoveries[-max_recoveries:]]
     return "\n".join(lines)
 
 

@@ -57,6 +57,8 @@ class ObjectRegistry:
         if not self._send_on_stream(client, reply_stream,
                                     Status(request.request_id, request.object_id, status)):
             self.stats.status_lost += 1
+        if self.timelines.pending and isinstance(request, Create):
+            self.timelines.created(client, request, status)
 
     def _create(self, client: ClientProxy, request: Create, stream_id: int) -> None:
         kind = request.kind

@@ -63,6 +63,7 @@ from xrce.agent.middleware import (
     RequestCallback,
     ServiceSpec,
     TopicSpec,
+    TypeNotReady,
 )
 from xrce.agent.rostypes import (
     dds_topic_to_ros,
@@ -463,6 +464,8 @@ class RosMiddleware(Middleware):
         self._closed = False
         # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
         self._agent_publishers: dict[tuple, object] = {}
+        # Domains being joined at start-up (asyncio futures of their _DomainRuntime).
+        self._joining: dict[int, asyncio.Future] = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -515,6 +518,9 @@ class RosMiddleware(Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         self._get_loop()
+        joining = self._joining.get(domain_id)
+        if joining is not None and not joining.done():
+            raise TypeNotReady("ROS domain %d is being joined" % domain_id, joining)
         domain = self._domain(domain_id)
         fallback = "xrce_%08x_%04x" % (key[0] & 0xFFFFFFFF, key[1] & 0xFFFF)
         node_name, namespace = node_name_and_namespace(name or "", fallback)
@@ -857,17 +863,26 @@ class RosMiddleware(Middleware):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        # Join the default ROS domain now. A client that connects (or reconnects after an agent
-        # restart) then only adds a node to a DDS participant its peers already discovered, instead
-        # of waiting for a new participant to be discovered: measured 0.2-2.4 s before this, after
-        # an agent restart, from the session being back to the first sample reaching a subscriber.
+        # Join the default ROS domain now, with the agent's own node in it (_DomainRuntime makes
+        # it): rmw_fastrtps creates the DDS participant with a context's first node, not with the
+        # context. A client that connects (or reconnects after an agent restart) then only adds a
+        # node to a participant its peers already discovered, instead of waiting for a new
+        # participant to be discovered.
         domain_id = _default_domain_id()
+        joining = self._loop.run_in_executor(
+            None, _DomainRuntime, domain_id, self.executor_kind, self.idle_wait_s)
+        # A client that reconnects the moment the agent is back must not start a second context
+        # for this domain meanwhile: create_participant parks it until this join is done
+        # (measured with bench/restart_gap.py, a cold start with the client already waiting:
+        # 2.4-3.3 s to the first sample in ROS before, 0.4-0.5 s after).
+        self._joining[domain_id] = joining
         try:
-            runtime = await self._loop.run_in_executor(
-                None, _DomainRuntime, domain_id, self.executor_kind, self.idle_wait_s)
+            runtime = await joining
         except Exception as exc:  # the agent still serves; the domain starts on first use
             log.warning("could not join ROS domain %d at start-up: %s", domain_id, exc)
             return
+        finally:
+            self._joining.pop(domain_id, None)
         if self._closed or domain_id in self._domains:
             await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
         else:

@@ -226,7 +226,8 @@ class SessionTable:
                          bound.hex(), key.hex())
                 self._delete_client(self.clients[bound])
         client = self.clients.get(key)
-        if client is not None and client.session_id == session_id:
+        restarted = client is not None and client.session_id == session_id
+        if restarted:
             client.reset_streams()  # session restart: objects survive for REUSE
             self._unbind(client)
             client.link, client.endpoint, client.last_seen, client.probes = link, endpoint, now, 0
@@ -248,6 +249,7 @@ class SessionTable:
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
         self._wake_at(now + (client.hard_liveliness or self.client_dead_time))
+        self.timelines.established(client, restarted)
 
     def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
         """True if a session for ``key`` fits under max_clients, evicting the longest-silent dead
@@ -293,6 +295,8 @@ class SessionTable:
         if self.clients.get(client.key) is client:
             del self.clients[client.key]
         self.stats.clients_deleted += 1
+        if self.timelines.pending:
+            self.timelines.forget(client)
         log.info("client %s deleted", client.key.hex())
 
     def _reply_info(self, link: Link, endpoint: Hashable, header, request, impl_status: int) -> None:

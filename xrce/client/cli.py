@@ -429,11 +429,15 @@ def run_pub(args):
             wait_ms = int((next_due - time.monotonic()) * 1000)
             if wait_ms > 0:
                 session.run_until_timeout(wait_ms)  # keeps answering heartbeats and acknacks
-            if not session.write(writer, message, stream_id):
-                raise AgentError("the agent at %s did not free the reliable window" % agent_address(args))
+            lost = session.link_state == "lost"  # the session drops writes until it is back
+            written = session.write(writer, message, stream_id)
             sent += 1
             note = ""
-            if args.reliable:
+            if lost:
+                note = " (not sent: agent lost, re-creating the session)"
+            elif not written:
+                raise AgentError("the agent at %s did not free the reliable window" % agent_address(args))
+            elif args.reliable:
                 if session.run_until_confirm_delivery(DELIVERY_TIMEOUT_MS):
                     note = " (confirmed)"
                 else:

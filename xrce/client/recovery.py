@@ -2,12 +2,14 @@
 #
 # The agent never tells a client that it went away: a restarted agent simply does not know the
 # session, and a vanished one answers nothing. ``LinkMonitor`` watches what the session hears: after
-# ``liveliness_ms`` of silence it pings inside the session (GET_INFO), and it declares the link lost
-# when ``max_missed`` pings go unanswered or when an agent answers that it does not know the session
-# (INFO with implementation status 0). While lost it repeats CREATE_CLIENT every ``retry_ms``; once
-# the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so an
-# agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from the
-# session's run loops.
+# ``liveliness_ms`` of silence it pings inside the session (GET_INFO), then every ``retry_ms`` while
+# no answer comes, and it declares the link lost when the unanswered pings span ``max_missed`` times
+# ``liveliness_ms`` or when an agent answers that it does not know the session (INFO with
+# implementation status 0). Pinging every ``retry_ms`` is what notices a restarted agent soon: its
+# first answer says the session is unknown. While lost it repeats CREATE_CLIENT every ``retry_ms``;
+# once the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so
+# an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
+# the session's run loops.
 
 from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 
@@ -22,7 +24,7 @@ LINK_STATE_NAMES = ("connected", "silent", "lost")
 
 class LinkMonitor:
     __slots__ = ("session", "liveliness_ms", "retry_ms", "max_missed", "on_state", "state",
-                 "missed", "next_ping", "next_attempt", "recoveries")
+                 "missed", "max_pings", "next_ping", "next_attempt", "recoveries")
 
     def __init__(self, session, liveliness_ms=500, retry_ms=250, max_missed=3, on_state=None):
         self.session = session
@@ -32,6 +34,9 @@ class LinkMonitor:
         self.on_state = on_state
         self.state = LINK_CONNECTED
         self.missed = 0
+        # Unanswered pings, ``retry_ms`` apart, that make the link lost: as long a silence as
+        # ``max_missed`` pings ``liveliness_ms`` apart would be.
+        self.max_pings = max(max_missed, max_missed * liveliness_ms // max(retry_ms, 1))
         self.next_ping = 0
         self.next_attempt = 0
         self.recoveries = 0
@@ -101,14 +106,16 @@ class LinkMonitor:
             self._set(LINK_CONNECTED)
             return
         if ticks_diff(now, self.next_ping) >= 0:
-            if self.missed >= self.max_missed:
+            if self.missed >= self.max_pings:
                 self.lose(now)
                 return
             if self.missed:
                 self._set(LINK_SILENT)
             self.missed += 1
             session._send_ping()
-            self.next_ping = ticks_add(now, self.liveliness_ms)
+            # An answering agent resets ``missed`` above, and the next ping then waits for
+            # ``liveliness_ms`` of silence again: the short period only applies to a silent link.
+            self.next_ping = ticks_add(now, self.retry_ms)
 
 
 def link_state(session):
