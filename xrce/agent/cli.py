@@ -338,8 +338,10 @@ async def serve(args, refs):
     run_task = None
     observe = None
     try:
-        # Scheduled before any link opens, so the engine starts its middleware before the first
-        # message can arrive: the task's first step runs before the loop next polls the sockets.
+        # The middleware starts (the default ROS domain joined, the agent's node in it) before
+        # any link opens: no client is answered while rclpy builds, and a restarted agent's DDS
+        # participant is already being discovered when its clients come back.
+        await agent.start()
         run_task = asyncio.ensure_future(agent.run())
         try:
             for link in links:

@@ -166,9 +166,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         """When (agent clock) the timed work next runs; None when nothing is scheduled."""
         return None if self._timer is None else self._timer_due
 
-    async def run(self) -> None:
-        """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent
-        for traffic and for the timer of the next due work (see ``xrce.agent.liveliness``)."""
+    async def start(self) -> None:
+        """Start the middleware (join the default ROS domain). Idempotent; ``run`` calls it too,
+        the CLI awaits it before opening any link so that no client is answered meanwhile."""
         if self.loop is None:
             self.loop = asyncio.get_running_loop()
         if not self._started:
@@ -177,6 +177,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             # Everything built so far (rclpy, message classes, the ROS context) lives as long as
             # the agent: out of the collector's sight, full collections stay short (ping p99).
             gc.freeze()
+
+    async def run(self) -> None:
+        """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent
+        for traffic and for the timer of the next due work (see ``xrce.agent.liveliness``)."""
+        await self.start()
         self.tick()
         try:
             await self.loop.create_future()

@@ -183,9 +183,8 @@ class _DomainRuntime:
 
     def _run(self) -> None:
         # Until the first job there is nothing to spin for: wait on the queue. The agent node and
-        # its wake topic are made then, while a client's CREATE waits anyway, rather than at
-        # start-up, where building them held the GIL while the loop answered the first clients
-        # (a robot's first time sync over a pty came out up to 2 ms off).
+        # its wake topic are made then; RosMiddleware.start gives the default domain that job
+        # before the agent serves anyone, other domains get it with their first client's CREATE.
         result, job = self._jobs.get()
         if job != self._finish:
             try:
@@ -885,8 +884,16 @@ class RosMiddleware(Middleware):
             self._joining.pop(domain_id, None)
         if self._closed or domain_id in self._domains:
             await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
-        else:
-            self._domains[domain_id] = runtime
+            return
+        self._domains[domain_id] = runtime
+        # The runtime makes its agent node with its first job; make it now, so the DDS
+        # participant exists (and is being discovered) before any client is served. The CLI opens
+        # its links only after this, so building the node never competes with answering a
+        # client (a robot's first time sync over a pty came out up to 2 ms off when it did).
+        try:
+            await self._loop.run_in_executor(None, runtime.call, lambda: None, self.entity_timeout_s)
+        except MiddlewareError as exc:
+            log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
 
     async def close(self) -> None:
         if self._closed:
