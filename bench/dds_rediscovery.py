@@ -32,6 +32,7 @@ no capture about half did. The capture now only stores frames and parses them be
 """
 
 import os
+import random
 import signal
 import socket
 import statistics
@@ -118,7 +119,8 @@ def parse_rtps(ip):
         kind, flags = rtps[offset], rtps[offset + 1]
         length = struct.unpack("<H" if flags & 1 else ">H", rtps[offset + 2:offset + 4])[0]
         body = rtps[offset + 4:offset + 4 + length] if length else rtps[offset + 4:]
-        writer = struct.unpack(">I", body[8:12])[0] if kind == SUBMESSAGE_DATA and len(body) >= 12 else 0
+        is_data = kind == SUBMESSAGE_DATA and len(body) >= 12
+        writer = struct.unpack(">I", body[8:12])[0] if is_data else 0
         submessages.append((kind, writer))
         if not length:
             break
@@ -140,7 +142,8 @@ def classify(packets, subscriber, launched):
     if not talks:
         return "never talked to the subscriber"
     known = talks[0][0]
-    answered = any(p[1] == subscriber and spdp(p) and first <= p[0] <= first + 0.05 for p in packets)
+    answered = any(p[1] == subscriber and spdp(p) and first <= p[0] <= first + 0.05
+                   for p in packets)
     if known - first < 0.05:
         return "reply (+%.2f s)" % (known - first)
     after_periodic = any(p[1] == subscriber and spdp(p) and known - 0.05 <= p[0] <= known
@@ -150,9 +153,9 @@ def classify(packets, subscriber, launched):
         known - first, "sent, not acted on" if answered else "not seen")
 
 
-def measure(env, runs=8, downtime=1.0, log=print, capture=True):
+def measure(env, runs=8, downtime=1.0, log=print, with_capture=True):
     try:
-        capture = RtpsCapture() if capture else None
+        capture = RtpsCapture() if with_capture else None
     except (PermissionError, OSError) as error:
         capture = None
         log("no packet capture (%s): timings only" % error)
@@ -189,7 +192,8 @@ def measure(env, runs=8, downtime=1.0, log=print, capture=True):
             way = classify(capture.packets(), subscriber_prefix, launched) if capture else ""
             ways.append(way)
             log("run %d: first publish -> first sample %.2f s  %s" % (run + 1, delay, way))
-            time.sleep(2.0)
+            # Random pause: restarts fall at any phase of the subscriber's 3 s announcements.
+            time.sleep(2.0 + 3.0 * random.random())
     finally:
         publisher.kill()
         subscriber.kill()
@@ -215,7 +219,7 @@ def main(argv=None):
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE=args.range)
     try:
-        delays, ways = measure(env, args.runs, args.downtime, capture=not args.no_capture)
+        delays, ways = measure(env, args.runs, args.downtime, with_capture=not args.no_capture)
     finally:
         lease.release()
     finite = [d for d in delays if d == d]
@@ -223,7 +227,8 @@ def main(argv=None):
           % (statistics.median(finite), max(finite)))
     late = sum(1 for way in ways if way.startswith("periodic"))
     if any(ways):
-        print("runs that waited for the subscriber's periodic announcement: %d of %d" % (late, len(ways)))
+        print("runs that waited for the subscriber's periodic announcement: %d of %d"
+              % (late, len(ways)))
     return 0
 
 
