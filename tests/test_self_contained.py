@@ -15,7 +15,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 # Absolute paths of the machines the project was written on, and the reference share beside it.
 OUTSIDE_PATTERNS = [
-    re.compile(r"/work/"),
+    re.compile(r"/work(?=/)"),  # spelt with a lookahead so this file does not match itself
     re.compile(r"\.\./shared\b"),
     re.compile(r"""["']shared["']\s*/\s*["']protocol["']"""),
     re.compile(r"/(?:root|home/\w+)/"),
