@@ -169,13 +169,47 @@ def test_time_sync(monkeypatch):
     replies = [decode_message(entry[1])[1][0] for entry in agent.agent_queue]
     for reply in replies:
         # The captured replies echo the captured originate stamps: our clock is pinned to them (and
-        # t3 = t0 + 1 ms) so that the reply is accepted and the arithmetic is checked exactly.
-        stamps = iter([reply.originate_ns, reply.originate_ns + 1000000])
+        # t3 to a 1 ms round trip, so the clock filter takes each one) so that the reply is
+        # accepted and the arithmetic is checked exactly.
+        t3 = reply.originate_ns + (reply.transmit_ns - reply.receive_ns) + 1000000
+        stamps = iter([reply.originate_ns, t3])
         monkeypatch.setattr(session_module, "epoch_ns", lambda: next(stamps))
         assert session.sync_time(timeout_ms=500)
-        delta = (2 * reply.originate_ns + 1000000) - (reply.receive_ns + reply.transmit_ns)
+        delta = (reply.originate_ns + t3) - (reply.receive_ns + reply.transmit_ns)
         assert session.time_offset_ns == int(delta / 2)
+        assert session.time_rtt_ns == 1000000
     assert_same_traffic(agent)
+
+
+def _timestamp_reply(session, originate_ns, received_ns, transmitted_ns, t3_ns, monkeypatch):
+    import struct
+    import xrce.client.session as session_module
+    monkeypatch.setattr(session_module, "epoch_ns", lambda: t3_ns)
+    session._sync_originate = originate_ns
+    reply = struct.pack("<iIiIiI", *divmod(transmitted_ns, 10**9), *divmod(received_ns, 10**9),
+                        *divmod(originate_ns, 10**9))
+    session._on_timestamp_reply(reply, 1, 0, len(reply))
+
+
+def test_time_sync_keeps_the_tightest_exchange_and_follows_drift(monkeypatch):
+    session = Session(ScriptedAgent([]), auto_recover=False)
+    t0 = 1_700_000_000 * 10**9
+    # The agent's clock is 5 ms ahead; a 1 ms round trip, symmetric: offset -5 ms exactly.
+    _timestamp_reply(session, t0, t0 + 5_500_000, t0 + 5_500_000, t0 + 1_000_000, monkeypatch)
+    assert session.time_synced and session.time_offset_ns == -5_000_000
+    # A reply stalled 20 ms on the way back (GC pause) would say -15 ms: it is not taken.
+    t0 += 10**9
+    _timestamp_reply(session, t0, t0 + 5_500_000, t0 + 5_500_000, t0 + 21_000_000, monkeypatch)
+    assert session.time_offset_ns == -5_000_000
+    # The agent's clock moved 3 ms further; exchanges at 1.5 ms round trip are taken again once the
+    # kept bound has aged past them.
+    offsets = []
+    for _ in range(4):
+        t0 += 10**9
+        _timestamp_reply(session, t0, t0 + 8_750_000, t0 + 8_750_000, t0 + 1_500_000, monkeypatch)
+        offsets.append(session.time_offset_ns)
+    assert offsets[-1] == -8_000_000, offsets
+    assert session.stale_timestamps == 0
 
 
 def test_stale_timestamp_reply_is_rejected():

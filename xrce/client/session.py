@@ -211,6 +211,7 @@ class Session:
             from xrce.client.recovery import LinkMonitor
             self.link = LinkMonitor(self, liveliness_ms, on_state=on_link_state)
         self.time_offset_ns = 0
+        self.time_rtt_ns = 0  # round trip of the exchange time_offset_ns came from
         self.time_synced = False
         self.last_rtt_us = None
         self.last_statuses = {}
@@ -864,9 +865,20 @@ class Session:
             self.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
             return
         t3 = epoch_ns()
-        self.time_offset_ns = _trunc_half((t0 + t3) - (t[2] * 1000000000 + t[3] + t[0] * 1000000000 + t[1]))
-        self.time_synced = True
         self._sync_originate = None
+        received = t[2] * 1000000000 + t[3]
+        transmitted = t[0] * 1000000000 + t[1]
+        # The offset is only known to within half the exchange's round trip, and one stalled
+        # exchange (a GC pause, a busy link) can be milliseconds off. Like NTP's clock filter,
+        # keep the tightest exchange; the bound it gave ages by half at each slower one, so a
+        # drifting clock is still followed within a few syncs.
+        rtt = (t3 - t0) - (transmitted - received)
+        if self.time_synced and rtt > self.time_rtt_ns:
+            self.time_rtt_ns += (self.time_rtt_ns >> 1) + 1
+            return
+        self.time_rtt_ns = rtt
+        self.time_offset_ns = _trunc_half((t0 + t3) - (received + transmitted))
+        self.time_synced = True
 
 
 def _never():
