@@ -25,13 +25,14 @@ import argparse
 import os
 import re
 import selectors
-import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
+
+from procs import interrupt  # noqa: E402  (bench/ is the script's directory)
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -96,13 +97,7 @@ class Agent:
         return (cpu_seconds(self.pid) - before) / seconds
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        interrupt(self.proc, 20)
 
 
 def bare_rclpy_idle(env, seconds):
@@ -210,12 +205,7 @@ def robot_load(agent, env, domain_id, seconds):
         driver.join()
         return cpu, memory
     finally:
-        robot.send_signal(signal.SIGINT)
-        try:
-            robot.wait(10)
-        except subprocess.TimeoutExpired:
-            robot.kill()
-            robot.wait()
+        interrupt(robot, 10)
         ros.close()
 
 

@@ -16,13 +16,14 @@ the median run can be read next to the figures. ``bench/run.py --only restart`` 
 
 import os
 import re
-import signal
 import statistics
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
+
+from procs import interrupt  # noqa: E402  (bench/ is the script's directory)
 
 REPO = Path(__file__).resolve().parents[1]
 PYTHON = sys.executable
@@ -97,12 +98,7 @@ class Arrivals:
         return max(gaps) if gaps else None
 
     def close(self):
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        interrupt(self.proc, 10)
 
 
 class Agent:
@@ -132,13 +128,7 @@ class Agent:
         self.proc.wait()
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        interrupt(self.proc, 20)
         self.thread.join(5)
 
 
@@ -156,16 +146,6 @@ def free_udp_port():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _stop(proc):
-    if proc is not None and proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def one_run(arrivals, env, downtime, settle_s=2.0, timeout_s=30.0):
@@ -206,7 +186,7 @@ def one_run(arrivals, env, downtime, settle_s=2.0, timeout_s=30.0):
             raise RuntimeError("data did not come back after the board reset")
         result["reset_gap"] = arrivals.longest_gap(reset)
     finally:
-        _stop(client)
+        interrupt(client)
         agent.stop()
     result["timelines"] = agent.timelines()
     return result

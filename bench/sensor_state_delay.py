@@ -15,13 +15,14 @@ std 15.6 ms with /cmd_vel load) — a radio link and an MCU, so only the shape c
 
 import argparse
 import os
-import signal
 import statistics
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
+
+from procs import interrupt  # noqa: E402  (bench/ is the script's directory)
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -97,12 +98,7 @@ def measure_link(link, seconds, peer, domain):
                 if loader is not None:
                     loader.join(2)
         finally:
-            robot.send_signal(signal.SIGINT)
-            try:
-                robot.wait(10)
-            except subprocess.TimeoutExpired:
-                robot.kill()
-                robot.wait()
+            interrupt(robot, 10)
             peer.node.destroy_subscription(subscription)
             peer.node.destroy_publisher(cmd_vel)
     return results
