@@ -15,6 +15,7 @@ the median run can be read next to the figures. ``bench/run.py --only restart`` 
 """
 
 import os
+import random
 import re
 import statistics
 import subprocess
@@ -148,6 +149,14 @@ def free_udp_port():
         return s.getsockname()[1]
 
 
+# Fast DDS participants announce themselves every 3 s. A restarted agent whose participant misses
+# the subscriber's one-time reply (bench/dds_rediscovery.py) waits for the next of these, so the gap
+# depends on where in that 3 s period the crash falls. A fixed time between the cold start and the
+# kill would put every crash at the same phase (it made every such run exactly the worst case); a
+# crash comes at any moment, so the kill falls at a random phase of one whole period.
+ANNOUNCEMENT_PERIOD_S = 3.0
+
+
 def one_run(arrivals, env, downtime, settle_s=2.0, timeout_s=30.0):
     """Cold start, agent SIGKILL + restart, board reset; returns seconds for each and timelines."""
     port = free_udp_port()
@@ -166,7 +175,7 @@ def one_run(arrivals, env, downtime, settle_s=2.0, timeout_s=30.0):
         if first is None:
             raise RuntimeError("no sample reached ROS after a cold start")
         result["cold"] = first - agent.launched
-        time.sleep(settle_s)
+        time.sleep(settle_s + random.uniform(0.0, ANNOUNCEMENT_PERIOD_S))
 
         killed = time.monotonic()
         agent.kill()  # a crash: no DELETE, no goodbye
