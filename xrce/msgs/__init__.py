@@ -185,17 +185,21 @@ class _Message:
         try:
             for i in range(len(names)):
                 t = specs[i]
-                k = _CODES.find(t) if type(t) is str else -1
-                if k < 0:
-                    _put_field(w, t, getattr(self, names[i]))
-                    continue
-                # A number, inline: most fields are, and a call per field costs a board time.
-                n = _SIZES[k]
                 value = getattr(self, names[i])
-                pos = _put(w, n, n)
-                _pack_into(_FORMATS[k], w.buf, pos, value)
-                if _CHECK_INTS and k < 8 and _unpack_from(_FORMATS[k], w.buf, pos)[0] != value:
-                    raise OverflowError
+                if type(t) is str:
+                    k = _CODES.find(t)
+                    if k >= 0:
+                        # A number, inline: most fields are, and a call per field costs a board time.
+                        n = _SIZES[k]
+                        pos = _put(w, n, n)
+                        _pack_into(_FORMATS[k], w.buf, pos, value)
+                        if _CHECK_INTS and k < 8 and _unpack_from(_FORMATS[k], w.buf, pos)[0] != value:
+                            raise OverflowError
+                        continue
+                elif type(t) is not tuple:
+                    value.encode(w)  # a nested message
+                    continue
+                _put_field(w, t, value)
         except _PACK_ERRORS:
             _bad_values(self)
 
@@ -207,12 +211,16 @@ class _Message:
             return cls()
         values = []
         for t in specs:
-            k = _CODES.find(t) if type(t) is str else -1
-            if k < 0:
-                values.append(_get_field(r, t))
-            else:
-                n = _SIZES[k]
-                values.append(_unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
+            if type(t) is str:
+                k = _CODES.find(t)
+                if k >= 0:
+                    n = _SIZES[k]
+                    values.append(_unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
+                    continue
+            elif type(t) is not tuple:
+                values.append(t.decode(r))
+                continue
+            values.append(_get_field(r, t))
         return cls(*values)
 
     # One generic comparison instead of one per class: equality is never on the encode/decode path.
@@ -276,15 +284,10 @@ def _define(ros_type, names, specs, defaults=None, **constants):
 
 
 if not IS_MICROPYTHON:
-    # CPython tools (xrce/client/cli.py) read Class._FIELDS, ((name, kind, nested class), ...) with
-    # kind 0 value, 1 message, 2 list of messages, 3 bytes; _dict.py works it out from the specs.
-    class _FieldTable:
-        def __get__(self, obj, cls):
-            from xrce.msgs._dict import _shape
+    # CPython tools (xrce/client/cli.py) read Class._FIELDS (see xrce/_cpython.py).
+    from xrce._cpython import FieldTable
 
-            return _shape(cls)
-
-    _Message._FIELDS = _FieldTable()
+    _Message._FIELDS = FieldTable()
 
 
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
@@ -294,22 +297,13 @@ if not IS_MICROPYTHON:
 def _type_attr(namespace, name):
     if not name or name[0] == "_":
         raise AttributeError(name)
-    if name == "SERVICES":
-        from xrce.msgs._lookup import services_table
+    if name == "SERVICES" or name.endswith("_Request") or name.endswith("_Response"):
+        from xrce.msgs._lookup import service_attr  # services: their own module, loaded on use
 
-        value = services_table(namespace)
+        value = service_attr(namespace, name)
     else:
-        module = name
-        cut = name.rfind("_")
-        if cut > 0 and name[cut:] in ("_Request", "_Response"):
-            services = namespace["_SERVICE_CLASSES"]
-            base = name[:cut]
-            if base in services:
-                module = base
-            elif base + "_Service" in services:
-                module = base + "_Service"
         try:
-            value = getattr(_import(namespace["__name__"] + "._" + module), name)
+            value = getattr(_import(namespace["__name__"] + "._" + name), name)
         except ImportError:
             raise AttributeError(name)
     namespace[name] = value
