@@ -76,7 +76,8 @@ class LinkMonitor:
         gone = [object_id]
         kept = []
         for create in session._creations:
-            if create.object_id in gone or (create.kind != _OBJK_PARTICIPANT and create.tail_id in gone):
+            body = create.body  # kind first; the parent's id last (see xrce.client.wire.Request)
+            if create.object_id in gone or (body[0] != _OBJK_PARTICIPANT and (body[-2] << 8 | body[-1]) in gone):
                 gone.append(create.object_id)
             else:
                 kept.append(create)

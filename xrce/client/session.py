@@ -17,9 +17,10 @@
 # is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
 # message exactly as with the C client.
 #
-# A board pays for what it imports: services (xrce.client.services), deleting single entities and
-# cancelling delivery (xrce.client.teardown), fragmentation (xrce.client.fragments), agent discovery
-# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
+# A board pays for what it imports: the session-less ping (xrce.client.ping), services
+# (xrce.client.services), deleting single entities and cancelling delivery (xrce.client.teardown),
+# fragmentation (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
+# (xrce.client.recovery) load on first use; the
 # submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
 # general codec the agent uses.
 
@@ -926,41 +927,12 @@ def _agent_activity(buf, flags, s, e):
     return impl_status, r.i16()
 
 
-def ping_agent(transport, timeout_ms=1000, attempts=1):
-    # Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
-    #
-    # Any INFO reporting an available agent counts as the answer, as with the C client.
-    message = b"\x80\x00\x00\x00\x02\x01\x08\x00\x00\x0a\xff\xfd\x02\x00\x00\x00"
-    for _ in range(attempts):
-        sent = ticks_us()
-        transport.send(message)
-        deadline = ticks_add(ticks_ms(), timeout_ms)
-        while True:
-            remaining = ticks_diff(deadline, ticks_ms())
-            if remaining <= 0:
-                break
-            data = transport.recv(remaining)
-            if data is not None and _is_pong(data):
-                return ticks_diff(ticks_us(), sent)
-    return None
-
-
-def _is_pong(data):
-    try:
-        if len(data) < 4:
-            return False
-        for sub_id, flags, s, e in iter_submessages(data, header_size(data[0])):
-            if sub_id == _INFO:
-                availability = _agent_activity(data, flags, s, e)[1]
-                return availability is not None and availability > 0
-    except DecodeError:
-        pass
-    return False
-
-
 def __getattr__(name):
-    # discover_agents lives in its own module; this keeps `from xrce.client.session import
-    # discover_agents` working without every board paying for it.
+    # The session-less ping and agent discovery live in their own modules; this keeps
+    # `from xrce.client.session import ping_agent` working without every board paying for them.
+    if name == "ping_agent":
+        from xrce.client.ping import ping_agent
+        return ping_agent
     if name == "discover_agents":
         from xrce.client.discovery import discover_agents
         return discover_agents

@@ -26,16 +26,17 @@ _REPRESENTATION_IN_BINARY = const(3)
 # CREATE, DELETE and READ_DATA: the ids, then a body prepared once. A session keeps its CREATEs and
 # READ_DATAs to send again after the agent lost the session, with a new request id and flags.
 class Request:
-    __slots__ = ("ID", "flags", "request_id", "object_id", "kind", "tail_id", "body")
+    # A CREATE's body starts with the object kind and, but for a participant (domain id), ends
+    # with the parent's object id: xrce.client.recovery reads them there instead of every kept
+    # request carrying two more attributes.
+    __slots__ = ("ID", "flags", "request_id", "object_id", "body")
 
-    def __init__(self, sub_id, flags, request_id, object_id, body, kind=0, tail_id=0):
+    def __init__(self, sub_id, flags, request_id, object_id, body):
         self.ID = sub_id
         self.flags = flags
         self.request_id = request_id
         self.object_id = object_id
         self.body = body
-        self.kind = kind
-        self.tail_id = tail_id
 
     def encode(self, w):
         rid = self.request_id
@@ -71,7 +72,7 @@ def create(request_id, object_id, kind, fmt, representation, tail_id, flags):
     elif kind <= _OBJK_REPLIER:
         w.u8(tail_id >> 8)
         w.u8(tail_id & 0xFF)
-    return Request(_CREATE, flags, request_id, object_id, _body(w), kind, tail_id)
+    return Request(_CREATE, flags, request_id, object_id, _body(w))
 
 
 def delete(request_id, object_id):
