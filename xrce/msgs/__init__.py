@@ -34,6 +34,7 @@ from xrce.errors import DecodeError, EncodeError
 
 _unpack_from = struct.unpack_from
 _pack_into = struct.pack_into
+_new = object.__new__
 
 # A number spec's struct format and size, by its position in _CODES.
 _CODES = "bBhHiIqQfd"
@@ -203,25 +204,27 @@ class _Message:
         except _PACK_ERRORS:
             _bad_values(self)
 
+    # A new instance filled field by field: no __init__, no defaults made only to be replaced.
     @classmethod
     def decode(cls, r):
+        msg = _new(cls)
+        names = cls.__slots__
         specs = cls._S
-        if not specs:
+        if not names:
             r.u8()
-            return cls()
-        values = []
-        for t in specs:
+        for i in range(len(names)):
+            t = specs[i]
             if type(t) is str:
                 k = _CODES.find(t)
                 if k >= 0:
                     n = _SIZES[k]
-                    values.append(_unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
+                    setattr(msg, names[i], _unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
                     continue
             elif type(t) is not tuple:
-                values.append(t.decode(r))
+                setattr(msg, names[i], t.decode(r))
                 continue
-            values.append(_get_field(r, t))
-        return cls(*values)
+            setattr(msg, names[i], _get_field(r, t))
+        return msg
 
     # One generic comparison instead of one per class: equality is never on the encode/decode path.
     def __eq__(self, other):
