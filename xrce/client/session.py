@@ -782,25 +782,50 @@ class Session:
         self._process(message, len(message))
 
     def _process(self, buf, end):
+        # What a client receives (XRCE-WIRE.md §5), one branch per submessage: one method each
+        # would cost a board heap for its code object; anything else is ignored.
         for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
-            handler = _HANDLERS.get(sub_id)
-            if handler is not None:
-                handler(self, buf, flags, s, e)
-
-    def _on_status_agent(self, buf, flags, s, e):
-        if e - s < 1:
-            raise DecodeError("empty STATUS_AGENT")
-        self.create_status = buf[s]
-
-    def _on_status(self, buf, flags, s, e):
-        if e - s < 6:
-            raise DecodeError("short STATUS")
-        rid = (buf[s] << 8) | buf[s + 1]
-        if rid == _REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == _OBJECTID_CLIENT:
-            self._delete_status = buf[s + 4]
-            return
-        if rid in self._statuses:  # only requests someone waits for (not re-creations)
-            self._statuses[rid] = buf[s + 4]
+            if sub_id == _DATA:
+                self._on_data(buf, flags, s, e)
+            elif sub_id == _ACKNACK or sub_id == _HEARTBEAT:
+                if e - s < 5:
+                    raise DecodeError("short ACKNACK or HEARTBEAT")
+                stream_id = buf[s + 4]
+                if flags & 1:
+                    first, second = buf[s] | (buf[s + 1] << 8), buf[s + 2] | (buf[s + 3] << 8)
+                else:
+                    first, second = (buf[s] << 8) | buf[s + 1], (buf[s + 2] << 8) | buf[s + 3]
+                if sub_id == _ACKNACK:
+                    # first unacknowledged, NACK bitmap (always big-endian) of one of our streams
+                    out = self._outputs.get(stream_id)
+                    if out is not None and out.reliable:
+                        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3],
+                                                            ticks_ms(), self.heartbeat_ms // 2):
+                            self._send(message)
+                else:
+                    # first and last sequence numbers the agent still holds for one of its streams
+                    stream = self._inputs.get(stream_id)
+                    if stream is not None and stream_id >= 0x80:
+                        ready = stream.on_heartbeat(first, second)
+                        self._send_acknack(stream)
+                        for message in ready:
+                            self._process_reliable(message)
+            elif sub_id == _STATUS:
+                if e - s < 6:
+                    raise DecodeError("short STATUS")
+                rid = (buf[s] << 8) | buf[s + 1]
+                if rid == _REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == _OBJECTID_CLIENT:
+                    self._delete_status = buf[s + 4]
+                elif rid in self._statuses:  # only requests someone waits for (not re-creations)
+                    self._statuses[rid] = buf[s + 4]
+            elif sub_id == _INFO:
+                self._on_info(buf, flags, s, e)
+            elif sub_id == _TIMESTAMP_REPLY:
+                self._on_timestamp_reply(buf, flags, s, e)
+            elif sub_id == _STATUS_AGENT:
+                if e - s < 1:
+                    raise DecodeError("empty STATUS_AGENT")
+                self.create_status = buf[s]
 
     def _on_info(self, buf, flags, s, e):
         impl_status, availability = _agent_activity(buf, flags, s, e)
@@ -830,32 +855,6 @@ class Session:
         else:
             callback(_decode_sample(msg_class, data))
 
-    def _on_acknack(self, buf, flags, s, e):
-        if e - s < 5:
-            raise DecodeError("short ACKNACK")
-        out = self._outputs.get(buf[s + 4])
-        if out is None or not out.reliable:
-            return
-        first = buf[s] | (buf[s + 1] << 8) if flags & 1 else (buf[s] << 8) | buf[s + 1]
-        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3], ticks_ms(),
-                                            self.heartbeat_ms // 2):
-            self._send(message)
-
-    def _on_heartbeat(self, buf, flags, s, e):
-        if e - s < 5:
-            raise DecodeError("short HEARTBEAT")
-        stream = self._inputs.get(buf[s + 4])
-        if stream is None or buf[s + 4] < 0x80:
-            return
-        if flags & 1:
-            first, last = buf[s] | (buf[s + 1] << 8), buf[s + 2] | (buf[s + 3] << 8)
-        else:
-            first, last = (buf[s] << 8) | buf[s + 1], (buf[s + 2] << 8) | buf[s + 3]
-        ready = stream.on_heartbeat(first, last)
-        self._send_acknack(stream)
-        for message in ready:
-            self._process_reliable(message)
-
     def _on_timestamp_reply(self, buf, flags, s, e):
         # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
         if e - s < 24:
@@ -884,17 +883,6 @@ class Session:
 
 def _never():
     return False
-
-
-_HANDLERS = {
-    _STATUS_AGENT: Session._on_status_agent,
-    _STATUS: Session._on_status,
-    _INFO: Session._on_info,
-    _DATA: Session._on_data,
-    _ACKNACK: Session._on_acknack,
-    _HEARTBEAT: Session._on_heartbeat,
-    _TIMESTAMP_REPLY: Session._on_timestamp_reply,
-}
 
 
 def _decode_sample(msg_class, data):
