@@ -204,7 +204,8 @@ class Session:
         self._next_heartbeat = {}
         self._last_heard = ticks_ms()
         self._session_unknown = False
-        # What to re-create after the agent lost the session (see xrce.client.recovery).
+        # What to re-create after the agent lost the session (see xrce.client.recovery): a CREATE's
+        # (object id, body), the rest of the request is rebuilt then.
         self._creations = []
         self._read_requests = {}
         self.link = None
@@ -321,7 +322,7 @@ class Session:
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
             self.link.forget(oid)
-            self._creations.append(payload)
+            self._creations.append((oid, payload.body))
         return oid
 
     @staticmethod

@@ -27,8 +27,8 @@ _REPRESENTATION_IN_BINARY = const(3)
 # READ_DATAs to send again after the agent lost the session, with a new request id and flags.
 class Request:
     # A CREATE's body starts with the object kind and, but for a participant (domain id), ends
-    # with the parent's object id: xrce.client.recovery reads them there instead of every kept
-    # request carrying two more attributes.
+    # with the parent's object id: xrce.client.recovery keeps only (object id, body) and reads them
+    # there.
     __slots__ = ("ID", "flags", "request_id", "object_id", "body")
 
     def __init__(self, sub_id, flags, request_id, object_id, body):
