@@ -115,39 +115,6 @@ class _Output:
         self.has_content = False
 
 
-class _SampleWrite:
-    # WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
-    # alignment origin. One instance per session is reused, so a write allocates nothing here.
-
-    ID = _WRITE_DATA
-    __slots__ = ("flags", "request_id", "object_id", "prefix", "sample")
-
-    def __init__(self):
-        self.flags = _FLAG_LITTLE_ENDIAN  # | FORMAT_DATA (0)
-        self.request_id = 0
-        self.object_id = 0
-        self.prefix = None
-        self.sample = None
-
-    def encode(self, w):
-        w.u8(self.request_id >> 8)
-        w.u8(self.request_id & 0xFF)
-        w.u8(self.object_id >> 8)
-        w.u8(self.object_id & 0xFF)
-        if self.prefix is not None:
-            w.raw(self.prefix)
-        sample = self.sample
-        if isinstance(sample, (bytes, bytearray, memoryview)):
-            w.raw(sample)
-        else:
-            saved = w.origin
-            w.origin = w.pos  # a sample is aligned from its own first byte (§14)
-            try:
-                sample.encode(w)
-            finally:
-                w.origin = saved
-
-
 class Session:
     # One XRCE client session over a transport (see ``xrce.transports``).
 
@@ -191,7 +158,7 @@ class Session:
         self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
         self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
-        self._sample = _SampleWrite()
+        self._sample = wire.Request(_WRITE_DATA, _FLAG_LITTLE_ENDIAN, 0, 0, None)  # | FORMAT_DATA (0)
         self.last_request_id = _FIRST_REQUEST_ID - 1
         self._object_counters = {}
         self._statuses = {}
@@ -477,11 +444,11 @@ class Session:
         sample.request_id = self.next_request_id()
         sample.object_id = object_id_
         sample.prefix = prefix
-        sample.sample = data
+        sample.body = data
         try:
             ok = self._buffer(stream_id, sample)
         finally:
-            sample.sample = None
+            sample.body = None
             sample.prefix = None
         if not ok:
             self.dropped_writes += 1
