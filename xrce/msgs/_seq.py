@@ -9,59 +9,6 @@ from xrce.msgs import (
 )
 
 
-# Sequence count, rejected before any allocation if it cannot fit in the remaining bytes.
-def _count(r, bound, min_size):
-    n = r.u32()
-    if bound is not None and n > bound:
-        raise DecodeError("sequence of %d exceeds its bound %d" % (n, bound))
-    if n * min_size > r.end - r.pos:
-        raise DecodeError("sequence count %d larger than the remaining %d bytes allow" % (n, r.end - r.pos))
-    return n
-
-
-def _get_array(r, n, code, size):
-    # Fast CDR (what ROS 2 uses) does not align an empty array, so neither do we.
-    if not n:
-        return []
-    return list(_unpack_from("<%d%s" % (n, code), r.buf, _take(r, size, n * size)))
-
-
-def _put_array(w, values, code, size):
-    n = len(values)
-    if not n:
-        return
-    try:
-        _pack_into("<%d%s" % (n, code), w.buf, _put(w, size, n * size), *values)
-    except _PACK_ERRORS:
-        raise EncodeError("cannot encode %r as %s items" % (values, code))
-    if code in "bBhHiIqQ" and list(_unpack_from("<%d%s" % (n, code), w.buf, w.pos - n * size)) != list(values):
-        raise EncodeError("cannot encode %r as %s items" % (values, code))  # MicroPython truncated one
-
-
-def _seq_len(values, bound):
-    try:
-        n = len(values)
-    except TypeError:
-        raise EncodeError("expected a sequence, got %r" % (values,))
-    if bound is not None and n > bound:
-        raise EncodeError("%d items, bound is %d" % (n, bound))
-    return n
-
-
-def _bad_len(values, n):
-    raise EncodeError("%r must have exactly %d items" % (values, n))
-
-
-# The smallest encoding of one item of spec `item`: a sequence count larger than the remaining
-# bytes allow is rejected before anything is allocated.
-def _min_size(item):
-    if type(item) is str and item != "s":
-        return 1 if item == "?" else _SIZES[_CODES.find(item)]
-    if type(item) is tuple or item == "s":
-        return 4
-    return 1
-
-
 def _put_ext(w, t, value):
     kind = t[0]
     if kind == "s":
@@ -75,42 +22,69 @@ def _put_ext(w, t, value):
                 value = bytes(value)
             except _PACK_ERRORS:
                 raise EncodeError("expected bytes or a list of 0..255, got %r" % (value,))
-        if kind == "F":
-            if len(value) != n:
-                _bad_len(value, n)
-        else:
-            if n is not None and len(value) > n:
-                raise EncodeError("%d bytes, bound is %d" % (len(value), n))
-            w.u32(len(value))
+    try:
+        count = len(value)
+    except TypeError:
+        raise EncodeError("expected a sequence, got %r" % (value,))
+    if kind == "F":
+        if count != n:
+            raise EncodeError("%r must have exactly %d items" % (value, n))
+    else:
+        if n is not None and count > n:
+            raise EncodeError("%d items, bound is %d" % (count, n))
+        w.u32(count)
+    if item == "B":
         w.raw(value)
         return
-    if kind == "F":
-        if _seq_len(value, None) != n:
-            _bad_len(value, n)
-    else:
-        w.u32(_seq_len(value, n))
     if item == "?":
-        _put_array(w, [1 if b else 0 for b in value], "B", 1)
-    elif type(item) is str and item != "s":
-        _put_array(w, value, item, _SIZES[_CODES.find(item)])
-    else:
+        value = [1 if b else 0 for b in value]
+        item = "B"
+    if type(item) is not str or item == "s":
         for v in value:
             _put_field(w, item, v)
+        return
+    # Numbers: one struct call. Fast CDR (what ROS 2 uses) does not align an empty array.
+    if not count:
+        return
+    size = _SIZES[_CODES.find(item)]
+    fmt = "<%d%s" % (count, item)
+    pos = _put(w, size, count * size)
+    try:
+        _pack_into(fmt, w.buf, pos, *value)
+    except _PACK_ERRORS:
+        raise EncodeError("cannot encode %r as %s items" % (value, item))
+    # MicroPython's struct truncates integers that do not fit instead of raising.
+    if item in "bBhHiIqQ" and list(_unpack_from(fmt, w.buf, pos)) != list(value):
+        raise EncodeError("cannot encode %r as %s items" % (value, item))
 
 
 def _get_ext(r, t):
     kind = t[0]
     if kind == "s":
         return _get_string(r, t[1])
+    n = t[1]
     item = t[2]
-    n = t[1] if kind == "F" else _count(r, t[1], _min_size(item))
+    number = type(item) is str and item != "s"
+    if kind == "S":
+        # Rejected before anything is allocated if it cannot fit in the remaining bytes.
+        count = r.u32()
+        if n is not None and count > n:
+            raise DecodeError("sequence of %d exceeds its bound %d" % (count, n))
+        smallest = (1 if item == "?" else _SIZES[_CODES.find(item)]) if number else (
+            4 if item == "s" or type(item) is tuple else 1)
+        if count * smallest > r.end - r.pos:
+            raise DecodeError("sequence count %d larger than the remaining %d bytes allow" % (count, r.end - r.pos))
+        n = count
     if item == "B":
         return r.raw(n)
     if item == "?":
         return [_bool(b) for b in r.raw(n)]
-    if type(item) is str and item != "s":
-        return _get_array(r, n, item, _SIZES[_CODES.find(item)])
-    return [_get_field(r, item) for _ in range(n)]
+    if not number:
+        return [_get_field(r, item) for _ in range(n)]
+    if not n:
+        return []
+    size = _SIZES[_CODES.find(item)]
+    return list(_unpack_from("<%d%s" % (n, item), r.buf, _take(r, size, n * size)))
 
 
 def _default_ext(t):
