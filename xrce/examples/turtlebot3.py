@@ -403,11 +403,6 @@ class TurtleBot3:
         finally:
             self.session.close()
 
-    def status_line(self):
-        return ("turtlebot3: x=%.3f y=%.3f yaw=%.3f v=%.3f w=%.3f commands=%d failsafe_trips=%d "
-                "published=%r" % (self.x, self.y, self.yaw, self.linear, self.angular,
-                                  self.commands_received, self.failsafe_trips, self.published))
-
 
 # ---------------------------------------------------------------------- CPython command line
 

@@ -8,6 +8,12 @@ from xrce.compat import ticks_ms
 from xrce.examples.turtlebot3 import TurtleBot3, _Periodic
 
 
+def status_line(robot):
+    return ("turtlebot3: x=%.3f y=%.3f yaw=%.3f v=%.3f w=%.3f commands=%d failsafe_trips=%d "
+            "published=%r" % (robot.x, robot.y, robot.yaw, robot.linear, robot.angular,
+                              robot.commands_received, robot.failsafe_trips, robot.published))
+
+
 def _make_transport(args):
     if args.transport == "udp4":
         from xrce.transports.udp import UdpTransport
@@ -63,7 +69,7 @@ def main(argv=None):
         while not stop:
             robot.step()
             if status is not None and status.take(ticks_ms()):
-                log(robot.status_line())
+                log(status_line(robot))
         return 0
     except KeyboardInterrupt:
         return 0
@@ -72,4 +78,4 @@ def main(argv=None):
             robot.shutdown()
         except Exception:  # the agent may be gone already; the process is ending anyway
             transport.close()
-        log(robot.status_line())
+        log(status_line(robot))
