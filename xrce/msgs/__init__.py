@@ -283,6 +283,8 @@ def _define(ros_type, names, specs, defaults=None, **constants):
     constants["TYPE_NAME"] = "%s::%s::dds_::%s_" % (package, kind, name)
     if defaults is not None:
         constants["_D"] = defaults
+    if not IS_MICROPYTHON:  # the defining module, as a class statement would have it (pickle needs it)
+        constants["__module__"] = sys._getframe(1).f_globals["__name__"]
     return type(name, (_Message,), constants)
 
 
