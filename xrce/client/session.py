@@ -94,11 +94,6 @@ class SessionError(XrceError):
     pass
 
 
-def _trunc_half(value):
-    # Halve an int rounding toward zero, as the C client's int64 division does.
-    return -((-value) // 2) if value < 0 else value // 2
-
-
 def ros_topic_name(name, prefix="rt"):
     # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
     return prefix + (name if name.startswith("/") else "/" + name)
@@ -199,7 +194,7 @@ class Session:
         self.create_status = None
         for _ in range(attempts):
             self._send_create_client()
-            if self._wait(timeout_ms, self._has_create_status):
+            if self._wait(timeout_ms, lambda: self.create_status is not None):
                 break
         if self.create_status is None:
             return False
@@ -231,9 +226,6 @@ class Session:
     def _send_ping(self):
         self._send(self._ping_message())
 
-    def _has_create_status(self):
-        return self.create_status is not None
-
     def delete(self, attempts=10, timeout_ms=1000):
         # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
         self.flush()
@@ -243,12 +235,9 @@ class Session:
         self._delete_status = None
         for _ in range(attempts):
             self._send(message)
-            if self._wait(timeout_ms, self._has_delete_status):
+            if self._wait(timeout_ms, lambda: self._delete_status is not None):
                 break
         self.connected = False
-        return self._delete_status is not None
-
-    def _has_delete_status(self):
         return self._delete_status is not None
 
     def _reset_streams(self):
@@ -457,14 +446,6 @@ class Session:
 
     # ------------------------------------------------------------------ output path
 
-    def _output(self, stream_id):
-        if stream_id is None:
-            stream_id = self.reliable
-        out = self._outputs.get(stream_id)
-        if out is None:
-            raise SessionError("no output stream 0x%02X" % stream_id)
-        return out
-
     def _begin(self, out):
         # Open a new message on ``out``; False if a reliable window has no free slot.
         if out.reliable:
@@ -479,13 +460,18 @@ class Session:
 
     def _buffer(self, stream_id, payload):
         # Append ``payload`` to its stream's open message; True when it is buffered or sent.
-        out = self._output(stream_id)
+        if stream_id is None:
+            stream_id = self.reliable
+        out = self._outputs.get(stream_id)
+        if out is None:
+            raise SessionError("no output stream 0x%02X" % stream_id)
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):
                 return False
             mw = out.mw
             mark = mw.size
-            _write_submessage(mw, payload)
+            payload.encode(mw.begin_submessage(payload.ID, payload.flags))
+            mw.end_submessage()
             end = mw.size
             if end <= self.max_message:
                 out.has_content = True
@@ -666,13 +652,10 @@ class Session:
             self._pong_in_session = False
             sent = ticks_us()
             self._send(message)
-            if self._wait(timeout_ms, self._has_pong):
+            if self._wait(timeout_ms, lambda: self._pong_in_session):
                 self.last_rtt_us = ticks_diff(ticks_us(), sent)
                 return True
         return False
-
-    def _has_pong(self):
-        return self._pong_in_session
 
     def sync_time(self, timeout_ms=1000, attempts=1):
         # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
@@ -684,13 +667,10 @@ class Session:
             w.i32(originate // 1000000000)
             w.u32(originate % 1000000000)
             self._send_control()
-            if self._wait(timeout_ms, self._sync_done):
+            if self._wait(timeout_ms, lambda: self._sync_originate is None):
                 return True
         self._sync_originate = None
         return False
-
-    def _sync_done(self):
-        return self._sync_originate is None
 
     def epoch_ns(self):
         # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
@@ -845,7 +825,9 @@ class Session:
             self.time_rtt_ns += (self.time_rtt_ns >> 1) + 1
             return
         self.time_rtt_ns = rtt
-        self.time_offset_ns = _trunc_half((t0 + t3) - (received + transmitted))
+        twice = (t0 + t3) - (received + transmitted)
+        # Halved rounding toward zero, as the C client's int64 division does.
+        self.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
         self.time_synced = True
 
 
@@ -857,11 +839,6 @@ def _decode_sample(msg_class, data):
     if msg_class is None:
         return bytes(data)
     return msg_class.decode(CdrReader(data))
-
-
-def _write_submessage(mw, payload):
-    payload.encode(mw.begin_submessage(payload.ID, payload.flags))
-    mw.end_submessage()
 
 
 def _agent_activity(buf, flags, s, e):
