@@ -9,6 +9,7 @@ package(
         "client/__init__.py",
         "client/discovery.py",
         "client/fragments.py",
+        "client/ping.py",
         "client/recovery.py",
         "client/services.py",
         "client/session.py",

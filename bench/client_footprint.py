@@ -47,6 +47,7 @@ LAYERED_IMPORTS = (
     "xrce.client.fragments",
     "xrce.client.services",
     "xrce.client.discovery",
+    "xrce.client.ping",
     "xrce.transports.custom",
     "xrce.transports.crc",
     "xrce.transports.framing",

@@ -224,6 +224,16 @@ def test_repr_and_equality():
         a.w = 1.0  # __slots__: no stray attributes
 
 
+def test_messages_pickle_and_name_their_module():
+    import pickle
+
+    odom = nav_msgs.Odometry(child_frame_id="base")
+    odom.pose.pose.position.x = 1.5
+    assert pickle.loads(pickle.dumps(odom)) == odom
+    assert geometry_msgs.Twist.__module__ == "xrce.msgs.geometry_msgs._Twist"
+    assert geometry_msgs.Twist.__name__ == "Twist"
+
+
 def _tree(root):
     """Repo-relative paths of the .py files under ``root``."""
     found = []

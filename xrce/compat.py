@@ -1,4 +1,7 @@
 # Small shims so that the shared modules run unchanged on CPython and MicroPython.
+#
+# The CPython versions of the tick functions are in xrce/_cpython.py: a board loads only what it
+# runs (the code of a function it never defines would still cost it heap).
 
 import time
 
@@ -16,26 +19,10 @@ if IS_MICROPYTHON:
     ticks_ms = time.ticks_ms
     ticks_diff = time.ticks_diff
     ticks_add = time.ticks_add
-
-    def sleep_ms(ms):
-        time.sleep_ms(ms)
-
+    ticks_us = time.ticks_us
+    sleep_ms = time.sleep_ms
 else:
-    _monotonic_ns = time.monotonic_ns
-    # A period for tick arithmetic that never wraps in practice on CPython.
-    _TICKS_PERIOD = 1 << 62
-
-    def ticks_ms():
-        return (_monotonic_ns() // 1000000) % _TICKS_PERIOD
-
-    def ticks_diff(later, earlier):
-        return later - earlier
-
-    def ticks_add(ticks, delta):
-        return ticks + delta
-
-    def sleep_ms(ms):
-        time.sleep(ms / 1000)
+    from xrce._cpython import sleep_ms, ticks_add, ticks_diff, ticks_ms, ticks_us  # noqa: F401
 
 
 def epoch_ns():
@@ -44,14 +31,6 @@ def epoch_ns():
         return time.time_ns()
     except AttributeError:  # very old MicroPython ports
         return int(time.time() * 1000000000)
-
-
-if IS_MICROPYTHON:
-    ticks_us = time.ticks_us
-else:
-
-    def ticks_us():
-        return (_monotonic_ns() // 1000) % _TICKS_PERIOD
 
 
 def random_client_key():

@@ -4,8 +4,9 @@ Each ROS package becomes a Python package in the output directory (normally ``xr
 one module per message type and per service (``geometry_msgs/_Twist.py``) and an ``__init__.py``
 that imports a type's module the first time its name is looked up: importing a whole package's
 classes costs tens of KB of MicroPython heap, and a board usually needs two or three types.
-The generated code is plain Python in the MicroPython subset: ``__slots__`` classes, precompiled
-``struct`` formats for runs of fixed-size primitives, no dataclasses/typing/f-strings.
+A generated module holds no code: each class is a table (field names and specs, defaults,
+constants) given to ``xrce.msgs._define``, and one shared runtime encodes and decodes every type
+(per-type methods would cost a board heap for every type it loads).
 
     python -m xrce.msggen PKG_DIR [PKG_DIR ...] -o OUTDIR
     python -m xrce.msggen --shipped [-o OUTDIR]      # the set committed in xrce/msgs
@@ -41,7 +42,6 @@ INT_RANGES = {
     "int64": (-(1 << 63), (1 << 63) - 1), "uint64": (0, (1 << 64) - 1),
 }
 
-MAX_STAR_POSITION = 24
 
 SHIPPED_FROM_VENV = ("builtin_interfaces", "std_msgs", "geometry_msgs", "sensor_msgs", "nav_msgs")
 SHIPPED_FROM_REPO = ("tf2_msgs", "turtlebot3_msgs")
@@ -295,70 +295,6 @@ def load_package(pkg_dir):
 # Code generation
 
 
-def _is_runnable(ftype):
-    """Fields that can share one precompiled struct format: fixed-size numeric/bool scalars and
-    fixed arrays of non-octet numerics (octet arrays are copied as bytes, bool arrays need checks)."""
-    if not ftype.is_primitive:
-        return False
-    if ftype.array is None:
-        return True
-    return ftype.array == "fixed" and PRIMITIVES[ftype.base][2] in ("int", "float")
-
-
-def plan_runs(fields):
-    """Group consecutive fields into steps: ("run", [fields]) or ("one", field).
-
-    A run only grows while the next field needs no padding inside it and its alignment does not
-    exceed the run's first field: aligning once to the first field's size then makes the packed
-    layout identical to field-by-field CDR whatever phase the run starts at.
-    """
-    steps = []
-    run = []
-    offset = 0
-    for field in fields:
-        ft = field.type
-        if _is_runnable(ft):
-            code, size, _ = PRIMITIVES[ft.base]
-            count = ft.array_size if ft.array == "fixed" else 1
-            if run:
-                first_align = PRIMITIVES[run[0].type.base][1]
-                # MicroPython records *args positions in a small-int bitmap: keep every unpacked
-                # array among the first MAX_STAR_POSITION arguments of pack_into.
-                star_ok = ft.array is None or len(run) + 3 < MAX_STAR_POSITION
-                if size <= first_align and offset % size == 0 and star_ok:
-                    run.append(field)
-                    offset += size * count
-                    continue
-                steps.append(("run", run))
-            run = [field]
-            offset = size * count
-            continue
-        if run:
-            steps.append(("run", run))
-            run = []
-        steps.append(("one", field))
-    if run:
-        steps.append(("run", run))
-    return steps
-
-
-def _run_format(run):
-    """struct format of a run, repeated codes folded into counts ("<6d", "<7d36d" -> "<43d")."""
-    pieces = []
-    for f in run:
-        code = PRIMITIVES[f.type.base][0]
-        count = f.type.array_size if f.type.array == "fixed" else 1
-        if pieces and pieces[-1][0] == code:
-            pieces[-1][1] += count
-        else:
-            pieces.append([code, count])
-    return "<" + "".join((str(n) if n != 1 else "") + c for c, n in pieces)
-
-
-def _run_size(run):
-    return sum(PRIMITIVES[f.type.base][1] * (f.type.array_size if f.type.array == "fixed" else 1) for f in run)
-
-
 def _class_ref(base, package, deps):
     """The name generated code uses for a nested type; recorded in ``deps`` so the module imports
     it. Types of other packages get a package prefix: two packages may both define e.g. Point."""
@@ -369,246 +305,64 @@ def _class_ref(base, package, deps):
     return "_%s_%s" % (pkg, name)
 
 
-def _default_expr(field, package, deps):
+def _item_spec(ftype, package, deps):
+    """The spec of one value of ``ftype`` (ignoring its array part); see xrce/msgs/__init__.py."""
+    if ftype.is_nested:
+        return _class_ref(ftype.base, package, deps)
+    if ftype.is_string:
+        return '"s"' if ftype.string_bound is None else '("s", %d)' % ftype.string_bound
+    code, _, kind = PRIMITIVES[ftype.base]
+    return '"?"' if kind == "bool" else '"%s"' % code
+
+
+def _field_spec(ftype, package, deps):
+    item = _item_spec(ftype, package, deps)
+    if ftype.array is None:
+        return item
+    if ftype.array == "fixed":
+        return '("F", %d, %s)' % (ftype.array_size, item)
+    return '("S", %r, %s)' % (ftype.array_size, item)
+
+
+def _default_value(field):
+    """The Python literal of a field's default from the .msg file (None when it has none)."""
     ft = field.type
     d = field.default
-    if ft.is_nested:
-        if ft.array == "seq":
-            return "[]"
-        ref = _class_ref(ft.base, package, deps)
-        if ft.array == "fixed":
-            return "[%s() for _ in range(%d)]" % (ref, ft.array_size)
-        return "%s()" % ref
+    if d is None:
+        return None
     kind = PRIMITIVES[ft.base][2] if ft.is_primitive else "string"
     if ft.array is None:
-        if d is None:
-            return {"bool": "False", "float": "0.0", "int": "0", "octet": "0", "string": '""'}[kind]
-        if kind == "float":
-            return repr(float(d))
-        return repr(d)
+        return repr(float(d)) if kind == "float" else repr(d)
     if kind == "octet":
-        if d is None:
-            d = [0] * ft.array_size if ft.array == "fixed" else []
         return repr(bytes(d))
-    if d is None:
-        zero = {"bool": False, "float": 0.0, "int": 0, "string": ""}[kind]
-        if ft.array == "fixed":
-            return "[%r] * %d" % (zero, ft.array_size)
-        return "[]"
     if kind == "float":
         d = [float(v) for v in d]
     return repr(list(d))
 
 
-class Leaf:
-    """One value the encoder touches: a top-level field, or a field of a nested struct inlined
-    into its parent (XCDR1 structs add no alignment of their own, so inlining keeps the bytes)."""
-
-    def __init__(self, expr, label, ftype):
-        self.expr = expr  # "self.linear.x"
-        self.label = label  # "linear.x", for error messages
-        self.type = ftype
-        self.var = None  # decode variable, set by _flatten
-
-
-def _inlinable(ftype, registry):
-    if not ftype.is_nested or ftype.array is not None:
-        return False
-    return bool(registry[ftype.base].fields)  # an empty struct carries a dummy octet instead
-
-
-def _flatten(spec, registry, expr, label, leaves, package, deps):
-    """Append leaves of ``spec`` and return the decode expression that rebuilds it."""
-    parts = []
-    for f in spec.fields:
-        fexpr = "%s.%s" % (expr, f.name)
-        flabel = f.name if not label else "%s.%s" % (label, f.name)
-        if _inlinable(f.type, registry):
-            child = registry[f.type.base]
-            ref = _class_ref(f.type.base, package, deps)
-            parts.append("%s(%s)" % (ref, _flatten(child, registry, fexpr, flabel, leaves, package, deps)))
-            continue
-        leaf = Leaf(fexpr, flabel, f.type)
-        leaf.var = "v%d" % len(leaves)
-        leaves.append(leaf)
-        parts.append(leaf.var)
-    return ", ".join(parts)
-
-
-def _gen_encode_step(step, package, out):
-    kind, item = step
-    if kind == "run":
-        run = item
-        fmt = _run_format(run)
-        args = []
-        for f in run:
-            if f.type.array == "fixed":
-                out.append("        if len(%s) != %d:" % (f.expr, f.type.array_size))
-                out.append("            _bad_len(%r, %d)" % (f.label, f.type.array_size))
-                args.append("*" + f.expr)
-            elif f.type.base == "bool":
-                args.append("1 if %s else 0" % f.expr)
-            else:
-                args.append(f.expr)
-        align = PRIMITIVES[run[0].type.base][1]
-        out.append("        try:")
-        # Floats cannot be truncated by struct, so float-only runs skip MicroPython's read-back
-        # range check (_pack_into), which allocates a tuple of every value per sample.
-        packer = "_pack_floats" if all(PRIMITIVES[f.type.base][0] in "fd" for f in run) else "_pack_into"
-        out.append("            %s(%r, w.buf, _put(w, %d, %d), %s)" % (packer, fmt, align, _run_size(run), ", ".join(args)))
-        out.append("        except _PACK_ERRORS:")
-        # The message's repr names the culprit; a label string per run would cost every board heap.
-        out.append("            _bad_values(self)")
-        return
-    f = item
-    ft = f.type
-    v = f.expr
-    if ft.is_nested:
-        if ft.array is None:
-            out.append("        %s.encode(w)" % v)
-            return
-        if ft.array == "fixed":
-            out.append("        if len(%s) != %d:" % (v, ft.array_size))
-            out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
-        else:
-            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
-        out.append("        for item in %s:" % v)
-        out.append("            item.encode(w)")
-        return
-    if ft.is_string:
-        if ft.array is None:
-            out.append("        _put_string(w, %s, %r)" % (v, ft.string_bound))
-            return
-        if ft.array == "fixed":
-            out.append("        if len(%s) != %d:" % (v, ft.array_size))
-            out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
-        else:
-            out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
-        out.append("        for item in %s:" % v)
-        out.append("            _put_string(w, item, %r)" % (ft.string_bound,))
-        return
-    code, size, pkind = PRIMITIVES[ft.base]
-    # Primitive scalars always land in runs, so only arrays and sequences reach this point.
-    if pkind == "octet":
-        if ft.array == "fixed":
-            out.append("        _put_octets(w, %s, %d, None, %r)" % (v, ft.array_size, f.label))
-        else:
-            out.append("        _put_octets(w, %s, None, %r, %r)" % (v, ft.array_size, f.label))
-        return
-    if ft.array == "fixed":
-        out.append("        if len(%s) != %d:" % (v, ft.array_size))
-        out.append("            _bad_len(%r, %d)" % (f.label, ft.array_size))
-    else:
-        out.append("        w.u32(_seq_len(%s, %r, %r))" % (v, ft.array_size, f.label))
-    if pkind == "bool":
-        out.append("        _put_array(w, [1 if b else 0 for b in %s], 'B', 1)" % v)
-    else:
-        out.append("        _put_array(w, %s, %r, %d)" % (v, code, size))
-
-
-def _gen_decode_step(step, package, out, deps):
-    kind, item = step
-    if kind == "run":
-        run = item
-        fmt = _run_format(run)
-        align = PRIMITIVES[run[0].type.base][1]
-        size = _run_size(run)
-        if all(f.type.array is None for f in run):
-            targets = [f.var for f in run]
-            out.append("        %s%s = _unpack_from(%r, r.buf, _take(r, %d, %d))" % (
-                ", ".join(targets), "," if len(targets) == 1 else "", fmt, align, size))
-            for f in run:
-                if f.type.base == "bool":
-                    out.append("        %s = _bool(%s)" % (f.var, f.var))
-        else:
-            out.append("        vals = _unpack_from(%r, r.buf, _take(r, %d, %d))" % (fmt, align, size))
-            idx = 0
-            for f in run:
-                if f.type.array == "fixed":
-                    out.append("        %s = list(vals[%d:%d])" % (f.var, idx, idx + f.type.array_size))
-                    idx += f.type.array_size
-                else:
-                    conv = "_bool(vals[%d])" if f.type.base == "bool" else "vals[%d]"
-                    out.append("        %s = %s" % (f.var, conv % idx))
-                    idx += 1
-        return
-    f = item
-    ft = f.type
-    t = f.var
-    if ft.is_nested:
-        ref = _class_ref(ft.base, package, deps)
-        if ft.array is None:
-            out.append("        %s = %s.decode(r)" % (t, ref))
-        elif ft.array == "fixed":
-            out.append("        %s = [%s.decode(r) for _ in range(%d)]" % (t, ref, ft.array_size))
-        else:
-            out.append("        %s = [%s.decode(r) for _ in range(_count(r, %r, 1))]" % (t, ref, ft.array_size))
-        return
-    if ft.is_string:
-        if ft.array is None:
-            out.append("        %s = _get_string(r, %r)" % (t, ft.string_bound))
-        elif ft.array == "fixed":
-            out.append("        %s = [_get_string(r, %r) for _ in range(%d)]" % (t, ft.string_bound, ft.array_size))
-        else:
-            out.append("        %s = [_get_string(r, %r) for _ in range(_count(r, %r, 4))]" % (
-                t, ft.string_bound, ft.array_size))
-        return
-    code, size, pkind = PRIMITIVES[ft.base]
-    count = str(ft.array_size) if ft.array == "fixed" else "_count(r, %r, %d)" % (ft.array_size, size)
-    if pkind == "octet":
-        out.append("        %s = r.raw(%s)" % (t, count))
-    elif pkind == "bool":
-        out.append("        %s = [_bool(b) for b in r.raw(%s)]" % (t, count))
-    else:
-        out.append("        %s = _get_array(r, %s, %r, %d)" % (t, count, code, size))
-
-
 def _gen_message(spec, registry, out, deps):
+    """``Name = _define(ros type, field names, field specs, defaults, CONSTANT=value, ...)``: a table
+    that the shared runtime in xrce/msgs/__init__.py interprets (no per-type code: on a board every
+    generated function costs heap)."""
     package = spec.package
     fields = spec.fields
-    out.append("")
-    out.append("")
-    out.append("class %s(_Message):" % spec.name)
-    out.append("    __slots__ = (%s)" % "".join("%r, " % f.name for f in fields))
-    out.append("    TYPE_NAME = %r" % spec.dds_name)
-    out.append("    ROS_TYPE = %r" % spec.ros_type)
-    # The dict helpers infer every other field's shape from a default instance; a list of
-    # messages may be empty by default, so its item type is spelled out.
-    items = [f for f in fields if f.type.is_nested and f.type.array is not None]
-    if items:
-        out.append("    _ITEMS = (%s)" % "".join(
-            "(%r, %s), " % (f.name, _class_ref(f.type.base, package, deps)) for f in items))
+    specs = [_field_spec(f.type, package, deps) for f in fields]
+    if all(len(s) == 3 and s[0] == '"' for s in specs):
+        spec_text = '"%s"' % "".join(s[1] for s in specs)
+    else:
+        spec_text = "(%s)" % "".join("%s, " % s for s in specs)
+    defaults = [(f.name, _default_value(f)) for f in fields if f.default is not None]
+    args = ["%r" % spec.ros_type, "(%s)" % "".join("%r, " % f.name for f in fields), spec_text]
+    if defaults:
+        args.append("{%s}" % ", ".join("%r: %s" % item for item in defaults))
     for c in spec.constants:
         value = float(c.value) if c.type.base in ("float32", "float64") else c.value
-        out.append("    %s = %r" % (c.name, value))
+        args.append("%s=%r" % (c.name, value))
     out.append("")
-    params = "".join(", %s=None" % f.name for f in fields)
-    out.append("    def __init__(self%s):" % params)
-    if not fields:
-        out.append("        pass")
-    for f in fields:
-        out.append("        self.%s = %s if %s is None else %s" % (
-            f.name, _default_expr(f, package, deps), f.name, f.name))
-    out.append("")
-    leaves = []
-    rebuild = _flatten(spec, registry, "self", "", leaves, package, deps)
-    steps = plan_runs(leaves)
-    out.append("    def encode(self, w):")
-    if not fields:
-        # The rosidl typesupports give an empty struct one dummy octet.
-        out.append("        w.u8(0)")
-    for step in steps:
-        _gen_encode_step(step, package, out)
-    out.append("")
-    out.append("    @classmethod")
-    out.append("    def decode(cls, r):")
-    if not fields:
-        out.append("        r.u8()")
-        out.append("        return cls()")
-    else:
-        for step in steps:
-            _gen_decode_step(step, package, out, deps)
-        out.append("        return cls(%s)" % rebuild)
+    out.append("%s = _define(" % spec.name)
+    for arg in args:
+        out.append("    %s," % arg)
+    out.append(")")
 
 
 def service_class_name(srv, message_names):
@@ -634,13 +388,9 @@ def _gen_service(srv, out, class_name):
     out.append("    ROS_TYPE = %r" % ("%s/srv/%s" % (srv.package, srv.name)))
 
 
-# What generated modules may take from the shared runtime, by module: xrce/msgs/__init__.py has what
-# scalar and string fields need, _seq.py the array and sequence helpers. Each generated module
-# imports only the names its code uses, so a board does not load or bind what it never calls.
+# What generated modules take from the shared runtime (xrce/msgs/__init__.py), by module.
 RUNTIME_NAMES = (
-    ("xrce.msgs", ("_PACK_ERRORS", "_Message", "_bad_values", "_bool", "_get_string", "_pack_floats",
-                   "_pack_into", "_put", "_put_string", "_take", "_unpack_from")),
-    ("xrce.msgs._seq", ("_bad_len", "_count", "_get_array", "_put_array", "_put_octets", "_seq_len")),
+    ("xrce.msgs", ("_define",)),
 )
 
 

@@ -16,7 +16,7 @@ from xrce.compat import ticks_diff, ticks_ms
 # The example's modules, one per step: the harness can collect only between steps, while a board's
 # collector also runs in the middle of an import.
 MODULES = ("nodeudp_transport", "xrce.compat", "xrce.errors", "xrce.cdr", "xrce.message",
-           "xrce.seqnum", "xrce.streams", "xrce.client.wire", "xrce.client.session",
+           "xrce.seqnum", "xrce.streams", "xrce.client.wire", "xrce.client.session", "xrce.client.ping",
            "xrce.client.recovery", "xrce.transports.custom", "xrce.msgs")
 TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),
          ("xrce.msgs.turtlebot3_msgs", "SensorState"), ("xrce.msgs.sensor_msgs", "Imu"),

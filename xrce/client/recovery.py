@@ -11,10 +11,12 @@
 # an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
 # the session's run loops.
 
+from xrce.client.wire import Request
 from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 
 _OBJK_PARTICIPANT = const(0x01)
-_REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
+_CREATE = const(1)
+_FLAGS_REUSE_REPLACE = const(0x07)  # little-endian | FLAG_REUSE | FLAG_REPLACE
 
 LINK_CONNECTED = 0
 LINK_SILENT = 1  # the agent has been quiet for a while; pings are out
@@ -61,10 +63,9 @@ class LinkMonitor:
         session.connected = True
         session._reset_streams()
         session._last_heard = ticks_ms()
-        for create in session._creations:
-            create.request_id = session.next_request_id()
-            create.flags |= _REUSE_REPLACE
-            session._buffer(None, create)
+        for object_id, body in session._creations:
+            rid = session.next_request_id()
+            session._buffer(None, Request(_CREATE, _FLAGS_REUSE_REPLACE, rid, object_id, body))
         for read in session._read_requests.values():
             read.request_id = session.next_request_id()
             session._buffer(None, read)
@@ -76,8 +77,10 @@ class LinkMonitor:
         gone = [object_id]
         kept = []
         for create in session._creations:
-            if create.object_id in gone or (create.kind != _OBJK_PARTICIPANT and create.tail_id in gone):
-                gone.append(create.object_id)
+            # The body starts with the kind and, but for a participant, ends with the parent's id.
+            oid, body = create
+            if oid in gone or (body[0] != _OBJK_PARTICIPANT and (body[-2] << 8 | body[-1]) in gone):
+                gone.append(oid)
             else:
                 kept.append(create)
         session._creations = kept

@@ -17,9 +17,10 @@
 # is full or on flush (every ``run_until_*``/``spin_once`` flushes first), so several CREATEs share one
 # message exactly as with the C client.
 #
-# A board pays for what it imports: services (xrce.client.services), deleting single entities and
-# cancelling delivery (xrce.client.teardown), fragmentation (xrce.client.fragments), agent discovery
-# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
+# A board pays for what it imports: the session-less ping (xrce.client.ping), services
+# (xrce.client.services), deleting single entities and cancelling delivery (xrce.client.teardown),
+# fragmentation (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
+# (xrce.client.recovery) load on first use; the
 # submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
 # general codec the agent uses.
 
@@ -93,11 +94,6 @@ class SessionError(XrceError):
     pass
 
 
-def _trunc_half(value):
-    # Halve an int rounding toward zero, as the C client's int64 division does.
-    return -((-value) // 2) if value < 0 else value // 2
-
-
 def ros_topic_name(name, prefix="rt"):
     # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
     return prefix + (name if name.startswith("/") else "/" + name)
@@ -112,39 +108,6 @@ class _Output:
         self.mw = MessageWriter(capacity)
         self.reliable = stream_id >= 0x80
         self.has_content = False
-
-
-class _SampleWrite:
-    # WRITE_DATA payload built in place: ids, an optional prefix, then the sample with its own
-    # alignment origin. One instance per session is reused, so a write allocates nothing here.
-
-    ID = _WRITE_DATA
-    __slots__ = ("flags", "request_id", "object_id", "prefix", "sample")
-
-    def __init__(self):
-        self.flags = _FLAG_LITTLE_ENDIAN  # | FORMAT_DATA (0)
-        self.request_id = 0
-        self.object_id = 0
-        self.prefix = None
-        self.sample = None
-
-    def encode(self, w):
-        w.u8(self.request_id >> 8)
-        w.u8(self.request_id & 0xFF)
-        w.u8(self.object_id >> 8)
-        w.u8(self.object_id & 0xFF)
-        if self.prefix is not None:
-            w.raw(self.prefix)
-        sample = self.sample
-        if isinstance(sample, (bytes, bytearray, memoryview)):
-            w.raw(sample)
-        else:
-            saved = w.origin
-            w.origin = w.pos  # a sample is aligned from its own first byte (§14)
-            try:
-                sample.encode(w)
-            finally:
-                w.origin = saved
 
 
 class Session:
@@ -190,7 +153,7 @@ class Session:
         self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
         self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
-        self._sample = _SampleWrite()
+        self._sample = wire.Request(_WRITE_DATA, _FLAG_LITTLE_ENDIAN, 0, 0, None)  # | FORMAT_DATA (0)
         self.last_request_id = _FIRST_REQUEST_ID - 1
         self._object_counters = {}
         self._statuses = {}
@@ -203,7 +166,8 @@ class Session:
         self._next_heartbeat = {}
         self._last_heard = ticks_ms()
         self._session_unknown = False
-        # What to re-create after the agent lost the session (see xrce.client.recovery).
+        # What to re-create after the agent lost the session (see xrce.client.recovery): a CREATE's
+        # (object id, body), the rest of the request is rebuilt then.
         self._creations = []
         self._read_requests = {}
         self.link = None
@@ -230,7 +194,7 @@ class Session:
         self.create_status = None
         for _ in range(attempts):
             self._send_create_client()
-            if self._wait(timeout_ms, self._has_create_status):
+            if self._wait(timeout_ms, lambda: self.create_status is not None):
                 break
         if self.create_status is None:
             return False
@@ -262,9 +226,6 @@ class Session:
     def _send_ping(self):
         self._send(self._ping_message())
 
-    def _has_create_status(self):
-        return self.create_status is not None
-
     def delete(self, attempts=10, timeout_ms=1000):
         # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
         self.flush()
@@ -274,12 +235,9 @@ class Session:
         self._delete_status = None
         for _ in range(attempts):
             self._send(message)
-            if self._wait(timeout_ms, self._has_delete_status):
+            if self._wait(timeout_ms, lambda: self._delete_status is not None):
                 break
         self.connected = False
-        return self._delete_status is not None
-
-    def _has_delete_status(self):
         return self._delete_status is not None
 
     def _reset_streams(self):
@@ -320,7 +278,7 @@ class Session:
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
             self.link.forget(oid)
-            self._creations.append(payload)
+            self._creations.append((oid, payload.body))
         return oid
 
     @staticmethod
@@ -475,11 +433,11 @@ class Session:
         sample.request_id = self.next_request_id()
         sample.object_id = object_id_
         sample.prefix = prefix
-        sample.sample = data
+        sample.body = data
         try:
             ok = self._buffer(stream_id, sample)
         finally:
-            sample.sample = None
+            sample.body = None
             sample.prefix = None
         if not ok:
             self.dropped_writes += 1
@@ -487,14 +445,6 @@ class Session:
         return sample.request_id
 
     # ------------------------------------------------------------------ output path
-
-    def _output(self, stream_id):
-        if stream_id is None:
-            stream_id = self.reliable
-        out = self._outputs.get(stream_id)
-        if out is None:
-            raise SessionError("no output stream 0x%02X" % stream_id)
-        return out
 
     def _begin(self, out):
         # Open a new message on ``out``; False if a reliable window has no free slot.
@@ -510,13 +460,18 @@ class Session:
 
     def _buffer(self, stream_id, payload):
         # Append ``payload`` to its stream's open message; True when it is buffered or sent.
-        out = self._output(stream_id)
+        if stream_id is None:
+            stream_id = self.reliable
+        out = self._outputs.get(stream_id)
+        if out is None:
+            raise SessionError("no output stream 0x%02X" % stream_id)
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):
                 return False
             mw = out.mw
             mark = mw.size
-            _write_submessage(mw, payload)
+            payload.encode(mw.begin_submessage(payload.ID, payload.flags))
+            mw.end_submessage()
             end = mw.size
             if end <= self.max_message:
                 out.has_content = True
@@ -697,13 +652,10 @@ class Session:
             self._pong_in_session = False
             sent = ticks_us()
             self._send(message)
-            if self._wait(timeout_ms, self._has_pong):
+            if self._wait(timeout_ms, lambda: self._pong_in_session):
                 self.last_rtt_us = ticks_diff(ticks_us(), sent)
                 return True
         return False
-
-    def _has_pong(self):
-        return self._pong_in_session
 
     def sync_time(self, timeout_ms=1000, attempts=1):
         # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
@@ -715,13 +667,10 @@ class Session:
             w.i32(originate // 1000000000)
             w.u32(originate % 1000000000)
             self._send_control()
-            if self._wait(timeout_ms, self._sync_done):
+            if self._wait(timeout_ms, lambda: self._sync_originate is None):
                 return True
         self._sync_originate = None
         return False
-
-    def _sync_done(self):
-        return self._sync_originate is None
 
     def epoch_ns(self):
         # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
@@ -781,25 +730,50 @@ class Session:
         self._process(message, len(message))
 
     def _process(self, buf, end):
+        # What a client receives (XRCE-WIRE.md §5), one branch per submessage: one method each
+        # would cost a board heap for its code object; anything else is ignored.
         for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
-            handler = _HANDLERS.get(sub_id)
-            if handler is not None:
-                handler(self, buf, flags, s, e)
-
-    def _on_status_agent(self, buf, flags, s, e):
-        if e - s < 1:
-            raise DecodeError("empty STATUS_AGENT")
-        self.create_status = buf[s]
-
-    def _on_status(self, buf, flags, s, e):
-        if e - s < 6:
-            raise DecodeError("short STATUS")
-        rid = (buf[s] << 8) | buf[s + 1]
-        if rid == _REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == _OBJECTID_CLIENT:
-            self._delete_status = buf[s + 4]
-            return
-        if rid in self._statuses:  # only requests someone waits for (not re-creations)
-            self._statuses[rid] = buf[s + 4]
+            if sub_id == _DATA:
+                self._on_data(buf, flags, s, e)
+            elif sub_id == _ACKNACK or sub_id == _HEARTBEAT:
+                if e - s < 5:
+                    raise DecodeError("short ACKNACK or HEARTBEAT")
+                stream_id = buf[s + 4]
+                if flags & 1:
+                    first, second = buf[s] | (buf[s + 1] << 8), buf[s + 2] | (buf[s + 3] << 8)
+                else:
+                    first, second = (buf[s] << 8) | buf[s + 1], (buf[s + 2] << 8) | buf[s + 3]
+                if sub_id == _ACKNACK:
+                    # first unacknowledged, NACK bitmap (always big-endian) of one of our streams
+                    out = self._outputs.get(stream_id)
+                    if out is not None and out.reliable:
+                        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3],
+                                                            ticks_ms(), self.heartbeat_ms // 2):
+                            self._send(message)
+                else:
+                    # first and last sequence numbers the agent still holds for one of its streams
+                    stream = self._inputs.get(stream_id)
+                    if stream is not None and stream_id >= 0x80:
+                        ready = stream.on_heartbeat(first, second)
+                        self._send_acknack(stream)
+                        for message in ready:
+                            self._process_reliable(message)
+            elif sub_id == _STATUS:
+                if e - s < 6:
+                    raise DecodeError("short STATUS")
+                rid = (buf[s] << 8) | buf[s + 1]
+                if rid == _REQUEST_ID_LOGOUT and ((buf[s + 2] << 8) | buf[s + 3]) == _OBJECTID_CLIENT:
+                    self._delete_status = buf[s + 4]
+                elif rid in self._statuses:  # only requests someone waits for (not re-creations)
+                    self._statuses[rid] = buf[s + 4]
+            elif sub_id == _INFO:
+                self._on_info(buf, flags, s, e)
+            elif sub_id == _TIMESTAMP_REPLY:
+                self._on_timestamp_reply(buf, flags, s, e)
+            elif sub_id == _STATUS_AGENT:
+                if e - s < 1:
+                    raise DecodeError("empty STATUS_AGENT")
+                self.create_status = buf[s]
 
     def _on_info(self, buf, flags, s, e):
         impl_status, availability = _agent_activity(buf, flags, s, e)
@@ -829,32 +803,6 @@ class Session:
         else:
             callback(_decode_sample(msg_class, data))
 
-    def _on_acknack(self, buf, flags, s, e):
-        if e - s < 5:
-            raise DecodeError("short ACKNACK")
-        out = self._outputs.get(buf[s + 4])
-        if out is None or not out.reliable:
-            return
-        first = buf[s] | (buf[s + 1] << 8) if flags & 1 else (buf[s] << 8) | buf[s + 1]
-        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3], ticks_ms(),
-                                            self.heartbeat_ms // 2):
-            self._send(message)
-
-    def _on_heartbeat(self, buf, flags, s, e):
-        if e - s < 5:
-            raise DecodeError("short HEARTBEAT")
-        stream = self._inputs.get(buf[s + 4])
-        if stream is None or buf[s + 4] < 0x80:
-            return
-        if flags & 1:
-            first, last = buf[s] | (buf[s + 1] << 8), buf[s + 2] | (buf[s + 3] << 8)
-        else:
-            first, last = (buf[s] << 8) | buf[s + 1], (buf[s + 2] << 8) | buf[s + 3]
-        ready = stream.on_heartbeat(first, last)
-        self._send_acknack(stream)
-        for message in ready:
-            self._process_reliable(message)
-
     def _on_timestamp_reply(self, buf, flags, s, e):
         # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
         if e - s < 24:
@@ -877,7 +825,9 @@ class Session:
             self.time_rtt_ns += (self.time_rtt_ns >> 1) + 1
             return
         self.time_rtt_ns = rtt
-        self.time_offset_ns = _trunc_half((t0 + t3) - (received + transmitted))
+        twice = (t0 + t3) - (received + transmitted)
+        # Halved rounding toward zero, as the C client's int64 division does.
+        self.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
         self.time_synced = True
 
 
@@ -885,26 +835,10 @@ def _never():
     return False
 
 
-_HANDLERS = {
-    _STATUS_AGENT: Session._on_status_agent,
-    _STATUS: Session._on_status,
-    _INFO: Session._on_info,
-    _DATA: Session._on_data,
-    _ACKNACK: Session._on_acknack,
-    _HEARTBEAT: Session._on_heartbeat,
-    _TIMESTAMP_REPLY: Session._on_timestamp_reply,
-}
-
-
 def _decode_sample(msg_class, data):
     if msg_class is None:
         return bytes(data)
     return msg_class.decode(CdrReader(data))
-
-
-def _write_submessage(mw, payload):
-    payload.encode(mw.begin_submessage(payload.ID, payload.flags))
-    mw.end_submessage()
 
 
 def _agent_activity(buf, flags, s, e):
@@ -926,41 +860,12 @@ def _agent_activity(buf, flags, s, e):
     return impl_status, r.i16()
 
 
-def ping_agent(transport, timeout_ms=1000, attempts=1):
-    # Session-less GET_INFO ping (header 0x80). Returns the round-trip time in µs, or None.
-    #
-    # Any INFO reporting an available agent counts as the answer, as with the C client.
-    message = b"\x80\x00\x00\x00\x02\x01\x08\x00\x00\x0a\xff\xfd\x02\x00\x00\x00"
-    for _ in range(attempts):
-        sent = ticks_us()
-        transport.send(message)
-        deadline = ticks_add(ticks_ms(), timeout_ms)
-        while True:
-            remaining = ticks_diff(deadline, ticks_ms())
-            if remaining <= 0:
-                break
-            data = transport.recv(remaining)
-            if data is not None and _is_pong(data):
-                return ticks_diff(ticks_us(), sent)
-    return None
-
-
-def _is_pong(data):
-    try:
-        if len(data) < 4:
-            return False
-        for sub_id, flags, s, e in iter_submessages(data, header_size(data[0])):
-            if sub_id == _INFO:
-                availability = _agent_activity(data, flags, s, e)[1]
-                return availability is not None and availability > 0
-    except DecodeError:
-        pass
-    return False
-
-
 def __getattr__(name):
-    # discover_agents lives in its own module; this keeps `from xrce.client.session import
-    # discover_agents` working without every board paying for it.
+    # The session-less ping and agent discovery live in their own modules; this keeps
+    # `from xrce.client.session import ping_agent` working without every board paying for them.
+    if name == "ping_agent":
+        from xrce.client.ping import ping_agent
+        return ping_agent
     if name == "discover_agents":
         from xrce.client.discovery import discover_agents
         return discover_agents

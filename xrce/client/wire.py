@@ -23,19 +23,23 @@ _OBJK_REPLIER = const(8)
 _REPRESENTATION_IN_BINARY = const(3)
 
 
-# CREATE, DELETE and READ_DATA: the ids, then a body prepared once. A session keeps its CREATEs and
-# READ_DATAs to send again after the agent lost the session, with a new request id and flags.
+# CREATE, DELETE, READ_DATA and WRITE_DATA: the ids, then a body prepared once (bytes) or, for
+# WRITE_DATA, a message encoded in place, after an optional prefix (a reply's sample identity). A
+# session keeps its CREATEs and READ_DATAs to send again after the agent lost the session, and one
+# WRITE_DATA it refills for every sample, so a write allocates nothing here.
 class Request:
-    __slots__ = ("ID", "flags", "request_id", "object_id", "kind", "tail_id", "body")
+    # A CREATE's body starts with the object kind and, but for a participant (domain id), ends
+    # with the parent's object id: xrce.client.recovery keeps only (object id, body) and reads them
+    # there.
+    __slots__ = ("ID", "flags", "request_id", "object_id", "body", "prefix")
 
-    def __init__(self, sub_id, flags, request_id, object_id, body, kind=0, tail_id=0):
+    def __init__(self, sub_id, flags, request_id, object_id, body):
         self.ID = sub_id
         self.flags = flags
         self.request_id = request_id
         self.object_id = object_id
         self.body = body
-        self.kind = kind
-        self.tail_id = tail_id
+        self.prefix = None
 
     def encode(self, w):
         rid = self.request_id
@@ -44,7 +48,18 @@ class Request:
         w.u8(rid & 0xFF)
         w.u8(oid >> 8)
         w.u8(oid & 0xFF)
-        w.raw(self.body)
+        if self.prefix is not None:
+            w.raw(self.prefix)
+        body = self.body
+        if isinstance(body, (bytes, bytearray, memoryview)):
+            w.raw(body)
+        else:
+            saved = w.origin
+            w.origin = w.pos  # a sample is aligned from its own first byte (§14)
+            try:
+                body.encode(w)
+            finally:
+                w.origin = saved
 
 
 # A payload starts 4-aligned in its message and the ids take 4 bytes, so a body written from
@@ -71,7 +86,7 @@ def create(request_id, object_id, kind, fmt, representation, tail_id, flags):
     elif kind <= _OBJK_REPLIER:
         w.u8(tail_id >> 8)
         w.u8(tail_id & 0xFF)
-    return Request(_CREATE, flags, request_id, object_id, _body(w), kind, tail_id)
+    return Request(_CREATE, flags, request_id, object_id, _body(w))
 
 
 def delete(request_id, object_id):

@@ -403,79 +403,14 @@ class TurtleBot3:
         finally:
             self.session.close()
 
-    def status_line(self):
-        return ("turtlebot3: x=%.3f y=%.3f yaw=%.3f v=%.3f w=%.3f commands=%d failsafe_trips=%d "
-                "published=%r" % (self.x, self.y, self.yaw, self.linear, self.angular,
-                                  self.commands_received, self.failsafe_trips, self.published))
-
 
 # ---------------------------------------------------------------------- CPython command line
 
-def _make_transport(args):
-    if args.transport == "udp4":
-        from xrce.transports.udp import UdpTransport
-        return UdpTransport(args.agent, args.port)
-    from xrce.transports.serial import SerialTransport
-    return SerialTransport(args.dev, args.baudrate)
-
-
 def main(argv=None):
-    import argparse
-    import signal
-    import sys
+    # The command line lives in its own module: a board running this firmware never pays for it.
+    from xrce.examples.turtlebot3_cli import main
 
-    parser = argparse.ArgumentParser(prog="python -m xrce.examples.turtlebot3",
-                                     description="simulated TurtleBot3 burger firmware")
-    sub = parser.add_subparsers(dest="transport", required=True)
-    udp = sub.add_parser("udp4", help="reach the agent over UDP/IPv4")
-    udp.add_argument("--agent", default="127.0.0.1", help="agent address (default 127.0.0.1)")
-    udp.add_argument("-p", "--port", type=int, default=8888)
-    serial = sub.add_parser("serial", help="reach the agent over a serial line")
-    serial.add_argument("--dev", "-D", required=True)
-    serial.add_argument("-b", "--baudrate", type=int, default=115200)
-    for child in (udp, serial):
-        child.add_argument("--domain", type=int, default=None,
-                           help="ROS domain of the node (default: $ROS_DOMAIN_ID or 0)")
-        child.add_argument("--cmd-vel-best-effort", action="store_true",
-                           help="subscribe /cmd_vel best-effort (default reliable)")
-        child.add_argument("--status-period", type=float, default=0.0, metavar="S",
-                           help="print a status line every S seconds (0: never)")
-        child.add_argument("--connect-attempts", type=int, default=0,
-                           help="agent pings before giving up (0: forever)")
-    args = parser.parse_args(argv)
-    import os
-    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
-
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
-    log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
-    transport = _make_transport(args)
-    robot = TurtleBot3(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
-                       log=log)
-    try:
-        if robot.connect(attempts=args.connect_attempts) is None:
-            log("turtlebot3: no agent answered")
-            return 1
-        if not robot.setup():
-            return 1
-        log("turtlebot3: running (node %s, domain %d, failed topics %r)"
-            % (robot.node_name, domain, robot.failed_topics))
-        status = None
-        if args.status_period > 0:
-            status = _Periodic(int(args.status_period * 1000), ticks_ms())
-        while not stop:
-            robot.step()
-            if status is not None and status.take(ticks_ms()):
-                log(robot.status_line())
-        return 0
-    except KeyboardInterrupt:
-        return 0
-    finally:
-        try:
-            robot.shutdown()
-        except Exception:  # the agent may be gone already; the process is ending anyway
-            transport.close()
-        log(robot.status_line())
+    return main(argv)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,10 @@
-# Conversion between generated messages and nested dicts/lists, loaded only when first used.
+# Conversion between messages and nested dicts/lists, loaded only when first used.
 #
-# A class's field shapes come from __slots__ and one default instance (a nested message, a list of
-# messages, bytes, or a plain value); _ITEMS names the item class of message lists, which may be
-# empty by default. Shapes are worked out once per class and kept here rather than generated onto
-# every class, which a board would pay for whether or not it ever converts a dict.
+# A class's field shapes come from its field specs (_S, see __init__.py): a nested message, a list
+# of messages, bytes (octet arrays), or a plain value.
 
 from xrce.errors import EncodeError
-from xrce.msgs import _PACK_ERRORS, _Message
+from xrce.msgs import _PACK_ERRORS
 
 _VALUE, _NESTED, _NESTED_LIST, _BYTES = 0, 1, 2, 3
 
@@ -17,19 +15,18 @@ _shapes = {}
 def _shape(cls):
     shape = _shapes.get(cls)
     if shape is None:
-        items = {}
-        for name, item_cls in getattr(cls, "_ITEMS", ()):
-            items[name] = item_cls
-        default = cls()
         entries = []
-        for name in cls.__slots__:
-            value = getattr(default, name)
-            if name in items:
-                entries.append((name, _NESTED_LIST, items[name]))
-            elif isinstance(value, _Message):
-                entries.append((name, _NESTED, type(value)))
-            elif isinstance(value, (bytes, bytearray)):
-                entries.append((name, _BYTES, None))
+        for name, spec in zip(cls.__slots__, cls._S):
+            if type(spec) is tuple and spec[0] != "s":
+                item = spec[2]
+                if item == "B":
+                    entries.append((name, _BYTES, None))
+                elif type(item) is not str and type(item) is not tuple:
+                    entries.append((name, _NESTED_LIST, item))
+                else:
+                    entries.append((name, _VALUE, None))
+            elif type(spec) is not str and type(spec) is not tuple:
+                entries.append((name, _NESTED, spec))
             else:
                 entries.append((name, _VALUE, None))
         shape = tuple(entries)

@@ -68,3 +68,23 @@ def services_table(namespace):
         ros_type = descriptor.ROS_TYPE
         table[ros_type[ros_type.rfind("/") + 1:]] = descriptor
     return table
+
+
+# A package's SERVICES, or "Name_Request"/"Name_Response": the module of service Name (whose
+# descriptor class may be "Name_Service", see msggen.service_class_name), else a message module of
+# that name. Called by xrce.msgs._type_attr.
+def service_attr(namespace, name):
+    if name == "SERVICES":
+        return services_table(namespace)
+    module = name
+    cut = name.rfind("_")
+    services = namespace["_SERVICE_CLASSES"]
+    base = name[:cut]
+    if base in services:
+        module = base
+    elif base + "_Service" in services:
+        module = base + "_Service"
+    try:
+        return getattr(_import(namespace["__name__"] + "._" + module), name)
+    except ImportError:
+        raise AttributeError(name)

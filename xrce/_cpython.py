@@ -1,0 +1,40 @@
+# What only CPython runs, kept out of the modules a board loads (the code of a function a board
+# never calls would still cost it heap): MicroPython's tick functions (xrce/compat.py imports them
+# on CPython) and the message classes' _FIELDS table.
+
+import time
+
+# Milliseconds and microseconds of the monotonic clock, with a period for tick arithmetic that
+# never wraps in practice.
+_monotonic_ns = time.monotonic_ns
+_TICKS_PERIOD = 1 << 62
+
+
+def ticks_ms():
+    return (_monotonic_ns() // 1000000) % _TICKS_PERIOD
+
+
+def ticks_us():
+    return (_monotonic_ns() // 1000) % _TICKS_PERIOD
+
+
+def ticks_diff(later, earlier):
+    return later - earlier
+
+
+def ticks_add(ticks, delta):
+    return ticks + delta
+
+
+def sleep_ms(ms):
+    time.sleep(ms / 1000)
+
+
+class FieldTable:
+    # Class._FIELDS of a message class, ((name, kind, nested class or None), ...) with kind 0 value,
+    # 1 message, 2 list of messages, 3 bytes (octet arrays), as CPython tools (xrce/client/cli.py)
+    # read it; worked out by xrce/msgs/_dict.py on first use.
+    def __get__(self, obj, cls):
+        from xrce.msgs._dict import _shape
+
+        return _shape(cls)
