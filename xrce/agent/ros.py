@@ -446,6 +446,34 @@ class AgentPublisher:
         return self.publisher.get_subscription_count()
 
 
+def _in_thread(loop: asyncio.AbstractEventLoop, function, *args) -> asyncio.Future:
+    """``function(*args)`` on a thread of its own that ends with it. For the blocking start-up
+    steps: ``run_in_executor`` would leave the loop's default pool thread behind for the agent's
+    whole life (its stack and malloc arena stay resident)."""
+    future = loop.create_future()
+
+    def settle(value, error) -> None:
+        if future.cancelled():
+            return
+        if error is not None:
+            future.set_exception(error)
+        else:
+            future.set_result(value)
+
+    def run() -> None:
+        try:
+            value, error = function(*args), None
+        except BaseException as exc:  # handed to the awaiting coroutine
+            value, error = None, exc
+        try:
+            loop.call_soon_threadsafe(settle, value, error)
+        except RuntimeError:  # the loop is closed: nobody waits any more
+            pass
+
+    threading.Thread(target=run, name="xrce-start", daemon=True).start()
+    return future
+
+
 def _default_domain_id() -> int:
     try:
         return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
@@ -885,8 +913,8 @@ class RosMiddleware(Middleware):
         # node to a participant its peers already discovered, instead of waiting for a new
         # participant to be discovered.
         domain_id = _default_domain_id()
-        joining = self._loop.run_in_executor(
-            None, _DomainRuntime, domain_id, self.executor_kind, self.idle_wait_s)
+        joining = _in_thread(self._loop, _DomainRuntime, domain_id, self.executor_kind,
+                             self.idle_wait_s)
         # A client that reconnects the moment the agent is back must not start a second context
         # for this domain meanwhile: create_participant parks it until this join is done
         # (measured with bench/restart_gap.py, a cold start with the client already waiting:
@@ -908,7 +936,7 @@ class RosMiddleware(Middleware):
         # its links only after this, so building the node never competes with answering a
         # client (a robot's first time sync over a pty came out up to 2 ms off when it did).
         try:
-            await self._loop.run_in_executor(None, runtime.call, lambda: None, self.entity_timeout_s)
+            await _in_thread(self._loop, runtime.call, lambda: None, self.entity_timeout_s)
         except MiddlewareError as exc:
             log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
 
