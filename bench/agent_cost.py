@@ -138,7 +138,11 @@ def ping_rtts(port, count, session=None):
                                  [GetInfo()])
     else:
         sock = session.transport._sock
-        message = bytes(session._control_message(GetInfo()))
+        # The session's own header on stream 0 (none), built here with the wire core rather than
+        # through a private method of the client library.
+        session_id = session.session_id
+        message = encode_message(session_id, C.STREAM_NONE, 0,
+                                 None if session_id & 0x80 else session.key, [GetInfo()])
     sock.settimeout(1.0)
     rtts = []
     try:
