@@ -9,15 +9,14 @@ undo that mangling.
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import logging
 import re
-import sys
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 
+from xrce.agent import deferred
 from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, TypeNotReady, UnknownTypeError
 
 
@@ -29,34 +28,14 @@ def _defer_rosidl_code_generator() -> None:
     a type, e.g. each node's /parameter_events) does ``from rosidl_generator_py import
     import_type_support``, and that package's ``__init__`` also imports the code generator with
     lark, empy and hashlib/OpenSSL: 5 MB of resident memory and 35 ms of start-up the agent never
-    uses. The package is registered here with only ``import_type_support``; touching any other of
-    its names runs its real ``__init__`` then, so nothing is lost.
+    uses. The package is registered with only ``import_type_support``; touching any other of its
+    names runs its real ``__init__`` then (``xrce.agent.deferred``).
     """
-    name = "rosidl_generator_py"
-    if name in sys.modules:
-        return
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.loader is None or spec.submodule_search_locations is None:
-        return
-    package = importlib.util.module_from_spec(spec)
-    sys.modules[name] = package
-    try:
+    def prepare(package) -> None:
         from rosidl_generator_py.import_type_support_impl import import_type_support
-    except Exception:  # another layout: let the package import the usual way
-        del sys.modules[name]
-        return
-    package.import_type_support = import_type_support
-    initialised = []
+        package.import_type_support = import_type_support
 
-    def __getattr__(attribute):
-        if not initialised:
-            initialised.append(True)
-            spec.loader.exec_module(package)
-            if attribute in package.__dict__:
-                return package.__dict__[attribute]
-        raise AttributeError("module %r has no attribute %r" % (name, attribute))
-
-    package.__getattr__ = __getattr__
+    deferred.defer("rosidl_generator_py", prepare)
 
 
 _defer_rosidl_code_generator()
