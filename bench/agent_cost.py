@@ -19,6 +19,9 @@ a bare rclpy process idle, a Python UDP echo for ping.
   cmd_vel at 30 Hz from ROS; CPU over 10 s and the agent's resident memory at the end.
 - "ping": GET_INFO round trips timed around raw socket calls, out of a session (header 0x80) and
   in one, so the figure is the agent's answer plus loopback, not a client library's decode.
+- floors (bench/wakeup_floor.py): what a receiver that does nothing pays per wake-up (asyncio,
+  plain Python, C) at a robot's rate of wake-ups and at 5k/s, and a minimal Python bridge
+  (asyncio reader + rclpy publish per datagram) at 5k and 20k/s into the same subscriber.
 """
 
 import argparse
@@ -40,6 +43,7 @@ sys.path.insert(0, str(REPO / "bench"))
 sys.path.insert(0, str(REPO / "tests"))
 
 from run import Child, PYTHON, cpu_seconds, percentile, record, udp_echo_rtts, wait_for  # noqa: E402
+from wakeup_floor import bridge_floor, record_floors, wakeup_floors  # noqa: E402
 
 from xrce import constants as C  # noqa: E402
 from xrce.submessages import GetInfo, encode_message  # noqa: E402
@@ -138,7 +142,11 @@ def ping_rtts(port, count, session=None):
                                  [GetInfo()])
     else:
         sock = session.transport._sock
-        message = bytes(session._control_message(GetInfo()))
+        # The session's own header on stream 0 (none), built here with the wire core rather than
+        # through a private method of the client library.
+        session_id = session.session_id
+        message = encode_message(session_id, C.STREAM_NONE, 0,
+                                 None if session_id & 0x80 else session.key, [GetInfo()])
     sock.settimeout(1.0)
     rtts = []
     try:
@@ -279,6 +287,14 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
         floor = 1e6 * float(cpu) / int(sent)
         idle_floor = bare_rclpy_idle(env, IDLE_SECONDS)
         echo = udp_echo_rtts(500 if quick else 2000)
+        # What waking up costs any Python receiver here, and a minimal Python bridge (asyncio
+        # reader + rclpy publish per datagram) at the best-effort rates, into the same subscriber.
+        floor_seconds = 2.0 if quick else 5.0
+        floors = wakeup_floors(floor_seconds)
+        sink.ask("sub /cost_bridge_floor be")
+        bridge = bridge_floor(env, "/cost_bridge_floor", seconds=floor_seconds,
+                              ready=lambda: wait_for(
+                                  lambda: sink.ask("publishers /cost_bridge_floor") != "0"))
     finally:
         sink.close()
         source.close()
@@ -331,6 +347,11 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
                                                                   percentile(echo, fraction)))
     record("bare rclpy publish(bytes)", floor, "us", None, "-", "",
            "floor: CPU per message of a process that only publishes, same subscriber")
+    for rate, (_fraction, per_datagram) in sorted(bridge.items()):
+        record("floor: asyncio reader + rclpy publish, %dk/s" % (rate // 1000), per_datagram, "us",
+               None, "-", "", "a minimal Python bridge: one Twist published per datagram read, "
+               "same pacing and subscriber as the agent's best-effort figures")
+    record_floors(floors)
 
 
 def main(argv=None):

@@ -295,3 +295,50 @@ async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer): 
         client.remove_pending_request(ignored)
     finally:
         await mw.close()
+
+
+# What a process bridging the TurtleBot3's topics has imported: the raw type handles, the deferred
+# rosidl code generator and asyncio without TLS keep these out (each costs megabytes of RSS).
+_FOOTPRINT_SCRIPT = r"""
+import sys
+from xrce.agent.launcher import _import_asyncio_without_tls
+_import_asyncio_without_tls()
+import asyncio
+from xrce.agent.middleware import EndpointQosSpec, TopicSpec
+from xrce.agent.observability import DIAGNOSTIC_ARRAY_TYPE, _diagnostic_type
+from xrce.agent.ros import RosMiddleware
+
+async def main():
+    mw = RosMiddleware()
+    await mw.start()
+    qos = EndpointQosSpec(reliable=False)
+    try:
+        mw.create_participant((1, 1), int(sys.argv[1]), "footprint")
+        for base, type_name in ((0x10, "sensor_msgs::msg::dds_::Imu_"),
+                                (0x20, "nav_msgs::msg::dds_::Odometry_"),
+                                (0x30, "tf2_msgs::msg::dds_::TFMessage_")):
+            mw.create_topic((1, base), (1, 1), TopicSpec("rt/footprint_%x" % base, type_name))
+            mw.create_publisher((1, base + 1), (1, 1))
+            mw.create_datawriter((1, base + 2), (1, base + 1), (1, base), qos)
+            mw.create_subscriber((1, base + 3), (1, 1))
+            mw.create_datareader((1, base + 4), (1, base + 3), (1, base), qos, lambda body: None)
+        assert _diagnostic_type() is not None
+        publisher = mw.agent_publisher(int(sys.argv[1]), _diagnostic_type(), "/diagnostics")
+        assert publisher.subscriber_count() == 0
+    finally:
+        await mw.close()
+    print(" ".join(sorted(name for name in ("numpy", "lark", "em", "ssl", "hashlib")
+                          if sys.modules.get(name) is not None)))
+
+asyncio.run(main())
+"""
+
+
+def test_bridging_common_types_imports_no_python_message_machinery(ros_domain):  # noqa: F811
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _FOOTPRINT_SCRIPT, str(ros_domain)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1:] in ([], [""]), done.stdout

@@ -2,6 +2,6 @@
 
 import sys
 
-from xrce.agent.cli import main
+from xrce.agent.launcher import main
 
 sys.exit(main())

@@ -102,7 +102,9 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += len(data)
         if entry.kind == C.OBJK_DATAWRITER:
-            written = bool(self.middleware.write(key, data))
+            # The writer bound at creation when there is one (reassembled fragments come here).
+            write = entry.write
+            written = bool(write(data) if write is not None else self.middleware.write(key, data))
             if written and self.timelines.pending:
                 self.timelines.sample_into_ros(client)
             return written

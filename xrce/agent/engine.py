@@ -52,6 +52,15 @@ _HANDLED = frozenset((C.CREATE, C.DELETE, C.READ_DATA, C.ACKNACK, C.HEARTBEAT, C
                       C.TIMESTAMP, C.RESET))
 
 
+def _return_free_heap() -> None:
+    """Give the C heap's free pages back to the system once start-up is over (glibc only)."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).malloc_trim(0)
+    except (ImportError, OSError, AttributeError):
+        pass
+
+
 class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def __init__(self, middleware: Middleware, *, refs: Optional[Dict[str, str]] = None,
                  heartbeat_period: float = 0.2, client_dead_time: float = CLIENT_DEAD_TIME,
@@ -177,6 +186,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             # Everything built so far (rclpy, message classes, the ROS context) lives as long as
             # the agent: out of the collector's sight, full collections stay short (ping p99).
             gc.freeze()
+            _return_free_heap()
 
     async def run(self) -> None:
         """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent

@@ -9,8 +9,8 @@
   ``xrce-agent stats -p PORT`` polls it and redraws a terminal table (plain ANSI, no dependency).
 - At ``-v 5`` the agent logs a one-line summary (and one line per active client) periodically.
 - With ``-m dds`` and ``diagnostic_msgs`` importable, a ``diagnostic_msgs/DiagnosticArray`` goes out
-  on ``/diagnostics`` once a second in every ROS domain the agent has joined: one status for the
-  agent, one per client, named after the client key.
+  on ``/diagnostics`` once a second in every ROS domain the agent has joined where some node
+  subscribes to it: one status for the agent, one per client, named after the client key.
 - ``--capture FILE`` writes every message in both directions, one text line each::
 
       <unix time, s> <in|out> <link> <endpoint> <message hex>
@@ -35,6 +35,7 @@ import sys
 import time
 
 from xrce import constants as C
+from xrce.cdr import CdrWriter
 from xrce.agent.timeline import format_timeline
 
 log = logging.getLogger("xrce.agent.observability")
@@ -399,57 +400,77 @@ def decode_capture(path: str):
 
 # ------------------------------------------------------------------------------------ /diagnostics
 
-def _diagnostic_types():
+DIAGNOSTIC_ARRAY_TYPE = "diagnostic_msgs::msg::dds_::DiagnosticArray_"
+DIAGNOSTIC_OK = 0  # diagnostic_msgs/DiagnosticStatus levels
+DIAGNOSTIC_WARN = 1
+
+
+def _diagnostic_type():
+    """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed."""
     try:
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    except ImportError:
+        from xrce.agent.rostypes import raw_message_type
+        return raw_message_type(DIAGNOSTIC_ARRAY_TYPE)
+    except Exception as exc:  # no rclpy or no diagnostic_msgs: the agent runs without
+        log.debug("no /diagnostics: %s", exc)
         return None
-    return DiagnosticArray, DiagnosticStatus, KeyValue
 
 
-def diagnostic_array(snapshot: dict, types, stamp_ns: int):
-    """A DiagnosticArray: one status for the agent, one per client (``xrce_agent: client KEY``)."""
-    DiagnosticArray, DiagnosticStatus, KeyValue = types
-    array = DiagnosticArray()
-    array.header.stamp.sec = stamp_ns // 1000000000
-    array.header.stamp.nanosec = stamp_ns % 1000000000
-    agent_status = DiagnosticStatus(
-        level=DiagnosticStatus.OK, name="xrce_agent", hardware_id="xrce_agent",
-        message="%d clients" % len(snapshot["clients"]),
-        values=[KeyValue(key=k, value=str(v)) for k, v in snapshot["agent"].items()])
-    statuses = [agent_status]
+def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
+    """A DiagnosticArray, one status for the agent and one per client (``xrce_agent: client
+    KEY``), as its CDR body (XCDR1 little-endian, no encapsulation header).
+
+    Encoded here rather than through the generated Python classes: building ~20 message objects
+    a second cost more CPU than a TurtleBot3's whole sensor traffic, and importing the classes
+    pulls in rosidl's code generator (lark, empy: +5 MB resident)."""
+    statuses = [(DIAGNOSTIC_OK, "xrce_agent", "%d clients" % len(snapshot["clients"]),
+                 "xrce_agent", [(k, str(v)) for k, v in snapshot["agent"].items()])]
     for client in snapshot["clients"]:
         stale = client["last_seen_s"] >= STALE_AFTER_S
-        statuses.append(DiagnosticStatus(
-            level=DiagnosticStatus.WARN if stale else DiagnosticStatus.OK,
-            name="xrce_agent: client %s" % client["key"], hardware_id=client["key"],
-            message="silent for %.1f s" % client["last_seen_s"] if stale
+        statuses.append((
+            DIAGNOSTIC_WARN if stale else DIAGNOSTIC_OK,
+            "xrce_agent: client %s" % client["key"],
+            "silent for %.1f s" % client["last_seen_s"] if stale
             else "session 0x%02X on %s" % (client["session_id"], client["link"]),
-            values=[KeyValue(key=k, value="" if v is None else str(v))
-                    for k, v in client.items() if k != "key"]))
-    array.status = statuses
-    return array
+            client["key"],
+            [(k, "" if v is None else str(v)) for k, v in client.items() if k != "key"]))
+    writer = CdrWriter(bytearray(512))
+    writer.i32(stamp_ns // 1000000000)  # header.stamp
+    writer.u32(stamp_ns % 1000000000)
+    writer.string("")  # header.frame_id
+    writer.u32(len(statuses))
+    for level, name, message, hardware_id, values in statuses:
+        writer.u8(level)
+        writer.string(name)
+        writer.string(message)
+        writer.string(hardware_id)
+        writer.u32(len(values))
+        for key, value in values:
+            writer.string(key)
+            writer.string(value)
+    return writer.getvalue()
 
 
 class DiagnosticsPublisher:
-    """Publishes ``diagnostic_array`` in every domain a ``RosMiddleware`` has joined."""
+    """Publishes ``diagnostic_array`` in every domain a ``RosMiddleware`` has joined, while some
+    ROS node subscribes to /diagnostics there (nobody listening: no snapshot is built)."""
 
-    def __init__(self, observer: Observer, middleware, types):
+    def __init__(self, observer: Observer, middleware, message_type):
         self.observer = observer
         self.middleware = middleware
-        self.types = types
+        self.message_type = message_type
         self.published = 0
 
     def publish(self) -> None:
-        domains = self.middleware.domain_ids()
-        if not domains:
-            return
-        array = diagnostic_array(self.observer.snapshot(), self.types, time.time_ns())
-        for domain_id in domains:
-            publisher = self.middleware.agent_publisher(domain_id, self.types[0], "/diagnostics")
-            if publisher is not None:
-                publisher.publish(array)
-                self.published += 1
+        body = None
+        for domain_id in self.middleware.domain_ids():
+            publisher = self.middleware.agent_publisher(domain_id, self.message_type,
+                                                        "/diagnostics")
+            if publisher is None or not publisher.subscriber_count():
+                continue
+            if body is None:
+                body = diagnostic_array(self.observer.snapshot(), time.time_ns())
+            publisher.write(body)
+            self.published += 1
 
 
 # ------------------------------------------------------------------------------------ wiring
@@ -480,9 +501,9 @@ class Observability:
         self.summary_period = summary_period
         self.diagnostics = None
         if diagnostics and middleware is not None and hasattr(middleware, "agent_publisher"):
-            types = _diagnostic_types()
-            if types is not None:
-                self.diagnostics = DiagnosticsPublisher(self.observer, middleware, types)
+            message_type = _diagnostic_type()
+            if message_type is not None:
+                self.diagnostics = DiagnosticsPublisher(self.observer, middleware, message_type)
         self._task = None
 
     @classmethod

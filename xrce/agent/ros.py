@@ -51,7 +51,6 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.service import Service
 from rclpy.signals import SignalHandlerOptions
-from builtin_interfaces.msg import Time as _WakeType  # rclpy imports it anyway: costs no memory
 
 from xrce.agent.middleware import (
     DataCallback,
@@ -67,9 +66,9 @@ from xrce.agent.middleware import (
 )
 from xrce.agent.rostypes import (
     dds_topic_to_ros,
-    message_class,
     node_name_and_namespace,
     qos_profile,
+    raw_message_type,
     service_class,
     service_ros_name,
 )
@@ -79,6 +78,7 @@ log = logging.getLogger("xrce.agent.ros")
 # CDR_LE, options 0: what the XRCE agent always puts in front of a sample going into DDS (§14).
 ENCAPSULATION_LE = b"\x00\x01\x00\x00"
 _ENCAPSULATION_SIZE = 4
+_WAKE_TYPE = "builtin_interfaces::msg::dds_::Time_"
 _WAKE_SAMPLE = ENCAPSULATION_LE + bytes(8)  # builtin_interfaces/Time zero; the content is unused
 
 _NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
@@ -135,8 +135,9 @@ class _DomainRuntime:
             topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
             profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  history=HistoryPolicy.KEEP_LAST)
-            node.create_subscription(_WakeType, topic, self._on_wake, profile, raw=True)
-            publisher = node.create_publisher(_WakeType, topic, profile)
+            wake_type = raw_message_type(_WAKE_TYPE)
+            node.create_subscription(wake_type, topic, self._on_wake, profile, raw=True)
+            publisher = node.create_publisher(wake_type, topic, profile)
             publish = publisher.publish
             self._wake_publisher = lambda: publish(_WAKE_SAMPLE)
 
@@ -430,6 +431,49 @@ class _ReplierRecord:
             self.closed = True
 
 
+class AgentPublisher:
+    """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
+
+    __slots__ = ("publisher",)
+
+    def __init__(self, publisher):
+        self.publisher = publisher
+
+    def write(self, body: bytes) -> None:
+        self.publisher.publish(ENCAPSULATION_LE + body)
+
+    def subscriber_count(self) -> int:
+        return self.publisher.get_subscription_count()
+
+
+def _in_thread(loop: asyncio.AbstractEventLoop, function, *args) -> asyncio.Future:
+    """``function(*args)`` on a thread of its own that ends with it. For the blocking start-up
+    steps: ``run_in_executor`` would leave the loop's default pool thread behind for the agent's
+    whole life (its stack and malloc arena stay resident)."""
+    future = loop.create_future()
+
+    def settle(value, error) -> None:
+        if future.cancelled():
+            return
+        if error is not None:
+            future.set_exception(error)
+        else:
+            future.set_result(value)
+
+    def run() -> None:
+        try:
+            value, error = function(*args), None
+        except BaseException as exc:  # handed to the awaiting coroutine
+            value, error = None, exc
+        try:
+            loop.call_soon_threadsafe(settle, value, error)
+        except RuntimeError:  # the loop is closed: nobody waits any more
+            pass
+
+    threading.Thread(target=run, name="xrce-start", daemon=True).start()
+    return future
+
+
 def _default_domain_id() -> int:
     try:
         return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
@@ -547,7 +591,7 @@ class RosMiddleware(Middleware):
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind != "topic":
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
-        self._add(key, _TopicRecord(participant, ros_name, message_class(topic.type_name)))
+        self._add(key, _TopicRecord(participant, ros_name, raw_message_type(topic.type_name)))
 
     def create_publisher(self, key: EntityKey, participant: EntityKey) -> None:
         self._record(participant, ("participant",))
@@ -786,10 +830,11 @@ class RosMiddleware(Middleware):
         """The ROS domains the agent has joined (one per domain its clients asked for)."""
         return list(self._domains)
 
-    def agent_publisher(self, domain_id: int, msg_class, topic: str, depth: int = 10):
-        """A publisher of the agent's own node ``xrce_agent`` in a domain already joined, made on
-        first use and destroyed with the domain; None when the agent has not joined ``domain_id``.
-        Publish from the loop thread (rcl publish is thread-safe)."""
+    def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10):
+        """An ``AgentPublisher`` of the agent's own node ``xrce_agent`` in a domain already
+        joined, made on first use and destroyed with the domain; None when the agent has not
+        joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
+        (rcl publish is thread-safe)."""
         domain = self._domains.get(domain_id)
         if domain is None or self._closed:
             return None
@@ -798,9 +843,9 @@ class RosMiddleware(Middleware):
             return publisher
 
         def make_publisher():
-            return domain.agent_node.create_publisher(msg_class, topic, depth)
+            return domain.agent_node.create_publisher(message_type, topic, depth)
 
-        publisher = domain.call(make_publisher, self.entity_timeout_s)
+        publisher = AgentPublisher(domain.call(make_publisher, self.entity_timeout_s))
         self._agent_publishers[(domain_id, topic)] = publisher
         return publisher
 
@@ -868,8 +913,8 @@ class RosMiddleware(Middleware):
         # node to a participant its peers already discovered, instead of waiting for a new
         # participant to be discovered.
         domain_id = _default_domain_id()
-        joining = self._loop.run_in_executor(
-            None, _DomainRuntime, domain_id, self.executor_kind, self.idle_wait_s)
+        joining = _in_thread(self._loop, _DomainRuntime, domain_id, self.executor_kind,
+                             self.idle_wait_s)
         # A client that reconnects the moment the agent is back must not start a second context
         # for this domain meanwhile: create_participant parks it until this join is done
         # (measured with bench/restart_gap.py, a cold start with the client already waiting:
@@ -891,7 +936,7 @@ class RosMiddleware(Middleware):
         # its links only after this, so building the node never competes with answering a
         # client (a robot's first time sync over a pty came out up to 2 ms off when it did).
         try:
-            await self._loop.run_in_executor(None, runtime.call, lambda: None, self.entity_timeout_s)
+            await _in_thread(self._loop, runtime.call, lambda: None, self.entity_timeout_s)
         except MiddlewareError as exc:
             log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
 

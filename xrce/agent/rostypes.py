@@ -16,7 +16,29 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 
+from xrce.agent import deferred
 from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, TypeNotReady, UnknownTypeError
+
+
+
+def _defer_rosidl_code_generator() -> None:
+    """Let generated message classes import ``rosidl_generator_py`` without its code generator.
+
+    Every generated class's ``__import_type_support__`` (run by rclpy for the first publisher of
+    a type, e.g. each node's /parameter_events) does ``from rosidl_generator_py import
+    import_type_support``, and that package's ``__init__`` also imports the code generator with
+    lark, empy and hashlib/OpenSSL: 5 MB of resident memory and 35 ms of start-up the agent never
+    uses. The package is registered with only ``import_type_support``; touching any other of its
+    names runs its real ``__init__`` then (``xrce.agent.deferred``).
+    """
+    def prepare(package) -> None:
+        from rosidl_generator_py.import_type_support_impl import import_type_support
+        package.import_type_support = import_type_support
+
+    deferred.defer("rosidl_generator_py", prepare)
+
+
+_defer_rosidl_code_generator()
 
 BUILD_HINT = "run `xrce-agent build-interfaces`"
 
@@ -97,8 +119,8 @@ def _build_missing_package(package: str) -> bool:
     return True
 
 
-def _import_interface(package: str, kind: str, type_name: str):
-    module_name = "%s.%s" % (package, kind)
+def _import_module(package: str, module_name: str):
+    """Import ``module_name`` of interface ``package``, building the package when it is missing."""
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
@@ -112,6 +134,12 @@ def _import_interface(package: str, kind: str, type_name: str):
         # ImportError of the package itself means it was never built; anything deeper is a broken
         # install, which the same rebuild fixes.
         raise UnknownTypeError("%s is not installed: %s (%s)" % (package, BUILD_HINT, exc)) from None
+    return module
+
+
+def _import_interface(package: str, kind: str, type_name: str):
+    module_name = "%s.%s" % (package, kind)
+    module = _import_module(package, module_name)
     try:
         return getattr(module, type_name)
     except AttributeError:
@@ -125,6 +153,61 @@ def message_class(dds_type: str):
     if kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
     return _import_interface(package, kind, type_name)
+
+
+class _RawTypeMeta(type):
+    """What rclpy reads from a message class's metaclass to create a publisher or subscription."""
+
+    _TYPE_SUPPORT = None
+    _CREATE_ROS_MESSAGE = None
+    _CONVERT_FROM_PY = None
+    _CONVERT_TO_PY = None
+    _DESTROY_ROS_MESSAGE = None
+
+
+_raw_types: dict = {}  # dds type name -> raw type handle
+_typesupport_names: dict = {}  # package -> {lower-case type name without "_": function suffix}
+
+
+def raw_message_type(dds_type: str):
+    """A stand-in for the message class of ``dds_type`` that rclpy accepts for publishers and
+    raw subscriptions, made from the package's C type support module alone.
+
+    The agent never builds a Python message: samples cross as CDR bytes (``publish_raw``, raw
+    subscriptions). The generated Python classes are only needed to convert messages, yet
+    importing one (and calling its ``__import_type_support__``) imports numpy for any type with a
+    fixed-size array (Imu, Odometry: +11 MB), every dependent package's Python classes, and
+    rosidl_generator_py's code generator with lark and empy (+5 MB): measured 23 MB for Imu and
+    Odometry this way, 2 MB through their C type support modules.
+    """
+    handle = _raw_types.get(dds_type)
+    if handle is not None:
+        return handle
+    package, kind, type_name = _split_type(dds_type)
+    if kind != "msg":
+        raise UnknownTypeError("%r is not a message type" % dds_type)
+    module = _import_module(package, "%s.%s_s__rosidl_typesupport_c" % (package, package))
+    names = _typesupport_names.get(package)
+    if names is None:
+        # Functions are named after the type in snake case ("type_support_msg__msg__tf_message"
+        # for TFMessage); CamelCase type names have no "_", so dropping it and the case is unique.
+        prefix = "type_support_msg__msg__"
+        names = {name[len(prefix):].replace("_", ""): name[len(prefix):]
+                 for name in dir(module) if name.startswith(prefix)}
+        _typesupport_names[package] = names
+    suffix = names.get(type_name.lower())
+    if suffix is None:
+        raise UnknownTypeError("%s.msg has no interface %s: %s if it was added recently"
+                               % (package, type_name, BUILD_HINT))
+    functions = {"_TYPE_SUPPORT": "type_support", "_CREATE_ROS_MESSAGE": "create_ros_message",
+                 "_CONVERT_FROM_PY": "convert_from_py", "_CONVERT_TO_PY": "convert_to_py",
+                 "_DESTROY_ROS_MESSAGE": "destroy_ros_message"}
+    meta = type("Metaclass_" + type_name, (_RawTypeMeta,),
+                {attribute: getattr(module, "%s_msg__msg__%s" % (function, suffix))
+                 for attribute, function in functions.items()})
+    handle = meta(type_name, (), {"__module__": "%s.msg" % package, "__slots__": ()})
+    _raw_types[dds_type] = handle
+    return handle
 
 
 def service_class(request_or_reply_type: str):

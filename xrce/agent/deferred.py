@@ -1,0 +1,54 @@
+"""Modules registered before their code runs: it runs on first use of a name they define.
+
+The agent process imports some modules only because a library imports them at start-up for a
+feature the agent never uses (rclpy imports ``yaml`` for parameter files; every generated message
+class imports ``rosidl_generator_py``, whose ``__init__`` loads the code generator). ``defer``
+puts the module in ``sys.modules`` without executing it; the first access to a name it does not
+have executes it, whole, so nothing is lost, and until then it costs no memory.
+
+``importlib.util.LazyLoader`` does the same, but on CPython 3.11 the ``import`` statement itself
+reads the module's ``__spec__`` and so loads it at once; a module-level ``__getattr__`` is only
+consulted for names the module lacks.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import threading
+from typing import Callable, Optional
+
+
+def defer(name: str, prepare: Optional[Callable[[object], None]] = None) -> bool:
+    """Register module ``name`` unexecuted; ``prepare(module)`` may give it names that must not
+    trigger its execution. False (nothing done) when it is imported already or cannot be found,
+    or when ``prepare`` raises (then the module imports the usual way)."""
+    if name in sys.modules:
+        return False
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.loader is None:
+        return False
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        if prepare is not None:
+            prepare(module)
+    except Exception:
+        del sys.modules[name]
+        return False
+    lock = threading.Lock()
+    executed = []
+
+    def __getattr__(attribute):
+        with lock:
+            if not executed:
+                executed.append(True)
+                del module.__getattr__  # the module's own names from now on
+                spec.loader.exec_module(module)
+        try:
+            return module.__dict__[attribute]
+        except KeyError:
+            raise AttributeError("module %r has no attribute %r" % (name, attribute)) from None
+
+    module.__getattr__ = __getattr__
+    return True
