@@ -36,9 +36,8 @@ _unpack_from = struct.unpack_from
 _pack_into = struct.pack_into
 _new = object.__new__
 
-# A number spec's struct format and size, by its position in _CODES.
+# A number spec's size, by its position in _CODES.
 _CODES = "bBhHiIqQfd"
-_FORMATS = ("<b", "<B", "<h", "<H", "<i", "<I", "<q", "<Q", "<f", "<d")
 _SIZES = b"\x01\x01\x02\x02\x04\x04\x08\x08\x04\x08"
 
 # MicroPython has no struct.error: it raises the built-in exception types directly.
@@ -152,6 +151,26 @@ def _default(t):
     return t()
 
 
+# One struct call for the fields `f` of `o` (at most four, see _plan.py): the values go as arguments,
+# so packing builds no tuple or list (f(*values) would need one per message).
+def _pack(fmt, buf, pos, o, f):
+    n = len(f)
+    a = getattr(o, f[0])
+    if n == 1:
+        return _pack_into(fmt, buf, pos, a)
+    b = getattr(o, f[1])
+    if n == 2:
+        return _pack_into(fmt, buf, pos, a, b)
+    c = getattr(o, f[2])
+    if n == 3:
+        return _pack_into(fmt, buf, pos, a, b, c)
+    _pack_into(fmt, buf, pos, a, b, c, getattr(o, f[3]))
+
+
+# Set by _plan.py to xrce.msgs._ints.check_ints once a type with integer fields is defined on MicroPython.
+_check_ints = None
+
+
 # Behaviour every message type shares. A type sets __slots__ (its field names), _S (their specs),
 # TYPE_NAME, ROS_TYPE and, for fields with defaults from the .msg file, _D {name: value}.
 class _Message:
@@ -184,23 +203,36 @@ class _Message:
         if not names:
             w.u8(0)  # the rosidl typesupports give an empty struct one dummy octet
         try:
-            for i in range(len(names)):
-                t = specs[i]
-                value = getattr(self, names[i])
-                if type(t) is str:
-                    k = _CODES.find(t)
-                    if k >= 0:
-                        # A number, inline: most fields are, and a call per field costs a board time.
-                        n = _SIZES[k]
-                        pos = _put(w, n, n)
-                        _pack_into(_FORMATS[k], w.buf, pos, value)
-                        if _CHECK_INTS and k < 8 and _unpack_from(_FORMATS[k], w.buf, pos)[0] != value:
-                            raise OverflowError
-                        continue
-                elif type(t) is not tuple:
-                    value.encode(w)  # a nested message
+            for op in self._P:
+                if type(op) is int:  # a field outside the runs
+                    t = specs[op]
+                    value = getattr(self, names[op])
+                    if type(t) is str or type(t) is tuple:
+                        _put_field(w, t, value)
+                    else:
+                        value.encode(w)  # a nested message
                     continue
-                _put_field(w, t, value)
+                # A run: aligned once (_put inline: a call per run costs a board time), one pack per part.
+                align, size, parts = op
+                pos = w.pos
+                start = pos + (w.origin - pos) % align
+                if start + size > len(w.buf):
+                    w.reserve(start + size - pos)
+                buf = w.buf
+                while pos < start:  # CDR padding is zero on the wire we produce
+                    buf[pos] = 0
+                    pos += 1
+                w.pos = start + size
+                for name, kind, fmt, offset, fields, checks in parts:
+                    o = self if name is None else getattr(self, name)
+                    if fields is None:  # a fixed array of `kind` numbers (MicroPython's struct takes any count)
+                        if len(o) != kind:
+                            raise ValueError
+                        _pack_into(fmt, buf, start + offset, *o)
+                    else:
+                        _pack(fmt, buf, start + offset, o, fields)
+                    if checks is not None:
+                        _check_ints(o, fields, checks)
         except _PACK_ERRORS:
             _bad_values(self)
 
@@ -212,18 +244,30 @@ class _Message:
         specs = cls._S
         if not names:
             r.u8()
-        for i in range(len(names)):
-            t = specs[i]
-            if type(t) is str:
-                k = _CODES.find(t)
-                if k >= 0:
-                    n = _SIZES[k]
-                    setattr(msg, names[i], _unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
-                    continue
-            elif type(t) is not tuple:
-                setattr(msg, names[i], t.decode(r))
+        buf = r.buf
+        for op in cls._P:
+            if type(op) is int:
+                t = specs[op]
+                if type(t) is str or type(t) is tuple:
+                    setattr(msg, names[op], _get_field(r, t))
+                else:
+                    setattr(msg, names[op], t.decode(r))
                 continue
-            setattr(msg, names[i], _get_field(r, t))
+            align, size, parts = op
+            start = r.pos + (r.origin - r.pos) % align
+            if start + size > r.end:
+                raise DecodeError("truncated: need %d bytes at offset %d, have %d" % (size, start, r.end - start))
+            r.pos = start + size
+            for name, kind, fmt, offset, fields, checks in parts:
+                values = _unpack_from(fmt, buf, start + offset)
+                if fields is None:
+                    setattr(msg, name, list(values))
+                    continue
+                o = msg if name is None else _new(kind)
+                for j in range(len(fields)):
+                    setattr(o, fields[j], values[j])
+                if name is not None:
+                    setattr(msg, name, o)
         return msg
 
     # One generic comparison instead of one per class: equality is never on the encode/decode path.
@@ -279,6 +323,7 @@ def _define(ros_type, names, specs, defaults=None, **constants):
     package, kind, name = ros_type.split("/")
     constants["__slots__"] = names
     constants["_S"] = specs
+    constants["_P"] = _import("xrce.msgs._plan")._plan(names, specs)
     constants["ROS_TYPE"] = ros_type
     constants["TYPE_NAME"] = "%s::%s::dds_::%s_" % (package, kind, name)
     if defaults is not None:
