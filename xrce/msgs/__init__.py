@@ -212,17 +212,10 @@ class _Message:
                     else:
                         value.encode(w)  # a nested message
                     continue
-                # A run: aligned once (_put inline: a call per run costs a board time), one pack per part.
+                # A run: aligned once, one pack per part.
                 align, size, parts = op
-                pos = w.pos
-                start = pos + (w.origin - pos) % align
-                if start + size > len(w.buf):
-                    w.reserve(start + size - pos)
+                start = _put(w, align, size)
                 buf = w.buf
-                while pos < start:  # CDR padding is zero on the wire we produce
-                    buf[pos] = 0
-                    pos += 1
-                w.pos = start + size
                 for name, kind, fmt, offset, fields, checks in parts:
                     o = self if name is None else getattr(self, name)
                     if fields is None:  # a fixed array of `kind` numbers (MicroPython's struct takes any count)
@@ -254,10 +247,7 @@ class _Message:
                     setattr(msg, names[op], t.decode(r))
                 continue
             align, size, parts = op
-            start = r.pos + (r.origin - r.pos) % align
-            if start + size > r.end:
-                raise DecodeError("truncated: need %d bytes at offset %d, have %d" % (size, start, r.end - start))
-            r.pos = start + size
+            start = _take(r, align, size)
             for name, kind, fmt, offset, fields, checks in parts:
                 values = _unpack_from(fmt, buf, start + offset)
                 if fields is None:
