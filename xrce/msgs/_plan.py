@@ -4,17 +4,20 @@
 #
 # A plan is a tuple of ops in field order. An op is either a field position (a string, a bool, a
 # sequence, an array of anything but numbers, or a nested message that is not one run: encoded on its
-# own) or a run (align, size, parts): a stretch of fixed-size numbers that needs no padding once its
-# start is aligned, so the runtime aligns and bound-checks it once. Each later item of a run is no
-# wider than the first and lands on its own alignment; CDR alignment counts from the sample start,
-# and a run's start is aligned to its widest item, so the offsets inside it are the same on every
-# sample. A part is one struct call:
-#   (None, None, fmt, offset, field names, checks)       up to four of the type's own fields
-#   (field, item count, fmt, offset, None, checks)       a fixed array of numbers (a list)
-#   (field, class, fmt, offset, field names, checks)     a nested message that is one part itself
-# so Twist is one run of two "<ddd" parts and never calls into Vector3, and Imu's quaternion, vectors
+# own) or a run: a stretch of fixed-size numbers that needs no padding once its start is aligned, so
+# the runtime aligns and bound-checks it once. Each later item of a run is no wider than the first
+# and lands on its own alignment; CDR alignment counts from the sample start and a run's start is
+# aligned to its widest item, so the offsets inside it are the same on every sample. A run is one
+# flat tuple (align, size, part, part, ...), each part six slots for one struct call:
+#   None, None, fmt, offset, field names, checks        up to four of the type's own fields
+#   field, item count, fmt, offset, None, checks        a fixed array of numbers (a list)
+#   field, class, fmt, offset, field names, checks      a nested message that is one part itself
+# so Twist is one run of two "<3d" parts and never calls into Vector3, and Imu's quaternion, vectors
 # and covariances are one run of six parts. `checks` is None, or on MicroPython (whose struct
 # truncates integers silently) what _ints.check_ints needs to find an integer that does not fit.
+# Flat tuples and shared strings because every object a plan holds stays on a board's heap: a
+# format built here that equals a string constant the board already holds is that constant (see
+# _FORMATS), a part of a type's own fields reuses __slots__ when it covers them all.
 
 import sys
 
@@ -23,6 +26,23 @@ from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
 
 # _pack in __init__.py passes values as arguments, one case per count.
 _PART_FIELDS = const(4)
+
+# The formats shipped types use most. Loading this module makes them constants (MicroPython interns
+# them), and a format string built equal to one of them is that constant, not a new heap object.
+_FORMATS = ("<3d", "<4d", "<9d", "<36d", "<2d", "<2I", "<iI", "<4f", "<3f", "<3fB", "<2f")
+
+
+# A struct format with repeated codes counted: "ddd" -> "<3d".
+def _format(codes):
+    fmt = "<"
+    i = 0
+    while i < len(codes):
+        n = 1
+        while i + n < len(codes) and codes[i + n] == codes[i]:
+            n += 1
+        fmt += codes[i] if n == 1 else "%d%s" % (n, codes[i])
+        i += n
+    return fmt
 
 
 def _plan(names, specs):
@@ -42,10 +62,8 @@ def _plan(names, specs):
                 piece = (names[i], t[1], t[2] * t[1], size, size * t[1], None)
         else:
             inner = t._P
-            if len(inner) == 1 and type(inner[0]) is tuple and len(inner[0][2]) == 1:
-                align, size, parts = inner[0]
-                if parts[0][0] is None:
-                    piece = (names[i], t, parts[0], align, size, None)
+            if len(inner) == 1 and type(inner[0]) is tuple and len(inner[0]) == 8 and inner[0][2] is None:
+                piece = (names[i], t, inner[0][2:], inner[0][0], inner[0][1], None)
         if piece is None:
             run = None
             ops.append(i)
@@ -67,12 +85,12 @@ def _plan(names, specs):
         op = ops[n]
         if type(op) is not list:
             continue
-        parts = []
+        run = [op[0], op[1]]
         for name, kind, codes, offset, first in op[2]:
             if type(codes) is tuple:  # a nested message's own part, shared with it
-                _, _, fmt, _, fields, checks = codes
+                fmt, fields, checks = codes[2], codes[4], codes[5]
             else:
-                fmt = formats.setdefault("<" + codes, "<" + codes)
+                fmt = formats.setdefault(codes, _format(codes))
                 if name is None:
                     fields = names if first == 0 and len(codes) == len(names) else names[first:first + len(codes)]
                 else:
@@ -88,12 +106,12 @@ def _plan(names, specs):
                             shift = _SIZES[k] * 8 - (0 if k & 1 else 1)
                             checks.append((j, shift, 0 if k & 1 else -1))
                     checks = (checks[0][1:] if fields is None else tuple(checks)) if checks else None
-            parts.append((name, kind, fmt, offset, fields, checks))
-            if checks is not None:
-                from xrce.msgs._ints import check_ints
+                    if checks is not None:
+                        from xrce.msgs._ints import check_ints
 
-                sys.modules["xrce.msgs"]._check_ints = check_ints
-        ops[n] = (op[0], op[1], tuple(parts))
+                        sys.modules["xrce.msgs"]._check_ints = check_ints
+            run.extend((name, kind, fmt, offset, fields, checks))
+        ops[n] = tuple(run)
     if IS_MICROPYTHON:  # only the plans are needed from here on, not this code
         del sys.modules[__name__]
         sys.modules["xrce.msgs"].__dict__.pop("_plan", None)
