@@ -349,7 +349,16 @@ def _type_attr(namespace, name):
         except ImportError:
             raise AttributeError(name)
     namespace[name] = value
+    _drop_planner()
     return value
+
+
+# A board keeps the plans, not the code that built them (xrce.msgs._plan, loaded by _define): dropped
+# once a type named through a package or lookup() is defined with its dependencies.
+def _drop_planner():
+    if IS_MICROPYTHON and "xrce.msgs._plan" in sys.modules:
+        del sys.modules["xrce.msgs._plan"]
+        globals().pop("_plan", None)
 
 
 # The module itself: __import__ hands back the top-level package.
@@ -363,4 +372,6 @@ def _import(dotted):
 def lookup(type_name):
     from xrce.msgs._lookup import lookup
 
-    return lookup(type_name)
+    cls = lookup(type_name)
+    _drop_planner()
+    return cls

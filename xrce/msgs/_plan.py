@@ -1,6 +1,6 @@
 # The encode/decode plan of a message type, built once by _define from its field specs (see
-# __init__.py). On a board this module is dropped again after each _define: the plans stay, the
-# builder's code does not.
+# __init__.py). On a board this module is dropped again once a type and its dependencies are defined
+# (_type_attr, lookup): the plans stay, the builder's code does not.
 #
 # A plan is a tuple of ops in field order. An op is either a field position (a string, a bool, a
 # sequence, an array of anything but numbers, or a nested message that is not one run: encoded on its
@@ -21,7 +21,7 @@
 
 import sys
 
-from xrce.compat import IS_MICROPYTHON, const
+from xrce.compat import const
 from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
 
 # _pack in __init__.py passes values as arguments, one case per count.
@@ -112,7 +112,4 @@ def _plan(names, specs):
                         sys.modules["xrce.msgs"]._check_ints = check_ints
             run.extend((name, kind, fmt, offset, fields, checks))
         ops[n] = tuple(run)
-    if IS_MICROPYTHON:  # only the plans are needed from here on, not this code
-        del sys.modules[__name__]
-        sys.modules["xrce.msgs"].__dict__.pop("_plan", None)
     return tuple(ops)
