@@ -212,21 +212,20 @@ class _Message:
                     else:
                         value.encode(w)  # a nested message
                     continue
-                # A run: aligned once, then one struct call per part (six slots each, see _plan.py).
+                # A run: aligned once, then one struct call per part (see _plan.py).
                 start = _put(w, op[0], op[1])
                 buf = w.buf
-                for p in range(2, len(op), 6):
-                    name = op[p]
+                for i in range(2, len(op)):
+                    name, kind, fmt, offset, fields, checks = op[i]
                     o = self if name is None else getattr(self, name)
-                    fields = op[p + 4]
-                    if fields is None:  # a fixed array of numbers (MicroPython's struct takes any count)
-                        if len(o) != op[p + 1]:
+                    if fields is None:  # a fixed array of `kind` numbers (MicroPython's struct takes any count)
+                        if len(o) != kind:
                             raise ValueError
-                        _pack_into(op[p + 2], buf, start + op[p + 3], *o)
+                        _pack_into(fmt, buf, start + offset, *o)
                     else:
-                        _pack(op[p + 2], buf, start + op[p + 3], o, fields)
-                    if op[p + 5] is not None:
-                        _check_ints(o, fields, op[p + 5])
+                        _pack(fmt, buf, start + offset, o, fields)
+                    if checks is not None:
+                        _check_ints(o, fields, checks)
         except _PACK_ERRORS:
             _bad_values(self)
 
@@ -248,14 +247,13 @@ class _Message:
                     setattr(msg, names[op], t.decode(r))
                 continue
             start = _take(r, op[0], op[1])
-            for p in range(2, len(op), 6):
-                name = op[p]
-                fields = op[p + 4]
-                values = _unpack_from(op[p + 2], buf, start + op[p + 3])
+            for i in range(2, len(op)):
+                name, kind, fmt, offset, fields, checks = op[i]
+                values = _unpack_from(fmt, buf, start + offset)
                 if fields is None:
                     setattr(msg, name, list(values))
                     continue
-                o = msg if name is None else _new(op[p + 1])
+                o = msg if name is None else _new(kind)
                 for j in range(len(fields)):
                     setattr(o, fields[j], values[j])
                 if name is not None:

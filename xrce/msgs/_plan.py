@@ -7,15 +7,15 @@
 # own) or a run: a stretch of fixed-size numbers that needs no padding once its start is aligned, so
 # the runtime aligns and bound-checks it once. Each later item of a run is no wider than the first
 # and lands on its own alignment; CDR alignment counts from the sample start and a run's start is
-# aligned to its widest item, so the offsets inside it are the same on every sample. A run is one
-# flat tuple (align, size, part, part, ...), each part six slots for one struct call:
+# aligned to its widest item, so the offsets inside it are the same on every sample. A run is a
+# tuple (align, size, part, part, ...), each part a tuple for one struct call:
 #   None, None, fmt, offset, field names, checks        up to four of the type's own fields
 #   field, item count, fmt, offset, None, checks        a fixed array of numbers (a list)
 #   field, class, fmt, offset, field names, checks      a nested message that is one part itself
 # so Twist is one run of two "<3d" parts and never calls into Vector3, and Imu's quaternion, vectors
 # and covariances are one run of six parts. `checks` is None, or on MicroPython (whose struct
 # truncates integers silently) what _ints.check_ints needs to find an integer that does not fit.
-# Flat tuples and shared strings because every object a plan holds stays on a board's heap: a
+# Few objects and shared strings because every object a plan holds stays on a board's heap: a
 # format built here that equals a string constant the board already holds is that constant (see
 # _FORMATS), a part of a type's own fields reuses __slots__ when it covers them all.
 
@@ -62,8 +62,8 @@ def _plan(names, specs):
                 piece = (names[i], t[1], t[2] * t[1], size, size * t[1], None)
         else:
             inner = t._P
-            if len(inner) == 1 and type(inner[0]) is tuple and len(inner[0]) == 8 and inner[0][2] is None:
-                piece = (names[i], t, inner[0][2:], inner[0][0], inner[0][1], None)
+            if len(inner) == 1 and type(inner[0]) is tuple and len(inner[0]) == 3 and inner[0][2][0] is None:
+                piece = (names[i], t, inner[0][2], inner[0][0], inner[0][1], None)
         if piece is None:
             run = None
             ops.append(i)
@@ -110,6 +110,6 @@ def _plan(names, specs):
                         from xrce.msgs._ints import check_ints
 
                         sys.modules["xrce.msgs"]._check_ints = check_ints
-            run.extend((name, kind, fmt, offset, fields, checks))
+            run.append((name, kind, fmt, offset, fields, checks))
         ops[n] = tuple(run)
     return tuple(ops)
