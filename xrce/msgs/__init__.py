@@ -167,7 +167,7 @@ def _pack(fmt, buf, pos, o, f):
     _pack_into(fmt, buf, pos, a, b, c, getattr(o, f[3]))
 
 
-# Set by _plan.py to xrce.msgs._ints.check_ints once a type with integer fields is defined on MicroPython.
+# Set by _plan.py to xrce.msgs._ints._check_ints once a type with integer fields is defined on MicroPython.
 _check_ints = None
 
 
@@ -203,20 +203,20 @@ class _Message:
         if not names:
             w.u8(0)  # the rosidl typesupports give an empty struct one dummy octet
         try:
-            for op in self._P:
-                if type(op) is int:  # a field outside the runs
-                    t = specs[op]
-                    value = getattr(self, names[op])
+            for step in self._P:
+                if type(step) is int:  # a field outside the runs
+                    t = specs[step]
+                    value = getattr(self, names[step])
                     if type(t) is str or type(t) is tuple:
                         _put_field(w, t, value)
                     else:
                         value.encode(w)  # a nested message
                     continue
                 # A run: aligned once, then one struct call per part (see _plan.py).
-                start = _put(w, op[0], op[1])
+                start = _put(w, step[0], step[1])
                 buf = w.buf
-                for i in range(2, len(op)):
-                    name, kind, fmt, offset, fields, checks = op[i]
+                for i in range(2, len(step)):
+                    name, kind, fmt, offset, fields, checks = step[i]
                     o = self if name is None else getattr(self, name)
                     if fields is None:  # a fixed array of `kind` numbers (MicroPython's struct takes any count)
                         if len(o) != kind:
@@ -238,17 +238,17 @@ class _Message:
         if not names:
             r.u8()
         buf = r.buf
-        for op in cls._P:
-            if type(op) is int:
-                t = specs[op]
+        for step in cls._P:
+            if type(step) is int:
+                t = specs[step]
                 if type(t) is str or type(t) is tuple:
-                    setattr(msg, names[op], _get_field(r, t))
+                    setattr(msg, names[step], _get_field(r, t))
                 else:
-                    setattr(msg, names[op], t.decode(r))
+                    setattr(msg, names[step], t.decode(r))
                 continue
-            start = _take(r, op[0], op[1])
-            for i in range(2, len(op)):
-                name, kind, fmt, offset, fields, checks = op[i]
+            start = _take(r, step[0], step[1])
+            for i in range(2, len(step)):
+                name, kind, fmt, offset, fields, checks = step[i]
                 values = _unpack_from(fmt, buf, start + offset)
                 if fields is None:
                     setattr(msg, name, list(values))

@@ -6,7 +6,7 @@
 # make a tuple per part.
 
 
-def check_ints(o, fields, checks):
+def _check_ints(o, fields, checks):
     if fields is None:
         shift, allowed = checks
         for v in o:
