@@ -81,3 +81,37 @@ def test_generated_messages_match_cpython_bytes_on_micropython():
     for cls, values in SAMPLES:
         assert bodies[cls.ROS_TYPE] == cls.from_dict(values).to_bytes().hex(), cls.ROS_TYPE
     assert "REJECTED 12" in result.stdout
+
+
+# No shipped type has a fixed array of integers or a run mixing integer widths with padding-free
+# offsets; a type defined on the spot has both, so MicroPython's range checks on them run too.
+RUNS_SCRIPT = """
+import binascii
+from xrce.errors import EncodeError
+from xrce.msgs import _define
+Ints = _define("test_msgs/msg/Ints", ("small", "wide", "octet", "arr", "tail"),
+               ("h", "i", "B", ("F", 3, "i"), ("F", 2, "H")))
+print("BODY", binascii.hexlify(Ints(-32768, 2147483647, 255, [-1, 0, -2147483648], [65535, 0]).to_bytes()).decode())
+print("PLAN", len(Ints._P))
+bad = 0
+for values in ((32768, 0, 0, [0, 0, 0], [0, 0]), (0, 0, 0, [0, 2147483648, 0], [0, 0]),
+               (0, 0, 0, [0, 0, 0], [-1, 0]), (0, 0, 256, [0, 0, 0], [0, 0]), (0, 0, 0, [0, 0], [0, 0])):
+    try:
+        Ints(*values).to_bytes()
+    except EncodeError:
+        bad += 1
+print("REJECTED", bad)
+"""
+
+
+def test_integer_runs_and_arrays_are_range_checked_on_micropython():
+    from xrce.msgs import _define
+
+    ints = _define("test_msgs/msg/Ints", ("small", "wide", "octet", "arr", "tail"),
+                   ("h", "i", "B", ("F", 3, "i"), ("F", 2, "H")))
+    expected = ints(-32768, 2147483647, 255, [-1, 0, -2147483648], [65535, 0]).to_bytes().hex()
+    result = run_micropython(RUNS_SCRIPT, heap=4 * 1024 * 1024, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "BODY " + expected in result.stdout
+    assert "PLAN 3" in result.stdout  # (h) then (i, B), then the arrays: a wider item starts a new run
+    assert "REJECTED 5" in result.stdout
