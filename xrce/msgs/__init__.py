@@ -7,6 +7,8 @@
 # The field specs are interpreted here by one __init__, one encode and one decode that every type
 # shares: on a board each function a module defines costs heap (its bytecode, its code and function
 # objects), so per-type generated methods cost 1-2 KB a type where a table costs a few hundred bytes.
+# _define also gives each type a plan (_plan.py) that groups its fixed-size numbers into runs, each
+# aligned once and packed by one struct call per part, so encode and decode do not walk field by field.
 #
 # A field spec is one of:
 #   "b" "B" "h" "H" "i" "I" "q" "Q" "f" "d"   a number (struct codes; byte, char and uint8 are "B")
@@ -36,9 +38,8 @@ _unpack_from = struct.unpack_from
 _pack_into = struct.pack_into
 _new = object.__new__
 
-# A number spec's struct format and size, by its position in _CODES.
+# A number spec's size, by its position in _CODES.
 _CODES = "bBhHiIqQfd"
-_FORMATS = ("<b", "<B", "<h", "<H", "<i", "<I", "<q", "<Q", "<f", "<d")
 _SIZES = b"\x01\x01\x02\x02\x04\x04\x08\x08\x04\x08"
 
 # MicroPython has no struct.error: it raises the built-in exception types directly.
@@ -152,6 +153,26 @@ def _default(t):
     return t()
 
 
+# One struct call for the fields `f` of `o` (at most four, see _plan.py): the values go as arguments,
+# so packing builds no tuple or list (f(*values) would need one per message).
+def _pack(fmt, buf, pos, o, f):
+    n = len(f)
+    a = getattr(o, f[0])
+    if n == 1:
+        return _pack_into(fmt, buf, pos, a)
+    b = getattr(o, f[1])
+    if n == 2:
+        return _pack_into(fmt, buf, pos, a, b)
+    c = getattr(o, f[2])
+    if n == 3:
+        return _pack_into(fmt, buf, pos, a, b, c)
+    _pack_into(fmt, buf, pos, a, b, c, getattr(o, f[3]))
+
+
+# Set by _plan.py to xrce.msgs._ints._check_ints once a type with integer fields is defined on MicroPython.
+_check_ints = None
+
+
 # Behaviour every message type shares. A type sets __slots__ (its field names), _S (their specs),
 # TYPE_NAME, ROS_TYPE and, for fields with defaults from the .msg file, _D {name: value}.
 class _Message:
@@ -184,23 +205,29 @@ class _Message:
         if not names:
             w.u8(0)  # the rosidl typesupports give an empty struct one dummy octet
         try:
-            for i in range(len(names)):
-                t = specs[i]
-                value = getattr(self, names[i])
-                if type(t) is str:
-                    k = _CODES.find(t)
-                    if k >= 0:
-                        # A number, inline: most fields are, and a call per field costs a board time.
-                        n = _SIZES[k]
-                        pos = _put(w, n, n)
-                        _pack_into(_FORMATS[k], w.buf, pos, value)
-                        if _CHECK_INTS and k < 8 and _unpack_from(_FORMATS[k], w.buf, pos)[0] != value:
-                            raise OverflowError
-                        continue
-                elif type(t) is not tuple:
-                    value.encode(w)  # a nested message
+            for step in self._P:
+                if type(step) is int:  # a field outside the runs
+                    t = specs[step]
+                    value = getattr(self, names[step])
+                    if type(t) is str or type(t) is tuple:
+                        _put_field(w, t, value)
+                    else:
+                        value.encode(w)  # a nested message
                     continue
-                _put_field(w, t, value)
+                # A run: aligned once, then one struct call per part (see _plan.py).
+                start = _put(w, step[0], step[1])
+                buf = w.buf
+                for i in range(2, len(step)):
+                    name, kind, fmt, offset, fields, checks = step[i]
+                    o = self if name is None else getattr(self, name)
+                    if fields is None:  # a fixed array of `kind` numbers (MicroPython's struct takes any count)
+                        if len(o) != kind:
+                            raise ValueError
+                        _pack_into(fmt, buf, start + offset, *o)
+                    else:
+                        _pack(fmt, buf, start + offset, o, fields)
+                    if checks is not None:
+                        _check_ints(o, fields, checks)
         except _PACK_ERRORS:
             _bad_values(self)
 
@@ -212,18 +239,27 @@ class _Message:
         specs = cls._S
         if not names:
             r.u8()
-        for i in range(len(names)):
-            t = specs[i]
-            if type(t) is str:
-                k = _CODES.find(t)
-                if k >= 0:
-                    n = _SIZES[k]
-                    setattr(msg, names[i], _unpack_from(_FORMATS[k], r.buf, _take(r, n, n))[0])
-                    continue
-            elif type(t) is not tuple:
-                setattr(msg, names[i], t.decode(r))
+        buf = r.buf
+        for step in cls._P:
+            if type(step) is int:
+                t = specs[step]
+                if type(t) is str or type(t) is tuple:
+                    setattr(msg, names[step], _get_field(r, t))
+                else:
+                    setattr(msg, names[step], t.decode(r))
                 continue
-            setattr(msg, names[i], _get_field(r, t))
+            start = _take(r, step[0], step[1])
+            for i in range(2, len(step)):
+                name, kind, fmt, offset, fields, checks = step[i]
+                values = _unpack_from(fmt, buf, start + offset)
+                if fields is None:
+                    setattr(msg, name, list(values))
+                    continue
+                o = msg if name is None else _new(kind)
+                for j in range(len(fields)):
+                    setattr(o, fields[j], values[j])
+                if name is not None:
+                    setattr(msg, name, o)
         return msg
 
     # One generic comparison instead of one per class: equality is never on the encode/decode path.
@@ -279,6 +315,7 @@ def _define(ros_type, names, specs, defaults=None, **constants):
     package, kind, name = ros_type.split("/")
     constants["__slots__"] = names
     constants["_S"] = specs
+    constants["_P"] = _import("xrce.msgs._plan")._plan(names, specs)
     constants["ROS_TYPE"] = ros_type
     constants["TYPE_NAME"] = "%s::%s::dds_::%s_" % (package, kind, name)
     if defaults is not None:
@@ -312,7 +349,16 @@ def _type_attr(namespace, name):
         except ImportError:
             raise AttributeError(name)
     namespace[name] = value
+    _drop_planner()
     return value
+
+
+# A board keeps the plans, not the code that built them (xrce.msgs._plan, loaded by _define): dropped
+# once a type named through a package or lookup() is defined with its dependencies.
+def _drop_planner():
+    if IS_MICROPYTHON and "xrce.msgs._plan" in sys.modules:
+        del sys.modules["xrce.msgs._plan"]
+        globals().pop("_plan", None)
 
 
 # The module itself: __import__ hands back the top-level package.
@@ -326,4 +372,6 @@ def _import(dotted):
 def lookup(type_name):
     from xrce.msgs._lookup import lookup
 
-    return lookup(type_name)
+    cls = lookup(type_name)
+    _drop_planner()
+    return cls
