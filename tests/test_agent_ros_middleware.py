@@ -14,7 +14,8 @@ from test_msgs.srv import BasicTypes
 
 from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
 from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, UnknownTypeError
-from xrce.agent.ros import ENCAPSULATION_LE, RosMiddleware
+from xrce.agent.ros import RosMiddleware
+from xrce.agent.ros_domain import ENCAPSULATION_LE
 from xrce.agent.rostypes import dds_topic_to_ros, node_name_and_namespace, service_class
 
 CLIENT = 0x1234ABCD

@@ -10,7 +10,7 @@ import tty
 import pytest
 
 from xrce import constants as C
-from xrce.agent import servers
+from xrce.agent import serial_links, tcp_links, udp_links
 from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
 from xrce.transports.crc import crc16_x25
 from xrce.transports.framing import (
@@ -61,7 +61,7 @@ async def wait_until(predicate):
 
 async def _udp_roundtrip(family, host):
     engine = EchoEngine(fail_on=b"boom")
-    server = servers.UdpServer(engine, 0, family=family, host=host)
+    server = udp_links.UdpServer(engine, 0, family=family, host=host)
     await server.start()
     loop = asyncio.get_running_loop()
     client = socket.socket(family, socket.SOCK_DGRAM)
@@ -106,7 +106,7 @@ async def test_udp6_delivers_whole_datagrams_and_replies_to_the_source():
 
 async def test_udp_send_to_an_unreachable_address_is_a_counted_drop():
     engine = EchoEngine()
-    server = servers.UdpServer(engine, 0, host="127.0.0.1")
+    server = udp_links.UdpServer(engine, 0, host="127.0.0.1")
     await server.start()
     try:
         assert not server.send(("not an address",), b"x")
@@ -129,7 +129,7 @@ async def _read_messages(reader, decoder, count):
 
 async def test_tcp_serves_concurrent_connections_with_partial_writes():
     engine = EchoEngine()
-    server = servers.TcpServer(engine, 0, host="127.0.0.1")
+    server = tcp_links.TcpServer(engine, 0, host="127.0.0.1")
     await server.start()
     streams = []
     try:
@@ -151,7 +151,7 @@ async def test_tcp_serves_concurrent_connections_with_partial_writes():
         await asyncio.gather(*(converse(i, r, w) for i, (r, w) in enumerate(streams)))
         endpoints = {endpoint for endpoint, _ in engine.received}
         assert len(endpoints) == 6 and len(server.connections) == 6
-        assert all(isinstance(e, servers.TcpConnection) for e in endpoints)
+        assert all(isinstance(e, tcp_links.TcpConnection) for e in endpoints)
         assert server.stats.messages_in == 30 and server.stats.messages_out == 30
     finally:
         for _, writer in streams:
@@ -161,7 +161,7 @@ async def test_tcp_serves_concurrent_connections_with_partial_writes():
 
 async def test_tcp_corrupt_length_closes_only_that_connection():
     engine = EchoEngine()
-    server = servers.TcpServer(engine, 0, host="127.0.0.1")
+    server = tcp_links.TcpServer(engine, 0, host="127.0.0.1")
     await server.start()
     good_reader, good_writer = await asyncio.open_connection("127.0.0.1", server.port)
     bad_reader, bad_writer = await asyncio.open_connection("127.0.0.1", server.port)
@@ -189,7 +189,7 @@ async def test_tcp_corrupt_length_closes_only_that_connection():
 
 async def test_tcp_connections_beyond_the_cap_are_refused():
     engine = EchoEngine()
-    server = servers.TcpServer(engine, 0, host="127.0.0.1", max_connections=2)
+    server = tcp_links.TcpServer(engine, 0, host="127.0.0.1", max_connections=2)
     await server.start()
     streams = []
     try:
@@ -281,7 +281,7 @@ def pty_pair():
 async def test_serial_delivers_frames_and_drops_bad_crc(pty_pair):
     master, slave_path = pty_pair()
     engine = EchoEngine()
-    server = servers.SerialServer(engine, slave_path, baudrate=115200)
+    server = serial_links.SerialServer(engine, slave_path, baudrate=115200)
     await server.start()
     peer = PtyPeer(master)
     try:
@@ -310,7 +310,7 @@ async def test_serial_delivers_frames_and_drops_bad_crc(pty_pair):
 async def test_serial_ccitt_crc_and_a_large_message(pty_pair):
     master, slave_path = pty_pair()
     engine = EchoEngine()
-    server = servers.SerialServer(engine, [slave_path], crc="ccitt")
+    server = serial_links.SerialServer(engine, [slave_path], crc="ccitt")
     await server.start()
     peer = PtyPeer(master, crc=crc16_x25)
     try:
@@ -327,7 +327,7 @@ async def test_serial_ccitt_crc_and_a_large_message(pty_pair):
 async def test_multiserial_keeps_ports_apart(pty_pair):
     (master_a, path_a), (master_b, path_b) = pty_pair(), pty_pair()
     engine = EchoEngine()
-    server = servers.SerialServer(engine, [path_a, path_b])
+    server = serial_links.SerialServer(engine, [path_a, path_b])
     await server.start()
     assert server.name == "multiserial"
     peer_a, peer_b = PtyPeer(master_a), PtyPeer(master_b)
@@ -342,7 +342,7 @@ async def test_multiserial_keeps_ports_apart(pty_pair):
 
 
 async def test_serial_open_failure_is_an_oserror(tmp_path):
-    server = servers.SerialServer(EchoEngine(), str(tmp_path / "no-such-tty"))
+    server = serial_links.SerialServer(EchoEngine(), str(tmp_path / "no-such-tty"))
     with pytest.raises(OSError, match="no-such-tty"):
         await server.start()
 
@@ -351,7 +351,7 @@ async def test_pseudoterminal_serves_its_slave_and_manages_the_symlink(tmp_path)
     link_path = str(tmp_path / "xrce_pty")
     os.symlink("/dev/null", link_path)  # a stale link from an earlier run is replaced
     engine = EchoEngine()
-    server = servers.PseudoterminalServer(engine, symlink=link_path)
+    server = serial_links.PseudoterminalServer(engine, symlink=link_path)
     await server.start()
     fd = None
     try:
@@ -377,7 +377,7 @@ def _get_info(request_id=C.REQUEST_ID_DISCOVERY):
 
 
 async def test_discovery_answers_get_info_with_every_local_ipv4_address():
-    server = servers.DiscoveryServer(agent_port=2022, port=0)
+    server = udp_links.DiscoveryServer(agent_port=2022, port=0)
     await server.start()
     loop = asyncio.get_running_loop()
     client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -393,7 +393,7 @@ async def test_discovery_answers_get_info_with_every_local_ipv4_address():
         assert isinstance(info, Info) and info.request_id == C.REQUEST_ID_DISCOVERY
         assert info.availability == 1 and info.config[1] == b"\x01\x00"
         assert Locator(C.LOCATOR_MEDIUM, socket.inet_aton("127.0.0.1"), 2022) in info.locators
-        assert len(info.locators) == len(servers.local_ipv4_addresses())
+        assert len(info.locators) == len(udp_links.local_ipv4_addresses())
         assert server.stats.drops == 1 and server.stats.messages_out == 1
     finally:
         client.close()
@@ -406,7 +406,7 @@ async def test_discovery_reply_matches_the_verified_capture():
         "80000000 06012C00 0009FFFD 0000010D 58524345 0100010F 00010D00 01000000"
         "02000000 017F0000 0100E607 01C00002 0200E607")
 
-    class TwoInterfaces(servers.DiscoveryServer):
+    class TwoInterfaces(udp_links.DiscoveryServer):
         def info_locators(self):
             return [Locator(C.LOCATOR_MEDIUM, bytes(a), self.agent_port)
                     for a in ((127, 0, 0, 1), (192, 0, 2, 2))]
@@ -426,7 +426,7 @@ async def test_discovery_reply_matches_the_verified_capture():
 
 
 def test_local_ipv4_addresses_include_loopback():
-    addresses = servers.local_ipv4_addresses()
+    addresses = udp_links.local_ipv4_addresses()
     assert socket.inet_aton("127.0.0.1") in addresses
     assert all(len(a) == 4 for a in addresses)
     assert len(set(addresses)) == len(addresses)

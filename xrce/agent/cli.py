@@ -25,7 +25,7 @@ import socket
 import sys
 import xml.etree.ElementTree as ElementTree
 
-from xrce.agent import demo, interfaces, observability, servers
+from xrce.agent import demo, interfaces, observability, serial_links, tcp_links, udp_links
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -154,14 +154,15 @@ def _add_common_options(parser):
 def _add_ip_options(parser):
     parser.add_argument("-p", "--port", type=_port, required=True,
                         help="UDP/TCP port to serve (0: any free port, shown in the banner)")
-    parser.add_argument("-d", "--discovery", type=_port, nargs="?", const=servers.DISCOVERY_PORT,
+    parser.add_argument("-d", "--discovery", type=_port, nargs="?", const=udp_links.DISCOVERY_PORT,
                         metavar="PORT", help="answer discovery requests on PORT (default 7400)")
 
 
 def _add_tcp_options(parser):
     _add_ip_options(parser)
-    parser.add_argument("--max-connections", type=int, default=servers.DEFAULT_TCP_MAX_CONNECTIONS,
-                        metavar="N", help="simultaneous TCP connections (default 100)")
+    parser.add_argument("--max-connections", type=int,
+                        default=tcp_links.DEFAULT_TCP_MAX_CONNECTIONS, metavar="N",
+                        help="simultaneous TCP connections (default 100)")
 
 
 def _add_crc_option(parser):
@@ -171,14 +172,14 @@ def _add_crc_option(parser):
 
 def _add_serial_options(parser):
     parser.add_argument("-D", "--dev", required=True, metavar="DEVICE", help="serial device")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=servers.DEFAULT_BAUDRATE)
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=serial_links.DEFAULT_BAUDRATE)
     _add_crc_option(parser)
 
 
 def _add_multiserial_options(parser):
     parser.add_argument("--devs", required=True, metavar='"DEV1 DEV2 ..."',
                         help="space-separated serial devices")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=servers.DEFAULT_BAUDRATE)
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=serial_links.DEFAULT_BAUDRATE)
     _add_crc_option(parser)
 
 
@@ -193,23 +194,23 @@ def _add_pty_options(parser):
 def _ip_links(family, server_class):
     def make_links(args, agent):
         extra = {}
-        if server_class is servers.TcpServer:
+        if server_class is tcp_links.TcpServer:
             extra["max_connections"] = args.max_connections
         return [server_class(agent, args.port, family=family, **extra)]
     return make_links
 
 
 def _serial_links(args, agent):
-    return [servers.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
+    return [serial_links.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
 
 
 def _multiserial_links(args, agent):
     devices = args.devs.split()
-    return [servers.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
+    return [serial_links.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
 
 
 def _pty_links(args, agent):
-    return [servers.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
+    return [serial_links.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
 
 
 class Subcommand:
@@ -234,13 +235,13 @@ def register(subcommand):
 
 for _row in (
     Subcommand("udp4", "serve UDP over IPv4", _add_ip_options,
-               _ip_links(socket.AF_INET, servers.UdpServer)),
+               _ip_links(socket.AF_INET, udp_links.UdpServer)),
     Subcommand("udp6", "serve UDP over IPv6", _add_ip_options,
-               _ip_links(socket.AF_INET6, servers.UdpServer)),
+               _ip_links(socket.AF_INET6, udp_links.UdpServer)),
     Subcommand("tcp4", "serve TCP over IPv4", _add_tcp_options,
-               _ip_links(socket.AF_INET, servers.TcpServer)),
+               _ip_links(socket.AF_INET, tcp_links.TcpServer)),
     Subcommand("tcp6", "serve TCP over IPv6", _add_tcp_options,
-               _ip_links(socket.AF_INET6, servers.TcpServer)),
+               _ip_links(socket.AF_INET6, tcp_links.TcpServer)),
     Subcommand("serial", "serve one serial device", _add_serial_options, _serial_links),
     Subcommand("multiserial", "serve several serial devices", _add_multiserial_options,
                _multiserial_links),
@@ -348,7 +349,7 @@ async def serve(args, refs):
                 await link.start()
                 started.append(link)
             if getattr(args, "discovery", None) is not None:
-                discovery = servers.DiscoveryServer(links[0].port, args.discovery)
+                discovery = udp_links.DiscoveryServer(links[0].port, args.discovery)
                 await discovery.start()
                 started.append(discovery)
             observe = observability.Observability.from_args(args, agent, started, middleware)

@@ -1,0 +1,271 @@
+"""The request/reply (ROS service) half of ``RosMiddleware`` (``xrce.agent.ros``).
+
+An XRCE requester is an rclpy service client, an XRCE replier an rclpy service. A request waits
+on the loop until its reply arrives or ``request_timeout_s`` passes; a replier's incoming request
+gets a sample identity of its own and waits for the XRCE client's reply just as long. Clients and
+services are made, and requests sent (``call_async``), on the domain's executor thread
+(``xrce.agent.ros_domain``); a service response goes out from the loop thread, rcl send_response
+being thread-safe.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+
+from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.service import Service
+
+from xrce.agent.middleware import (
+    EndpointQosSpec,
+    EntityKey,
+    MiddlewareError,
+    ReplyCallback,
+    RequestCallback,
+    ServiceSpec,
+)
+from xrce.agent.ros_domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
+from xrce.agent.rostypes import qos_profile, service_class, service_ros_name
+
+
+class _TakenRequest:
+    """What the replier's service callback returns instead of a response (see _ReplierRecord)."""
+
+    __slots__ = ("identity", "body")
+
+    def __init__(self, identity: bytes, body: bytes):
+        self.identity = identity
+        self.body = body
+
+
+class _RequesterRecord:
+    __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed")
+    kind = "requester"
+
+    def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback):
+        self.participant = participant
+        self.client = None
+        self.srv = srv
+        self.on_reply = on_reply
+        # correlation id -> [rclpy Future or None until sent, expiry TimerHandle]
+        self.pending: dict[int, list] = {}
+        # tasks waiting for the service server to be discovered
+        self.waiting: set[asyncio.Task] = set()
+        self.closed = False
+
+
+class _ReplierRecord:
+    """rclpy service whose responses are sent later, when the XRCE client writes its reply.
+
+    rclpy calls ``service.callback(request, response)`` and then ``service.send_response(result,
+    header)``. The events executor runs that synchronously and has no coroutine support, and
+    blocking in the callback would stall every other entity of the domain for the client's
+    round trip. So the callback only records the request and returns a ``_TakenRequest``, and the
+    instance's ``send_response`` is replaced by ``capture`` which keeps the request header; the
+    real ``Service.send_response`` runs from ``write_reply`` on the loop thread.
+    """
+
+    __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
+                 "identity_prefix", "sequence", "loop", "middleware")
+    kind = "replier"
+
+    def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
+                 identity_prefix: bytes, loop: asyncio.AbstractEventLoop, middleware: "RosServices"):
+        self.participant = participant
+        self.service = None
+        self.srv = srv
+        self.on_request = on_request
+        self.pending: dict[bytes, tuple] = {}  # identity -> (request header, expiry TimerHandle)
+        self.closed = False
+        self.identity_prefix = identity_prefix  # guidPrefix(12) + entityKey(3) + entityKind(1)
+        self.sequence = 0
+        self.loop = loop
+        self.middleware = middleware
+
+    def take(self, request, _unused_response) -> _TakenRequest:
+        """Service callback (executor thread)."""
+        self.sequence += 1
+        identity = self.identity_prefix + struct.pack("<iI", self.sequence >> 32,
+                                                      self.sequence & 0xFFFFFFFF)
+        return _TakenRequest(identity, serialize_message(request)[ENCAPSULATION_SIZE:])
+
+    def capture(self, taken, header) -> None:
+        """Stands in for ``service.send_response`` (executor thread)."""
+        if not isinstance(taken, _TakenRequest):
+            Service.send_response(self.service, taken, header)
+            return
+        if self.closed:
+            return
+        try:
+            self.loop.call_soon_threadsafe(self.middleware._deliver_request, self,
+                                           taken.identity, taken.body, header)
+        except RuntimeError:
+            self.closed = True
+
+
+class RosServices:
+    """Requesters and repliers of ``RosMiddleware``, which mixes this class in: the methods use its
+    ``_entities``, ``_loop`` / ``_get_loop``, ``_participant_of``, ``_on_executor``,
+    ``_guid_prefix``, ``_replier_counter``, ``request_timeout_s`` and ``requests_timed_out``."""
+
+    # -- creation -----------------------------------------------------------------------------
+
+    def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                         qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+        owner, participant_record = self._participant_of(participant, ("participant",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        srv = service_class(service.request_type)
+        service_name = service_ros_name(service.service_name, service.request_topic)
+        profile = qos_profile(qos)
+        self._get_loop()
+        record = _RequesterRecord(owner, srv, on_reply)
+        node = participant_record.node
+        record.client = self._on_executor(participant_record, lambda: node.create_client(
+            srv, service_name, qos_profile=profile))
+        self._entities[key] = record
+
+    def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                       qos: EndpointQosSpec, on_request: RequestCallback) -> None:
+        owner, participant_record = self._participant_of(participant, ("participant",))
+        if key in self._entities:
+            raise MiddlewareError("entity %r already exists" % (key,))
+        srv = service_class(service.request_type)
+        service_name = service_ros_name(service.service_name, service.request_topic)
+        profile = qos_profile(qos)
+        self._replier_counter += 1
+        # entityKey: 3 bytes of a per-agent replier counter; entityKind 0x02 = user writer with key
+        # (the reply writer a DDS replier would own).
+        prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] + b"\x02"
+        record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self)
+        node = participant_record.node
+
+        def make_service():
+            ros_service = node.create_service(srv, service_name, record.take, qos_profile=profile)
+            ros_service.send_response = record.capture
+            return ros_service
+
+        record.service = self._on_executor(participant_record, make_service)
+        self._entities[key] = record
+
+    # -- data ---------------------------------------------------------------------------------
+
+    def write_request(self, requester: EntityKey, correlation_id: int, sample: bytes) -> bool:
+        record = self._entities.get(requester)
+        if record is None or record.kind != "requester":
+            return False
+        try:
+            request = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Request)
+        except Exception as exc:
+            log.warning("request for %r does not decode as %s: %s", requester,
+                        record.srv.__name__, exc)
+            return False
+        loop = self._get_loop()
+        previous = record.pending.pop(correlation_id, None)
+        if previous is not None:
+            self._forget_request(record, previous)
+        entry = [None, loop.call_later(self.request_timeout_s, self._expire_request, record,
+                                       correlation_id)]
+        record.pending[correlation_id] = entry
+        if record.client.service_is_ready():
+            self._send_request(record, correlation_id, entry, request)
+        else:
+            # A request sent before the server is discovered is lost in DDS; the XRCE client
+            # cannot know that, so hold it here until the server shows up (or it expires).
+            task = loop.create_task(self._send_when_ready(record, correlation_id, entry, request))
+            record.waiting.add(task)
+            task.add_done_callback(record.waiting.discard)
+        return True
+
+    async def _send_when_ready(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                               request) -> None:
+        while not record.closed and record.pending.get(correlation_id) is entry:
+            if record.client.service_is_ready():
+                self._send_request(record, correlation_id, entry, request)
+                return
+            await asyncio.sleep(0.01)
+
+    def _send_request(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                      request) -> None:
+        participant = self._entities.get(record.participant)
+        if participant is None:
+            return
+        loop = self._loop
+
+        def reply_arrived(future) -> None:  # executor thread
+            try:
+                body = serialize_message(future.result())[ENCAPSULATION_SIZE:]
+            except Exception:
+                log.exception("service reply could not be serialized")
+                return
+            try:
+                loop.call_soon_threadsafe(self._deliver_reply, record, correlation_id, entry, body)
+            except RuntimeError:
+                pass
+
+        def send() -> None:  # executor thread: call_async may schedule on the executor
+            if record.closed:
+                return
+            future = record.client.call_async(request)
+            entry[0] = future
+            future.add_done_callback(reply_arrived)
+
+        participant.domain.post(send)
+
+    def _deliver_reply(self, record: _RequesterRecord, correlation_id: int, entry: list,
+                       body: bytes) -> None:
+        if record.closed or record.pending.get(correlation_id) is not entry:
+            return
+        del record.pending[correlation_id]
+        entry[1].cancel()
+        try:
+            record.on_reply(correlation_id, body)
+        except Exception:
+            log.exception("on_reply failed")
+
+    def _forget_request(self, record: _RequesterRecord, entry: list) -> None:
+        entry[1].cancel()
+        if entry[0] is not None and record.client is not None:
+            record.client.remove_pending_request(entry[0])
+
+    def _expire_request(self, record: _RequesterRecord, correlation_id: int) -> None:
+        entry = record.pending.pop(correlation_id, None)
+        if entry is not None:
+            self.requests_timed_out += 1
+            log.warning("service request %d got no reply within %.1f s", correlation_id,
+                        self.request_timeout_s)
+            self._forget_request(record, entry)
+
+    def _deliver_request(self, record: _ReplierRecord, identity: bytes, body: bytes,
+                         header) -> None:
+        if record.closed:
+            return
+        expiry = self._loop.call_later(self.request_timeout_s, self._expire_reply, record, identity)
+        record.pending[identity] = (header, expiry)
+        try:
+            record.on_request(identity, body)
+        except Exception:
+            log.exception("on_request failed")
+
+    def _expire_reply(self, record: _ReplierRecord, identity: bytes) -> None:
+        if record.pending.pop(identity, None) is not None:
+            self.requests_timed_out += 1
+            log.warning("replier got no reply from its XRCE client within %.1f s",
+                        self.request_timeout_s)
+
+    def write_reply(self, replier: EntityKey, sample_identity: bytes, sample: bytes) -> bool:
+        record = self._entities.get(replier)
+        if record is None or record.kind != "replier":
+            return False
+        entry = record.pending.pop(bytes(sample_identity), None)
+        if entry is None:
+            return False
+        header, expiry = entry
+        expiry.cancel()
+        try:
+            response = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Response)
+            Service.send_response(record.service, response, header)
+        except Exception as exc:
+            log.warning("reply on %r failed: %s", replier, exc)
+            return False
+        return True
