@@ -1,6 +1,6 @@
-# The encode/decode plan of a message type, built once by _define from its field specs (see
-# __init__.py). On a board this module is dropped again once a type and its dependencies are defined
-# (_type_attr, lookup): the plans stay, the builder's code does not.
+# The encode/decode plan of a message type, built from its field specs on the type's first encode or
+# decode (_planned in __init__.py). On a board this module is dropped again once the plan is built:
+# the plans stay, the builder's code does not.
 #
 # A plan is a tuple of steps in field order. A step is either a field position (a string, a bool, a
 # sequence, an array of anything but numbers, or a nested message that is not one run: encoded on its
@@ -26,7 +26,11 @@ import sys
 from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
 
 
-def _plan(names, specs):
+# The plan of `cls`, kept on the class; `nested`: asked for by a parent's plan, which packs a nested
+# type that is one part itself, so that type keeps no plan of its own until it is sent or received.
+def _plan(cls, nested=False):
+    names = cls.__slots__
+    specs = cls._S
     steps = []
     run = None  # [align, size, [[field, kind, codes or nested part, offset, first field], ...]]
     for i in range(len(names)):
@@ -49,7 +53,7 @@ def _plan(names, specs):
                 t = t[2] * kind
         else:
             kind = t
-            t = t._P
+            t = t._P or _plan(t, True)
             if len(t) == 1 and type(t[0]) is tuple and len(t[0]) == 3 and t[0][2][0] is None:
                 align, size, t = t[0]  # the nested type's one part
                 name = names[i]
@@ -108,4 +112,7 @@ def _plan(names, specs):
                     sys.modules["xrce.msgs"]._check_ints = _check_ints
             step.append((name, kind, fmt, offset, fields, checks))
         steps[i] = tuple(step)
-    return tuple(steps)
+    steps = tuple(steps)
+    if not (nested and len(steps) == 1 and type(steps[0]) is tuple and len(steps[0]) == 3 and steps[0][2][0] is None):
+        cls._P = steps
+    return steps
