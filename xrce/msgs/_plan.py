@@ -14,7 +14,8 @@
 #   (field, class, fmt, offset, field names, checks)    a nested message that is one part itself
 # so Twist is one run of two "<3d" parts and never calls into Vector3, and Imu's quaternion, vectors
 # and covariances are one run of six parts. `checks` is None, or on MicroPython (whose struct
-# truncates integers silently) what _ints._check_ints needs to find an integer that does not fit.
+# truncates integers silently) an int that tells _ints._check_ints which values are integers of
+# which width, to find one that does not fit.
 #
 # Every object a plan holds stays on a board's heap, and every name this module uses stays in its
 # string pool (from .py, local names too): few objects (a part of a type's own fields reuses
@@ -98,18 +99,19 @@ def _plan(cls, nested=False):
                 fields = names if first == 0 and len(t) == len(names) else names[first:first + len(t)]
             checks = None
             if _CHECK_INTS:
-                # (position, shift, allowed) per integer field, (shift, allowed) for an array: a value
-                # fits when shifting out its field's bits leaves 0 (or -1, signed).
-                checks = []
+                # One small int, so a plan holds no object for it: per integer field (or once for
+                # an array), its code's position in _CODES plus one, four bits per field position.
+                checks = 0
                 for j in range(1 if fields is None else len(t)):
                     k = _CODES.find(t[j])
                     if k < 8:
-                        checks.append((j, _SIZES[k] * 8 - (0 if k & 1 else 1), 0 if k & 1 else -1))
-                checks = (checks[0][1:] if fields is None else tuple(checks)) if checks else None
-                if checks is not None:
+                        checks |= (k + 1) << 4 * j
+                if checks:
                     from xrce.msgs._ints import _check_ints
 
                     sys.modules["xrce.msgs"]._check_ints = _check_ints
+                else:
+                    checks = None
             step.append((name, kind, fmt, offset, fields, checks))
         steps[i] = tuple(step)
     steps = tuple(steps)
