@@ -19,11 +19,12 @@
 #
 # Every object a plan holds stays on a board's heap, and every name this module uses stays in its
 # string pool (from .py, local names too): few objects (a part of a type's own fields reuses
-# __slots__ when it covers them all, a nested part is the nested type's own, a format is made once
-# per type) and few new names.
+# __slots__ when it covers them all, a nested part is the nested type's own, a format is a qstr
+# shared by every plan that has it) and few new names.
 
 import sys
 
+from xrce.compat import IS_MICROPYTHON
 from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
 
 
@@ -72,7 +73,6 @@ def _plan(cls, nested=False):
         else:
             run[2].append([name, kind, t, run[1], first])
         run[1] += size
-    saved = {}  # formats made for this type (Imu has three "<9d")
     for i in range(len(steps)):
         run = steps[i]
         if type(run) is not list:
@@ -82,18 +82,20 @@ def _plan(cls, nested=False):
             if type(t) is tuple:  # a nested message's own part: fmt, fields and checks are its
                 step.append((name, kind, t[2], offset, t[4], t[5]))
                 continue
-            fmt = saved.get(t)
-            if fmt is None:
-                # Repeated codes counted: "ddd" -> "<3d".
-                fmt = "<"
-                j = 0
-                while j < len(t):
-                    n = 1
-                    while j + n < len(t) and t[j + n] == t[j]:
-                        n += 1
-                    fmt += t[j] if n == 1 else str(n) + t[j]
-                    j += n
-                saved[t] = fmt
+            # Repeated codes counted: "ddd" -> "<3d".
+            fmt = "<"
+            j = 0
+            while j < len(t):
+                n = 1
+                while j + n < len(t) and t[j + n] == t[j]:
+                    n += 1
+                fmt += t[j] if n == 1 else str(n) + t[j]
+                j += n
+            if IS_MICROPYTHON:
+                # Interned, as MicroPython interns a class's name: a qstr is no heap object and its
+                # text takes ~len+3 bytes of the string pool, where a str is 32 bytes of heap, and
+                # every later format with the same text comes back as that same qstr.
+                fmt = type(fmt, (), {}).__name__
             fields = None
             if name is None:
                 fields = names if first == 0 and len(t) == len(names) else names[first:first + len(t)]
