@@ -102,12 +102,12 @@ def _plan(cls, nested=False):
             checks = None
             if _CHECK_INTS:
                 # One small int, so a plan holds no object for it: per integer field (or once for
-                # an array), its code's position in _CODES plus one, four bits per field position.
+                # an array) the shift that _check_ints applies, seven bits per field position.
                 checks = 0
                 for j in range(1 if fields is None else len(t)):
                     k = _CODES.find(t[j])
                     if k < 8:
-                        checks |= (k + 1) << 4 * j
+                        checks |= (_SIZES[k] * 8 - 1 + (k & 1)) << 7 * j
                 if checks:
                     from xrce.msgs._ints import _check_ints
 
