@@ -342,8 +342,10 @@ if not IS_MICROPYTHON:
 
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
 # type `name` on first use and keeps the class in the package for later look-ups. Generated code
-# imports its dependencies by full dotted name: MicroPython's `from package import submodule` gives
-# up as soon as __getattr__ raises, so this only ever resolves type names.
+# imports its dependencies through their package too (`from xrce.msgs.std_msgs import Header`), so
+# each type is defined once. A board then drops a message's module (~115 bytes of heap a type: the
+# module, its globals, its entries in sys.modules and the package); a service's module stays, as
+# its request, response and descriptor are named one by one.
 def _type_attr(namespace, name):
     if not name or name[0] == "_":
         raise AttributeError(name)
@@ -352,10 +354,14 @@ def _type_attr(namespace, name):
 
         value = service_attr(namespace, name)
     else:
+        module = namespace["__name__"] + "._" + name
         try:
-            value = getattr(_import(namespace["__name__"] + "._" + name), name)
+            value = getattr(_import(module), name)
         except ImportError:
             raise AttributeError(name)
+        if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"]:
+            del sys.modules[module]
+            namespace.pop("_" + name, None)
     namespace[name] = value
     return value
 
