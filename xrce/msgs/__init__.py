@@ -318,14 +318,21 @@ class _Message:
         return from_dict(cls, d)
 
 
+# `text` as a qstr on MicroPython, which interns a class's name: a qstr is no heap object and its
+# text takes ~len+3 bytes of the string pool, where a str takes 32-64 bytes of heap, and any later
+# str built with the same text comes back as that same qstr. For the strings every type keeps.
+def _intern(text):
+    return type(text, (), {}).__name__ if IS_MICROPYTHON else text
+
+
 # The class of ROS type "pkg/msg/Name" (or "pkg/srv/Name_Request"): `names` its fields, `specs`
 # their specs, `defaults` {field: value} or None, keyword arguments its constants.
 def _define(ros_type, names, specs, defaults=None, **constants):
     package, kind, name = ros_type.split("/")
     constants["__slots__"] = names
     constants["_S"] = specs
-    constants["ROS_TYPE"] = ros_type
-    constants["TYPE_NAME"] = "%s::%s::dds_::%s_" % (package, kind, name)
+    constants["ROS_TYPE"] = _intern(ros_type)
+    constants["TYPE_NAME"] = _intern("%s::%s::dds_::%s_" % (package, kind, name))
     if defaults is not None:
         constants["_D"] = defaults
     if not IS_MICROPYTHON:  # the defining module, as a class statement would have it (pickle needs it)

@@ -24,8 +24,7 @@
 
 import sys
 
-from xrce.compat import IS_MICROPYTHON
-from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
+from xrce.msgs import _CHECK_INTS, _CODES, _SIZES, _intern
 
 
 # The plan of `cls`, kept on the class; `nested`: asked for by a parent's plan, which packs a nested
@@ -91,11 +90,7 @@ def _plan(cls, nested=False):
                     n += 1
                 fmt += t[j] if n == 1 else str(n) + t[j]
                 j += n
-            if IS_MICROPYTHON:
-                # Interned, as MicroPython interns a class's name: a qstr is no heap object and its
-                # text takes ~len+3 bytes of the string pool, where a str is 32 bytes of heap, and
-                # every later format with the same text comes back as that same qstr.
-                fmt = type(fmt, (), {}).__name__
+            fmt = _intern(fmt)  # one qstr for every part with this format, not a str per part
             fields = None
             if name is None:
                 fields = names if first == 0 and len(t) == len(names) else names[first:first + len(t)]
