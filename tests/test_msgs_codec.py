@@ -344,16 +344,24 @@ def test_importing_a_type_loads_only_its_own_dependencies():
         "from xrce.msgs.geometry_msgs import Twist\n"
         "from xrce.msgs.turtlebot3_msgs import SensorState\n"
         "print(sorted(m for m in sys.modules if m.startswith('xrce.msgs')))\n"
+        "Twist().to_bytes()\n"
+        "print('_plan' in sys.modules['xrce.msgs']._plan.__name__, Twist._P is not None)\n"
+        "print(sorted(t.__name__ for t in sys.modules['xrce.msgs']._Message.__subclasses__() if t._P))\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO)
     assert result.returncode == 0, result.stderr
-    # xrce.msgs._plan builds each type's plan; CPython keeps it, a board drops it after each type.
-    assert eval(result.stdout) == [
-        "xrce.msgs", "xrce.msgs._plan", "xrce.msgs.builtin_interfaces", "xrce.msgs.builtin_interfaces._Time",
+    imported, planned, with_plans = result.stdout.splitlines()
+    # No plan is built on import: xrce.msgs._plan loads on a type's first encode or decode (CPython
+    # keeps it, a board drops it again).
+    assert eval(imported) == [
+        "xrce.msgs", "xrce.msgs.builtin_interfaces", "xrce.msgs.builtin_interfaces._Time",
         "xrce.msgs.geometry_msgs", "xrce.msgs.geometry_msgs._Twist", "xrce.msgs.geometry_msgs._Vector3",
         "xrce.msgs.std_msgs", "xrce.msgs.std_msgs._Header", "xrce.msgs.turtlebot3_msgs",
         "xrce.msgs.turtlebot3_msgs._SensorState",
     ]
+    assert planned == "True True"
+    # Twist packs both of its Vector3 parts itself: Vector3 keeps no plan until it is sent on its own.
+    assert eval(with_plans) == ["Twist"]
 
 
 @pytest.mark.parametrize("text,needle", [

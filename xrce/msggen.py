@@ -415,13 +415,13 @@ def _imports(package, body, deps):
             current += piece
         lines.append(current)
         lines.append(")")
-    # Full dotted imports only: MicroPython's "from package import _Module" asks the package's
-    # __getattr__ first and does not fall back to importing the submodule when it raises.
+    # Through the package, whose __getattr__ defines a type once and keeps the class: a board drops
+    # a message module once its class is kept (xrce.msgs._type_attr), so importing the module by its
+    # own name again would define the type a second time.
     for base in sorted(deps):
         pkg, name = base.split("/")
         alias = _class_ref(base, package, set())
-        lines.append("from xrce.msgs.%s.%s import %s%s" % (
-            pkg, module_name(name), name, "" if alias == name else " as " + alias))
+        lines.append("from xrce.msgs.%s import %s%s" % (pkg, name, "" if alias == name else " as " + alias))
     return lines
 
 

@@ -7,8 +7,9 @@
 # The field specs are interpreted here by one __init__, one encode and one decode that every type
 # shares: on a board each function a module defines costs heap (its bytecode, its code and function
 # objects), so per-type generated methods cost 1-2 KB a type where a table costs a few hundred bytes.
-# _define also gives each type a plan (_plan.py) that groups its fixed-size numbers into runs, each
-# aligned once and packed by one struct call per part, so encode and decode do not walk field by field.
+# Each type's first encode or decode gives it a plan (_plan.py) that groups its fixed-size numbers into
+# runs, each aligned once and packed by one struct call per part, so encode and decode do not walk
+# field by field. A type that is only ever packed by its parent (Vector3 in Twist) never gets one.
 #
 # A field spec is one of:
 #   "b" "B" "h" "H" "i" "I" "q" "Q" "f" "d"   a number (struct codes; byte, char and uint8 are "B")
@@ -174,10 +175,12 @@ _check_ints = None
 
 
 # Behaviour every message type shares. A type sets __slots__ (its field names), _S (their specs),
-# TYPE_NAME, ROS_TYPE and, for fields with defaults from the .msg file, _D {name: value}.
+# TYPE_NAME, ROS_TYPE and, for fields with defaults from the .msg file, _D {name: value}; _planned
+# sets _P, its plan, on its first encode or decode.
 class _Message:
     __slots__ = ()
     _D = None
+    _P = None
 
     # Fields by position or by name; a field left out (or None) gets its default.
     def __init__(self, *args, **kw):
@@ -204,8 +207,11 @@ class _Message:
         specs = self._S
         if not names:
             w.u8(0)  # the rosidl typesupports give an empty struct one dummy octet
+        plan = self._P
+        if plan is None:
+            plan = _planned(type(self))
         try:
-            for step in self._P:
+            for step in plan:
                 if type(step) is int:  # a field outside the runs
                     t = specs[step]
                     value = getattr(self, names[step])
@@ -240,7 +246,10 @@ class _Message:
         if not names:
             r.u8()
         buf = r.buf
-        for step in cls._P:
+        plan = cls._P
+        if plan is None:
+            plan = _planned(cls)
+        for step in plan:
             if type(step) is int:
                 t = specs[step]
                 if type(t) is str or type(t) is tuple:
@@ -309,15 +318,21 @@ class _Message:
         return from_dict(cls, d)
 
 
+# `text` as a qstr on MicroPython, which interns a class's name: a qstr is no heap object and its
+# text takes ~len+3 bytes of the string pool, where a str takes 32-64 bytes of heap, and any later
+# str built with the same text comes back as that same qstr. For the strings every type keeps.
+def _intern(text):
+    return type(text, (), {}).__name__ if IS_MICROPYTHON else text
+
+
 # The class of ROS type "pkg/msg/Name" (or "pkg/srv/Name_Request"): `names` its fields, `specs`
 # their specs, `defaults` {field: value} or None, keyword arguments its constants.
 def _define(ros_type, names, specs, defaults=None, **constants):
     package, kind, name = ros_type.split("/")
     constants["__slots__"] = names
     constants["_S"] = specs
-    constants["_P"] = _import("xrce.msgs._plan")._plan(names, specs)
-    constants["ROS_TYPE"] = ros_type
-    constants["TYPE_NAME"] = "%s::%s::dds_::%s_" % (package, kind, name)
+    constants["ROS_TYPE"] = _intern(ros_type)
+    constants["TYPE_NAME"] = _intern("%s::%s::dds_::%s_" % (package, kind, name))
     if defaults is not None:
         constants["_D"] = defaults
     if not IS_MICROPYTHON:  # the defining module, as a class statement would have it (pickle needs it)
@@ -334,8 +349,10 @@ if not IS_MICROPYTHON:
 
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
 # type `name` on first use and keeps the class in the package for later look-ups. Generated code
-# imports its dependencies by full dotted name: MicroPython's `from package import submodule` gives
-# up as soon as __getattr__ raises, so this only ever resolves type names.
+# imports its dependencies through their package too (`from xrce.msgs.std_msgs import Header`), so
+# each type is defined once. A board then drops a message's module (~115 bytes of heap a type: the
+# module, its globals, its entries in sys.modules and the package); a service's module stays, as
+# its request, response and descriptor are named one by one.
 def _type_attr(namespace, name):
     if not name or name[0] == "_":
         raise AttributeError(name)
@@ -344,21 +361,27 @@ def _type_attr(namespace, name):
 
         value = service_attr(namespace, name)
     else:
+        module = namespace["__name__"] + "._" + name
         try:
-            value = getattr(_import(namespace["__name__"] + "._" + name), name)
+            value = getattr(_import(module), name)
         except ImportError:
             raise AttributeError(name)
+        if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"]:
+            del sys.modules[module]
+            namespace.pop("_" + name, None)
     namespace[name] = value
-    _drop_planner()
     return value
 
 
-# A board keeps the plans, not the code that built them (xrce.msgs._plan, loaded by _define): dropped
-# once a type named through a package or lookup() is defined with its dependencies.
-def _drop_planner():
-    if IS_MICROPYTHON and "xrce.msgs._plan" in sys.modules:
+# The plan of `cls`, built by xrce.msgs._plan on the type's first encode or decode. A board keeps the
+# plan, not the code that built it: the builder is dropped again (a firmware's types are all planned
+# within its first few samples, so it is seldom loaded twice).
+def _planned(cls):
+    plan = _import("xrce.msgs._plan")._plan(cls)
+    if IS_MICROPYTHON:
         del sys.modules["xrce.msgs._plan"]
         globals().pop("_plan", None)
+    return plan
 
 
 # The module itself: __import__ hands back the top-level package.
@@ -372,6 +395,4 @@ def _import(dotted):
 def lookup(type_name):
     from xrce.msgs._lookup import lookup
 
-    cls = lookup(type_name)
-    _drop_planner()
-    return cls
+    return lookup(type_name)

@@ -1,6 +1,6 @@
-# The encode/decode plan of a message type, built once by _define from its field specs (see
-# __init__.py). On a board this module is dropped again once a type and its dependencies are defined
-# (_type_attr, lookup): the plans stay, the builder's code does not.
+# The encode/decode plan of a message type, built from its field specs on the type's first encode or
+# decode (_planned in __init__.py). On a board this module is dropped again once the plan is built:
+# the plans stay, the builder's code does not.
 #
 # A plan is a tuple of steps in field order. A step is either a field position (a string, a bool, a
 # sequence, an array of anything but numbers, or a nested message that is not one run: encoded on its
@@ -14,19 +14,24 @@
 #   (field, class, fmt, offset, field names, checks)    a nested message that is one part itself
 # so Twist is one run of two "<3d" parts and never calls into Vector3, and Imu's quaternion, vectors
 # and covariances are one run of six parts. `checks` is None, or on MicroPython (whose struct
-# truncates integers silently) what _ints._check_ints needs to find an integer that does not fit.
+# truncates integers silently) an int that tells _ints._check_ints which values are integers of
+# which width, to find one that does not fit.
 #
 # Every object a plan holds stays on a board's heap, and every name this module uses stays in its
 # string pool (from .py, local names too): few objects (a part of a type's own fields reuses
-# __slots__ when it covers them all, a nested part is the nested type's own, a format is made once
-# per type) and few new names.
+# __slots__ when it covers them all, a nested part is the nested type's own, a format is a qstr
+# shared by every plan that has it) and few new names.
 
 import sys
 
-from xrce.msgs import _CHECK_INTS, _CODES, _SIZES
+from xrce.msgs import _CHECK_INTS, _CODES, _SIZES, _intern
 
 
-def _plan(names, specs):
+# The plan of `cls`, kept on the class; `nested`: asked for by a parent's plan, which packs a nested
+# type that is one part itself, so that type keeps no plan of its own until it is sent or received.
+def _plan(cls, nested=False):
+    names = cls.__slots__
+    specs = cls._S
     steps = []
     run = None  # [align, size, [[field, kind, codes or nested part, offset, first field], ...]]
     for i in range(len(names)):
@@ -49,7 +54,7 @@ def _plan(names, specs):
                 t = t[2] * kind
         else:
             kind = t
-            t = t._P
+            t = t._P or _plan(t, True)
             if len(t) == 1 and type(t[0]) is tuple and len(t[0]) == 3 and t[0][2][0] is None:
                 align, size, t = t[0]  # the nested type's one part
                 name = names[i]
@@ -67,7 +72,6 @@ def _plan(names, specs):
         else:
             run[2].append([name, kind, t, run[1], first])
         run[1] += size
-    saved = {}  # formats made for this type (Imu has three "<9d")
     for i in range(len(steps)):
         run = steps[i]
         if type(run) is not list:
@@ -77,35 +81,37 @@ def _plan(names, specs):
             if type(t) is tuple:  # a nested message's own part: fmt, fields and checks are its
                 step.append((name, kind, t[2], offset, t[4], t[5]))
                 continue
-            fmt = saved.get(t)
-            if fmt is None:
-                # Repeated codes counted: "ddd" -> "<3d".
-                fmt = "<"
-                j = 0
-                while j < len(t):
-                    n = 1
-                    while j + n < len(t) and t[j + n] == t[j]:
-                        n += 1
-                    fmt += t[j] if n == 1 else str(n) + t[j]
-                    j += n
-                saved[t] = fmt
+            # Repeated codes counted: "ddd" -> "<3d".
+            fmt = "<"
+            j = 0
+            while j < len(t):
+                n = 1
+                while j + n < len(t) and t[j + n] == t[j]:
+                    n += 1
+                fmt += t[j] if n == 1 else str(n) + t[j]
+                j += n
+            fmt = _intern(fmt)  # one qstr for every part with this format, not a str per part
             fields = None
             if name is None:
                 fields = names if first == 0 and len(t) == len(names) else names[first:first + len(t)]
             checks = None
             if _CHECK_INTS:
-                # (position, shift, allowed) per integer field, (shift, allowed) for an array: a value
-                # fits when shifting out its field's bits leaves 0 (or -1, signed).
-                checks = []
+                # One small int, so a plan holds no object for it: per integer field (or once for
+                # an array) the shift that _check_ints applies, seven bits per field position.
+                checks = 0
                 for j in range(1 if fields is None else len(t)):
                     k = _CODES.find(t[j])
                     if k < 8:
-                        checks.append((j, _SIZES[k] * 8 - (0 if k & 1 else 1), 0 if k & 1 else -1))
-                checks = (checks[0][1:] if fields is None else tuple(checks)) if checks else None
-                if checks is not None:
+                        checks |= (_SIZES[k] * 8 - 1 + (k & 1)) << 7 * j
+                if checks:
                     from xrce.msgs._ints import _check_ints
 
                     sys.modules["xrce.msgs"]._check_ints = _check_ints
+                else:
+                    checks = None
             step.append((name, kind, fmt, offset, fields, checks))
         steps[i] = tuple(step)
-    return tuple(steps)
+    steps = tuple(steps)
+    if not (nested and len(steps) == 1 and type(steps[0]) is tuple and len(steps[0]) == 3 and steps[0][2][0] is None):
+        cls._P = steps
+    return steps
