@@ -32,8 +32,11 @@ from run import PYTHON, cpu_seconds, record  # noqa: E402
 
 BURST_PERIOD_S = 0.001
 
-_ASYNCIO_RECEIVER = r"""
+# A receiver that reads every datagram waiting each time asyncio wakes it; {setup} runs first and
+# {on_datagram} once per datagram ("pass": the do-nothing asyncio floor).
+_ASYNCIO_TEMPLATE = r"""
 import asyncio, socket, sys
+{setup}
 async def main():
     loop = asyncio.get_running_loop()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -45,16 +48,18 @@ async def main():
                 sock.recvfrom(2048)
             except BlockingIOError:
                 return
+            {on_datagram}
     loop.add_reader(sock.fileno(), ready)
     print(sock.getsockname()[1], flush=True)
     await loop.run_in_executor(None, sys.stdin.readline)
 asyncio.run(main())
 """
 
+_ASYNCIO_RECEIVER = _ASYNCIO_TEMPLATE.format(setup="", on_datagram="pass")
+
 # The least a Python bridge can do per datagram: the asyncio reader above, publishing a Twist's
 # CDR bytes with rclpy for each datagram (argv: topic), the agent's job without XRCE.
-_BRIDGE_RECEIVER = r"""
-import asyncio, socket, sys
+_BRIDGE_RECEIVER = _ASYNCIO_TEMPLATE.format(on_datagram="publish(sample)", setup=r"""
 import rclpy
 from geometry_msgs.msg import Twist
 from rclpy.context import Context
@@ -69,24 +74,7 @@ node = Node("xrce_bridge_floor", context=context, start_parameter_services=False
 publisher = node.create_publisher(Twist, sys.argv[1],
                                   QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
 publish = publisher.publish
-sample = serialize_message(Twist())
-async def main():
-    loop = asyncio.get_running_loop()
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.setblocking(False)
-    def ready():
-        while True:
-            try:
-                sock.recvfrom(2048)
-            except BlockingIOError:
-                return
-            publish(sample)
-    loop.add_reader(sock.fileno(), ready)
-    print(sock.getsockname()[1], flush=True)
-    await loop.run_in_executor(None, sys.stdin.readline)
-asyncio.run(main())
-"""
+sample = serialize_message(Twist())""")
 
 _PYTHON_RECEIVER = r"""
 import socket, sys, threading

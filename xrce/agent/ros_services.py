@@ -110,14 +110,20 @@ class RosServices:
 
     # -- creation -----------------------------------------------------------------------------
 
-    def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
-                         qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+    def _service_endpoint(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                          qos: EndpointQosSpec):
+        """What a requester and a replier both resolve first: (owner key, participant record,
+        service class, ROS service name, QoS profile)."""
         owner, participant_record = self._participant_of(participant, ("participant",))
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
-        srv = service_class(service.request_type)
-        service_name = service_ros_name(service.service_name, service.request_topic)
-        profile = qos_profile(qos)
+        return (owner, participant_record, service_class(service.request_type),
+                service_ros_name(service.service_name, service.request_topic), qos_profile(qos))
+
+    def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
+                         qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+        owner, participant_record, srv, service_name, profile = self._service_endpoint(
+            key, participant, service, qos)
         self._get_loop()
         record = _RequesterRecord(owner, srv, on_reply)
         node = participant_record.node
@@ -127,12 +133,8 @@ class RosServices:
 
     def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                        qos: EndpointQosSpec, on_request: RequestCallback) -> None:
-        owner, participant_record = self._participant_of(participant, ("participant",))
-        if key in self._entities:
-            raise MiddlewareError("entity %r already exists" % (key,))
-        srv = service_class(service.request_type)
-        service_name = service_ros_name(service.service_name, service.request_topic)
-        profile = qos_profile(qos)
+        owner, participant_record, srv, service_name, profile = self._service_endpoint(
+            key, participant, service, qos)
         self._replier_counter += 1
         # entityKey: 3 bytes of a per-agent replier counter; entityKind 0x02 = user writer with key
         # (the reply writer a DDS replier would own).
