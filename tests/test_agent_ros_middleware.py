@@ -305,7 +305,7 @@ import sys
 from xrce.agent.launcher import _import_asyncio_without_tls
 _import_asyncio_without_tls()
 import asyncio
-from xrce.agent.middleware import EndpointQosSpec, TopicSpec
+from xrce.agent.middleware import EndpointQosSpec, TopicSpec, TypeNotReady
 from xrce.agent.observability import DIAGNOSTIC_ARRAY_TYPE, _diagnostic_type
 from xrce.agent.ros import RosMiddleware
 
@@ -318,7 +318,12 @@ async def main():
         for base, type_name in ((0x10, "sensor_msgs::msg::dds_::Imu_"),
                                 (0x20, "nav_msgs::msg::dds_::Odometry_"),
                                 (0x30, "tf2_msgs::msg::dds_::TFMessage_")):
-            mw.create_topic((1, base), (1, 1), TopicSpec("rt/footprint_%x" % base, type_name))
+            spec = TopicSpec("rt/footprint_%x" % base, type_name)
+            try:
+                mw.create_topic((1, base), (1, 1), spec)
+            except TypeNotReady as building:  # a fresh checkout builds tf2_msgs on first use
+                await asyncio.wait_for(asyncio.wrap_future(building.future), 100)
+                mw.create_topic((1, base), (1, 1), spec)
             mw.create_publisher((1, base + 1), (1, 1))
             mw.create_datawriter((1, base + 2), (1, base + 1), (1, base), qos)
             mw.create_subscriber((1, base + 3), (1, 1))
