@@ -324,6 +324,7 @@ async def main():
             except TypeNotReady as building:  # a fresh checkout builds tf2_msgs on first use
                 await asyncio.wait_for(asyncio.wrap_future(building.future), 100)
                 mw.create_topic((1, base), (1, 1), spec)
+                print("built", type_name)  # the build loaded its own modules: the test runs again
             mw.create_publisher((1, base + 1), (1, 1))
             mw.create_datawriter((1, base + 2), (1, base + 1), (1, base), qos)
             mw.create_subscriber((1, base + 3), (1, 1))
@@ -344,7 +345,10 @@ def test_bridging_common_types_imports_no_python_message_machinery(ros_domain): 
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-c", _FOOTPRINT_SCRIPT, str(ros_domain)],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr[-2000:]
+    for _attempt in range(2):
+        done = subprocess.run([sys.executable, "-c", _FOOTPRINT_SCRIPT, str(ros_domain)],
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr[-2000:]
+        if not done.stdout.startswith("built "):
+            break
     assert done.stdout.strip().splitlines()[-1:] in ([], [""]), done.stdout

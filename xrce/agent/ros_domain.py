@@ -23,7 +23,8 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   executor thread (measured 29 µs p50, 67 µs p99 from post to job). Between events the thread
   waits in rclpy with a long timeout: 0.0 % of a core idle, where the former 2 ms spin slices
   cost about 2 % (and ``spin()`` without a timeout busy-loops in this rclpy). The
-  SingleThreadedExecutor is woken with ``wake()``, which it supports.
+  SingleThreadedExecutor is woken by a guard condition of the agent node whose callback runs the
+  jobs (its own ``wake()`` does not end a ``spin_once`` that finds no callback ready).
 - Publishing and sending service responses need no executor and happen directly on the engine's
   thread: rcl publish/send_response are thread-safe.
 - Data from ROS reaches the engine through a bounded per-reader hand-off drained on the asyncio
@@ -86,9 +87,9 @@ class DomainRuntime:
             self.executor = SingleThreadedExecutor(context=self.context)
         else:
             raise MiddlewareError("unknown executor %r" % (executor_kind,))
-        # SingleThreadedExecutor may be woken from any thread; the events executor only through
-        # the wake topic (see module docstring).
-        self._wakeable = executor_kind == EXECUTOR_SINGLE
+        # SingleThreadedExecutor is woken through a guard condition with a callback; the events
+        # executor only through the wake topic (see module docstring).
+        self._wake_guard = None
         self._events = executor_kind == EXECUTOR_EVENTS
         self._idle_wait_s = idle_wait_s
         self._jobs: queue.SimpleQueue = queue.SimpleQueue()
@@ -121,6 +122,12 @@ class DomainRuntime:
             publisher = node.create_publisher(wake_type, topic, profile)
             publish = publisher.publish
             self._wake_publisher = lambda: publish(_WAKE_SAMPLE)
+        else:
+            # Not executor.wake(): that trigger only makes spin_once rebuild its wait set and wait
+            # again for the rest of its timeout when no callback is ready (the jobs then waited up
+            # to 5 s, about 1 call in 6 under load). A guard condition with a callback is work the
+            # executor runs, so spin_once returns after it.
+            self._wake_guard = node.create_guard_condition(self._on_wake)
 
     def _on_wake(self, _sample) -> None:
         """Wake topic callback (executor thread)."""
@@ -128,8 +135,8 @@ class DomainRuntime:
         self._run_jobs()
 
     def _wake(self) -> None:
-        if self._wakeable:
-            self.executor.wake()
+        if self._wake_guard is not None:
+            self._wake_guard.trigger()
         elif self._wake_publisher is not None:
             if not self._wake_pending:
                 self._wake_pending = True
@@ -210,6 +217,7 @@ class DomainRuntime:
 
     def _destroy_all_nodes(self) -> None:
         self._wake_publisher = None  # its node goes too
+        self._wake_guard = None
         for node in list(self.nodes):
             self.executor.remove_node(node)
             node.destroy_node()
