@@ -72,7 +72,9 @@ def _forward_output(proc, prefix):
     return thread
 
 
-def _stop_child(proc, timeout_s=10.0):
+def stop_child(proc, timeout_s=10.0):
+    """SIGINT ``proc`` as Ctrl-C would (an agent then destroys its ROS entities), wait, and kill it
+    if it hangs. The benches stop their child processes with it too."""
     if proc is None or proc.poll() is not None:
         return
     proc.send_signal(signal.SIGINT)
@@ -163,8 +165,8 @@ def run(args):
         _ros_side(domain, have_sensor_state, stop, args.duration)
         return 0
     finally:
-        _stop_child(robot)
-        _stop_child(agent)
+        stop_child(robot)
+        stop_child(agent)
         for signum, handler in previous.items():
             signal.signal(signum, handler)
         _say("%s: stopped" % PROG)
