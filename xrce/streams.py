@@ -5,12 +5,32 @@
 # retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
 # client resends everything unacknowledged, which is wire-compatible but wasteful).
 
-from xrce.compat import ticks_diff
+from xrce.compat import const, ticks_diff
 from xrce.errors import EncodeError
-from xrce.seqnum import seq_add, seq_less, seq_sub
 
-SEQ_INITIAL = 0xFFFF  # "last sent/handled" before the first message, so the first seq is 0
-NACK_BITS = 16
+SEQ_INITIAL = const(0xFFFF)  # "last sent/handled" before the first message, so the first seq is 0
+NACK_BITS = const(16)
+SEQ_MODULO = const(0x10000)
+_HALF = const(0x8000)
+
+
+# 16-bit serial-number arithmetic (XRCE-WIRE.md §1), identical on both sides. Here rather than in a
+# module of their own (xrce.seqnum re-exports them): a module costs a board its object, dictionary
+# and names.
+def seq_add(seq, delta):
+    return (seq + delta) & 0xFFFF
+
+
+def seq_sub(a, b):
+    # Distance from b forward to a, in 0..65535.
+    return (a - b) & 0xFFFF
+
+
+def seq_less(a, b):
+    # True if a precedes b in serial-number order.
+    if a == b:
+        return False
+    return (a < b and b - a < _HALF) or (a > b and a - b > _HALF)
 
 
 def is_reliable(stream_id):
