@@ -13,28 +13,14 @@ from xrce.errors import DecodeError, EncodeError
 # xrce.constants names these too; local constants fold into the code and spare a board that module.
 _CREATE_CLIENT = const(0)
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
+_SUBHEADER_SIZE = const(4)
 
-HEADER_SIZE_NO_KEY = 4
-HEADER_SIZE_WITH_KEY = 8
-SUBHEADER_SIZE = 4
+HEADER_SIZE_NO_KEY = const(4)
+HEADER_SIZE_WITH_KEY = const(8)
 
 
 def header_size(session_id):
     return HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
-
-
-def encode_header(buf, session_id, stream_id, seq, key=None):
-    # Write a header at buf[0:]; returns its size.
-    buf[0] = session_id
-    buf[1] = stream_id
-    buf[2] = seq & 0xFF
-    buf[3] = (seq >> 8) & 0xFF
-    if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
-        if key is None or len(key) != 4:
-            raise EncodeError("a session id below 0x80 needs a 4-byte client key")
-        buf[4:8] = key
-        return HEADER_SIZE_WITH_KEY
-    return HEADER_SIZE_NO_KEY
 
 
 # Header and decode_header live in xrce/message_header.py and load on first use: the agent decodes
@@ -58,11 +44,11 @@ def iter_submessages(buf, start, end=None):
     # span runs to the end of the message.
     end = len(buf) if end is None else end
     pos = start
-    while end - pos >= SUBHEADER_SIZE:
+    while end - pos >= _SUBHEADER_SIZE:
         sub_id = buf[pos]
         flags = buf[pos + 1]
         length = buf[pos + 2] | (buf[pos + 3] << 8)
-        payload_start = pos + SUBHEADER_SIZE
+        payload_start = pos + _SUBHEADER_SIZE
         payload_end = payload_start + length
         if sub_id == _CREATE_CLIENT:
             payload_end = end
@@ -78,17 +64,25 @@ class MessageWriter:
     # ``begin`` writes the header; ``begin_submessage``/``end_submessage`` frame a payload written
     # with ``self.w`` (a CdrWriter whose origin is the message start, as both eProsima peers do).
 
-    __slots__ = ("buf", "w", "_sub_start", "limit")
+    __slots__ = ("buf", "w", "_sub_start")
 
-    def __init__(self, capacity=512, limit=None):
+    def __init__(self, capacity=512):
         self.buf = bytearray(capacity)
         self.w = cdr.CdrWriter(self.buf, 0, 0)
         self._sub_start = -1
-        self.limit = limit
 
     def begin(self, session_id, stream_id, seq, key=None):
-        self.w.buf = self.buf
-        size = encode_header(self.buf, session_id, stream_id, seq, key)
+        # Write the header (XRCE-WIRE.md §1) and start the message after it.
+        buf = self.w.buf = self.buf
+        buf[0] = session_id
+        buf[1] = stream_id
+        self.set_seq(seq)
+        size = HEADER_SIZE_NO_KEY
+        if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
+            if key is None or len(key) != 4:
+                raise EncodeError("a session id below 0x80 needs a 4-byte client key")
+            buf[4:8] = key
+            size = HEADER_SIZE_WITH_KEY
         self.w.reset(size, 0)
         return self
 
@@ -99,19 +93,19 @@ class MessageWriter:
     def begin_submessage(self, sub_id, flags):
         w = self.w
         w.align(4)
-        w.reserve(SUBHEADER_SIZE)
+        w.reserve(_SUBHEADER_SIZE)
         b = w.buf
         b[w.pos] = sub_id
         b[w.pos + 1] = flags
         self._sub_start = w.pos
-        w.pos += SUBHEADER_SIZE
+        w.pos += _SUBHEADER_SIZE
         return w
 
     def end_submessage(self, length=None):
         # Patch the length of the open submessage (``length`` overrides the measured one).
         w = self.w
         if length is None:
-            length = w.pos - self._sub_start - SUBHEADER_SIZE
+            length = w.pos - self._sub_start - _SUBHEADER_SIZE
         if length > 0xFFFF:
             raise EncodeError("submessage payload longer than 65535 bytes")
         struct.pack_into("<H", w.buf, self._sub_start + 2, length)
@@ -119,10 +113,6 @@ class MessageWriter:
 
     def pad_to_4(self):
         self.w.align(4)
-
-    @property
-    def size(self):
-        return self.w.pos
 
     def getvalue(self):
         self.buf = self.w.buf  # the writer may have grown the buffer

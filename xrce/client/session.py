@@ -469,10 +469,10 @@ class Session:
             if not out.has_content and not self._begin_with_room(out):
                 return False
             mw = out.mw
-            mark = mw.size
+            mark = mw.w.pos
             payload.encode(mw.begin_submessage(payload.ID, payload.flags))
             mw.end_submessage()
-            end = mw.size
+            end = mw.w.pos
             if end <= self.max_message:
                 out.has_content = True
                 return True
