@@ -31,10 +31,10 @@ def _blob(service_name, request_type, reply_type, request_topic, reply_topic):
 
 def _endpoint(session, kind, participant_id, service_name, request_type, reply_type, request_topic,
               reply_topic, xml, ref, object_id, stream_id, flags):
-    fmt, rep = session._representation(xml, ref, None)
-    if rep is None:
-        rep = _blob(service_name, request_type, reply_type, request_topic, reply_topic)
-    return session._create(kind, fmt, rep, participant_id, object_id, stream_id, flags)
+    blob = None
+    if xml is None and ref is None:
+        blob = _blob(service_name, request_type, reply_type, request_topic, reply_topic)
+    return session._create(kind, blob, participant_id, object_id, stream_id, flags, xml, ref)
 
 
 def create_requester(session, participant_id, service_name=None, request_type=None, reply_type=None,

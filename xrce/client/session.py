@@ -65,8 +65,6 @@ _OBJK_DATAREADER = const(0x06)
 _OBJK_REQUESTER = const(0x07)
 _OBJK_AGENT = const(0x0D)
 _OBJECTID_CLIENT = const(0xFFFE)
-_REPRESENTATION_BY_REFERENCE = const(0x01)
-_REPRESENTATION_AS_XML_STRING = const(0x02)
 _REPRESENTATION_IN_BINARY = const(0x03)
 _STATUS_OK = const(0x00)
 _STATUS_OK_MATCHED = const(0x01)
@@ -216,15 +214,12 @@ class Session:
         self._control.end_submessage(16)
         self._send(self._control.view())
 
-    def _ping_message(self):
+    def _send_ping(self):
+        # GET_INFO in the session (a control message: always the same bytes).
         w = self._begin_control(_GET_INFO)
         w.raw(b"\x00\x0a\xff\xfd")  # REQUEST_ID_PING, OBJECTID_AGENT
         w.u32(_INFO_ACTIVITY)
-        self._control.end_submessage()
-        return self._control.view()
-
-    def _send_ping(self):
-        self._send(self._ping_message())
+        self._send_control()
 
     def delete(self, attempts=10, timeout_ms=1000):
         # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
@@ -270,10 +265,16 @@ class Session:
 
     # ------------------------------------------------------------------ entity creation
 
-    def _create(self, kind, fmt, representation, tail_id, object_id_, stream_id, flags):
+    def _create(self, kind, blob, tail_id, object_id_, stream_id, flags, xml=None, ref=None):
+        # ``blob``: the binary representation, unused when an ``xml`` or ``ref`` text is given.
+        fmt = _REPRESENTATION_IN_BINARY
+        if xml is not None or ref is not None:
+            # XML and reference creation cost a board nothing until used.
+            from xrce.client.representations import textual
+            fmt, blob = textual(xml, ref)
         oid = self.new_object_id(kind) if object_id_ is None else object_id_
         rid = self.next_request_id()
-        payload = wire.create(rid, oid, kind, fmt, representation, tail_id, _FLAG_LITTLE_ENDIAN | flags)
+        payload = wire.create(rid, oid, kind, fmt, blob, tail_id, _FLAG_LITTLE_ENDIAN | flags)
         self._buffer(stream_id, payload)
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
@@ -281,38 +282,26 @@ class Session:
             self._creations.append((oid, payload.body))
         return oid
 
-    @staticmethod
-    def _representation(xml, ref, binary):
-        if ref is not None:
-            return _REPRESENTATION_BY_REFERENCE, ref
-        if xml is not None:
-            return _REPRESENTATION_AS_XML_STRING, xml
-        return _REPRESENTATION_IN_BINARY, binary
-
     def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
                            stream_id=None, flags=_REUSE_REPLACE):
         # A participant (a ROS node on the agent). Returns its object id; the request is buffered.
-        fmt, rep = self._representation(xml, ref, None)
-        if rep is None:
-            rep = wire.participant_blob(name)
-        return self._create(_OBJK_PARTICIPANT, fmt, rep, domain_id, object_id, stream_id, flags)
+        return self._create(_OBJK_PARTICIPANT, wire.participant_blob(name), domain_id, object_id,
+                            stream_id, flags, xml, ref)
 
     def create_topic(self, participant_id, topic_name=None, type_name=None, xml=None, ref=None,
                      object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        fmt, rep = self._representation(xml, ref, None)
-        if rep is None:
-            rep = wire.topic_blob(topic_name, type_name)
-        return self._create(_OBJK_TOPIC, fmt, rep, participant_id, object_id, stream_id, flags)
+        blob = wire.topic_blob(topic_name, type_name) if xml is None and ref is None else None
+        return self._create(_OBJK_TOPIC, blob, participant_id, object_id, stream_id, flags, xml, ref)
 
     def create_publisher(self, participant_id, xml=None, object_id=None, stream_id=None,
                          flags=_REUSE_REPLACE):
-        fmt, rep = self._representation(xml, None, wire.PUBSUB_BLOB)
-        return self._create(_OBJK_PUBLISHER, fmt, rep, participant_id, object_id, stream_id, flags)
+        return self._create(_OBJK_PUBLISHER, wire.PUBSUB_BLOB, participant_id, object_id, stream_id,
+                            flags, xml)
 
     def create_subscriber(self, participant_id, xml=None, object_id=None, stream_id=None,
                           flags=_REUSE_REPLACE):
-        fmt, rep = self._representation(xml, None, wire.PUBSUB_BLOB)
-        return self._create(_OBJK_SUBSCRIBER, fmt, rep, participant_id, object_id, stream_id, flags)
+        return self._create(_OBJK_SUBSCRIBER, wire.PUBSUB_BLOB, participant_id, object_id, stream_id,
+                            flags, xml)
 
     @staticmethod
     def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
@@ -324,16 +313,16 @@ class Session:
         return flags, depth if depth else None
 
     def _endpoint(self, kind, parent_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
-        fmt, rep = self._representation(xml, ref, None)
-        if rep is None:
+        blob = None
+        if xml is None and ref is None:
             if qos is None:
                 qos = self.endpoint_qos()
             if isinstance(qos, tuple):
-                rep = wire.endpoint_blob(topic_id, qos[0], qos[1], kind == _OBJK_DATAREADER)
+                blob = wire.endpoint_blob(topic_id, qos[0], qos[1], kind == _OBJK_DATAREADER)
             else:  # a full EndpointQos (deadline, lifespan, user data): the general codec
-                from xrce.objects import DataReaderBin, DataWriterBin
-                rep = (DataReaderBin if kind == _OBJK_DATAREADER else DataWriterBin)(topic_id, qos).to_blob()
-        return self._create(kind, fmt, rep, parent_id, object_id_, stream_id, flags)
+                from xrce.client.representations import endpoint_blob
+                blob = endpoint_blob(kind, topic_id, qos)
+        return self._create(kind, blob, parent_id, object_id_, stream_id, flags, xml, ref)
 
     def create_datawriter(self, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
                           object_id=None, stream_id=None, flags=_REUSE_REPLACE):
@@ -446,18 +435,6 @@ class Session:
 
     # ------------------------------------------------------------------ output path
 
-    def _begin(self, out):
-        # Open a new message on ``out``; False if a reliable window has no free slot.
-        if out.reliable:
-            seq = out.state.next_seq()
-            if seq is None:
-                return False
-        else:
-            seq = 0  # best-effort messages get their sequence number when sent
-        out.mw.begin(self.session_id, out.stream_id, seq, self._header_key)
-        out.has_content = False
-        return True
-
     def _buffer(self, stream_id, payload):
         # Append ``payload`` to its stream's open message; True when it is buffered or sent.
         if stream_id is None:
@@ -495,14 +472,24 @@ class Session:
         return write_fragmented(self, out, body)
 
     def _begin_with_room(self, out, timeout_ms=1000):
-        if self._begin(out):
-            return True
-        if not out.reliable or not self.connected:
-            return False  # a lost link frees no room until the session is re-created
-        self._wait(timeout_ms, out.state.has_room)
-        if out.has_content:
-            return True  # a callback run while waiting opened a message: append to it
-        return self._begin(out)
+        # Open a new message on ``out``. A reliable stream whose window is full spins up to
+        # ``timeout_ms`` for room; False if none came.
+        if out.reliable:
+            seq = out.state.next_seq()
+            if seq is None:
+                if not self.connected:
+                    return False  # a lost link frees no room until the session is re-created
+                self._wait(timeout_ms, out.state.has_room)
+                if out.has_content:
+                    return True  # a callback run while waiting opened a message: append to it
+                seq = out.state.next_seq()
+                if seq is None:
+                    return False
+        else:
+            seq = 0  # best-effort messages get their sequence number when sent
+        out.mw.begin(self.session_id, out.stream_id, seq, self._header_key)
+        out.has_content = False
+        return True
 
     def _close_message(self, out):
         # Send the open message of ``out`` (trailing padding to 4, as the C client).
@@ -546,20 +533,6 @@ class Session:
         if stream_id not in self._next_heartbeat:
             self._next_heartbeat[stream_id] = ticks_add(ticks_ms(), self.heartbeat_ms)
 
-    def _send_due_heartbeats(self, now):
-        for stream_id, due in list(self._next_heartbeat.items()):
-            state = self._outputs[stream_id].state
-            bounds = state.heartbeat()
-            if bounds is None:
-                del self._next_heartbeat[stream_id]
-            elif ticks_diff(now, due) >= 0:
-                w = self._begin_control(_HEARTBEAT)
-                w.u16(bounds[0])
-                w.u16(bounds[1])
-                w.u8(stream_id)
-                self._send_control()
-                self._next_heartbeat[stream_id] = ticks_add(now, self.heartbeat_ms)
-
     # ------------------------------------------------------------------ running
 
     def _wait(self, timeout_ms, done):
@@ -594,7 +567,19 @@ class Session:
         return data is not None
 
     def _periodic(self, now):
-        self._send_due_heartbeats(now)
+        # Heartbeats that are due, then the link monitor.
+        for stream_id, due in list(self._next_heartbeat.items()):
+            state = self._outputs[stream_id].state
+            bounds = state.heartbeat()
+            if bounds is None:
+                del self._next_heartbeat[stream_id]
+            elif ticks_diff(now, due) >= 0:
+                w = self._begin_control(_HEARTBEAT)
+                w.u16(bounds[0])
+                w.u16(bounds[1])
+                w.u8(stream_id)
+                self._send_control()
+                self._next_heartbeat[stream_id] = ticks_add(now, self.heartbeat_ms)
         if self.link is not None:
             self.link.poll(now)
 
@@ -647,11 +632,10 @@ class Session:
     def ping(self, timeout_ms=1000, attempts=1):
         # GET_INFO inside the session: True only if the agent still knows this session.
         self.flush()
-        message = bytes(self._ping_message())
         for _ in range(attempts):
             self._pong_in_session = False
             sent = ticks_us()
-            self._send(message)
+            self._send_ping()
             if self._wait(timeout_ms, lambda: self._pong_in_session):
                 self.last_rtt_us = ticks_diff(ticks_us(), sent)
                 return True
@@ -767,21 +751,18 @@ class Session:
                 elif rid in self._statuses:  # only requests someone waits for (not re-creations)
                     self._statuses[rid] = buf[s + 4]
             elif sub_id == _INFO:
-                self._on_info(buf, flags, s, e)
+                impl_status, availability = _agent_activity(buf, flags, s, e)
+                if availability is not None and availability > 0:
+                    if impl_status == 1:
+                        self._pong_in_session = True
+                    elif self.connected:
+                        self._session_unknown = True  # an agent answers, no longer knowing this session
             elif sub_id == _TIMESTAMP_REPLY:
                 self._on_timestamp_reply(buf, flags, s, e)
             elif sub_id == _STATUS_AGENT:
                 if e - s < 1:
                     raise DecodeError("empty STATUS_AGENT")
                 self.create_status = buf[s]
-
-    def _on_info(self, buf, flags, s, e):
-        impl_status, availability = _agent_activity(buf, flags, s, e)
-        if availability is not None and availability > 0:
-            if impl_status == 1:
-                self._pong_in_session = True
-            elif self.connected:
-                self._session_unknown = True  # an agent answers but no longer knows this session
 
     def _on_data(self, buf, flags, s, e):
         if e - s < 4:
