@@ -11,6 +11,7 @@ package(
         "client/fragments.py",
         "client/ping.py",
         "client/recovery.py",
+        "client/representations.py",
         "client/services.py",
         "client/session.py",
         "client/teardown.py",
