@@ -1,13 +1,7 @@
 # The constrained XRCE client (runs on MicroPython and CPython).
 
-from xrce.client.session import Session, SessionError
+# The session module's __getattr__ loads ping_agent (and discover_agents) on first use, for this
+# package too: `from xrce.client import ping_agent` costs a board nothing until it runs.
+from xrce.client.session import Session, SessionError, __getattr__  # noqa: F401
 
 __all__ = ["Session", "SessionError", "ping_agent"]
-
-
-def __getattr__(name):
-    # ping_agent lives in xrce.client.ping, loaded on first use.
-    if name == "ping_agent":
-        from xrce.client.ping import ping_agent
-        return ping_agent
-    raise AttributeError(name)

@@ -13,10 +13,17 @@ _FLAG_LAST_FRAGMENT = const(0x02)
 _SUBHEADER_SIZE = const(4)
 
 
-def write_fragmented(session, out, body):
-    # Cut one encoded submessage (header, payload, padding to 4) into FRAGMENTs, each alone in a
-    # fresh reliable message of ``out``.
-    body = memoryview(body)
+def write_fragmented(session, out, mark, end):
+    # Cut the submessage the session just wrote into ``out``'s open message at ``mark``..``end``
+    # (header, payload, padding to 4) into FRAGMENTs, each alone in a fresh reliable message of
+    # ``out``. Its bytes do not depend on where it starts (a sample aligns from its own first byte,
+    # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
+    mw = out.mw
+    w = mw.w
+    w.pos = end
+    mw.pad_to_4()
+    body = memoryview(bytes(w.buf[mark:w.pos]))
+    w.pos = mark
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)
     pos = 0

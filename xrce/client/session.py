@@ -460,16 +460,9 @@ class Session:
             self._close_message(out)  # the open message is full: send it and retry in a fresh one
         if not out.reliable:
             return False  # a best-effort message cannot be fragmented (the C client refuses too)
-        # Too big for any message: fragment the submessage just written. Its bytes do not depend on
-        # where it starts (a sample aligns from its own first byte, and a submessage starts
-        # 4-aligned), so they are cut as they are instead of encoded again.
-        w = mw.w
-        w.pos = end
-        mw.pad_to_4()
-        body = bytes(w.buf[mark:w.pos])
-        w.pos = mark
+        # Too big for any message: fragment the submessage just written at ``mark``..``end``.
         from xrce.client.fragments import write_fragmented
-        return write_fragmented(self, out, body)
+        return write_fragmented(self, out, mark, end)
 
     def _begin_with_room(self, out, timeout_ms=1000):
         # Open a new message on ``out``. A reliable stream whose window is full spins up to
