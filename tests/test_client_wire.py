@@ -14,6 +14,17 @@ from xrce.submessages import (
 )
 
 
+class _Lean:
+    # A request as the session writes it (wire.put_request), shaped for write_submessage.
+
+    def __init__(self, sub_id, flags, request_id, object_id, body):
+        self.ID, self.flags = sub_id, flags
+        self.request_id, self.object_id, self.body = request_id, object_id, body
+
+    def encode(self, w):
+        wire.put_request(w, self.request_id, self.object_id, self.body)
+
+
 def _message(payload, session_id=0x81):
     mw = MessageWriter(64)
     mw.begin(session_id, 0x80, 3)
@@ -53,7 +64,7 @@ def test_endpoint_blobs(flags, depth):
 ])
 def test_create_binary(kind, rep, tail):
     flags = C.FLAG_LITTLE_ENDIAN | C.FLAG_REUSE | C.FLAG_REPLACE
-    lean = wire.create(0x1234, 0x0156, kind, C.REPRESENTATION_IN_BINARY, rep.to_blob(), tail, flags)
+    lean = _Lean(C.CREATE, flags, 0x1234, 0x0156, wire.create_body(kind, C.REPRESENTATION_IN_BINARY, rep.to_blob(), tail))
     assert _message(lean) == _message(Create(0x1234, 0x0156, kind, C.REPRESENTATION_IN_BINARY, rep, tail, flags))
 
 
@@ -61,15 +72,16 @@ def test_create_binary(kind, rep, tail):
                                        (C.REPRESENTATION_BY_REFERENCE, "profile"),
                                        (C.REPRESENTATION_AS_XML_STRING, "")])
 def test_create_text(fmt, text):
-    lean = wire.create(11, 0x0011, C.OBJK_TOPIC, fmt, text, 0x0001, 1)
+    lean = _Lean(C.CREATE, 1, 11, 0x0011, wire.create_body(C.OBJK_TOPIC, fmt, text, 0x0001))
     assert _message(lean) == _message(Create(11, 0x0011, C.OBJK_TOPIC, fmt, text, 0x0001, 1))
 
 
 @pytest.mark.parametrize("delivery", [None, (0xFFFF, 0, 0, 0), (3, 2, 100, 7), (0, 0, 0, 0)])
 def test_read_data_and_delete(delivery):
     control = DeliveryControl(*delivery) if delivery is not None else None
-    assert _message(wire.read_data(12, 0x0016, 0x80, delivery)) == _message(ReadData(12, 0x0016, 0x80, control))
-    assert _message(wire.delete(13, 0x0016)) == _message(Delete(13, 0x0016))
+    lean = _Lean(C.READ_DATA, 1, 12, 0x0016, wire.read_data_body(0x80, delivery))
+    assert _message(lean) == _message(ReadData(12, 0x0016, 0x80, control))
+    assert _message(_Lean(C.DELETE, 1, 13, 0x0016, b"")) == _message(Delete(13, 0x0016))
 
 
 class _Capture:

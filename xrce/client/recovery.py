@@ -11,11 +11,12 @@
 # an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
 # the session's run loops.
 
-from xrce.client.wire import Request
 from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 
 _OBJK_PARTICIPANT = const(0x01)
 _CREATE = const(1)
+_READ_DATA = const(8)
+_FLAG_LITTLE_ENDIAN = const(0x01)
 _FLAGS_REUSE_REPLACE = const(0x07)  # little-endian | FLAG_REUSE | FLAG_REPLACE
 
 LINK_CONNECTED = 0
@@ -64,11 +65,9 @@ class LinkMonitor:
         session._reset_streams()
         session._last_heard = ticks_ms()
         for object_id, body in session._creations:
-            rid = session.next_request_id()
-            session._buffer(None, Request(_CREATE, _FLAGS_REUSE_REPLACE, rid, object_id, body))
-        for read in session._read_requests.values():
-            read.request_id = session.next_request_id()
-            session._buffer(None, read)
+            session._buffer(None, _CREATE, _FLAGS_REUSE_REPLACE, session.next_request_id(), object_id, body)
+        for reader_id, body in session._read_requests.items():
+            session._buffer(None, _READ_DATA, _FLAG_LITTLE_ENDIAN, session.next_request_id(), reader_id, body)
         session.flush()
 
     def forget(self, object_id):

@@ -42,12 +42,14 @@ _STREAM_NONE = const(0x00)
 _BUILTIN_BEST_EFFORT = const(0x01)
 _BUILTIN_RELIABLE = const(0x80)
 _CREATE_CLIENT = const(0)
+_CREATE = const(1)
 _GET_INFO = const(2)
 _DELETE = const(3)
 _STATUS_AGENT = const(4)
 _STATUS = const(5)
 _INFO = const(6)
 _WRITE_DATA = const(7)
+_READ_DATA = const(8)
 _DATA = const(9)
 _ACKNACK = const(10)
 _HEARTBEAT = const(11)
@@ -151,7 +153,6 @@ class Session:
         self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
         self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
-        self._sample = wire.Request(_WRITE_DATA, _FLAG_LITTLE_ENDIAN, 0, 0, None)  # | FORMAT_DATA (0)
         self.last_request_id = _FIRST_REQUEST_ID - 1
         self._object_counters = {}
         self._statuses = {}
@@ -165,7 +166,7 @@ class Session:
         self._last_heard = ticks_ms()
         self._session_unknown = False
         # What to re-create after the agent lost the session (see xrce.client.recovery): a CREATE's
-        # (object id, body), the rest of the request is rebuilt then.
+        # (object id, body) and a READ_DATA's body by reader id; the request ids are new then.
         self._creations = []
         self._read_requests = {}
         self.link = None
@@ -274,12 +275,12 @@ class Session:
             fmt, blob = textual(xml, ref)
         oid = self.new_object_id(kind) if object_id_ is None else object_id_
         rid = self.next_request_id()
-        payload = wire.create(rid, oid, kind, fmt, blob, tail_id, _FLAG_LITTLE_ENDIAN | flags)
-        self._buffer(stream_id, payload)
+        body = wire.create_body(kind, fmt, blob, tail_id)
+        self._buffer(stream_id, _CREATE, _FLAG_LITTLE_ENDIAN | flags, rid, oid, body)
         self._statuses[rid] = _STATUS_NONE
         if self.link is not None:
             self.link.forget(oid)
-            self._creations.append((oid, payload.body))
+            self._creations.append((oid, body))
         return oid
 
     def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
@@ -397,10 +398,10 @@ class Session:
         rid = self.next_request_id()
         if data_stream_id is None:
             data_stream_id = self.reliable
-        request = wire.read_data(rid, reader_id, data_stream_id, control)
-        self._buffer(stream_id, request)
+        body = wire.read_data_body(data_stream_id, control)
+        self._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id, body)
         if self.link is not None:
-            self._read_requests[reader_id] = request
+            self._read_requests[reader_id] = body
         return rid
 
     def write(self, writer_id, data, stream_id=None):
@@ -418,25 +419,18 @@ class Session:
             # dropped every sample until the stream caught up (issue 12: 3.5-7 s at 20 Hz).
             self.dropped_writes += 1
             return 0
-        sample = self._sample
-        sample.request_id = self.next_request_id()
-        sample.object_id = object_id_
-        sample.prefix = prefix
-        sample.body = data
-        try:
-            ok = self._buffer(stream_id, sample)
-        finally:
-            sample.body = None
-            sample.prefix = None
-        if not ok:
+        rid = self.next_request_id()
+        # FORMAT_DATA (0) in the flags
+        if not self._buffer(stream_id, _WRITE_DATA, _FLAG_LITTLE_ENDIAN, rid, object_id_, data, prefix):
             self.dropped_writes += 1
             return 0
-        return sample.request_id
+        return rid
 
     # ------------------------------------------------------------------ output path
 
-    def _buffer(self, stream_id, payload):
-        # Append ``payload`` to its stream's open message; True when it is buffered or sent.
+    def _buffer(self, stream_id, sub_id, flags, request_id, object_id_, body, prefix=None):
+        # Append a request submessage (see ``wire.put_request``) to its stream's open message; True
+        # when it is buffered or sent.
         if stream_id is None:
             stream_id = self.reliable
         out = self._outputs.get(stream_id)
@@ -447,7 +441,7 @@ class Session:
                 return False
             mw = out.mw
             mark = mw.w.pos
-            payload.encode(mw.begin_submessage(payload.ID, payload.flags))
+            wire.put_request(mw.begin_submessage(sub_id, flags), request_id, object_id_, body, prefix)
             mw.end_submessage()
             end = mw.w.pos
             if end <= self.max_message:

@@ -8,58 +8,33 @@
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
 from xrce.cdr import CdrWriter
+from xrce.compat import const
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
-
-_CREATE = const(1)
-_DELETE = const(3)
-_READ_DATA = const(8)
 _OBJK_PARTICIPANT = const(1)
 _OBJK_REPLIER = const(8)
 _REPRESENTATION_IN_BINARY = const(3)
 
 
-# CREATE, DELETE, READ_DATA and WRITE_DATA: the ids, then a body prepared once (bytes) or, for
-# WRITE_DATA, a message encoded in place, after an optional prefix (a reply's sample identity). A
-# session keeps its CREATEs and READ_DATAs to send again after the agent lost the session, and one
-# WRITE_DATA it refills for every sample, so a write allocates nothing here.
-class Request:
-    # A CREATE's body starts with the object kind and, but for a participant (domain id), ends
-    # with the parent's object id: xrce.client.recovery keeps only (object id, body) and reads them
-    # there.
-    __slots__ = ("ID", "flags", "request_id", "object_id", "body", "prefix")
-
-    def __init__(self, sub_id, flags, request_id, object_id, body):
-        self.ID = sub_id
-        self.flags = flags
-        self.request_id = request_id
-        self.object_id = object_id
-        self.body = body
-        self.prefix = None
-
-    def encode(self, w):
-        rid = self.request_id
-        oid = self.object_id
-        w.u8(rid >> 8)
-        w.u8(rid & 0xFF)
-        w.u8(oid >> 8)
-        w.u8(oid & 0xFF)
-        if self.prefix is not None:
-            w.raw(self.prefix)
-        body = self.body
-        if isinstance(body, (bytes, bytearray, memoryview)):
-            w.raw(body)
-        else:
-            saved = w.origin
-            w.origin = w.pos  # a sample is aligned from its own first byte (§14)
-            try:
-                body.encode(w)
-            finally:
-                w.origin = saved
+# CREATE, DELETE, READ_DATA and WRITE_DATA: the request and object ids, then a body prepared once
+# (bytes) or, for WRITE_DATA, a message encoded in place after an optional prefix (a reply's sample
+# identity). A session keeps the bodies of its CREATEs and READ_DATAs to send them again, under new
+# request ids, after the agent lost the session; a write allocates nothing here.
+def put_request(w, request_id, object_id, body, prefix=None):
+    w.u8(request_id >> 8)
+    w.u8(request_id & 0xFF)
+    w.u8(object_id >> 8)
+    w.u8(object_id & 0xFF)
+    if prefix is not None:
+        w.raw(prefix)
+    if isinstance(body, (bytes, bytearray, memoryview)):
+        w.raw(body)
+    else:
+        saved = w.origin
+        w.origin = w.pos  # a sample is aligned from its own first byte (§14)
+        try:
+            body.encode(w)
+        finally:
+            w.origin = saved
 
 
 # A payload starts 4-aligned in its message and the ids take 4 bytes, so a body written from
@@ -72,7 +47,9 @@ def _body(w):
     return bytes(w.buf[4:w.pos])
 
 
-def create(request_id, object_id, kind, fmt, representation, tail_id, flags):
+# A CREATE's body starts with the object kind and, but for a participant (domain id), ends with
+# the parent's object id: xrce.client.recovery reads them there.
+def create_body(kind, fmt, representation, tail_id):
     # representation: blob bytes (fmt binary) or the XML/reference text.
     w = _body_writer()
     w.u8(kind)
@@ -86,16 +63,12 @@ def create(request_id, object_id, kind, fmt, representation, tail_id, flags):
     elif kind <= _OBJK_REPLIER:
         w.u8(tail_id >> 8)
         w.u8(tail_id & 0xFF)
-    return Request(_CREATE, flags, request_id, object_id, _body(w))
+    return _body(w)
 
 
-def delete(request_id, object_id):
-    return Request(_DELETE, 1, request_id, object_id, b"")
-
-
-# READ_DATA with an optional DeliveryControl (max_samples, max_elapsed_time, max_bytes_per_second,
-# min_pace_period), FORMAT_DATA and no content filter.
-def read_data(request_id, object_id, stream_id, delivery):
+# READ_DATA's body: the stream to deliver on, FORMAT_DATA, no content filter, and an optional
+# DeliveryControl (max_samples, max_elapsed_time, max_bytes_per_second, min_pace_period).
+def read_data_body(stream_id, delivery):
     w = _body_writer()
     w.u8(stream_id)
     w.u8(0)
@@ -104,7 +77,7 @@ def read_data(request_id, object_id, stream_id, delivery):
     if delivery is not None:
         for value in delivery:
             w.u16(value)
-    return Request(_READ_DATA, 1, request_id, object_id, _body(w))
+    return _body(w)
 
 
 # Binary object representations (XRCE-WIRE.md §4): CDR blobs aligned from their own first byte.
