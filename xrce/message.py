@@ -58,22 +58,21 @@ def iter_submessages(buf, start, end=None):
         pos = (payload_end + 3) & ~3
 
 
-class MessageWriter:
-    # Builds one message in a reusable buffer.
-    #
-    # ``begin`` writes the header; ``begin_submessage``/``end_submessage`` frame a payload written
-    # with ``self.w`` (a CdrWriter whose origin is the message start, as both eProsima peers do).
+class MessageWriter(cdr.CdrWriter):
+    # Builds one message in a reusable buffer: a CdrWriter whose origin is the message start (as
+    # both eProsima peers align), which ``begin`` starts with a header and ``begin_submessage`` /
+    # ``end_submessage`` frame payloads in. ``begin_submessage`` returns the writer itself, to write
+    # the payload with.
 
-    __slots__ = ("buf", "w", "_sub_start")
+    __slots__ = ("_sub_start",)
 
     def __init__(self, capacity=512):
-        self.buf = bytearray(capacity)
-        self.w = cdr.CdrWriter(self.buf, 0, 0)
+        cdr.CdrWriter.__init__(self, bytearray(capacity), 0, 0)
         self._sub_start = -1
 
     def begin(self, session_id, stream_id, seq, key=None):
         # Write the header (XRCE-WIRE.md §1) and start the message after it.
-        buf = self.w.buf = self.buf
+        buf = self.buf
         buf[0] = session_id
         buf[1] = stream_id
         self.set_seq(seq)
@@ -83,7 +82,7 @@ class MessageWriter:
                 raise EncodeError("a session id below 0x80 needs a 4-byte client key")
             buf[4:8] = key
             size = HEADER_SIZE_WITH_KEY
-        self.w.reset(size, 0)
+        self.reset(size, 0)
         return self
 
     def set_seq(self, seq):
@@ -91,33 +90,26 @@ class MessageWriter:
         self.buf[3] = (seq >> 8) & 0xFF
 
     def begin_submessage(self, sub_id, flags):
-        w = self.w
-        w.align(4)
-        w.reserve(_SUBHEADER_SIZE)
-        b = w.buf
-        b[w.pos] = sub_id
-        b[w.pos + 1] = flags
-        self._sub_start = w.pos
-        w.pos += _SUBHEADER_SIZE
-        return w
+        self.align(4)
+        self.reserve(_SUBHEADER_SIZE)
+        pos = self.pos
+        self.buf[pos] = sub_id
+        self.buf[pos + 1] = flags
+        self._sub_start = pos
+        self.pos = pos + _SUBHEADER_SIZE
+        return self
 
     def end_submessage(self, length=None):
         # Patch the length of the open submessage (``length`` overrides the measured one).
-        w = self.w
         if length is None:
-            length = w.pos - self._sub_start - _SUBHEADER_SIZE
+            length = self.pos - self._sub_start - _SUBHEADER_SIZE
         if length > 0xFFFF:
             raise EncodeError("submessage payload longer than 65535 bytes")
-        struct.pack_into("<H", w.buf, self._sub_start + 2, length)
+        struct.pack_into("<H", self.buf, self._sub_start + 2, length)
         self._sub_start = -1
 
     def pad_to_4(self):
-        self.w.align(4)
-
-    def getvalue(self):
-        self.buf = self.w.buf  # the writer may have grown the buffer
-        return bytes(self.buf[:self.w.pos])
+        self.align(4)
 
     def view(self):
-        self.buf = self.w.buf
-        return memoryview(self.buf)[:self.w.pos]
+        return memoryview(self.buf)[:self.pos]

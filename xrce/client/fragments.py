@@ -19,11 +19,10 @@ def write_fragmented(session, out, mark, end):
     # ``out``. Its bytes do not depend on where it starts (a sample aligns from its own first byte,
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
     mw = out.mw
-    w = mw.w
-    w.pos = end
+    mw.pos = end
     mw.pad_to_4()
-    body = memoryview(bytes(w.buf[mark:w.pos]))
-    w.pos = mark
+    body = memoryview(bytes(mw.buf[mark:mw.pos]))
+    mw.pos = mark
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)
     pos = 0

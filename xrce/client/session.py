@@ -440,14 +440,14 @@ class Session:
             if not out.has_content and not self._begin_with_room(out):
                 return False
             mw = out.mw
-            mark = mw.w.pos
+            mark = mw.pos
             wire.put_request(mw.begin_submessage(sub_id, flags), request_id, object_id_, body, prefix)
             mw.end_submessage()
-            end = mw.w.pos
+            end = mw.pos
             if end <= self.max_message:
                 out.has_content = True
                 return True
-            mw.w.pos = mark
+            mw.pos = mark
             mark = (mark + 3) & ~3  # where the submessage itself starts
             if not out.has_content or self.header_size + end - mark > self.max_message:
                 break
