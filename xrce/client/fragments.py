@@ -18,11 +18,10 @@ def write_fragmented(session, out, mark, end):
     # (header, payload, padding to 4) into FRAGMENTs, each alone in a fresh reliable message of
     # ``out``. Its bytes do not depend on where it starts (a sample aligns from its own first byte,
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
-    mw = out.mw
-    mw.pos = end
-    mw.pad_to_4()
-    body = memoryview(bytes(mw.buf[mark:mw.pos]))
-    mw.pos = mark
+    out.pos = end
+    out.pad_to_4()
+    body = memoryview(bytes(out.buf[mark:out.pos]))
+    out.pos = mark
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)
     pos = 0
@@ -37,12 +36,11 @@ def write_fragmented(session, out, mark, end):
                 return False  # the remainder is lost; the agent discards the incomplete message
             if not out.has_content:
                 break
-        mw = out.mw
-        w = mw.begin_submessage(_FRAGMENT, _FLAG_LITTLE_ENDIAN | (_FLAG_LAST_FRAGMENT if last else 0))
+        w = out.begin_submessage(_FRAGMENT, _FLAG_LITTLE_ENDIAN | (_FLAG_LAST_FRAGMENT if last else 0))
         w.raw(body[pos:end])
-        mw.end_submessage()
+        out.end_submessage()
         out.has_content = True
-        message = mw.getvalue()  # fragments are not padded (§2)
+        message = out.getvalue()  # fragments are not padded (§2)
         out.state.commit(out.state.next_seq(), message)
         session._send(message)
         out.has_content = False

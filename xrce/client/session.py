@@ -99,13 +99,14 @@ def ros_topic_name(name, prefix="rt"):
     return prefix + (name if name.startswith("/") else "/" + name)
 
 
-class _Output:
-    __slots__ = ("stream_id", "state", "mw", "reliable", "has_content")
+class _Output(MessageWriter):
+    # An output stream: the message open on it and its sequence state (xrce.streams).
+    __slots__ = ("stream_id", "state", "reliable", "has_content")
 
     def __init__(self, stream_id, state, capacity):
+        MessageWriter.__init__(self, capacity)
         self.stream_id = stream_id
         self.state = state
-        self.mw = MessageWriter(capacity)
         self.reliable = stream_id >= 0x80
         self.has_content = False
 
@@ -439,15 +440,14 @@ class Session:
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):
                 return False
-            mw = out.mw
-            mark = mw.pos
-            wire.put_request(mw.begin_submessage(sub_id, flags), request_id, object_id_, body, prefix)
-            mw.end_submessage()
-            end = mw.pos
+            mark = out.pos
+            wire.put_request(out.begin_submessage(sub_id, flags), request_id, object_id_, body, prefix)
+            out.end_submessage()
+            end = out.pos
             if end <= self.max_message:
                 out.has_content = True
                 return True
-            mw.pos = mark
+            out.pos = mark
             mark = (mark + 3) & ~3  # where the submessage itself starts
             if not out.has_content or self.header_size + end - mark > self.max_message:
                 break
@@ -474,7 +474,7 @@ class Session:
                     return False
         else:
             seq = 0  # best-effort messages get their sequence number when sent
-        out.mw.begin(self.session_id, out.stream_id, seq, self._header_key)
+        out.begin(self.session_id, out.stream_id, seq, self._header_key)
         out.has_content = False
         return True
 
@@ -482,16 +482,15 @@ class Session:
         # Send the open message of ``out`` (trailing padding to 4, as the C client).
         if not out.has_content:
             return
-        mw = out.mw
-        mw.pad_to_4()
+        out.pad_to_4()
         if out.reliable:
-            message = mw.getvalue()
+            message = out.getvalue()
             out.state.commit(out.state.next_seq(), message)
             self._send(message)
             self._schedule_heartbeat(out.stream_id)
         else:
-            mw.set_seq(out.state.next_seq())
-            self._send(mw.view())
+            out.set_seq(out.state.next_seq())
+            self._send(out.view())
         out.has_content = False
 
     def flush(self):
