@@ -18,10 +18,8 @@ _ECONNREFUSED = 111
 
 try:
     _ConnectionRefused = ConnectionRefusedError
-except NameError:  # MicroPython reports it as a plain OSError(ECONNREFUSED)
-
-    class _ConnectionRefused(Exception):
-        pass
+except NameError:  # MicroPython reports it as a plain OSError(ECONNREFUSED): the errno check finds it
+    _ConnectionRefused = ()
 
 
 class UdpTransport:
@@ -62,9 +60,12 @@ class UdpTransport:
         self.recv_errors = 0
         self._sock = None
         # One spare byte so that a datagram longer than the MTU is seen (and dropped) rather than
-        # silently truncated into something that might parse.
-        self._buf = bytearray(mtu + 1)
-        self._view = memoryview(self._buf)
+        # silently truncated into something that might parse. MicroPython's sockets have no
+        # recv_into: there recv(mtu + 1) does the same and a board keeps no buffer for it.
+        self._buf = self._view = None
+        if not IS_MICROPYTHON:
+            self._buf = bytearray(mtu + 1)
+            self._view = memoryview(self._buf)
         self.open()
 
     def open(self):
