@@ -54,8 +54,12 @@ class TcpTransport:
         self.decoder = None
         self._sock = None
         self._pending = []
-        self._buf = bytearray(mtu + 2)
-        self._view = memoryview(self._buf)
+        # A read takes at most one whole message with its prefix. MicroPython's sockets have no
+        # recv_into: there recv() allocates anyway, so a board keeps no buffer for it.
+        self._buf = self._view = None
+        if not IS_MICROPYTHON:
+            self._buf = bytearray(mtu + 2)
+            self._view = memoryview(self._buf)
         self.open()
 
     def open(self):
@@ -130,7 +134,7 @@ class TcpTransport:
             sock.settimeout(remaining / 1000 if remaining > 0 else 0)
             try:
                 if IS_MICROPYTHON:
-                    chunk = sock.recv(len(self._buf))
+                    chunk = sock.recv(self.mtu + 2)
                 else:
                     chunk = self._view[: sock.recv_into(self._buf)]
             except OSError as error:
