@@ -8,9 +8,8 @@
 from xrce.compat import const, ticks_diff
 from xrce.errors import EncodeError
 
-SEQ_INITIAL = const(0xFFFF)  # "last sent/handled" before the first message, so the first seq is 0
-NACK_BITS = const(16)
-SEQ_MODULO = const(0x10000)
+_SEQ_INITIAL = const(0xFFFF)  # "last sent/handled" before the first message, so the first seq is 0
+_NACK_BITS = const(16)
 _HALF = const(0x8000)
 
 
@@ -47,10 +46,10 @@ class OutputBestEffortStream:
 
     def __init__(self, stream_id):
         self.stream_id = stream_id
-        self.last_sent = SEQ_INITIAL
+        self.last_sent = _SEQ_INITIAL
 
     def reset(self):
-        self.last_sent = SEQ_INITIAL
+        self.last_sent = _SEQ_INITIAL
 
     def next_seq(self):
         self.last_sent = seq_add(self.last_sent, 1)
@@ -62,10 +61,10 @@ class InputBestEffortStream:
 
     def __init__(self, stream_id):
         self.stream_id = stream_id
-        self.last_handled = SEQ_INITIAL
+        self.last_handled = _SEQ_INITIAL
 
     def reset(self):
-        self.last_handled = SEQ_INITIAL
+        self.last_handled = _SEQ_INITIAL
 
     def accept(self, seq):
         # True for a strictly newer message; older and duplicate ones are dropped.
@@ -92,8 +91,8 @@ class OutputReliableStream:
         self.reset()
 
     def reset(self):
-        self.last_sent = SEQ_INITIAL
-        self.last_acknowledged = SEQ_INITIAL
+        self.last_sent = _SEQ_INITIAL
+        self.last_acknowledged = _SEQ_INITIAL
         for i in range(self.history):
             self.slots[i] = None
             self.resent_at[i] = None
@@ -141,7 +140,7 @@ class OutputReliableStream:
                 self.slots[self.last_acknowledged & (self.history - 1)] = None
         resend = []
         if nack_bitmap:
-            for i in range(NACK_BITS):
+            for i in range(_NACK_BITS):
                 if nack_bitmap & (1 << i):
                     seq = seq_add(first_unacked, i)
                     if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
@@ -172,8 +171,8 @@ class InputReliableStream:
         self.reset()
 
     def reset(self):
-        self.last_handled = SEQ_INITIAL
-        self.last_announced = SEQ_INITIAL
+        self.last_handled = _SEQ_INITIAL
+        self.last_announced = _SEQ_INITIAL
         self.stored.clear()
 
     def receive(self, seq, message):
@@ -223,7 +222,7 @@ class InputReliableStream:
         # ``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream.
         first = seq_add(self.last_handled, 1)
         bitmap = 0
-        for i in range(NACK_BITS):
+        for i in range(_NACK_BITS):
             seq = seq_add(first, i)
             if seq_less(self.last_announced, seq):
                 break

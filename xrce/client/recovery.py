@@ -19,9 +19,9 @@ _READ_DATA = const(8)
 _FLAG_LITTLE_ENDIAN = const(0x01)
 _FLAGS_REUSE_REPLACE = const(0x07)  # little-endian | FLAG_REUSE | FLAG_REPLACE
 
-LINK_CONNECTED = 0
-LINK_SILENT = 1  # the agent has been quiet for a while; pings are out
-LINK_LOST = 2  # re-creating the session
+_LINK_CONNECTED = const(0)
+_LINK_SILENT = const(1)  # the agent has been quiet for a while; pings are out
+_LINK_LOST = const(2)  # re-creating the session
 LINK_STATE_NAMES = ("connected", "silent", "lost")
 
 
@@ -35,7 +35,7 @@ class LinkMonitor:
         self.retry_ms = retry_ms
         self.max_missed = max_missed
         self.on_state = on_state
-        self.state = LINK_CONNECTED
+        self.state = _LINK_CONNECTED
         self.missed = 0
         # Unanswered pings, ``retry_ms`` apart, that make the link lost: as long a silence as
         # ``max_missed`` pings ``liveliness_ms`` apart would be.
@@ -56,7 +56,7 @@ class LinkMonitor:
         session.create_status = None
         session._session_unknown = False
         self.next_attempt = now
-        self._set(LINK_LOST)
+        self._set(_LINK_LOST)
 
     def _restore(self):
         # The agent accepted our CREATE_CLIENT again: re-create what we had and resume.
@@ -88,12 +88,12 @@ class LinkMonitor:
 
     def poll(self, now):
         session = self.session
-        if self.state == LINK_LOST:
+        if self.state == _LINK_LOST:
             if session.create_status == 0:  # STATUS_OK to our CREATE_CLIENT
                 self.missed = 0
                 self.recoveries += 1
                 self._restore()
-                self._set(LINK_CONNECTED)
+                self._set(_LINK_CONNECTED)
             elif ticks_diff(now, self.next_attempt) >= 0:
                 session._send_create_client()
                 self.next_attempt = ticks_add(now, self.retry_ms)
@@ -105,14 +105,14 @@ class LinkMonitor:
             return
         if ticks_diff(now, session._last_heard) < self.liveliness_ms:
             self.missed = 0
-            self._set(LINK_CONNECTED)
+            self._set(_LINK_CONNECTED)
             return
         if ticks_diff(now, self.next_ping) >= 0:
             if self.missed >= self.max_pings:
                 self.lose(now)
                 return
             if self.missed:
-                self._set(LINK_SILENT)
+                self._set(_LINK_SILENT)
             self.missed += 1
             session._send_ping()
             # An answering agent resets ``missed`` above, and the next ping then waits for
