@@ -15,12 +15,12 @@ _CREATE_CLIENT = const(0)
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 _SUBHEADER_SIZE = const(4)
 
-HEADER_SIZE_NO_KEY = const(4)
-HEADER_SIZE_WITH_KEY = const(8)
+_HEADER_SIZE_NO_KEY = const(4)
+_HEADER_SIZE_WITH_KEY = const(8)
 
 
 def header_size(session_id):
-    return HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
+    return _HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else _HEADER_SIZE_NO_KEY
 
 
 # Header and decode_header live in xrce/message_header.py and load on first use: the agent decodes
@@ -76,12 +76,12 @@ class MessageWriter(cdr.CdrWriter):
         buf[0] = session_id
         buf[1] = stream_id
         self.set_seq(seq)
-        size = HEADER_SIZE_NO_KEY
+        size = _HEADER_SIZE_NO_KEY
         if session_id < _SESSION_ID_WITHOUT_KEY_MASK:
             if key is None or len(key) != 4:
                 raise EncodeError("a session id below 0x80 needs a 4-byte client key")
             buf[4:8] = key
-            size = HEADER_SIZE_WITH_KEY
+            size = _HEADER_SIZE_WITH_KEY
         self.reset(size, 0)
         return self
 

@@ -4,9 +4,11 @@
 # module on first use; a client never does.
 
 from xrce.errors import DecodeError
-from xrce.message import HEADER_SIZE_NO_KEY, HEADER_SIZE_WITH_KEY, header_size
+from xrce.message import header_size
 
 _SESSION_ID_WITHOUT_KEY_MASK = 0x80
+HEADER_SIZE_NO_KEY = 4
+HEADER_SIZE_WITH_KEY = 8
 
 
 class Header:

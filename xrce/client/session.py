@@ -82,7 +82,7 @@ _CLIENT_PREFIX = b"XRCE\x01\x00\x01\x0F"  # cookie, version 1.0, vendor eProsima
 
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
-SLOT_OVERHEAD = const(4)
+_SLOT_OVERHEAD = const(4)
 # Session methods that live in optional modules (see Session.__getattr__).
 _SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client",
                     "create_service_server", "send_request", "send_reply")
@@ -132,7 +132,7 @@ class Session:
         self._header_key = self.key if session_id < 0x80 else None
         self.header_size = header_size(session_id)
         self.mtu = transport.mtu if mtu is None else mtu
-        self.max_message = self.mtu - SLOT_OVERHEAD
+        self.max_message = self.mtu - _SLOT_OVERHEAD
         self.history = history
         self.heartbeat_ms = heartbeat_ms
         # Fragmented input may span at most this many bytes (the C client's limit is history slots).
