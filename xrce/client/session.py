@@ -78,15 +78,10 @@ _QOS_RELIABLE = const(0x0001)
 _QOS_KEEP_LAST = const(0x0002)
 _QOS_TRANSIENT_LOCAL = const(0x0008)
 _MAX_SAMPLES_UNLIMITED = const(0xFFFF)
-_CLIENT_PREFIX = b"XRCE\x01\x00\x01\x0F"  # cookie, version 1.0, vendor eProsima
 
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
 _SLOT_OVERHEAD = const(4)
-# Session methods that live in optional modules (see Session.__getattr__).
-_SERVICE_METHODS = ("create_requester", "create_replier", "create_service_client",
-                    "create_service_server", "send_request", "send_reply")
-_TEARDOWN_METHODS = ("delete_entity", "cancel_data")
 
 
 class SessionError(XrceError):
@@ -207,7 +202,7 @@ class Session:
     def _send_create_client(self):
         header_session = self.session_id & _SESSION_ID_WITHOUT_KEY_MASK
         w = self._begin_control(_CREATE_CLIENT, header_session, self.key if header_session == 0 else None)
-        w.raw(_CLIENT_PREFIX)
+        w.raw(b"XRCE\x01\x00\x01\x0F")  # cookie, version 1.0, vendor eProsima
         w.raw(self.key)
         w.u8(self.session_id)
         w.u8(0)  # no properties
@@ -338,9 +333,10 @@ class Session:
 
     def __getattr__(self, name):
         # Services, entity deletion and the link state cost a board nothing until first used.
-        if name in _SERVICE_METHODS:
+        if name in ("create_requester", "create_replier", "create_service_client", "create_service_server",
+                    "send_request", "send_reply"):
             from xrce.client import services as module
-        elif name in _TEARDOWN_METHODS:
+        elif name in ("delete_entity", "cancel_data"):
             from xrce.client import teardown as module
         elif name == "link_state":
             from xrce.client.recovery import link_state
