@@ -366,6 +366,14 @@ class TurtleBot3:
 
     def step(self):
         # One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications.
+        for _ in self.step_stages():
+            pass
+
+    def step_stages(self):
+        # ``step`` one piece at a time, for a firmware loop that runs other tasks (or collects its
+        # garbage) in between: yields after each message taken in, after the motion update, after
+        # each publication and after a time sync. (``step`` drains it: the generator is ~100 bytes
+        # of garbage a pass, where ``_move``'s float arithmetic alone makes ~700.)
         session = self.session
         now = ticks_ms()
         wait = MAX_WAIT_MS
@@ -374,17 +382,22 @@ class TurtleBot3:
             if remaining < wait:
                 wait = remaining if remaining > 0 else 0
         if session.spin_once(wait):
+            yield
             count = 1
             while count < MAX_MESSAGES_PER_STEP and session.spin_once(0):
                 count += 1
+                yield
         now = ticks_ms()
         self._move(now)
         self._check_failsafe(now)
+        yield
         for topic, timer in self._schedule:
             if timer.take(now):
                 self._publishers[topic](session.epoch_ns())
+                yield
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
+            yield
 
     def run(self, duration_ms=None, should_stop=None):
         # Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true.
