@@ -21,7 +21,7 @@
 import math
 
 from xrce.client.session import Session, ping_agent
-from xrce.compat import ticks_add, ticks_diff, ticks_ms
+from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
 from xrce.msgs.sensor_msgs import BatteryState, Imu
@@ -30,35 +30,30 @@ from xrce.msgs.turtlebot3_msgs import SensorState
 
 NODE_NAME = "turtlebot3_node"
 
+# Constants through micropython.const with a leading underscore: the compiler folds them into the
+# code that uses them, so a board keeps no global, no name and no float object for each (~30 bytes
+# apiece).
+
 # TurtleBot3 burger geometry and limits (ROBOTIS e-Manual).
-WHEEL_RADIUS = 0.033
-WHEEL_SEPARATION = 0.160
-MAX_LINEAR_VELOCITY = 0.22
-MAX_ANGULAR_VELOCITY = 2.84
-ENCODER_TICKS_PER_REV = 4096  # DYNAMIXEL XL430 position resolution
-TWO_PI = 2.0 * math.pi
+_WHEEL_RADIUS = const(0.033)
+_WHEEL_SEPARATION = const(0.160)
+_MAX_LINEAR_VELOCITY = const(0.22)
+_MAX_ANGULAR_VELOCITY = const(2.84)
+ENCODER_TICKS_PER_REV = const(4096)  # DYNAMIXEL XL430 position resolution
+_TWO_PI = const(6.283185307179586)
 
-BATTERY_FULL_V = 12.4  # 3S LiPo, 1800 mAh
-BATTERY_EMPTY_V = 10.5
-BATTERY_CAPACITY_AH = 1.8
-GRAVITY = 9.80665
+_BATTERY_FULL_V = const(12.4)  # 3S LiPo, 1800 mAh
+_BATTERY_EMPTY_V = const(10.5)
+_BATTERY_CAPACITY_AH = const(1.8)
+_GRAVITY = const(9.80665)
 
-# Default periods (ms). /sensor_state at 10 Hz as the OpenCR firmware; odom and tf at the rate a
-# navigation stack expects; the battery changes slowly.
-DEFAULT_PERIODS_MS = {
-    "sensor_state": 100,
-    "imu": 100,
-    "odom": 100,
-    "tf": 100,
-    "battery_state": 1000,
-}
-TIME_SYNC_PERIOD_MS = 10000
-FAILSAFE_MS = 500
-PHASE_STEP_MS = 17  # offset between the topics' periods (ms)
-MAX_WAIT_MS = 5  # the loop's longest sleep: bounds fail-safe and schedule jitter
-MAX_MESSAGES_PER_STEP = 16  # drain a burst of input, but keep publishing on time
+TIME_SYNC_PERIOD_MS = const(10000)
+FAILSAFE_MS = const(500)
+_PHASE_STEP_MS = const(17)  # offset between the topics' periods (ms)
+_MAX_WAIT_MS = const(5)  # the loop's longest sleep: bounds fail-safe and schedule jitter
+_MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishing on time
 
-NS_PER_S = 1000000000
+_NS_PER_S = const(1000000000)
 
 
 def _clamp(value, limit):
@@ -70,8 +65,8 @@ def _clamp(value, limit):
 
 
 def _set_stamp(header, ns):
-    header.stamp.sec = ns // NS_PER_S
-    header.stamp.nanosec = ns % NS_PER_S
+    header.stamp.sec = ns // _NS_PER_S
+    header.stamp.nanosec = ns % _NS_PER_S
 
 
 def _set_yaw(quaternion, yaw):
@@ -118,7 +113,9 @@ class TurtleBot3:
         self.domain_id = domain_id
         self.node_name = node_name
         self.cmd_vel_reliable = cmd_vel_reliable
-        self.periods_ms = dict(DEFAULT_PERIODS_MS)
+        # /sensor_state at 10 Hz as the OpenCR firmware; odom and tf at the rate a navigation stack
+        # expects; the battery changes slowly.
+        self.periods_ms = {"sensor_state": 100, "imu": 100, "odom": 100, "tf": 100, "battery_state": 1000}
         if periods_ms:
             self.periods_ms.update(periods_ms)
         self.failsafe_ms = failsafe_ms
@@ -145,7 +142,7 @@ class TurtleBot3:
         self.right_angle = 0.0
         self.left_ticks = 0
         self.right_ticks = 0
-        self.battery_voltage = BATTERY_FULL_V
+        self.battery_voltage = _BATTERY_FULL_V
         self._last_command_ms = None
         self._last_motion_ms = None
 
@@ -154,9 +151,9 @@ class TurtleBot3:
         self._sensor_state.torque = True
         self._imu = Imu()
         self._imu.header.frame_id = "imu_link"
-        self._imu.linear_acceleration.z = GRAVITY
+        self._imu.linear_acceleration.z = _GRAVITY
         self._battery = BatteryState()
-        self._battery.design_capacity = BATTERY_CAPACITY_AH
+        self._battery.design_capacity = _BATTERY_CAPACITY_AH
         self._battery.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
         self._battery.power_supply_health = BatteryState.POWER_SUPPLY_HEALTH_GOOD
         self._battery.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LIPO
@@ -240,7 +237,7 @@ class TurtleBot3:
         # queue behind each other (and behind /odom's fragments) on the link and in the agent.
         for index, topic in enumerate(self._writers):
             self._schedule.append((topic, _Periodic(self.periods_ms[topic],
-                                                    ticks_add(now, index * PHASE_STEP_MS))))
+                                                    ticks_add(now, index * _PHASE_STEP_MS))))
         yield True
 
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
@@ -268,8 +265,8 @@ class TurtleBot3:
         self._move(ticks_ms())  # integrate up to now with the previous velocities first
         self.commands_received += 1
         self.last_command = (twist.linear.x, twist.angular.z)
-        self.linear = _clamp(twist.linear.x, MAX_LINEAR_VELOCITY)
-        self.angular = _clamp(twist.angular.z, MAX_ANGULAR_VELOCITY)
+        self.linear = _clamp(twist.linear.x, _MAX_LINEAR_VELOCITY)
+        self.angular = _clamp(twist.angular.z, _MAX_ANGULAR_VELOCITY)
         self._last_command_ms = ticks_ms()
 
     def _move(self, now):
@@ -282,25 +279,25 @@ class TurtleBot3:
         if dt <= 0.0:
             return
         # The wheels turn at the speeds the command asks for; pose and encoders follow from them.
-        half_track = self.angular * WHEEL_SEPARATION * 0.5
+        half_track = self.angular * _WHEEL_SEPARATION * 0.5
         left_speed = self.linear - half_track
         right_speed = self.linear + half_track
-        self.left_angle += left_speed * dt / WHEEL_RADIUS
-        self.right_angle += right_speed * dt / WHEEL_RADIUS
-        self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / TWO_PI)
-        self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / TWO_PI)
+        self.left_angle += left_speed * dt / _WHEEL_RADIUS
+        self.right_angle += right_speed * dt / _WHEEL_RADIUS
+        self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
+        self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         linear = (left_speed + right_speed) * 0.5
-        angular = (right_speed - left_speed) / WHEEL_SEPARATION
+        angular = (right_speed - left_speed) / _WHEEL_SEPARATION
         heading = self.yaw + angular * dt * 0.5  # midpoint heading: exact for straight lines and
         self.x += linear * dt * math.cos(heading)  # second-order accurate on arcs
         self.y += linear * dt * math.sin(heading)
         yaw = self.yaw + angular * dt
         self.yaw = math.atan2(math.sin(yaw), math.cos(yaw))
         # A burger draws about 1 A driving: the voltage sags linearly with the charge used.
-        used = (0.3 + 0.7 * (abs(linear) / MAX_LINEAR_VELOCITY)) * dt / 3600.0 / BATTERY_CAPACITY_AH
-        self.battery_voltage -= used * (BATTERY_FULL_V - BATTERY_EMPTY_V)
-        if self.battery_voltage < BATTERY_EMPTY_V:
-            self.battery_voltage = BATTERY_EMPTY_V
+        used = (0.3 + 0.7 * (abs(linear) / _MAX_LINEAR_VELOCITY)) * dt / 3600.0 / _BATTERY_CAPACITY_AH
+        self.battery_voltage -= used * (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
+        if self.battery_voltage < _BATTERY_EMPTY_V:
+            self.battery_voltage = _BATTERY_EMPTY_V
 
     def _check_failsafe(self, now):
         last = self._last_command_ms
@@ -339,8 +336,8 @@ class TurtleBot3:
         msg = self._battery
         _set_stamp(msg.header, stamp_ns)
         msg.voltage = self.battery_voltage
-        msg.percentage = (self.battery_voltage - BATTERY_EMPTY_V) / (BATTERY_FULL_V - BATTERY_EMPTY_V)
-        msg.current = -(0.3 + 0.7 * abs(self.linear) / MAX_LINEAR_VELOCITY)
+        msg.percentage = (self.battery_voltage - _BATTERY_EMPTY_V) / (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
+        msg.current = -(0.3 + 0.7 * abs(self.linear) / _MAX_LINEAR_VELOCITY)
         self._write("battery_state", msg)
 
     def _publish_odom(self, stamp_ns):
@@ -365,7 +362,7 @@ class TurtleBot3:
     # ------------------------------------------------------------------ the loop
 
     def step(self):
-        # One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications.
+        # One pass of the main loop: input for at most ``_MAX_WAIT_MS``, motion, due publications.
         for _ in self.step_stages():
             pass
 
@@ -376,7 +373,7 @@ class TurtleBot3:
         # of garbage a pass, where ``_move``'s float arithmetic alone makes ~700.)
         session = self.session
         now = ticks_ms()
-        wait = MAX_WAIT_MS
+        wait = _MAX_WAIT_MS
         for _, timer in self._schedule:
             remaining = timer.remaining(now)
             if remaining < wait:
@@ -384,7 +381,7 @@ class TurtleBot3:
         if session.spin_once(wait):
             yield
             count = 1
-            while count < MAX_MESSAGES_PER_STEP and session.spin_once(0):
+            while count < _MAX_MESSAGES_PER_STEP and session.spin_once(0):
                 count += 1
                 yield
         now = ticks_ms()
