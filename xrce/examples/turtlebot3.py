@@ -165,13 +165,6 @@ class TurtleBot3:
         self._transform.header.frame_id = "odom"
         self._transform.child_frame_id = "base_footprint"
         self._tf = TFMessage(transforms=[self._transform])
-        self._publishers = {
-            "sensor_state": self._publish_sensor_state,
-            "imu": self._publish_imu,
-            "battery_state": self._publish_battery,
-            "odom": self._publish_odom,
-            "tf": self._publish_tf,
-        }
 
     # ------------------------------------------------------------------ start-up
 
@@ -309,55 +302,49 @@ class TurtleBot3:
 
     # ------------------------------------------------------------------ publishing
 
-    def _write(self, topic, msg):
+    def _publish(self, topic, stamp_ns):
+        # Refill the topic's one message in place and write it. (One method for the five topics:
+        # on a board each method and the bound method a table of them would hold cost heap.)
+        if topic == "sensor_state":
+            msg = self._sensor_state
+            msg.left_encoder = self.left_ticks
+            msg.right_encoder = self.right_ticks
+            msg.battery = self.battery_voltage
+            header = msg.header
+        elif topic == "imu":
+            msg = self._imu
+            _set_yaw(msg.orientation, self.yaw)
+            msg.angular_velocity.z = self.angular
+            header = msg.header
+        elif topic == "battery_state":
+            msg = self._battery
+            msg.voltage = self.battery_voltage
+            msg.percentage = (self.battery_voltage - _BATTERY_EMPTY_V) / (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
+            msg.current = -(0.3 + 0.7 * abs(self.linear) / _MAX_LINEAR_VELOCITY)
+            header = msg.header
+        elif topic == "odom":
+            msg = self._odom
+            pose = msg.pose.pose
+            pose.position.x = self.x
+            pose.position.y = self.y
+            _set_yaw(pose.orientation, self.yaw)
+            msg.twist.twist.linear.x = self.linear
+            msg.twist.twist.angular.z = self.angular
+            header = msg.header
+        else:  # tf
+            transform = self._transform
+            transform.transform.translation.x = self.x
+            transform.transform.translation.y = self.y
+            _set_yaw(transform.transform.rotation, self.yaw)
+            header = transform.header
+            msg = self._tf
+        _set_stamp(header, stamp_ns)
         writer, stream = self._writers[topic]
         if self.session.write(writer, msg, stream_id=stream):
             self.published[topic] += 1
         # Out at once, as rmw_microxrcedds flushes on every publish: a sample must not wait
         # behind the fragments of a larger one written after it.
         self.session.flush()
-
-    def _publish_sensor_state(self, stamp_ns):
-        msg = self._sensor_state
-        _set_stamp(msg.header, stamp_ns)
-        msg.left_encoder = self.left_ticks
-        msg.right_encoder = self.right_ticks
-        msg.battery = self.battery_voltage
-        self._write("sensor_state", msg)
-
-    def _publish_imu(self, stamp_ns):
-        msg = self._imu
-        _set_stamp(msg.header, stamp_ns)
-        _set_yaw(msg.orientation, self.yaw)
-        msg.angular_velocity.z = self.angular
-        self._write("imu", msg)
-
-    def _publish_battery(self, stamp_ns):
-        msg = self._battery
-        _set_stamp(msg.header, stamp_ns)
-        msg.voltage = self.battery_voltage
-        msg.percentage = (self.battery_voltage - _BATTERY_EMPTY_V) / (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
-        msg.current = -(0.3 + 0.7 * abs(self.linear) / _MAX_LINEAR_VELOCITY)
-        self._write("battery_state", msg)
-
-    def _publish_odom(self, stamp_ns):
-        msg = self._odom
-        _set_stamp(msg.header, stamp_ns)
-        pose = msg.pose.pose
-        pose.position.x = self.x
-        pose.position.y = self.y
-        _set_yaw(pose.orientation, self.yaw)
-        msg.twist.twist.linear.x = self.linear
-        msg.twist.twist.angular.z = self.angular
-        self._write("odom", msg)
-
-    def _publish_tf(self, stamp_ns):
-        transform = self._transform
-        _set_stamp(transform.header, stamp_ns)
-        transform.transform.translation.x = self.x
-        transform.transform.translation.y = self.y
-        _set_yaw(transform.transform.rotation, self.yaw)
-        self._write("tf", self._tf)
 
     # ------------------------------------------------------------------ the loop
 
@@ -390,7 +377,7 @@ class TurtleBot3:
         yield
         for topic, timer in self._schedule:
             if timer.take(now):
-                self._publishers[topic](session.epoch_ns())
+                self._publish(topic, session.epoch_ns())
                 yield
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
