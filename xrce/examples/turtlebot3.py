@@ -193,6 +193,12 @@ class TurtleBot3:
     def setup_stages(self, timeout_ms=5000):
         # ``setup`` one exchange with the agent at a time, for a firmware loop that does other work
         # (or collects its garbage) in between: yields None after each stage, then True or False.
+        # A type's first encode builds its plan, which the message runtime then keeps: built here,
+        # one type per stage, the loop's first passes neither wait for it nor carry what building
+        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap.
+        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
+            sample.to_bytes()
+            yield
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
