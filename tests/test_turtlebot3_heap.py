@@ -4,8 +4,8 @@ capped for real, against a real xrce-agent, for a minute: loaded from .mpy and f
 run.mjs --stepped collects garbage between the steps of the script's main() and fails the run with a
 MemoryError as soon as a step needs more heap than the cap (see tests/micropython/README.md). The
 steps are the stages of robot.setup_stages() and robot.step_stages() (one message taken in, the
-motion update, one publication, a time sync), so the cap covers what the firmware keeps plus what
-one stage allocates; still stricter than a board, whose collector also runs inside a stage and
+fail-safe check, one publication, a time sync), so the cap covers what the firmware keeps plus
+what one stage allocates; still stricter than a board, whose collector also runs inside a stage and
 inside an import, and the nodeudp bridge adds garbage a board's socket does not make. A CPython
 client drives /cmd_vel (reliable) the whole time through the same agent.
 
@@ -33,9 +33,9 @@ RUN_S = 60
 SETTLE_S = 10
 # The heap the runs need (mpheap.peak, absolute: the interpreter and the harness's own ~9.4 KB,
 # the live heap, one step's garbage): from .mpy the live heap settles at ~76.9 KB above that
-# baseline and the peak was 91.5-91.6 KB in five runs (97-103 KB when a step was a whole pass of
+# baseline and the peak was 91.5-92.2 KB in six runs (97-103 KB when a step was a whole pass of
 # the loop and the plans were built in its first passes); the largest stage in steady state is an
-# /odom publication, ~5 KB, most of it the bridge's hex strings. From .py the loop needs 93.5 KB,
+# /odom publication, ~6 KB, most of it the bridge's hex strings. From .py the loop needs 94.3 KB,
 # but compiling xrce/client/session.py (one import, one step) needs more: 100 KB fails there every
 # time, 104 KB passed. Caps: ~8 KB above the .mpy need, 4 KB above the .py compile.
 MPY_HEAP_CAP = 100 * 1024

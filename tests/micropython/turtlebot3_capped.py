@@ -5,7 +5,7 @@ socket, against a real xrce-agent.
 argv: agent_port run_seconds settle_seconds client_key_hex
 The harness collects garbage between the steps of main() and fails the run with a MemoryError as
 soon as a step needed more heap than the cap. The loop's steps are the stages of robot.step() (one
-message taken in, the motion update, one publication, a time sync: TurtleBot3.step_stages()), so
+message taken in, the fail-safe check, one publication, a time sync: TurtleBot3.step_stages()), so
 the cap measures what the firmware keeps plus what one of those allocates, as a board's collector
 would see it, rather than the garbage of a whole pass. Prints "key value" lines:
 heap figures are live bytes (after collection) above the interpreter's own baseline.

@@ -301,6 +301,7 @@ class TurtleBot3:
     def _check_failsafe(self, now):
         last = self._last_command_ms
         if last is not None and ticks_diff(now, last) > self.failsafe_ms:
+            self._move(now)  # up to now at the commanded speeds, from now on standing
             self._last_command_ms = None
             self.linear = 0.0
             self.angular = 0.0
@@ -361,9 +362,9 @@ class TurtleBot3:
 
     def step_stages(self):
         # ``step`` one piece at a time, for a firmware loop that runs other tasks (or collects its
-        # garbage) in between: yields after each message taken in, after the motion update, after
-        # each publication and after a time sync. (``step`` drains it: the generator is ~100 bytes
-        # of garbage a pass, where ``_move``'s float arithmetic alone makes ~700.)
+        # garbage) in between: yields after the input (each message taken in, and once more after
+        # the wait, so every pass yields), after each publication and after a time sync. (``step``
+        # drains it: the generator is ~100 bytes of garbage a pass.)
         session = self.session
         now = ticks_ms()
         wait = _MAX_WAIT_MS
@@ -378,11 +379,14 @@ class TurtleBot3:
                 count += 1
                 yield
         now = ticks_ms()
-        self._move(now)
         self._check_failsafe(now)
         yield
         for topic, timer in self._schedule:
             if timer.take(now):
+                # The motion is integrated when something needs it (a publication, a command,
+                # the fail-safe), not on every pass: its float arithmetic is most of what a pass
+                # would otherwise allocate (~700 bytes on a board, where every float is an object).
+                self._move(now)
                 self._publish(topic, session.epoch_ns())
                 yield
         if self._sync_timer is not None and self._sync_timer.take(now):
