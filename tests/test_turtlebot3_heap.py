@@ -33,11 +33,12 @@ RUN_S = 60
 SETTLE_S = 10
 # The heap the runs need (mpheap.peak, absolute: the interpreter and the harness's own ~9.4 KB,
 # the live heap, one step's garbage): from .mpy the live heap settles at ~76.9 KB above that
-# baseline and the peak was 91.5-92.2 KB in six runs (97-103 KB when a step was a whole pass of
-# the loop and the plans were built in its first passes); the largest stage in steady state is an
-# /odom publication, ~6 KB, most of it the bridge's hex strings. From .py the loop needs 94.3 KB,
-# but compiling xrce/client/session.py (one import, one step) needs more: 100 KB fails there every
-# time, 104 KB passed. Caps: ~8 KB above the .mpy need, 4 KB above the .py compile.
+# baseline and the peak was 92.2 KB in three runs, two of them side by side (97-103 KB when a step
+# was a whole pass of the loop and the plans were built in its first passes); the largest stage in
+# steady state is an /odom publication, ~6 KB, most of it the bridge's hex strings. From .py the
+# loop needs 94.4 KB, but compiling xrce/client/session.py (one import, one step) needs more: 100 KB
+# fails there every time, 104 KB passed. Caps: ~8 KB above the .mpy need (96 KB passed twice), 4 KB
+# above the .py compile.
 MPY_HEAP_CAP = 100 * 1024
 PY_HEAP_CAP = 108 * 1024
 DRIFT_BOUND = 1024  # the live heap's low-water mark after the first 10 s may move by at most this much
