@@ -296,13 +296,15 @@ def load_package(pkg_dir):
 
 
 def _class_ref(base, package, deps):
-    """The name generated code uses for a nested type; recorded in ``deps`` so the module imports
-    it. Types of other packages get a package prefix: two packages may both define e.g. Point."""
+    """The expression generated code uses for a nested type; recorded in ``deps`` so the module
+    imports it. Types of other packages are named through their package (two packages may both
+    define e.g. Point), which adds no name a board has not interned already: an alias such as
+    ``_std_msgs_Header`` would stay in its string pool for good (~30 bytes each)."""
     deps.add(base)
     pkg, name = base.split("/")
     if pkg == package:
         return name
-    return "_%s_%s" % (pkg, name)
+    return "%s.%s" % (pkg, name)
 
 
 def _item_spec(ftype, package, deps):
@@ -420,8 +422,11 @@ def _imports(package, body, deps):
     # own name again would define the type a second time.
     for base in sorted(deps):
         pkg, name = base.split("/")
-        alias = _class_ref(base, package, set())
-        lines.append("from xrce.msgs.%s import %s%s" % (pkg, name, "" if alias == name else " as " + alias))
+        if pkg == package:
+            lines.append("from xrce.msgs.%s import %s" % (pkg, name))
+    other = sorted(set(base.split("/")[0] for base in deps) - {package})
+    if other:
+        lines.append("from xrce.msgs import %s" % ", ".join(other))
     return lines
 
 

@@ -21,7 +21,7 @@
 import math
 
 from xrce.client.session import Session, ping_agent
-from xrce.compat import ticks_add, ticks_diff, ticks_ms
+from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
 from xrce.msgs.sensor_msgs import BatteryState, Imu
@@ -30,35 +30,30 @@ from xrce.msgs.turtlebot3_msgs import SensorState
 
 NODE_NAME = "turtlebot3_node"
 
+# Constants through micropython.const with a leading underscore: the compiler folds them into the
+# code that uses them, so a board keeps no global, no name and no float object for each (~30 bytes
+# apiece).
+
 # TurtleBot3 burger geometry and limits (ROBOTIS e-Manual).
-WHEEL_RADIUS = 0.033
-WHEEL_SEPARATION = 0.160
-MAX_LINEAR_VELOCITY = 0.22
-MAX_ANGULAR_VELOCITY = 2.84
-ENCODER_TICKS_PER_REV = 4096  # DYNAMIXEL XL430 position resolution
-TWO_PI = 2.0 * math.pi
+_WHEEL_RADIUS = const(0.033)
+_WHEEL_SEPARATION = const(0.160)
+_MAX_LINEAR_VELOCITY = const(0.22)
+_MAX_ANGULAR_VELOCITY = const(2.84)
+ENCODER_TICKS_PER_REV = const(4096)  # DYNAMIXEL XL430 position resolution
+_TWO_PI = const(6.283185307179586)
 
-BATTERY_FULL_V = 12.4  # 3S LiPo, 1800 mAh
-BATTERY_EMPTY_V = 10.5
-BATTERY_CAPACITY_AH = 1.8
-GRAVITY = 9.80665
+_BATTERY_FULL_V = const(12.4)  # 3S LiPo, 1800 mAh
+_BATTERY_EMPTY_V = const(10.5)
+_BATTERY_CAPACITY_AH = const(1.8)
+_GRAVITY = const(9.80665)
 
-# Default periods (ms). /sensor_state at 10 Hz as the OpenCR firmware; odom and tf at the rate a
-# navigation stack expects; the battery changes slowly.
-DEFAULT_PERIODS_MS = {
-    "sensor_state": 100,
-    "imu": 100,
-    "odom": 100,
-    "tf": 100,
-    "battery_state": 1000,
-}
-TIME_SYNC_PERIOD_MS = 10000
-FAILSAFE_MS = 500
-PHASE_STEP_MS = 17  # offset between the topics' periods (ms)
-MAX_WAIT_MS = 5  # the loop's longest sleep: bounds fail-safe and schedule jitter
-MAX_MESSAGES_PER_STEP = 16  # drain a burst of input, but keep publishing on time
+TIME_SYNC_PERIOD_MS = const(10000)
+FAILSAFE_MS = const(500)
+_PHASE_STEP_MS = const(17)  # offset between the topics' periods (ms)
+_MAX_WAIT_MS = const(5)  # the loop's longest sleep: bounds fail-safe and schedule jitter
+_MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishing on time
 
-NS_PER_S = 1000000000
+_NS_PER_S = const(1000000000)
 
 
 def _clamp(value, limit):
@@ -70,8 +65,8 @@ def _clamp(value, limit):
 
 
 def _set_stamp(header, ns):
-    header.stamp.sec = ns // NS_PER_S
-    header.stamp.nanosec = ns % NS_PER_S
+    header.stamp.sec = ns // _NS_PER_S
+    header.stamp.nanosec = ns % _NS_PER_S
 
 
 def _set_yaw(quaternion, yaw):
@@ -118,7 +113,9 @@ class TurtleBot3:
         self.domain_id = domain_id
         self.node_name = node_name
         self.cmd_vel_reliable = cmd_vel_reliable
-        self.periods_ms = dict(DEFAULT_PERIODS_MS)
+        # /sensor_state at 10 Hz as the OpenCR firmware; odom and tf at the rate a navigation stack
+        # expects; the battery changes slowly.
+        self.periods_ms = {"sensor_state": 100, "imu": 100, "odom": 100, "tf": 100, "battery_state": 1000}
         if periods_ms:
             self.periods_ms.update(periods_ms)
         self.failsafe_ms = failsafe_ms
@@ -145,7 +142,7 @@ class TurtleBot3:
         self.right_angle = 0.0
         self.left_ticks = 0
         self.right_ticks = 0
-        self.battery_voltage = BATTERY_FULL_V
+        self.battery_voltage = _BATTERY_FULL_V
         self._last_command_ms = None
         self._last_motion_ms = None
 
@@ -154,9 +151,9 @@ class TurtleBot3:
         self._sensor_state.torque = True
         self._imu = Imu()
         self._imu.header.frame_id = "imu_link"
-        self._imu.linear_acceleration.z = GRAVITY
+        self._imu.linear_acceleration.z = _GRAVITY
         self._battery = BatteryState()
-        self._battery.design_capacity = BATTERY_CAPACITY_AH
+        self._battery.design_capacity = _BATTERY_CAPACITY_AH
         self._battery.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
         self._battery.power_supply_health = BatteryState.POWER_SUPPLY_HEALTH_GOOD
         self._battery.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LIPO
@@ -168,13 +165,6 @@ class TurtleBot3:
         self._transform.header.frame_id = "odom"
         self._transform.child_frame_id = "base_footprint"
         self._tf = TFMessage(transforms=[self._transform])
-        self._publishers = {
-            "sensor_state": self._publish_sensor_state,
-            "imu": self._publish_imu,
-            "battery_state": self._publish_battery,
-            "odom": self._publish_odom,
-            "tf": self._publish_tf,
-        }
 
     # ------------------------------------------------------------------ start-up
 
@@ -203,6 +193,12 @@ class TurtleBot3:
     def setup_stages(self, timeout_ms=5000):
         # ``setup`` one exchange with the agent at a time, for a firmware loop that does other work
         # (or collects its garbage) in between: yields None after each stage, then True or False.
+        # A type's first encode builds its plan, which the message runtime then keeps: built here,
+        # one type per stage, the loop's first passes neither wait for it nor carry what building
+        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap.
+        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
+            sample.to_bytes()
+            yield
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
@@ -240,7 +236,7 @@ class TurtleBot3:
         # queue behind each other (and behind /odom's fragments) on the link and in the agent.
         for index, topic in enumerate(self._writers):
             self._schedule.append((topic, _Periodic(self.periods_ms[topic],
-                                                    ticks_add(now, index * PHASE_STEP_MS))))
+                                                    ticks_add(now, index * _PHASE_STEP_MS))))
         yield True
 
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
@@ -268,8 +264,8 @@ class TurtleBot3:
         self._move(ticks_ms())  # integrate up to now with the previous velocities first
         self.commands_received += 1
         self.last_command = (twist.linear.x, twist.angular.z)
-        self.linear = _clamp(twist.linear.x, MAX_LINEAR_VELOCITY)
-        self.angular = _clamp(twist.angular.z, MAX_ANGULAR_VELOCITY)
+        self.linear = _clamp(twist.linear.x, _MAX_LINEAR_VELOCITY)
+        self.angular = _clamp(twist.angular.z, _MAX_ANGULAR_VELOCITY)
         self._last_command_ms = ticks_ms()
 
     def _move(self, now):
@@ -282,29 +278,30 @@ class TurtleBot3:
         if dt <= 0.0:
             return
         # The wheels turn at the speeds the command asks for; pose and encoders follow from them.
-        half_track = self.angular * WHEEL_SEPARATION * 0.5
+        half_track = self.angular * _WHEEL_SEPARATION * 0.5
         left_speed = self.linear - half_track
         right_speed = self.linear + half_track
-        self.left_angle += left_speed * dt / WHEEL_RADIUS
-        self.right_angle += right_speed * dt / WHEEL_RADIUS
-        self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / TWO_PI)
-        self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / TWO_PI)
+        self.left_angle += left_speed * dt / _WHEEL_RADIUS
+        self.right_angle += right_speed * dt / _WHEEL_RADIUS
+        self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
+        self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         linear = (left_speed + right_speed) * 0.5
-        angular = (right_speed - left_speed) / WHEEL_SEPARATION
+        angular = (right_speed - left_speed) / _WHEEL_SEPARATION
         heading = self.yaw + angular * dt * 0.5  # midpoint heading: exact for straight lines and
         self.x += linear * dt * math.cos(heading)  # second-order accurate on arcs
         self.y += linear * dt * math.sin(heading)
         yaw = self.yaw + angular * dt
         self.yaw = math.atan2(math.sin(yaw), math.cos(yaw))
         # A burger draws about 1 A driving: the voltage sags linearly with the charge used.
-        used = (0.3 + 0.7 * (abs(linear) / MAX_LINEAR_VELOCITY)) * dt / 3600.0 / BATTERY_CAPACITY_AH
-        self.battery_voltage -= used * (BATTERY_FULL_V - BATTERY_EMPTY_V)
-        if self.battery_voltage < BATTERY_EMPTY_V:
-            self.battery_voltage = BATTERY_EMPTY_V
+        used = (0.3 + 0.7 * (abs(linear) / _MAX_LINEAR_VELOCITY)) * dt / 3600.0 / _BATTERY_CAPACITY_AH
+        self.battery_voltage -= used * (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
+        if self.battery_voltage < _BATTERY_EMPTY_V:
+            self.battery_voltage = _BATTERY_EMPTY_V
 
     def _check_failsafe(self, now):
         last = self._last_command_ms
         if last is not None and ticks_diff(now, last) > self.failsafe_ms:
+            self._move(now)  # up to now at the commanded speeds, from now on standing
             self._last_command_ms = None
             self.linear = 0.0
             self.angular = 0.0
@@ -312,7 +309,43 @@ class TurtleBot3:
 
     # ------------------------------------------------------------------ publishing
 
-    def _write(self, topic, msg):
+    def _publish(self, topic, stamp_ns):
+        # Refill the topic's one message in place and write it. (One method for the five topics:
+        # on a board each method and the bound method a table of them would hold cost heap.)
+        if topic == "sensor_state":
+            msg = self._sensor_state
+            msg.left_encoder = self.left_ticks
+            msg.right_encoder = self.right_ticks
+            msg.battery = self.battery_voltage
+            header = msg.header
+        elif topic == "imu":
+            msg = self._imu
+            _set_yaw(msg.orientation, self.yaw)
+            msg.angular_velocity.z = self.angular
+            header = msg.header
+        elif topic == "battery_state":
+            msg = self._battery
+            msg.voltage = self.battery_voltage
+            msg.percentage = (self.battery_voltage - _BATTERY_EMPTY_V) / (_BATTERY_FULL_V - _BATTERY_EMPTY_V)
+            msg.current = -(0.3 + 0.7 * abs(self.linear) / _MAX_LINEAR_VELOCITY)
+            header = msg.header
+        elif topic == "odom":
+            msg = self._odom
+            pose = msg.pose.pose
+            pose.position.x = self.x
+            pose.position.y = self.y
+            _set_yaw(pose.orientation, self.yaw)
+            msg.twist.twist.linear.x = self.linear
+            msg.twist.twist.angular.z = self.angular
+            header = msg.header
+        else:  # tf
+            transform = self._transform
+            transform.transform.translation.x = self.x
+            transform.transform.translation.y = self.y
+            _set_yaw(transform.transform.rotation, self.yaw)
+            header = transform.header
+            msg = self._tf
+        _set_stamp(header, stamp_ns)
         writer, stream = self._writers[topic]
         if self.session.write(writer, msg, stream_id=stream):
             self.published[topic] += 1
@@ -320,71 +353,45 @@ class TurtleBot3:
         # behind the fragments of a larger one written after it.
         self.session.flush()
 
-    def _publish_sensor_state(self, stamp_ns):
-        msg = self._sensor_state
-        _set_stamp(msg.header, stamp_ns)
-        msg.left_encoder = self.left_ticks
-        msg.right_encoder = self.right_ticks
-        msg.battery = self.battery_voltage
-        self._write("sensor_state", msg)
-
-    def _publish_imu(self, stamp_ns):
-        msg = self._imu
-        _set_stamp(msg.header, stamp_ns)
-        _set_yaw(msg.orientation, self.yaw)
-        msg.angular_velocity.z = self.angular
-        self._write("imu", msg)
-
-    def _publish_battery(self, stamp_ns):
-        msg = self._battery
-        _set_stamp(msg.header, stamp_ns)
-        msg.voltage = self.battery_voltage
-        msg.percentage = (self.battery_voltage - BATTERY_EMPTY_V) / (BATTERY_FULL_V - BATTERY_EMPTY_V)
-        msg.current = -(0.3 + 0.7 * abs(self.linear) / MAX_LINEAR_VELOCITY)
-        self._write("battery_state", msg)
-
-    def _publish_odom(self, stamp_ns):
-        msg = self._odom
-        _set_stamp(msg.header, stamp_ns)
-        pose = msg.pose.pose
-        pose.position.x = self.x
-        pose.position.y = self.y
-        _set_yaw(pose.orientation, self.yaw)
-        msg.twist.twist.linear.x = self.linear
-        msg.twist.twist.angular.z = self.angular
-        self._write("odom", msg)
-
-    def _publish_tf(self, stamp_ns):
-        transform = self._transform
-        _set_stamp(transform.header, stamp_ns)
-        transform.transform.translation.x = self.x
-        transform.transform.translation.y = self.y
-        _set_yaw(transform.transform.rotation, self.yaw)
-        self._write("tf", self._tf)
-
     # ------------------------------------------------------------------ the loop
 
     def step(self):
-        # One pass of the main loop: input for at most ``MAX_WAIT_MS``, motion, due publications.
+        # One pass of the main loop: input for at most ``_MAX_WAIT_MS``, motion, due publications.
+        for _ in self.step_stages():
+            pass
+
+    def step_stages(self):
+        # ``step`` one piece at a time, for a firmware loop that runs other tasks (or collects its
+        # garbage) in between: yields after the input (each message taken in, and once more after
+        # the wait, so every pass yields), after each publication and after a time sync. (``step``
+        # drains it: the generator is ~100 bytes of garbage a pass.)
         session = self.session
         now = ticks_ms()
-        wait = MAX_WAIT_MS
+        wait = _MAX_WAIT_MS
         for _, timer in self._schedule:
             remaining = timer.remaining(now)
             if remaining < wait:
                 wait = remaining if remaining > 0 else 0
         if session.spin_once(wait):
+            yield
             count = 1
-            while count < MAX_MESSAGES_PER_STEP and session.spin_once(0):
+            while count < _MAX_MESSAGES_PER_STEP and session.spin_once(0):
                 count += 1
+                yield
         now = ticks_ms()
-        self._move(now)
         self._check_failsafe(now)
+        yield
         for topic, timer in self._schedule:
             if timer.take(now):
-                self._publishers[topic](session.epoch_ns())
+                # The motion is integrated when something needs it (a publication, a command,
+                # the fail-safe), not on every pass: its float arithmetic is most of what a pass
+                # would otherwise allocate (~700 bytes on a board, where every float is an object).
+                self._move(now)
+                self._publish(topic, session.epoch_ns())
+                yield
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
+            yield
 
     def run(self, duration_ms=None, should_stop=None):
         # Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true.

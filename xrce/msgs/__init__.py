@@ -86,6 +86,10 @@ def _bool(value):
 def _put_string(w, text, bound):
     if not isinstance(text, str):
         raise EncodeError("expected str, got %r" % (text,))
+    if not text:  # no bytes object for the empty string (on a board "".encode() allocates one)
+        w.u32(1)
+        w.u8(0)
+        return
     data = text.encode()
     if bound is not None and len(data) > bound:
         raise EncodeError("string of %d bytes exceeds its bound %d" % (len(data), bound))
