@@ -36,7 +36,6 @@ LAYERED_IMPORTS = (
     "xrce.compat",
     "xrce.cdr",
     "xrce.message",
-    "xrce.seqnum",
     "xrce.streams",
     "xrce.client",  # xrce.client.session and xrce.client.wire
     "xrce.transports",

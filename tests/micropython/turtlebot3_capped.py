@@ -20,7 +20,7 @@ from xrce.compat import ticks_diff, ticks_ms
 # collector also runs in the middle of an import. (xrce.client.fragments: the session loads it on the
 # first /odom, which does not fit one message.)
 MODULES = ("nodeudp_transport", "xrce.compat", "xrce.errors", "xrce.cdr", "xrce.message",
-           "xrce.seqnum", "xrce.streams", "xrce.client.wire", "xrce.client.session", "xrce.client.ping",
+           "xrce.streams", "xrce.client.wire", "xrce.client.session", "xrce.client.ping",
            "xrce.client.recovery", "xrce.client.fragments", "xrce.transports.custom", "xrce.msgs")
 TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),
          ("xrce.msgs.turtlebot3_msgs", "SensorState"), ("xrce.msgs.sensor_msgs", "Imu"),
