@@ -11,6 +11,18 @@ from xrce.objects import BLOB_CLASSES
 from xrce.payload import Payload, read_id, read_properties, write_id, write_properties
 
 
+def _write_cookie_version_vendor(w, cookie, version, vendor):
+    # The "XRCE" cookie, protocol version and vendor id: the start of CREATE_CLIENT and of
+    # STATUS_AGENT after its status (§3), and the agent's configuration in INFO (§10).
+    w.raw(cookie)
+    w.raw(version)
+    w.raw(vendor)
+
+
+def _read_cookie_version_vendor(r):
+    return r.raw(4), r.raw(2), r.raw(2)
+
+
 class CreateClient(Payload):
     ID = C.CREATE_CLIENT
     FIELDS = ("client_key", "session_id", "mtu", "properties", "cookie", "version", "vendor")
@@ -28,9 +40,7 @@ class CreateClient(Payload):
         self.flags = flags
 
     def encode(self, w):
-        w.raw(self.cookie)
-        w.raw(self.version)
-        w.raw(self.vendor)
+        _write_cookie_version_vendor(w, self.cookie, self.version, self.vendor)
         w.raw(self.client_key)
         w.u8(self.session_id)
         write_properties(w, self.properties)
@@ -38,9 +48,7 @@ class CreateClient(Payload):
 
     @classmethod
     def decode(cls, r, flags):
-        cookie = r.raw(4)
-        version = r.raw(2)
-        vendor = r.raw(2)
+        cookie, version, vendor = _read_cookie_version_vendor(r)
         key = r.raw(4)
         session_id = r.u8()
         properties = read_properties(r)
@@ -69,18 +77,14 @@ class StatusAgent(Payload):
     def encode(self, w):
         w.u8(self.status)
         w.u8(self.impl_status)
-        w.raw(self.cookie)
-        w.raw(self.version)
-        w.raw(self.vendor)
+        _write_cookie_version_vendor(w, self.cookie, self.version, self.vendor)
         write_properties(w, self.properties)
 
     @classmethod
     def decode(cls, r, flags):
         status = r.u8()
         impl = r.u8()
-        cookie = r.raw(4)
-        version = r.raw(2)
-        vendor = r.raw(2)
+        cookie, version, vendor = _read_cookie_version_vendor(r)
         return cls(status, impl, read_properties(r), cookie, version, vendor, flags)
 
 
@@ -330,7 +334,7 @@ class Info(Payload):
         if r.boolean():
             if r.u8() != C.OBJK_AGENT:
                 raise DecodeError("INFO configuration is not an agent's")
-            config = (r.raw(4), r.raw(2), r.raw(2))
+            config = _read_cookie_version_vendor(r)
             properties = read_properties(r)
         if r.boolean():
             if r.u8() != C.OBJK_AGENT:
