@@ -16,12 +16,16 @@ of its own) these fixtures skip with that reason.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import pytest
+
+from agent_process import AgentProcess
 
 REPO = Path(__file__).resolve().parents[1]
 PYTHON_DIR = "python%d.%d" % sys.version_info[:2]
@@ -80,6 +84,33 @@ def distributions_in(site):
 def make_venv(path):
     subprocess.run([sys._base_executable, "-m", "venv", str(path)], check=True, timeout=120)
     return Path(path) / "bin" / "python"
+
+
+def start_installed_agent(python, env, cwd, *args):
+    """``xrce-agent ARGS`` of the xrce installed for ``python``, in exactly ``env``: run from ``cwd``
+    (not the checkout) so that the installed xrce is the one imported."""
+    agent = AgentProcess(*args, cwd=cwd)
+    agent.env = env
+    with mock.patch.object(sys, "executable", str(python)):
+        agent.__enter__()
+    return agent
+
+
+def stop_listener_client_and_agent(listener, client, agent):
+    """The end of a test that bridges a client through an installed agent to an rclpy listener
+    process, however it ended: the listener (Ctrl-C first, as a user would), the client's session
+    (deleted, so the agent logs it out), then the agent. ``listener`` and ``client`` may be None."""
+    if listener is not None and listener.poll() is None:
+        listener.send_signal(signal.SIGINT)
+        try:
+            listener.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            listener.kill()
+            listener.communicate()
+    if client is not None:
+        client.delete(attempts=2, timeout_ms=500)
+        client.close()
+    agent.stop()
 
 
 @pytest.fixture(scope="session")

@@ -9,17 +9,13 @@ that had nothing before, and the default package directory is the one a wheel in
 
 import os
 import re
-import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
-from unittest import mock
 
 import pytest
 
-from agent_process import AgentProcess
-from install_env import clean_env
+from install_env import clean_env, start_installed_agent, stop_listener_client_and_agent
 from ros_helpers import ros_domain, wait_until  # noqa: F401
 from xrce import constants as C
 from xrce.client.session import Session
@@ -133,10 +129,8 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
 def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_domain):  # noqa: F811
     python, site = clean_venv
     cache_home = tmp_path / "xdg"
-    agent = AgentProcess("udp4", "-m", "dds", cwd=tmp_path)  # the wheel's xrce, not this checkout's
-    agent.env = clean_env(XDG_CACHE_HOME=str(cache_home))
-    with mock.patch.object(sys, "executable", str(python)):
-        agent.__enter__()
+    agent = start_installed_agent(python, clean_env(XDG_CACHE_HOME=str(cache_home)), tmp_path,
+                                  "udp4", "-m", "dds")
     listener = None
     client = None
     try:
@@ -184,17 +178,7 @@ def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_doma
         assert "got base 2 -7 9 11.5 True" in output, output
         print("lazy build in the agent: %.1f s until STATUS OK" % lazy_s)
     finally:
-        if listener is not None and listener.poll() is None:
-            listener.send_signal(signal.SIGINT)
-            try:
-                listener.communicate(timeout=10)
-            except subprocess.TimeoutExpired:
-                listener.kill()
-                listener.communicate()
-        if client is not None:
-            client.delete(attempts=2, timeout_ms=500)
-            client.close()
-        agent.stop()
+        stop_listener_client_and_agent(listener, client, agent)
     log = "".join(agent.output)
     assert "building interface package turtlebot3_msgs" in log, log
     assert "no_such_msgs is not installed" in log, log

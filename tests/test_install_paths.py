@@ -16,12 +16,13 @@ import signal
 import subprocess
 import sys
 import time
-from unittest import mock
 
 import pytest
 
-from agent_process import AgentProcess
-from install_env import REPO, _pip_output, clean_env, distributions_in, run, venv_site
+from install_env import (
+    REPO, _pip_output, clean_env, distributions_in, run, start_installed_agent,
+    stop_listener_client_and_agent, venv_site,
+)
 from ros_helpers import ros_domain  # noqa: F401
 from xrce import constants as C
 from xrce.agent import rosenv
@@ -177,10 +178,8 @@ def test_sourced_ros_agent_bridges_into_that_ros_and_builds_types_against_it(
 
     env = sourced_ros.env(ROS_DOMAIN_ID=str(ros_domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                           XDG_CACHE_HOME=str(tmp_path / "cache"), HOME=str(tmp_path))
-    agent = AgentProcess("udp4", "-m", "dds", cwd=tmp_path)
-    agent.env = env  # exactly the sourced environment, nothing of the test's own venv
-    with mock.patch.object(sys, "executable", str(sourced_ros.python)):
-        agent.__enter__()
+    # Exactly the sourced environment, nothing of the test's own venv.
+    agent = start_installed_agent(sourced_ros.python, env, tmp_path, "udp4", "-m", "dds")
     listener = client = None
     try:
         log = "".join(agent.output)
@@ -217,13 +216,7 @@ def test_sourced_ros_agent_bridges_into_that_ros_and_builds_types_against_it(
         output, _ = listener.communicate(timeout=10)
         assert "got from the board base 42 12.25" in output, output
     finally:
-        if listener is not None and listener.poll() is None:
-            listener.kill()
-            listener.communicate()
-        if client is not None:
-            client.delete(attempts=2, timeout_ms=500)
-            client.close()
-        agent.stop()
+        stop_listener_client_and_agent(listener, client, agent)
     log = "".join(agent.output)
     assert "building interface package turtlebot3_msgs" in log, log
     built = list((tmp_path / "cache" / "xrce" / "interfaces").glob("*/.xrce-complete"))

@@ -27,6 +27,7 @@ def test_client_file_set_excludes_cpython_only_code():
     files = mpy.client_files()
     assert "xrce/__init__.py" in files and "xrce/cdr.py" in files and "xrce/compat.py" in files
     assert files == sorted(set(files))
+    assert "xrce/client/cli_arguments.py" not in files  # argparse: the CLI's half that is not cli.py
     for relative in files:
         assert (mpy.REPO_ROOT / relative).is_file(), relative
         assert relative.endswith(".py")

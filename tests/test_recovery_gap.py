@@ -85,6 +85,14 @@ def subscribe(ros_peer, topic):  # noqa: F811
     return arrivals
 
 
+def the_one_timeline(text):
+    """The match of the single recovery timeline line in ``text`` (the agent's log or the output
+    of ``xrce-agent stats``): one agent restart or board reset makes exactly one."""
+    found = [m for m in map(TIMELINE.search, text.splitlines()) if m]
+    assert len(found) == 1, text
+    return found[0]
+
+
 def stats_port(agent):
     return int(re.search(r"stats on 127\.0\.0\.1:(\d+)", agent.banner).group(1))
 
@@ -113,19 +121,16 @@ def test_agent_sigkill_and_restart_1s_later_gap_and_timeline(ros_peer, ros_domai
                                 str(stats_port(agent)), "--once"], cwd=REPO, capture_output=True,
                                text=True, timeout=60)
         assert stats.returncode == 0, stats.stderr
-        in_stats = [m for m in map(TIMELINE.search, stats.stdout.splitlines()) if m]
-        assert len(in_stats) == 1, stats.stdout
-        assert in_stats[0].group(1) == "%08x" % BOARD_KEY
-        assert in_stats[0].group(2) == "session unknown to this agent"
-        assert int(in_stats[0].group(5)) == 4  # participant, topic, publisher, datawriter
-        assert float(in_stats[0].group(8)) < 1.5  # the agent's own share of the gap
+        in_stats = the_one_timeline(stats.stdout)
+        assert in_stats.group(1) == "%08x" % BOARD_KEY
+        assert in_stats.group(2) == "session unknown to this agent"
+        assert int(in_stats.group(5)) == 4  # participant, topic, publisher, datawriter
+        assert float(in_stats.group(8)) < 1.5  # the agent's own share of the gap
     finally:
         if board is not None:
             board.close()
         agent.stop()
-    in_log = [m for m in map(TIMELINE.search, agent.output) if m]
-    assert len(in_log) == 1, "".join(agent.output)
-    assert in_log[0].group(0) == in_stats[0].group(0)
+    assert the_one_timeline("".join(agent.output)).group(0) == in_stats.group(0)
 
 
 def test_board_reset_with_the_same_key_gap_and_timeline(ros_peer, ros_domain):  # noqa: F811
@@ -146,10 +151,9 @@ def test_board_reset_with_the_same_key_gap_and_timeline(ros_peer, ros_domain):  
             if board is not None:
                 board.close()
         agent.stop()
-    in_log = [m for m in map(TIMELINE.search, agent.output) if m]
-    assert len(in_log) == 1, "".join(agent.output)
-    assert in_log[0].group(2) == "session restarted by the client"
-    assert int(in_log[0].group(5)) == 4 and float(in_log[0].group(8)) < 1.0
+    in_log = the_one_timeline("".join(agent.output))
+    assert in_log.group(2) == "session restarted by the client"
+    assert int(in_log.group(5)) == 4 and float(in_log.group(8)) < 1.0
 
 
 READER_XML = ("<dds><data_reader><topic><kind>NO_KEY</kind><name>rt/early</name>"

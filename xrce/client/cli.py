@@ -16,26 +16,17 @@ which delete the session first), 1 the agent did not answer or refused, 2 bad ar
 ``xrce-client: error: ...`` line on stderr).
 """
 
-import argparse
 import signal
-import socket
 import sys
 import time
 
 from xrce import constants as C, names as wire_names
-
-PROG = "xrce-client"
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
-
-IP_TRANSPORTS = {
-    "udp4": ("udp", socket.AF_INET, "127.0.0.1"),
-    "udp6": ("udp", socket.AF_INET6, "::1"),
-    "tcp4": ("tcp", socket.AF_INET, "127.0.0.1"),
-    "tcp6": ("tcp", socket.AF_INET6, "::1"),
-}
-TRANSPORTS = tuple(IP_TRANSPORTS) + ("serial",)
+# The parser and the argument and message values live in cli_arguments; the names this module had
+# before it was split are imported back so that ``xrce.client.cli.parse_data`` etc. keep working.
+from xrce.client.cli_arguments import (  # noqa: F401
+    EXIT_FAILURE, EXIT_OK, EXIT_USAGE, IP_TRANSPORTS, PROG, TRANSPORTS, ArgumentParser, UsageError,
+    build_parser, check_transport_arguments, format_message, parse_data, resolve_type, usage_exit,
+)
 
 # A bounded wait for each step that needs the agent's answer: a CLI must never hang on a dead agent.
 CREATE_ATTEMPTS = 5
@@ -47,149 +38,8 @@ DELETE_TIMEOUT_MS = 300
 SPIN_SLICE_MS = 100
 
 
-class UsageError(Exception):
-    """An argument that argparse accepted but that makes no sense (reported like argparse's)."""
-
-
 class AgentError(Exception):
     """The agent did not answer or refused; reported as one line, exit code 1."""
-
-
-class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
-
-    def error(self, message):
-        _usage_exit(message)
-
-
-def _usage_exit(message):
-    sys.stderr.write("%s: error: %s\n" % (PROG, message))
-    sys.stderr.flush()
-    raise SystemExit(EXIT_USAGE)
-
-
-# ----------------------------------------------------------------------------- argument types
-
-def _port(text):
-    try:
-        value = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid port: %r" % text)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError("port %d is not in 1..65535" % value)
-    return value
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid number: %r" % text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError("%d is not a positive number" % value)
-    return value
-
-
-def _count(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid count: %r" % text)
-    if value < 0:
-        raise argparse.ArgumentTypeError("count must be 0 (forever) or more, not %d" % value)
-    return value
-
-
-def _rate(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid rate: %r" % text)
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError("rate must be a positive number of Hz, not %r" % text)
-    return value
-
-
-def _domain(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid domain id: %r" % text)
-    if not 0 <= value <= 232:  # the largest id whose RTPS ports still fit in 16 bits
-        raise argparse.ArgumentTypeError("domain id %d is not in 0..232" % value)
-    return value
-
-
-def _client_key(text):
-    digits = text[2:] if text[:2].lower() == "0x" else text
-    try:
-        if len(digits) != 8:
-            raise ValueError
-        key = bytes.fromhex(digits)
-    except ValueError:
-        raise argparse.ArgumentTypeError("client key must be 8 hex digits, not %r" % text)
-    if key == b"\x00\x00\x00\x00":
-        raise argparse.ArgumentTypeError("client key 00000000 is reserved")
-    return key
-
-
-# ----------------------------------------------------------------------------- parser
-
-def _add_transport_arguments(parser):
-    parser.add_argument("transport", choices=TRANSPORTS, help="how to reach the agent")
-    parser.add_argument("--agent", "--ip", dest="host", metavar="HOST",
-                        help="agent address for udp/tcp (default 127.0.0.1, ::1 for udp6/tcp6)")
-    parser.add_argument("-p", "--port", type=_port, help="agent port for udp/tcp")
-    parser.add_argument("-D", "--dev", metavar="DEVICE", help="serial device")
-    parser.add_argument("-b", "--baudrate", type=_positive_int, default=115200, help="serial baud rate")
-    parser.add_argument("--crc", choices=("arc", "ccitt"), default="arc",
-                        help="serial frame checksum: CRC-16/ARC (default, as eProsima) or CRC-16/X.25")
-
-
-def _add_entity_arguments(parser):
-    parser.add_argument("--topic", required=True, help="ROS topic name (chatter or /chatter)")
-    parser.add_argument("--type", dest="type_name", required=True, metavar="TYPE",
-                        help="ROS message type, e.g. std_msgs/msg/String")
-    parser.add_argument("--node", default="xrce_client", help="participant (ROS node) name")
-    parser.add_argument("--domain", type=_domain, default=0, help="ROS domain id (default 0)")
-    parser.add_argument("--key", type=_client_key, help="client key, 8 hex digits (default random)")
-    parser.add_argument("--count", type=_count, help="messages to publish/receive (0: until Ctrl-C)")
-
-
-def build_parser():
-    parser = ArgumentParser(prog=PROG, description="Talk to a Micro XRCE-DDS agent from a shell.")
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
-    commands.required = True
-
-    ping = commands.add_parser("ping", help="check that an agent answers (session-less GET_INFO)")
-    _add_transport_arguments(ping)
-    ping.add_argument("--timeout-ms", type=_positive_int, default=1000, help="wait per attempt")
-    ping.add_argument("--attempts", type=_positive_int, default=3, help="GET_INFO requests to send")
-
-    pub = commands.add_parser("pub", help="publish messages on a topic")
-    _add_transport_arguments(pub)
-    _add_entity_arguments(pub)
-    pub.add_argument("--data", help="the message: a plain value for one-field types, else YAML")
-    pub.add_argument("--rate", type=_rate, default=10.0, help="messages per second (default 10)")
-    pub.add_argument("--reliable", action="store_true",
-                     help="reliable stream and QoS; wait for the agent to confirm each message")
-
-    sub = commands.add_parser("sub", help="print the messages of a topic, one per line")
-    _add_transport_arguments(sub)
-    _add_entity_arguments(sub)
-    sub.add_argument("--timeout-ms", type=_positive_int,
-                     help="give up (exit 1) if --count messages have not arrived by then")
-    # Best effort by default: a best-effort reader matches both kinds of writer, a reliable one
-    # only reliable writers, so the default sees every publisher.
-    qos = sub.add_mutually_exclusive_group()
-    qos.add_argument("--reliable", dest="reliable", action="store_true", default=False,
-                     help="reliable QoS and stream")
-    qos.add_argument("--best-effort", dest="reliable", action="store_false",
-                     help="best-effort QoS and stream (default)")
-
-    build = commands.add_parser("build-mpy", help="compile the client for MicroPython (.mpy files)")
-    build.add_argument("outdir", metavar="OUTDIR")
-    return parser
 
 
 # ----------------------------------------------------------------------------- transports
@@ -202,22 +52,6 @@ def agent_address(args):
     if ":" in host:
         return "[%s]:%d" % (host, args.port)
     return "%s:%d" % (host, args.port)
-
-
-def check_transport_arguments(args):
-    """Fill the default host and reject options that belong to another transport."""
-    if args.transport == "serial":
-        if args.dev is None:
-            raise UsageError("serial needs --dev DEVICE")
-        if args.host is not None or args.port is not None:
-            raise UsageError("--agent and -p are for udp/tcp, not serial")
-        return
-    if args.dev is not None:
-        raise UsageError("--dev is for serial, not %s" % args.transport)
-    if args.port is None:
-        raise UsageError("%s needs -p PORT" % args.transport)
-    if args.host is None:
-        args.host = IP_TRANSPORTS[args.transport][2]
 
 
 def open_transport(args):
@@ -234,106 +68,6 @@ def open_transport(args):
     from xrce.transports.tcp import TcpTransport
 
     return TcpTransport(args.host, args.port, family=family)
-
-
-# ----------------------------------------------------------------------------- messages
-
-def resolve_type(type_name):
-    from xrce.msgs import lookup
-
-    try:
-        return lookup(type_name)
-    except KeyError:
-        raise UsageError("unknown message type %r (expected e.g. std_msgs/msg/String)" % type_name)
-
-
-def _plain_value(msg_class, text):
-    """``text`` as the value of a one-field message whose field is a scalar, typed by its default."""
-    name = msg_class._FIELDS[0][0]
-    default = getattr(msg_class(), name)
-    if isinstance(default, str):
-        return text
-    if isinstance(default, bool):  # before int: bool is an int subclass
-        import yaml
-
-        value = yaml.safe_load(text)
-        if value in (0, 1):
-            return bool(value)
-        raise UsageError("%s.%s is a bool: use true or false, not %r" % (msg_class.ROS_TYPE, name, text))
-    try:
-        if isinstance(default, int):
-            return int(text, 0)
-        if isinstance(default, float):
-            return float(text)
-    except ValueError:
-        raise UsageError("%s.%s needs %s, not %r" % (
-            msg_class.ROS_TYPE, name, "an integer" if isinstance(default, int) else "a number", text))
-    return None
-
-
-def parse_data(msg_class, text):
-    """The message ``--data`` describes: a plain value for one-scalar-field types, else YAML.
-
-    A leading ``{`` always means YAML, so ``'{data: "x: y"}'`` still reaches a String.
-    """
-    from xrce.errors import EncodeError
-
-    if text is None:
-        return msg_class()
-    fields = msg_class._FIELDS
-    if len(fields) == 1 and fields[0][1] == 0 and not text.lstrip().startswith("{"):
-        value = _plain_value(msg_class, text)
-        if value is not None:
-            data = {fields[0][0]: value}
-            return _checked_message(msg_class, data)
-    import yaml
-
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        reason = str(error).replace("\n", " ")
-        raise UsageError("--data is not valid YAML: %s" % " ".join(reason.split()))
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise UsageError("--data for %s must be a YAML mapping such as '{%s: ...}'" % (
-            msg_class.ROS_TYPE, fields[0][0] if fields else "field"))
-    try:
-        return _checked_message(msg_class, data)
-    except EncodeError as error:
-        raise UsageError(str(error))
-
-
-def _checked_message(msg_class, data):
-    """from_dict plus one trial encoding, so wrong values are an argument error, not a crash later."""
-    from xrce.errors import EncodeError
-
-    try:
-        message = msg_class.from_dict(data)
-        message.to_bytes()
-    except EncodeError as error:
-        raise UsageError("--data: %s" % error)
-    return message
-
-
-def _plain(value):
-    """to_dict values in a form YAML prints readably (byte fields as lists of numbers)."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (bytes, bytearray)):
-        return list(value)
-    return value
-
-
-def format_message(message):
-    """One line of flow-style YAML in field order: ``{linear: {x: 0.5, y: 0.0, z: 0.0}, ...}``."""
-    import yaml
-
-    text = yaml.safe_dump(_plain(message.to_dict()), default_flow_style=True, sort_keys=False,
-                          width=float("inf"), allow_unicode=True)
-    return text.strip()
 
 
 def _say(line, stream=None):
@@ -392,8 +126,6 @@ class _Connection:
         finally:
             self.transport.close()
         return False
-
-
 
 
 def _status_name(status):
@@ -522,7 +254,7 @@ def main(argv=None):
         _stop_on_sigterm()
         return COMMANDS[args.command](args)
     except UsageError as error:
-        _usage_exit(str(error))
+        usage_exit(str(error))
     except KeyboardInterrupt:
         return EXIT_OK  # the session was deleted on the way out (_Connection.__exit__)
     except AgentError as error:

@@ -6,7 +6,9 @@ from xrce.cdr import CdrReader
 from xrce.compat import ticks_add, ticks_diff, ticks_ms
 from xrce.errors import DecodeError
 from xrce.message import MessageWriter, decode_header, iter_submessages
-from xrce.submessages import GetInfo, Info, write_submessage
+# The two payloads discovery sends and reads, not the whole codec of xrce.submessages.
+from xrce.payload import write_submessage
+from xrce.session_payloads import GetInfo, Info
 
 
 def discover_agents(transport, attempts=1, period_ms=1000):

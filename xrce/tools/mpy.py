@@ -22,7 +22,9 @@ PACKAGE = "xrce"
 CLIENT_SUBPACKAGES = ("client", "transports", "msgs")
 # Modules that need CPython (argparse, ast, asyncio, rclpy ...) even though they sit in the tree
 # that is otherwise shipped. cli.py and __main__.py are command-line entry points by convention.
-CPYTHON_ONLY_MODULES = ("xrce/msggen.py", "xrce/names.py", "xrce/_cpython.py")
+CPYTHON_ONLY_MODULES = (
+    "xrce/msggen.py", "xrce/names.py", "xrce/_cpython.py", "xrce/client/cli_arguments.py",
+)
 CPYTHON_ONLY_NAMES = ("cli.py", "__main__.py")
 MANIFEST_NAME = "manifest.py"
 MIP_JSON_NAME = "package.json"
