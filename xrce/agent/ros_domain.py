@@ -28,9 +28,9 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
 - Publishing and sending service responses need no executor and happen directly on the engine's
   thread: rcl publish/send_response are thread-safe.
 - Data from ROS reaches the engine on the executor thread itself when the engine's lock is free
-  and nothing of that reader waits for the loop (TurtleBot3 load, bench/agent_cost.py: the
-  agent's main thread 2.2 -> 1.8 % of a core, 140 -> 120 wake-ups a second, the whole agent
-  3.0 -> 2.7 %); otherwise through a bounded per-reader hand-off drained on the asyncio loop
+  and nothing of that reader waits for the loop (TurtleBot3 load, bench/agent_cost.py, medians
+  of 3: the agent's main thread 2.0 -> 1.7 % of a core and 147 -> 128 switch-ins a second, the
+  whole agent 2.8 -> 2.5 %); otherwise through a bounded per-reader hand-off drained on the loop
   (``call_soon_threadsafe`` once per batch, drop-oldest when the loop falls behind).
 """
 
