@@ -16,7 +16,8 @@ a bare rclpy process idle, a Python UDP echo for ping.
 - "idle": the agent with no client over 10 s (after a few seconds to settle discovery).
 - "TurtleBot3 load": the simulated robot of ``xrce-agent demo`` (xrce/examples/turtlebot3.py:
   SensorState 10 Hz, imu, odom, tf, battery), a ROS subscriber on odom and imu, and reliable
-  cmd_vel at 30 Hz from ROS; CPU over 10 s and the agent's resident memory at the end.
+  cmd_vel at 30 Hz from ROS; CPU over 10 s and the agent's resident memory at the end, then
+  the CPU and switch-ins of its main thread and of all its threads over 5 s (schedstat, in ns).
 - "ping": GET_INFO round trips timed around raw socket calls, out of a session (header 0x80) and
   in one, so the figure is the agent's answer plus loopback, not a client library's decode.
 - floors (bench/wakeup_floor.py): what a receiver that does nothing pays per wake-up (asyncio,
@@ -51,6 +52,21 @@ from xrce.submessages import GetInfo, encode_message  # noqa: E402
 IDLE_SECONDS = 10.0
 SETTLE_SECONDS = 3.0
 DRAIN_SECONDS = 0.5
+
+
+def thread_times(pid):
+    """{thread id: (name, ns on CPU, times switched in)} from /proc/<pid>/task/*/schedstat."""
+    threads = {}
+    for tid in os.listdir("/proc/%d/task" % pid):
+        try:
+            with open("/proc/%d/task/%s/comm" % (pid, tid)) as comm, \
+                    open("/proc/%d/task/%s/schedstat" % (pid, tid)) as schedstat:
+                name = comm.read().strip()
+                on_cpu, _waited, switched_in = map(int, schedstat.read().split())
+        except OSError:  # the thread ended meanwhile
+            continue
+        threads[int(tid)] = (name, on_cpu, switched_in)
+    return threads
 
 
 def rss_mb(pid):
@@ -99,6 +115,19 @@ class Agent:
         before = cpu_seconds(self.pid)
         time.sleep(seconds)
         return (cpu_seconds(self.pid) - before) / seconds
+
+    def main_thread_over(self, seconds):
+        """(CPU fraction, switch-ins a second) of the agent's main thread (the asyncio loop's),
+        and (CPU fraction, switch-ins a second) of the whole process, over ``seconds``: the
+        wake-ups are what the agent's CPU at a robot's rates is made of."""
+        before, start = thread_times(self.pid), time.monotonic()
+        time.sleep(seconds)
+        after, elapsed = thread_times(self.pid), time.monotonic() - start
+        main = [(after[self.pid][1] - before[self.pid][1]) / 1e9 / elapsed,
+                (after[self.pid][2] - before[self.pid][2]) / elapsed]
+        total = [sum(a[i] - before.get(tid, (None, 0, 0))[i] for tid, a in after.items())
+                 for i in (1, 2)]
+        return tuple(main), (total[0] / 1e9 / elapsed, total[1] / elapsed)
 
     def stop(self):
         interrupt(self.proc, 20)
@@ -191,7 +220,8 @@ def offered_load(agent, sink, env, domain_id, reliable, rate, seconds):
 
 
 def robot_load(agent, env, domain_id, seconds):
-    """(agent CPU fraction, RSS MB) with the simulated TurtleBot3 and its ROS side running."""
+    """(agent CPU fraction, RSS MB, ((main thread CPU fraction, its switch-ins/s), (all threads'
+    CPU fraction, their switch-ins/s))) with the simulated TurtleBot3 and its ROS side running."""
     ros = Child(["bench/ros_peer.py"], env=env, ready="ready")
     robot = subprocess.Popen([PYTHON, "-m", "xrce.examples.turtlebot3", "udp4", "-p",
                               str(agent.port), "--domain", str(domain_id)],
@@ -210,8 +240,9 @@ def robot_load(agent, env, domain_id, seconds):
         time.sleep(SETTLE_SECONDS)
         cpu = agent.cpu_over(seconds)
         memory = rss_mb(agent.pid)
+        threads = agent.main_thread_over(min(seconds, 5.0))
         driver.join()
-        return cpu, memory
+        return cpu, memory, threads
     finally:
         interrupt(robot, 10)
         ros.close()
@@ -269,7 +300,8 @@ def measure_tree(tree, env, domain_id, quick, sink):
         agent.stop()
     agent = Agent(tree, env)
     try:
-        out["robot_cpu"], out["robot_rss"] = robot_load(agent, env, domain_id, IDLE_SECONDS)
+        out["robot_cpu"], out["robot_rss"], out["robot_threads"] = robot_load(
+            agent, env, domain_id, IDLE_SECONDS)
     finally:
         agent.stop()
     return out
@@ -335,6 +367,16 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
     record("agent CPU, TurtleBot3 load", 100 * here["robot_cpu"], "% core",
            100 * base("robot_cpu", idle_floor), ref or "bare rclpy node idle", "<= 1 %",
            "simulated robot + odom/imu subscriber + reliable cmd_vel 30 Hz")
+    (main_cpu, main_wakes), (all_cpu, all_wakes) = here["robot_threads"]
+    ref_threads = there["robot_threads"] if there is not None else None
+    record("agent main thread CPU, TurtleBot3 load", 100 * main_cpu, "% core",
+           100 * ref_threads[0][0] if ref_threads else None, ref or "-", "",
+           "the asyncio loop's thread, %.0f switch-ins/s (%s); all threads %.1f %% at %.0f/s "
+           "(%s), from /proc/<pid>/task/*/schedstat over 5 s"
+           % (main_wakes, "reference %.0f/s" % ref_threads[0][1] if ref_threads else "-",
+              100 * all_cpu, all_wakes,
+              "reference %.1f %% at %.0f/s" % (100 * ref_threads[1][0], ref_threads[1][1])
+              if ref_threads else "-"))
     record("agent RSS, TurtleBot3 load", here["robot_rss"], "MB", base("robot_rss", None),
            ref or "-", "<= 50 MB", "idle, no client: %.1f MB" % here["rss_idle"])
     for key, label in (("ping_out", "out of session"), ("ping_in", "in session")):

@@ -2,6 +2,7 @@
 
 import asyncio
 import logging
+import threading
 
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
@@ -774,3 +775,45 @@ def test_output_queue_quota_keeps_the_newest_samples_within_the_bound():
     peer.take()
     peer.read(delivery=DeliveryControl(0xFFFF, 0, 0, 0))
     assert data_of(peer.take()) == samples[-4:]  # the newest that fit, oldest dropped first
+
+
+class ThreadRecordingLink(Link):
+    """Records which thread sent each DATA."""
+
+    def send(self, endpoint, data):
+        self.sent.append((endpoint, bytes(data)))
+        if data_of([decode_message(data)]):
+            self.threads.append(threading.get_ident())
+
+
+@pytest.mark.parametrize("any_thread", [True, False])
+async def test_samples_from_the_middleware_thread(any_thread):
+    # A sample a middleware hands over on a thread of its own (RosMiddleware's executor thread)
+    # goes out from that thread when the link can send from any thread (UDP), under the engine's
+    # lock; otherwise (TCP, serial: asyncio transports) from the loop, in order either way.
+    link = ThreadRecordingLink()
+    link.threads = []
+    link.sends_from_any_thread = any_thread
+    agent = Agent(CedMiddleware(), loop=asyncio.get_running_loop())
+    listener = Peer(agent, link, ("h", 2), key=b"\x02\x00\x00\x02")
+    listener.connect()
+    listener.build_pubsub()
+    listener.read(0x80, DeliveryControl())
+    listener.take()
+    link.threads.clear()
+    on_data = agent._sample_callback(agent.clients[listener.key], 0x0016)
+
+    def middleware_thread():
+        with agent.lock:  # what RosMiddleware's hand-off takes before it calls on_data
+            for i in range(3):
+                on_data(bytes([i]))
+
+    thread = threading.Thread(target=middleware_thread)
+    thread.start()
+    thread.join(5)
+    await asyncio.sleep(0.05)  # the loop's turn
+    assert data_of(listener.take()) == [b"\x00", b"\x01", b"\x02"]
+    loop_thread = threading.get_ident()
+    assert all((sender != loop_thread) == any_thread for sender in link.threads)
+    assert len(link.threads) == 3
+    await agent.close()

@@ -221,6 +221,45 @@ async def test_reader_drops_oldest_when_the_loop_falls_behind(middleware, ros_do
     assert [decode(b, String).data for b in bodies] == ["46", "47", "48", "49"]
 
 
+async def test_reader_delivers_on_the_executor_thread_while_the_engine_lock_is_free(
+        middleware, ros_domain, ros_peer):  # noqa: F811
+    # The engine's lock (Agent.lock): free, a sample reaches on_data on the executor thread with
+    # no wake-up of the loop; held (the loop is busy with the engine), the executor thread does
+    # not wait for it, the samples go through the loop afterwards, and the order holds throughout.
+    lock = threading.RLock()
+    middleware.engine_lock = lock
+    loop_thread = threading.get_ident()
+    got = []
+    participant = make_participant(middleware, ros_domain)
+    reader = make_reader(middleware, participant, "rt/direct", STRING_T, 0x10,
+                         lambda body: got.append((threading.get_ident(), lock._is_owned(),
+                                                  decode(body, String).data)),
+                         EndpointQosSpec(depth=100))
+    publisher = ros_peer.node.create_publisher(String, "/direct", 100)
+    assert await async_wait_until(lambda: publisher.get_subscription_count() == 1)
+    publisher.publish(String(data="0"))
+    assert await async_wait_until(lambda: len(got) == 1)
+    thread, owned, data = got[0]
+    assert thread != loop_thread and owned and data == "0"
+
+    handoff = middleware._entities[reader].handoff
+    with lock:  # the loop is busy in the engine: the executor thread queues and goes on
+        for i in (1, 2, 3):
+            publisher.publish(String(data=str(i)))
+        deadline = time.monotonic() + 10
+        while len(handoff.queue) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)  # blocking the loop, as the engine does while it holds the lock
+        assert len(handoff.queue) == 3 and len(got) == 1
+    assert await async_wait_until(lambda: len(got) == 4)
+    assert [(thread == loop_thread, owned, data) for thread, owned, data in got[1:]] == \
+        [(True, True, "1"), (True, True, "2"), (True, True, "3")]
+
+    publisher.publish(String(data="4"))
+    assert await async_wait_until(lambda: len(got) == 5)
+    assert got[4][0] != loop_thread and got[4][2] == "4"
+    assert middleware.reader_stats(reader) == (5, 0)
+
+
 async def test_requester_calls_an_rclpy_service(middleware, ros_domain, ros_peer):  # noqa: F811
     def double(request, response):
         response.int32_value = request.int32_value * 2

@@ -20,10 +20,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import socket
 import sys
-import xml.etree.ElementTree as ElementTree
 
 from xrce.agent import demo, interfaces, observability, serial_links, tcp_links, udp_links
 
@@ -45,8 +45,28 @@ class CliError(Exception):
     """A problem found after parsing (unreadable refs file, ...) reported like a bad argument."""
 
 
+def _help_formatter(prog):
+    """argparse's formatter, told the terminal width as ``shutil.get_terminal_size`` would find
+    it: argparse asks shutil otherwise, and shutil (with the bz2 and lzma it imports) is 0.5 MB of
+    the agent's resident memory, used for nothing else."""
+    try:
+        width = int(os.environ.get("COLUMNS", 0))
+    except ValueError:
+        width = 0
+    if width <= 0:
+        try:
+            width = os.get_terminal_size(sys.__stdout__.fileno()).columns
+        except (AttributeError, ValueError, OSError):
+            width = 0
+    return argparse.HelpFormatter(prog, width=(width or 80) - 2)
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _help_formatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         sys.stderr.write("%s: error: %s\n" % (PROG, message))
@@ -283,6 +303,8 @@ def _strip_namespaces(element):
 def load_refs(path):
     """``{profile_name: xml}`` for every element carrying a ``profile_name`` in a Fast DDS XML
     profiles file; the XML of each is that element alone, namespaces removed."""
+    import xml.etree.ElementTree as ElementTree  # only with -r: see xrce.agent.xmlrep._parse
+
     try:
         tree = ElementTree.parse(path)
     except OSError as exc:

@@ -5,7 +5,8 @@ here, so this module is the one to read and profile for throughput:
 
 - in: ``_write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``_fragment`` reassembles
   FRAGMENTs of a reliable stream and feeds the whole message back to the dispatcher;
-- out: the middleware's callbacks queue samples per reader (``_enqueue``, bounded per client);
+- out: the middleware's callbacks queue samples per reader (``_from_middleware``, ``_enqueue``,
+  bounded per client), on the middleware's own thread when the client's link allows it;
   ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``_send_on_stream`` numbers, stores (reliable) and fragments output.
 """
@@ -13,6 +14,7 @@ here, so this module is the one to read and profile for throughput:
 from __future__ import annotations
 
 import logging
+import threading
 from typing import Hashable, Optional
 
 from xrce import constants as C
@@ -30,9 +32,10 @@ C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sa
 class DataPath:
     """Mixin of ``Agent``: sample input, per-reader queues, READ_DATA delivery and stream output.
 
-    Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``max_reassembly_bytes`` and
-    ``max_output_queue_bytes``; ``_process_message`` and ``_trace`` (dispatcher), ``_status``,
-    ``_quota_warning``, and ``_wake_at``/``_heartbeat_soon`` (liveliness: when timed work is due).
+    Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``lock``, ``loop``,
+    ``max_reassembly_bytes`` and ``max_output_queue_bytes``; ``_process_message`` and ``_trace``
+    (dispatcher), ``_status``, ``_quota_warning``, and ``_wake_at``/``_heartbeat_soon``
+    (liveliness: when timed work is due).
     """
 
     def _fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
@@ -119,12 +122,12 @@ class DataPath:
 
     def _sample_callback(self, client: ClientProxy, object_id: int):
         def on_data(sample: bytes) -> None:
-            self._enqueue(client, object_id, bytes(sample))
+            self._from_middleware(client, object_id, bytes(sample))
         return on_data
 
     def _request_callback(self, client: ClientProxy, object_id: int):
         def on_request(sample_identity: bytes, request: bytes) -> None:
-            self._enqueue(client, object_id, bytes(sample_identity) + bytes(request))
+            self._from_middleware(client, object_id, bytes(sample_identity) + bytes(request))
         return on_request
 
     def _reply_callback(self, client: ClientProxy, object_id: int):
@@ -132,8 +135,20 @@ class DataPath:
             # The reply travels behind the BaseObjectRequest of the WRITE_DATA that asked (§6).
             request_id = correlation_id & 0xFFFF
             prefix = bytes((request_id >> 8, request_id & 0xFF, object_id >> 8, object_id & 0xFF))
-            self._enqueue(client, object_id, prefix + bytes(reply))
+            self._from_middleware(client, object_id, prefix + bytes(reply))
         return on_reply
+
+    def _from_middleware(self, client: ClientProxy, object_id: int, payload: bytes) -> None:
+        """A sample for a reader, on the loop's thread or on the middleware's holding ``lock``
+        (see ``xrce.agent.middleware``). It goes out from the calling thread when the client's
+        link can send from any thread (UDP); otherwise it takes the loop's turn, behind what the
+        loop already has to send."""
+        if self.loop is not None and threading.get_ident() != self._loop_thread and \
+                not getattr(client.link, "sends_from_any_thread", False):
+            self.loop.call_soon_threadsafe(self._from_middleware, client, object_id, payload)
+            return
+        with self.lock:
+            self._enqueue(client, object_id, payload)
 
     def _enqueue(self, client: ClientProxy, object_id: int, payload: bytes) -> None:
         if not client.alive:

@@ -16,6 +16,11 @@ touching any other client. Everything runs on one asyncio loop.
 
 What a client's objects map onto is the middleware's business (``xrce.agent.middleware``); the engine
 keeps the XRCE view: ids, parents, REUSE/REPLACE signatures and the READ_DATA state of each reader.
+
+Threads: the engine runs on the asyncio loop's thread, and on the middleware's thread for the
+samples it delivers to UDP clients (``DataPath._from_middleware``): whoever runs it holds
+``Agent.lock``. Taking that lock costs a fraction of a microsecond per message; waking the loop
+for every sample from ROS cost more than the sample itself (bench/agent_cost.py, TurtleBot3 load).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import logging
+import threading
 import time
 from collections import deque
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
@@ -89,6 +95,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
         self._started = False
+        # Held by whichever thread runs the engine (module docstring); reentrant because an
+        # in-process middleware (-m ced) delivers samples while the engine is receiving.
+        self.lock = threading.RLock()
+        middleware.engine_lock = self.lock
+        self._loop_thread = threading.get_ident()  # the thread the loop runs on, once started
         self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
         self._timer_due = NEVER
         self._info_cache: Dict[tuple, bytes] = {}  # see SessionTable._info_message
@@ -105,24 +116,25 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         """Handle one whole XRCE message from ``endpoint`` on ``link``. Never raises."""
         data = bytes(data)
         stats = self.stats
-        stats.messages_in += 1
-        stats.bytes_in += len(data)
-        if self.tap is not None:
-            self.tap("in", link, endpoint, data)
-        try:
-            # At -v 6 every message goes the general way, which traces it.
-            if log.isEnabledFor(TRACE) or not self._fast_write(link, endpoint, data):
-                self._receive(link, endpoint, data)
-        except DecodeError as exc:
-            self.stats.decode_errors += 1
-            self.stats.dropped += 1
-            log.debug("dropped malformed message from %s %r (%s): %s", link.name, endpoint, exc,
-                      data.hex())
-        except Exception as exc:  # a bug or a middleware surprise must not take the agent down
-            self.stats.handler_errors += 1
-            self.stats.dropped += 1
-            log.debug("dropped message from %s %r after %s: %s", link.name, endpoint,
-                      exc.__class__.__name__, data.hex(), exc_info=True)
+        with self.lock:
+            stats.messages_in += 1
+            stats.bytes_in += len(data)
+            if self.tap is not None:
+                self.tap("in", link, endpoint, data)
+            try:
+                # At -v 6 every message goes the general way, which traces it.
+                if log.isEnabledFor(TRACE) or not self._fast_write(link, endpoint, data):
+                    self._receive(link, endpoint, data)
+            except DecodeError as exc:
+                self.stats.decode_errors += 1
+                self.stats.dropped += 1
+                log.debug("dropped malformed message from %s %r (%s): %s", link.name, endpoint,
+                          exc, data.hex())
+            except Exception as exc:  # a bug or a middleware surprise must not take the agent down
+                self.stats.handler_errors += 1
+                self.stats.dropped += 1
+                log.debug("dropped message from %s %r after %s: %s", link.name, endpoint,
+                          exc.__class__.__name__, data.hex(), exc_info=True)
 
     def _build_finished(self, client: ClientProxy) -> None:
         """Called from the build's thread: hand the client back to the loop."""
@@ -132,6 +144,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # Without a loop (synchronous tests), tick() resumes it.
 
     def _resume_parked(self) -> None:
+        with self.lock:
+            self._resume_parked_locked()
+
+    def _resume_parked_locked(self) -> None:
         while self._resumable:
             client = self._resumable.popleft()
             pending, client.parked = client.parked, None
@@ -151,7 +167,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def tick(self) -> None:
         """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
         loop timer for the next (``run()`` calls it from there; tests call it directly)."""
-        self._resume_parked()
+        with self.lock:
+            self._tick_locked()
+
+    def _tick_locked(self) -> None:
+        self._resume_parked_locked()
         now = self.clock()
         due = NEVER
         if self.timelines.pending:
@@ -180,6 +200,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         the CLI awaits it before opening any link so that no client is answered meanwhile."""
         if self.loop is None:
             self.loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
         if not self._started:
             self._started = True
             await self.middleware.start()
@@ -200,8 +221,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
 
     async def close(self) -> None:
         self._cancel_timer()
-        for client in list(self.clients.values()):
-            self._delete_client(client)
+        with self.lock:
+            for client in list(self.clients.values()):
+                self._delete_client(client)
         self._cancel_timer()  # deleting clients may have scheduled replies' HEARTBEATs
         await self.middleware.close()
 
@@ -272,15 +294,16 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self._acks_due[(client.key, stream.stream_id)] = (client, stream)
 
     def _send_due_acknacks(self) -> None:
-        due, self._acks_due = self._acks_due, {}
-        for client, stream in due.values():
-            if client.alive and self.clients.get(client.key) is client and \
-                    client.in_reliable.get(stream.stream_id) is stream:
-                try:
-                    self._send_acknack(client, stream)
-                except Exception:
-                    self.stats.handler_errors += 1
-                    log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
+        with self.lock:
+            due, self._acks_due = self._acks_due, {}
+            for client, stream in due.values():
+                if client.alive and self.clients.get(client.key) is client and \
+                        client.in_reliable.get(stream.stream_id) is stream:
+                    try:
+                        self._send_acknack(client, stream)
+                    except Exception:
+                        self.stats.handler_errors += 1
+                        log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
 
     def _process_reliable_message(self, client: ClientProxy, stream_id: int, message: bytes) -> None:
         size = header_size(message[0])

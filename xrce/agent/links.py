@@ -56,6 +56,9 @@ class Link:
     """Common part of every server: counters and the guarded hand-off to the receiver."""
 
     name = "link"
+    # True when send() may be called from any thread (the engine then delivers a sample from the
+    # middleware's thread without waking the loop); asyncio transports are loop-only.
+    sends_from_any_thread = False
 
     def __init__(self, receiver):
         self.receiver = receiver

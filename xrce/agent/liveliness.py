@@ -14,6 +14,7 @@ acknowledged, the agent wakes at most once per dead time per client.
 from __future__ import annotations
 
 import logging
+import threading
 
 import math
 
@@ -38,6 +39,10 @@ class Liveliness:
     def _wake_at(self, due: float) -> None:
         """Run ``tick()`` at ``due`` (agent clock) unless it is already set to run sooner."""
         if due >= self._timer_due or self.loop is None:
+            return
+        if threading.get_ident() != self._loop_thread:
+            # Output sent from the middleware's thread (datapath): the loop owns its timers.
+            self.loop.call_soon_threadsafe(self._wake_at, due)
             return
         if self._timer is not None:
             self._timer.cancel()

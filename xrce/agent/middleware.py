@@ -11,9 +11,13 @@ data through the backing entities:
 Entity handles are the engine's ``EntityKey`` = ``(client_key: int, object_id: int)``, unique across
 the agent. Every ``create_*`` either succeeds or raises ``MiddlewareError`` (the engine answers
 ``ERR_DDS_ERROR``) or ``UnknownTypeError`` (also ``ERR_DDS_ERROR``, with a log line that names the
-interface package to build). All methods are called on the asyncio loop's thread; data callbacks
-given to the middleware may be invoked from any thread, and the middleware must hand them to the
-loop itself (``loop.call_soon_threadsafe``) before they reach the engine, keeping its queues bounded.
+interface package to build). All methods are called on the asyncio loop's thread. Data callbacks
+given to the middleware are called on the loop's thread, or on any thread that holds
+``engine_lock`` (the engine sets it): a middleware whose data arrives on a thread of its own hands it
+to the loop (``loop.call_soon_threadsafe``, keeping its queues bounded), or calls the callback right
+there when it takes ``engine_lock`` without waiting and nothing of that reader is still queued for
+the loop, which saves waking the loop once per sample. It must never wait for that lock: the
+engine holds it while it waits for the middleware's own thread (entity creation).
 
 Sample bytes crossing this interface are bare XCDR1 bodies WITHOUT the 4-byte encapsulation header
 (XRCE-WIRE.md §14): the ROS middleware prepends ``00 01 00 00`` on publish and strips the first 4
@@ -23,6 +27,7 @@ bytes on receive.
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
@@ -82,6 +87,8 @@ class Middleware:
     """Base class: every method must be implemented by a backend."""
 
     name = "abstract"
+    # The engine's lock (``Agent.lock``), set by the engine; see the module docstring.
+    engine_lock: Optional[threading.RLock] = None
 
     def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
         raise NotImplementedError

@@ -253,7 +253,8 @@ class RosMiddleware(RosServices, Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos)
-        record = _ReaderRecord(owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth))
+        record = _ReaderRecord(owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth,
+                                                    self.engine_lock))
         node = participant.node
         record.subscription = self._on_executor(participant, lambda: node.create_subscription(
             topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile, raw=True))

@@ -44,6 +44,7 @@ class Link(Protocol):
     """A transport server as the engine sees it."""
 
     name: str
+    sends_from_any_thread: bool
 
     def send(self, endpoint: Any, data: bytes) -> None: ...
 

@@ -75,6 +75,8 @@ def _send_datagram(link, sock, endpoint, data):
 class UdpServer(Link):
     """UDP v4/v6: one XRCE message per datagram; replies go to the datagram's source address."""
 
+    sends_from_any_thread = True  # sendto() on the socket itself (_send_datagram)
+
     def __init__(self, receiver, port, *, family=socket.AF_INET, host=None):
         super().__init__(receiver)
         self.family = family

@@ -8,9 +8,11 @@ not map.
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from typing import Dict, Optional
+from typing import TYPE_CHECKING, Dict, Optional
+
+if TYPE_CHECKING:
+    import xml.etree.ElementTree as ET
 
 from xrce.agent.middleware import EndpointQosSpec, ServiceSpec, TopicSpec
 
@@ -45,6 +47,10 @@ class EndpointXml:
 
 
 def _parse(text: str) -> Optional[ET.Element]:
+    # Imported on first use: ElementTree and expat are 0.5 MB of the agent's resident memory,
+    # and most clients (micro-ROS among them) create their entities from binary representations.
+    import xml.etree.ElementTree as ET
+
     if not text.strip():
         return None
     try:
@@ -183,6 +189,8 @@ def refs_from_profiles(text: str) -> Dict[str, str]:
     Each profile element is re-serialized on its own, wrapped in ``<dds>``, so it parses exactly
     like a snippet sent AS_XML_STRING.
     """
+    import xml.etree.ElementTree as ET
+
     root = _parse(text)
     refs: Dict[str, str] = {}
     if root is None:
