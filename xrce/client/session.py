@@ -335,9 +335,12 @@ class Session:
         # Services, entity deletion and the link state cost a board nothing until first used.
         if name in ("create_requester", "create_replier", "create_service_client", "create_service_server",
                     "send_request", "send_reply"):
-            from xrce.client import services as module
+            import xrce.client.services as module
         elif name in ("delete_entity", "cancel_data"):
-            from xrce.client import teardown as module
+            # Imported by full name: on MicroPython `from xrce.client import teardown` looks the
+            # module up as an attribute of the package first, and the package's __getattr__ (this
+            # module's, for ping_agent) raises AttributeError instead of letting the import go on.
+            import xrce.client.teardown as module
         elif name == "link_state":
             from xrce.client.recovery import link_state
             return link_state(self)
