@@ -538,8 +538,9 @@ class Session:
         return data is not None
 
     def _periodic(self, now):
-        # Heartbeats that are due, then the link monitor.
-        for stream_id, due in list(self._next_heartbeat.items()):
+        # Heartbeats that are due, then the link monitor. The snapshot of the pending streams is taken
+        # only when there are some: most passes have none, and an empty list still costs heap.
+        for stream_id, due in list(self._next_heartbeat.items()) if self._next_heartbeat else ():
             state = self._outputs[stream_id].state
             bounds = state.heartbeat()
             if bounds is None:
