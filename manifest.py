@@ -6,6 +6,7 @@ package(
     files=(
         "__init__.py",
         "cdr.py",
+        "cdr_more.py",
         "client/__init__.py",
         "client/discovery.py",
         "client/fragments.py",

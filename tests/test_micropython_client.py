@@ -54,7 +54,7 @@ def test_micropython_client_against_the_real_agent():
             peer.close()
     lines = dict(line.split(" ", 1) for line in result.stdout.splitlines() if " " in line)
     assert result.returncode == 0, result.stdout + result.stderr
-    for step in ("ping_agent", "create", "ping_session", "sync_time", "entities", "delivered", "delete"):
+    for step in ("ping_agent", "create", "ping_session", "sync_time", "entities", "delivered", "delete_entity", "delete"):
         assert lines.get(step) == "True", (step, result.stdout)
     count, x = lines["received"].split()
     assert int(count) >= 3 and float(x) == 0.25

@@ -6,9 +6,16 @@
 #
 # MicroPython-safe: only ``struct`` with explicit byte order, no ``?`` type code (MicroPython lacks it).
 # Every read is bounds-checked first, so hostile input raises only ``DecodeError``.
+#
+# The classes here hold what the client core calls; the values it never writes or reads (int8, int64,
+# float, a writer's bool; a reader's uint16, int32, octets, remaining() and rest()) are defined in xrce.cdr_more, which the
+# first use of one of them loads (``_more``): each method costs a board heap for as long as its
+# class lives, and a firmware that only publishes and subscribes never pays for those. On CPython
+# (the agent, the tools) they are attached at import, so both classes are complete from the start.
 
 import struct
 
+from xrce.compat import IS_MICROPYTHON
 from xrce.errors import DecodeError, EncodeError
 
 # Value written into alignment padding. Only tests change it: encoding twice with different fills
@@ -17,6 +24,15 @@ PAD_FILL = 0
 
 _LE = ("<h", "<H", "<i", "<I", "<q", "<Q", "<f", "<d")
 _BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
+
+
+# __getattr__ of both classes: a method named in xrce.cdr_more is attached to the classes on first use.
+def _more(self, name):
+    import xrce.cdr_more  # noqa: F401
+
+    if getattr(type(self), name, None) is None:  # not one of them either
+        raise AttributeError(name)
+    return getattr(self, name)
 
 
 class CdrWriter:
@@ -31,6 +47,8 @@ class CdrWriter:
         self.buf = bytearray(64) if buf is None else buf
         self.pos = pos
         self.origin = pos if origin is None else origin
+
+    __getattr__ = _more
 
     def reset(self, pos=0, origin=None):
         self.pos = pos
@@ -66,14 +84,6 @@ class CdrWriter:
         self.buf[self.pos] = value
         self.pos += 1
 
-    def i8(self, value):
-        if not -128 <= value <= 127:
-            raise EncodeError("int8 out of range: %r" % (value,))
-        self.u8(value & 0xFF)
-
-    def boolean(self, value):
-        self.u8(1 if value else 0)
-
     def i16(self, value):
         self._put("<h", 2, value)
 
@@ -85,18 +95,6 @@ class CdrWriter:
 
     def u32(self, value):
         self._put("<I", 4, value)
-
-    def i64(self, value):
-        self._put("<q", 8, value)
-
-    def u64(self, value):
-        self._put("<Q", 8, value)
-
-    def f32(self, value):
-        self._put("<f", 4, value)
-
-    def f64(self, value):
-        self._put("<d", 8, value)
 
     def raw(self, data):
         # Bytes copied verbatim, no alignment (ObjectId, RequestId, keys, blobs).
@@ -135,8 +133,7 @@ class CdrReader:
         self.origin = pos if origin is None else origin
         self._fmt = _LE if little else _BE
 
-    def remaining(self):
-        return self.end - self.pos
+    __getattr__ = _more
 
     def align(self, n):
         self.pos += (self.origin - self.pos) % n
@@ -160,10 +157,6 @@ class CdrReader:
         self.pos += 1
         return value
 
-    def i8(self):
-        value = self.u8()
-        return value - 256 if value > 127 else value
-
     def boolean(self):
         value = self.u8()
         if value > 1:
@@ -173,26 +166,8 @@ class CdrReader:
     def i16(self):
         return self._get(0, 2)
 
-    def u16(self):
-        return self._get(1, 2)
-
-    def i32(self):
-        return self._get(2, 4)
-
     def u32(self):
         return self._get(3, 4)
-
-    def i64(self):
-        return self._get(4, 8)
-
-    def u64(self):
-        return self._get(5, 8)
-
-    def f32(self):
-        return self._get(6, 4)
-
-    def f64(self):
-        return self._get(7, 8)
 
     def raw(self, n):
         if n < 0:
@@ -215,10 +190,6 @@ class CdrReader:
         except UnicodeError:
             raise DecodeError("string is not valid UTF-8")
 
-    def octets(self):
-        return self.raw(self.u32())
 
-    def rest(self):
-        data = bytes(self.buf[self.pos:self.end])
-        self.pos = self.end
-        return data
+if not IS_MICROPYTHON:
+    import xrce.cdr_more  # noqa: F401,E402  (attaches the rest of the methods)

@@ -24,7 +24,7 @@ print("sync_time", session.sync_time(500, 3))
 node = session.create_participant(name="micropython_node")
 writer = session.create_writer(node, "/mp_chatter", String)
 received = []
-session.create_reader(node, "/mp_cmd", Twist, received.append)
+reader = session.create_reader(node, "/mp_cmd", Twist, received.append)
 print("entities", session.run_until_all_status(2000))
 for i in range(10):
     session.write(writer, String(data="from micropython %d" % i))
@@ -35,4 +35,8 @@ while len(received) < 3 and deadline > 0:
     deadline -= 1
 print("received", len(received), received[0].linear.x if received else None)
 print("epoch_ms", session.epoch_ms())
+# The methods the session loads on first use (xrce.client.teardown) work on a board too.
+session.cancel_data(reader)
+session.delete_entity(writer)
+print("delete_entity", session.run_until_all_status(2000))
 print("delete", session.delete(attempts=3, timeout_ms=500))

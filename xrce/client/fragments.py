@@ -20,7 +20,9 @@ def write_fragmented(session, out, mark, end):
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
     out.pos = end
     out.pad_to_4()
-    body = memoryview(bytes(out.buf[mark:out.pos]))
+    # One copy of the submessage (the fragments are written over it): slicing the memoryview copies
+    # nothing, where slicing the bytearray first would make a second, transient copy as large.
+    body = memoryview(bytes(memoryview(out.buf)[mark:out.pos]))
     out.pos = mark
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
     total = len(body)

@@ -44,7 +44,6 @@ _BUILTIN_RELIABLE = const(0x80)
 _CREATE_CLIENT = const(0)
 _CREATE = const(1)
 _GET_INFO = const(2)
-_DELETE = const(3)
 _STATUS_AGENT = const(4)
 _STATUS = const(5)
 _INFO = const(6)
@@ -218,20 +217,6 @@ class Session:
         w.u32(_INFO_ACTIVITY)
         self._send_control()
 
-    def delete(self, attempts=10, timeout_ms=1000):
-        # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
-        self.flush()
-        self._begin_control(_DELETE).raw(b"\x00\x02\xff\xfe")  # REQUEST_ID_LOGOUT, OBJECTID_CLIENT
-        self._control.end_submessage()
-        message = self._control.getvalue()
-        self._delete_status = None
-        for _ in range(attempts):
-            self._send(message)
-            if self._wait(timeout_ms, lambda: self._delete_status is not None):
-                break
-        self.connected = False
-        return self._delete_status is not None
-
     def _reset_streams(self):
         for out in self._outputs.values():
             out.state.reset()
@@ -332,12 +317,16 @@ class Session:
                               stream_id, flags)
 
     def __getattr__(self, name):
-        # Services, entity deletion and the link state cost a board nothing until first used.
+        # Services, deletion (of entities or the session), waiting for delivery and the link state
+        # cost a board nothing until first used.
         if name in ("create_requester", "create_replier", "create_service_client", "create_service_server",
                     "send_request", "send_reply"):
-            from xrce.client import services as module
-        elif name in ("delete_entity", "cancel_data"):
-            from xrce.client import teardown as module
+            import xrce.client.services as module
+        elif name in ("delete", "delete_entity", "cancel_data", "run_until_confirm_delivery"):
+            # Imported by full name: on MicroPython `from xrce.client import teardown` looks the
+            # module up as an attribute of the package first, and the package's __getattr__ (this
+            # module's, for ping_agent) raises AttributeError instead of letting the import go on.
+            import xrce.client.teardown as module
         elif name == "link_state":
             from xrce.client.recovery import link_state
             return link_state(self)
@@ -549,8 +538,9 @@ class Session:
         return data is not None
 
     def _periodic(self, now):
-        # Heartbeats that are due, then the link monitor.
-        for stream_id, due in list(self._next_heartbeat.items()):
+        # Heartbeats that are due, then the link monitor. The snapshot of the pending streams is taken
+        # only when there are some: most passes have none, and an empty list still costs heap.
+        for stream_id, due in list(self._next_heartbeat.items()) if self._next_heartbeat else ():
             state = self._outputs[stream_id].state
             bounds = state.heartbeat()
             if bounds is None:
@@ -597,17 +587,6 @@ class Session:
             if status != _STATUS_OK and status != _STATUS_OK_MATCHED:
                 ok = False
         return ok
-
-    def run_until_confirm_delivery(self, timeout_ms=1000):
-        # Flush and wait until every reliable message sent has been acknowledged.
-        self.flush()
-        return self._wait(timeout_ms, self._all_delivered)
-
-    def _all_delivered(self):
-        for out in self._outputs.values():
-            if out.reliable and out.state.pending():
-                return False
-        return True
 
     # ------------------------------------------------------------------ ping and time
 
