@@ -25,7 +25,7 @@ import signal
 import socket
 import sys
 
-from xrce.agent import demo, interfaces, observability, serial_links, tcp_links, udp_links
+from xrce.agent import demo, interfaces, links, observability, udp_links
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -181,7 +181,7 @@ def _add_ip_options(parser):
 def _add_tcp_options(parser):
     _add_ip_options(parser)
     parser.add_argument("--max-connections", type=int,
-                        default=tcp_links.DEFAULT_TCP_MAX_CONNECTIONS, metavar="N",
+                        default=links.DEFAULT_TCP_MAX_CONNECTIONS, metavar="N",
                         help="simultaneous TCP connections (default 100)")
 
 
@@ -192,14 +192,14 @@ def _add_crc_option(parser):
 
 def _add_serial_options(parser):
     parser.add_argument("-D", "--dev", required=True, metavar="DEVICE", help="serial device")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=serial_links.DEFAULT_BAUDRATE)
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=links.DEFAULT_BAUDRATE)
     _add_crc_option(parser)
 
 
 def _add_multiserial_options(parser):
     parser.add_argument("--devs", required=True, metavar='"DEV1 DEV2 ..."',
                         help="space-separated serial devices")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=serial_links.DEFAULT_BAUDRATE)
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=links.DEFAULT_BAUDRATE)
     _add_crc_option(parser)
 
 
@@ -211,25 +211,35 @@ def _add_pty_options(parser):
 
 # ----------------------------------------------------------------------------- link factories
 
-def _ip_links(family, server_class):
+# The TCP and serial link modules are imported only by the subcommands that serve them.
+
+def _udp_links(family):
     def make_links(args, agent):
-        extra = {}
-        if server_class is tcp_links.TcpServer:
-            extra["max_connections"] = args.max_connections
-        return [server_class(agent, args.port, family=family, **extra)]
+        return [udp_links.UdpServer(agent, args.port, family=family)]
+    return make_links
+
+
+def _tcp_links(family):
+    def make_links(args, agent):
+        from xrce.agent import tcp_links
+        return [tcp_links.TcpServer(agent, args.port, family=family,
+                                    max_connections=args.max_connections)]
     return make_links
 
 
 def _serial_links(args, agent):
+    from xrce.agent import serial_links
     return [serial_links.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
 
 
 def _multiserial_links(args, agent):
+    from xrce.agent import serial_links
     devices = args.devs.split()
     return [serial_links.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
 
 
 def _pty_links(args, agent):
+    from xrce.agent import serial_links
     return [serial_links.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
 
 
@@ -255,13 +265,13 @@ def register(subcommand):
 
 for _row in (
     Subcommand("udp4", "serve UDP over IPv4", _add_ip_options,
-               _ip_links(socket.AF_INET, udp_links.UdpServer)),
+               _udp_links(socket.AF_INET)),
     Subcommand("udp6", "serve UDP over IPv6", _add_ip_options,
-               _ip_links(socket.AF_INET6, udp_links.UdpServer)),
+               _udp_links(socket.AF_INET6)),
     Subcommand("tcp4", "serve TCP over IPv4", _add_tcp_options,
-               _ip_links(socket.AF_INET, tcp_links.TcpServer)),
+               _tcp_links(socket.AF_INET)),
     Subcommand("tcp6", "serve TCP over IPv6", _add_tcp_options,
-               _ip_links(socket.AF_INET6, tcp_links.TcpServer)),
+               _tcp_links(socket.AF_INET6)),
     Subcommand("serial", "serve one serial device", _add_serial_options, _serial_links),
     Subcommand("multiserial", "serve several serial devices", _add_multiserial_options,
                _multiserial_links),

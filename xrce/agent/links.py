@@ -30,6 +30,10 @@ MAX_MESSAGE_SIZE = 65535
 # Bytes queued towards one slow TCP peer or serial port before further replies are dropped: the
 # reliable streams resend what matters, and memory stays bounded whatever the peer does.
 MAX_PENDING_OUTPUT = 256 * 1024
+# The command line's defaults, here so that parsing it does not import the serial and TCP links
+# (with crcmod, termios and the framers) into a UDP agent.
+DEFAULT_BAUDRATE = 115200
+DEFAULT_TCP_MAX_CONNECTIONS = 100
 
 
 class LinkStats:

@@ -11,13 +11,12 @@ import os
 import termios
 import tty
 
-from xrce.agent.links import MAX_PENDING_OUTPUT, Link, log
+from xrce.agent.links import DEFAULT_BAUDRATE, MAX_PENDING_OUTPUT, Link, log
 from xrce.errors import EncodeError
 from xrce.transports.crc import get_crc
 from xrce.transports.framing import MAX_FRAME_PAYLOAD, FrameDecoder, encode_frame
 
 SERIAL_AGENT_ADDRESS = 0
-DEFAULT_BAUDRATE = 115200
 DEFAULT_REOPEN_INTERVAL = 0.2  # seconds between attempts to reopen a vanished serial device
 _READ_CHUNK = 65536
 

@@ -8,11 +8,11 @@ from __future__ import annotations
 import asyncio
 import socket
 
-from xrce.agent.links import MAX_MESSAGE_SIZE, MAX_PENDING_OUTPUT, Link, log
+from xrce.agent.links import (DEFAULT_TCP_MAX_CONNECTIONS, MAX_MESSAGE_SIZE, MAX_PENDING_OUTPUT,
+                              Link, log)
 from xrce.errors import EncodeError
 from xrce.transports.framing import LengthPrefixDecoder, encode_length_prefixed
 
-DEFAULT_TCP_MAX_CONNECTIONS = 100
 
 
 class TcpConnection(asyncio.Protocol):
