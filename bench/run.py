@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from agent_process import AgentProcess  # noqa: E402
 from ros_helpers import DomainLease  # noqa: E402
-from xrce.agent.observability import fetch_stats  # noqa: E402
+from xrce.agent.stats_view import fetch_stats  # noqa: E402
 
 PYTHON = sys.executable
 FIGURES = []
