@@ -11,8 +11,8 @@ because a cache of hashed prefixes never overwrites files a running process has 
 a changed package is an atomic switch of one registry entry, and removing the registry files undoes
 everything. Registering is idempotent (same entry, same file contents).
 
-Only the standard library is imported at module level: the ``.pth`` hook imports this module in
-every interpreter start of the venv.
+Only the standard library is imported at module level: the ``.pth`` hook imports this module
+(through xrce.agent.interfaces) in every interpreter start of the venv.
 """
 
 from __future__ import annotations
@@ -121,7 +121,8 @@ def default_site_dir():
 
 
 # One line that site.py executes at every interpreter start (it runs lines beginning with "import").
-# An uninstalled xrce must not break the interpreter, hence the ImportError guard.
+# An uninstalled xrce must not break the interpreter, hence the ImportError guard. It names
+# xrce.agent.interfaces, not this module: .pth files written by earlier versions name it too.
 _PTH_CODE = ("try:\n import xrce.agent.interfaces as m\n"
              "except ImportError:\n m = None\n"
              "if m is not None:\n m.activate_registry(%r)\n")
