@@ -92,4 +92,6 @@ class DiagnosticsPublisher:
             self.published += 1
 
 
-__all__ = ["DIAGNOSTIC_ARRAY_TYPE", "DiagnosticsPublisher", "diagnostic_array", "diagnostic_array_type"]
+__all__ = [
+    "DIAGNOSTIC_ARRAY_TYPE", "DiagnosticsPublisher", "diagnostic_array", "diagnostic_array_type",
+]
