@@ -2,9 +2,8 @@
 # any session exists, as micro-ROS firmware waits for its agent. Its own module so that a board
 # that never pings pays nothing for it; `from xrce.client.session import ping_agent` still works.
 
+from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce.client.session import _agent_activity
-from xrce.compat import const, ticks_add, ticks_diff, ticks_ms, ticks_us
-from xrce.errors import DecodeError
 from xrce.message import header_size, iter_submessages
 
 _INFO = const(6)

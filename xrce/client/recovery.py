@@ -11,7 +11,7 @@
 # an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
 # the session's run loops.
 
-from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
+from xrce import const, ticks_add, ticks_diff, ticks_ms
 
 _OBJK_PARTICIPANT = const(0x01)
 _CREATE = const(1)

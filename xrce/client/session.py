@@ -26,10 +26,11 @@
 
 import struct
 
+from xrce import (
+    DecodeError, XrceError, const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us,
+)
 from xrce.cdr import CdrReader
 from xrce.client import wire
-from xrce.compat import const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
-from xrce.errors import DecodeError, XrceError
 from xrce.message import MessageWriter, header_size, iter_submessages
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,

@@ -7,8 +7,8 @@
 # cases a client produces; tests/test_client_wire.py checks them against the general codec, so
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
+from xrce import const
 from xrce.cdr import CdrWriter
-from xrce.compat import const
 
 _OBJK_PARTICIPANT = const(1)
 _OBJK_REPLIER = const(8)

@@ -31,9 +31,8 @@
 import struct
 import sys
 
+from xrce import DecodeError, EncodeError, IS_MICROPYTHON
 from xrce.cdr import CdrReader, CdrWriter
-from xrce.compat import IS_MICROPYTHON
-from xrce.errors import DecodeError, EncodeError
 
 _unpack_from = struct.unpack_from
 _pack_into = struct.pack_into
