@@ -82,6 +82,7 @@ _MAX_SAMPLES_UNLIMITED = const(0xFFFF)
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
 _SLOT_OVERHEAD = const(4)
+_FIRST_OUTPUT_BUFFER = const(64)
 
 
 class SessionError(XrceError):
@@ -137,13 +138,16 @@ class Session:
 
         self._outputs = {}
         self._inputs = {}
+        # An output buffer starts small and grows (doubling) to the largest message its stream
+        # has built, at most about max_message: a firmware sending 60-byte samples keeps 64 bytes,
+        # not the 508 a full message could take, and it grows once, not per message.
         for i in range(best_effort_streams):
             sid = _BUILTIN_BEST_EFFORT + i
-            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), self.max_message)
+            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), _FIRST_OUTPUT_BUFFER)
             self._inputs[sid] = InputBestEffortStream(sid)
         for i in range(reliable_streams):
             sid = _BUILTIN_RELIABLE + i
-            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), self.max_message)
+            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
             self._inputs[sid] = InputReliableStream(sid, history)
         self.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
         self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
