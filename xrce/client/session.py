@@ -19,12 +19,10 @@
 #
 # A board pays for what it imports: the session-less ping (xrce.client.ping), services
 # (xrce.client.services), deleting single entities and cancelling delivery (xrce.client.teardown),
-# fragmentation (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
-# (xrce.client.recovery) load on first use; the
+# time sync (xrce.client.timesync), fragmentation (xrce.client.fragments), agent discovery
+# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
 # submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
 # general codec the agent uses.
-
-import struct
 
 from xrce import (
     DecodeError, XrceError, const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us,
@@ -54,7 +52,6 @@ _DATA = const(9)
 _ACKNACK = const(10)
 _HEARTBEAT = const(11)
 _FRAGMENT = const(13)
-_TIMESTAMP = const(14)
 _TIMESTAMP_REPLY = const(15)
 _FLAG_LITTLE_ENDIAN = const(0x01)
 _REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
@@ -322,23 +319,11 @@ class Session:
                               stream_id, flags)
 
     def __getattr__(self, name):
-        # Services, deletion (of entities or the session), waiting for delivery and the link state
-        # cost a board nothing until first used.
-        if name in ("create_requester", "create_replier", "create_service_client", "create_service_server",
-                    "send_request", "send_reply"):
-            import xrce.client.services as module
-        elif name in ("delete", "delete_entity", "cancel_data", "run_until_confirm_delivery"):
-            # Imported by full name: on MicroPython `from xrce.client import teardown` looks the
-            # module up as an attribute of the package first, and the package's __getattr__ (this
-            # module's, for ping_agent) raises AttributeError instead of letting the import go on.
-            import xrce.client.teardown as module
-        elif name == "link_state":
-            from xrce.client.recovery import link_state
-            return link_state(self)
-        else:
-            raise AttributeError(name)
-        function = getattr(module, name)
-        return lambda *args, **kwargs: function(self, *args, **kwargs)
+        # Services, deletion (of entities or the session), waiting for delivery, time sync and the
+        # link state cost a board nothing until first used (xrce.client.on_demand).
+        from xrce.client.on_demand import session_attr
+
+        return session_attr(self, name)
 
     # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
 
@@ -607,21 +592,6 @@ class Session:
                 return True
         return False
 
-    def sync_time(self, timeout_ms=1000, attempts=1):
-        # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
-        self.flush()
-        for _ in range(attempts):
-            originate = epoch_ns()
-            self._sync_originate = originate
-            w = self._begin_control(_TIMESTAMP)
-            w.i32(originate // 1000000000)
-            w.u32(originate % 1000000000)
-            self._send_control()
-            if self._wait(timeout_ms, lambda: self._sync_originate is None):
-                return True
-        self._sync_originate = None
-        return False
-
     def epoch_ns(self):
         # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
         return epoch_ns() - self.time_offset_ns
@@ -724,7 +694,9 @@ class Session:
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
             elif sub_id == _TIMESTAMP_REPLY:
-                self._on_timestamp_reply(buf, flags, s, e)
+                from xrce.client.timesync import on_timestamp_reply  # loaded by sync_time
+
+                on_timestamp_reply(self, buf, flags, s, e)
             elif sub_id == _STATUS_AGENT:
                 if e - s < 1:
                     raise DecodeError("empty STATUS_AGENT")
@@ -749,33 +721,6 @@ class Session:
             deliver(oid & 0x0F, callback, msg_class, data)
         else:
             callback(_decode_sample(msg_class, data))
-
-    def _on_timestamp_reply(self, buf, flags, s, e):
-        # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
-        if e - s < 24:
-            raise DecodeError("short TIMESTAMP_REPLY")
-        t = struct.unpack_from("<iIiIiI" if flags & 1 else ">iIiIiI", buf, s)
-        t0 = self._sync_originate
-        if t0 is None or t[4] * 1000000000 + t[5] != t0:
-            self.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
-            return
-        t3 = epoch_ns()
-        self._sync_originate = None
-        received = t[2] * 1000000000 + t[3]
-        transmitted = t[0] * 1000000000 + t[1]
-        # The offset is only known to within half the exchange's round trip, and one stalled
-        # exchange (a GC pause, a busy link) can be milliseconds off. Like NTP's clock filter,
-        # keep the tightest exchange; the bound it gave ages by half at each slower one, so a
-        # drifting clock is still followed within a few syncs.
-        rtt = (t3 - t0) - (transmitted - received)
-        if self.time_synced and rtt > self.time_rtt_ns:
-            self.time_rtt_ns += (self.time_rtt_ns >> 1) + 1
-            return
-        self.time_rtt_ns = rtt
-        twice = (t0 + t3) - (received + transmitted)
-        # Halved rounding toward zero, as the C client's int64 division does.
-        self.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
-        self.time_synced = True
 
 
 def _never():

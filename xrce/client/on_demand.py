@@ -1,0 +1,36 @@
+# Session methods that load on first use: services (xrce.client.services), deleting entities or
+# the session and waiting for delivery (xrce.client.teardown), time sync (xrce.client.timesync) and
+# the link state (xrce.client.recovery). Session.__getattr__ hands every name it does not have to
+# ``session_attr``; the table of names lives here, not in the session module, because on a board
+# its strings and code would cost every firmware heap (0.7 KB), used or not.
+
+_SERVICES = ("create_requester", "create_replier", "create_service_client", "create_service_server",
+             "send_request", "send_reply")
+_TEARDOWN = ("delete", "delete_entity", "cancel_data", "run_until_confirm_delivery")
+
+
+def session_attr(session, name):
+    # Modules are imported by full name: on MicroPython `from xrce.client import teardown` looks the
+    # module up as an attribute of the package first, and the package's __getattr__ (the session
+    # module's, for ping_agent) raises AttributeError instead of letting the import go on.
+    if name in _SERVICES:
+        import xrce.client.services as module
+    elif name in _TEARDOWN:
+        import xrce.client.teardown as module
+    elif name == "sync_time":
+        import xrce.client.timesync as module
+    elif name == "link_state":
+        from xrce.client.recovery import link_state
+
+        return link_state(session)
+    else:
+        raise AttributeError(name)
+    function = getattr(module, name)
+
+    def method(*args, **kwargs):
+        return function(session, *args, **kwargs)
+
+    # Kept on the instance: later calls find it there and allocate nothing (send_request and
+    # send_reply run at message rate).
+    setattr(session, name, method)
+    return method
