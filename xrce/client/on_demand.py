@@ -1,8 +1,9 @@
 # Session methods that load on first use: services (xrce.client.services), deleting entities or
-# the session and waiting for delivery (xrce.client.teardown), time sync (xrce.client.timesync) and
-# the link state (xrce.client.recovery). Session.__getattr__ hands every name it does not have to
-# ``session_attr``; the table of names lives here, not in the session module, because on a board
-# its strings and code would cost every firmware heap (0.7 KB), used or not.
+# the session and waiting for delivery (xrce.client.teardown), time sync (xrce.client.timesync),
+# the ping inside the session (xrce.client.ping) and the link state. Session.__getattr__ hands
+# every name it does not have to ``session_attr``; the table of names lives here, not in the
+# session module, because on a board its strings and code would cost every firmware heap (0.7 KB),
+# used or not.
 
 _SERVICES = ("create_requester", "create_replier", "create_service_client", "create_service_server",
              "send_request", "send_reply")
@@ -19,10 +20,16 @@ def session_attr(session, name):
         import xrce.client.teardown as module
     elif name == "sync_time":
         import xrce.client.timesync as module
+    elif name == "ping":
+        import xrce.client.ping as module
     elif name == "link_state":
-        from xrce.client.recovery import link_state
+        # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
+        link = session.link
+        if link is None:
+            return "connected" if session.connected else "lost"
+        from xrce.client.recovery import LINK_STATE_NAMES
 
-        return link_state(session)
+        return LINK_STATE_NAMES[link.state]
     else:
         raise AttributeError(name)
     function = getattr(module, name)

@@ -118,10 +118,3 @@ class LinkMonitor:
             # An answering agent resets ``missed`` above, and the next ping then waits for
             # ``liveliness_ms`` of silence again: the short period only applies to a silent link.
             self.next_ping = ticks_add(now, self.retry_ms)
-
-
-def link_state(session):
-    # Session.link_state: 'connected', 'silent' (the agent is quiet, pings are out) or 'lost'
-    # (re-creating).
-    return LINK_STATE_NAMES[session.link.state] if session.link is not None else (
-        "connected" if session.connected else "lost")
