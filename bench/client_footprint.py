@@ -40,8 +40,10 @@ LAYERED_IMPORTS = (
     "xrce.transports",
     "xrce.transports.udp",
     "xrce.msgs",
-    # optional features
+    # optional features (Session methods named in xrce.client.on_demand load it first)
     "xrce.client.recovery",
+    "xrce.client.on_demand",
+    "xrce.client.timesync",
     "xrce.client.fragments",
     "xrce.client.services",
     "xrce.client.discovery",
