@@ -26,8 +26,7 @@ LINK_STATE_NAMES = ("connected", "silent", "lost")
 
 
 class LinkMonitor:
-    __slots__ = ("session", "liveliness_ms", "retry_ms", "max_missed", "on_state", "state",
-                 "missed", "max_pings", "next_ping", "next_attempt", "recoveries")
+    # No __slots__: see xrce.client.wire._Output.
 
     def __init__(self, session, liveliness_ms=500, retry_ms=250, max_missed=3, on_state=None):
         self.session = session

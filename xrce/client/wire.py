@@ -396,8 +396,9 @@ class Outbound:
 
 
 class _Output(MessageWriter):
-    # An output stream: the message open on it and its sequence state (xrce.streams).
-    __slots__ = ("stream_id", "state", "reliable", "has_content")
+    # An output stream: the message open on it and its sequence state (xrce.streams). No __slots__
+    # (for this class and LinkMonitor, the client-only ones): MicroPython ignores them and would
+    # only keep the tuple of names (headline -112 B for both).
 
     def __init__(self, stream_id, state, capacity):
         MessageWriter.__init__(self, capacity)
