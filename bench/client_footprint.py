@@ -32,8 +32,7 @@ from xrce.tools import mpy  # noqa: E402
 # the core every firmware loads (a session over one transport), then each optional feature, then
 # the general codec the agent uses (no client module imports it).
 LAYERED_IMPORTS = (
-    "xrce.errors",
-    "xrce.compat",
+    "xrce",  # the package: error types and CPython/MicroPython shims
     "xrce.cdr",
     "xrce.message",
     "xrce.streams",
@@ -41,8 +40,10 @@ LAYERED_IMPORTS = (
     "xrce.transports",
     "xrce.transports.udp",
     "xrce.msgs",
-    # optional features
+    # optional features (Session methods named in xrce.client.on_demand load it first)
     "xrce.client.recovery",
+    "xrce.client.on_demand",
+    "xrce.client.timesync",
     "xrce.client.fragments",
     "xrce.client.services",
     "xrce.client.discovery",
