@@ -452,6 +452,10 @@ def main(argv=None):
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
+        from xrce.agent import fastdds_profile
+        if fastdds_profile.install():  # before any participant: Fast DDS reads it once
+            logging.getLogger("xrce.agent.rosenv").debug(
+                "Fast DDS participant profile: %s", fastdds_profile.PROFILE_PATH)
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown
