@@ -52,12 +52,56 @@ _NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.tcp_links",
                                 "xml.etree.ElementTree")
 
 
-def test_a_udp_agent_leaves_out_what_other_subcommands_use():
-    run = subprocess.run([sys.executable, "-c", _MODULES_OF_A_SERVING_AGENT,
-                          "udp4", "-p", "0", "-m", "ced"], cwd=REPO, capture_output=True,
-                         text=True, timeout=60)
+def _modules_of_a_serving_agent(*args):
+    run = subprocess.run([sys.executable, "-c", _MODULES_OF_A_SERVING_AGENT, *args], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
     line = [text for text in run.stderr.splitlines() if text.startswith("MODULES ")]
     assert line, run.stdout + run.stderr
-    modules = set(line[0].split()[1:])
+    return set(line[0].split()[1:])
+
+
+def test_a_udp_agent_leaves_out_what_other_subcommands_use():
+    modules = _modules_of_a_serving_agent("udp4", "-p", "0", "-m", "ced")
     assert "xrce.agent.udp_links" in modules and "xrce.agent.engine" in modules
     assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
+
+
+def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_domain):  # noqa: F811
+    """rclpy's parameter and logger services stay unloaded (xrce/agent/rclpy_services.py): of
+    rcl_interfaces' eight service types only the one rclpy.node names is imported."""
+    pytest.importorskip("rclpy")
+    modules = _modules_of_a_serving_agent("udp4", "-p", "0")
+    assert "rclpy.node" in modules and "rcl_interfaces.srv._list_parameters" in modules
+    loaded = sorted(name for name in modules if name.startswith("rcl_interfaces.srv._"))
+    assert loaded == ["rcl_interfaces.srv._list_parameters"]
+    assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
+
+
+_NODE_WITH_PARAMETER_SERVICES = """
+import sys
+import rclpy
+from xrce.agent import rclpy_services
+rclpy_services.defer_unused()
+from rclpy.context import Context
+from rclpy.node import Node
+import rcl_interfaces.srv
+assert "rcl_interfaces.srv._get_parameters" not in sys.modules
+context = Context()
+rclpy.init(args=[], context=context)
+node = Node("deferred_services", context=context, enable_rosout=False, enable_logger_service=True)
+services = dict(node.get_service_names_and_types_by_node("deferred_services", "/"))
+print(sorted(services))
+print(rcl_interfaces.srv.GetParameters.Request().names)
+node.destroy_node()
+rclpy.shutdown(context=context)
+"""
+
+
+def test_deferred_rclpy_services_still_start_when_a_node_asks(ros_domain):  # noqa: F811
+    pytest.importorskip("rclpy")
+    run = subprocess.run([sys.executable, "-c", _NODE_WITH_PARAMETER_SERVICES], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    for service in ("/deferred_services/get_parameters", "/deferred_services/list_parameters",
+                    "/deferred_services/set_logger_levels"):
+        assert service in run.stdout, run.stdout

@@ -467,7 +467,8 @@ def main(argv=None):
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
-        from xrce.agent import fastdds_profile
+        from xrce.agent import fastdds_profile, rclpy_services
+        rclpy_services.defer_unused()  # before anything imports rclpy.node
         if fastdds_profile.install():  # before any participant: Fast DDS reads it once
             logging.getLogger("xrce.agent.rosenv").debug(
                 "Fast DDS participant profile: %s", fastdds_profile.PROFILE_PATH)
