@@ -457,6 +457,7 @@ def main(argv=None):
         refs = load_refs(args.refs) if args.refs else None
     except CliError as exc:
         parser.error(str(exc))
+    del parser  # the agent runs for days: not with every subcommand's options kept alive
     configure_logging(args.verbose)
     interfaces.add_search_dirs(args.interfaces)
     if args.middleware == "dds":
