@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from agent_process import REPO, AgentProcess
-from ros_helpers import ros_domain  # noqa: F401
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 
 
 def test_no_rcl_log_file(ros_domain, tmp_path):  # noqa: F811
@@ -105,3 +105,19 @@ def test_deferred_rclpy_services_still_start_when_a_node_asks(ros_domain):  # no
     for service in ("/deferred_services/get_parameters", "/deferred_services/list_parameters",
                     "/deferred_services/set_logger_levels"):
         assert service in run.stdout, run.stdout
+
+
+def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
+    """The agent's nodes leave rclpy's /parameter_events publisher out (ros_domain.make_node):
+    nothing can change their parameters, and each such publisher held 74 KB."""
+    def publishers():
+        try:
+            return dict(ros_peer.node.get_publisher_names_and_types_by_node("xrce_agent", "/"))
+        except Exception:  # the node is not discovered yet
+            return {}
+
+    with AgentProcess("udp4"):
+        # Its wake topic's publisher seen: the node's publishers have been discovered.
+        assert wait_until(lambda: any("/_xrce_agent/wake_" in name for name in publishers()),
+                          timeout_s=20), publishers()
+        assert "/parameter_events" not in publishers()
