@@ -1,6 +1,6 @@
 """What the agent costs the robot's computer: CPU per message, idle CPU, robot load, memory, ping.
 
-    .venv/bin/python bench/agent_cost.py [--quick] [--reference DIR]
+    .venv/bin/python bench/agent_cost.py [--quick] [--reference DIR] [--robot-only RUNS]
 
 Run as ``bench/run.py --only cost`` or alone. Every figure comes from ``/proc/<agent pid>/stat``
 (utime + stime of all its threads) or ``/proc/<agent pid>/status`` (VmRSS). ``--reference DIR``
@@ -248,8 +248,9 @@ def robot_load(agent, env, domain_id, seconds):
         ros.close()
 
 
-def measure_tree(tree, env, domain_id, quick, sink):
-    """Every cost figure of the agent in ``tree``: a dict name -> value."""
+def measure_tree(tree, env, domain_id, quick, sink, robot_env=None, robot_domain=None):
+    """Every cost figure of the agent in ``tree``: a dict name -> value. The TurtleBot3 part runs
+    in ``robot_domain`` when given, away from ``sink``'s subscriptions to the flood topics."""
     seconds = 2.0 if quick else 5.0
     pings = 500 if quick else 2000
     out = {}
@@ -298,21 +299,64 @@ def measure_tree(tree, env, domain_id, quick, sink):
             out[("rel" if reliable else "be", "best")] = best
     finally:
         agent.stop()
-    agent = Agent(tree, env)
+    robot_env = env if robot_env is None else robot_env
+    agent = Agent(tree, robot_env)
     try:
         out["robot_cpu"], out["robot_rss"], out["robot_threads"] = robot_load(
-            agent, env, domain_id, IDLE_SECONDS)
+            agent, robot_env, domain_id if robot_domain is None else robot_domain, IDLE_SECONDS)
     finally:
         agent.stop()
     return out
 
 
+def robot_only(env, domain_id, runs, reference=None, tree=None):
+    """Only the TurtleBot3 figures (CPU, RSS), ``runs`` times, this tree and the reference taking
+    turns in each run (a memory change is checked in minutes, not the whole bench's half hour);
+    each run's figures, then the medians and ranges."""
+    trees = [("here", tree or str(REPO))] + ([("reference", reference)] if reference else [])
+    results = {label: [] for label, _ in trees}
+    for run in range(runs):
+        for label, path in trees:
+            agent = Agent(path, env)
+            try:
+                cpu, rss, _threads = robot_load(agent, env, domain_id, IDLE_SECONDS)
+            finally:
+                agent.stop()
+            results[label].append((cpu, rss))
+            print("run %d %s: TurtleBot3 load CPU %.2f %%, RSS %.2f MB"
+                  % (run + 1, label, 100 * cpu, rss), flush=True)
+    here, there = results["here"], results.get("reference")
+    median = lambda values: sorted(values)[len(values) // 2]  # noqa: E731
+
+    def figure(index, scale):
+        values = [scale * r[index] for r in here]
+        ref_values = [scale * r[index] for r in there] if there else None
+        note = "median of %d runs, range %.2f-%.2f" % (runs, min(values), max(values))
+        if ref_values:
+            note += "; reference %.2f-%.2f" % (min(ref_values), max(ref_values))
+        return median(values), median(ref_values) if ref_values else None, note
+
+    ref = "reference agent (%s)" % reference if reference else "-"
+    value, baseline, note = figure(1, 1.0)
+    record("agent RSS, TurtleBot3 load", value, "MB", baseline, ref, "<= 50 MB", note)
+    value, baseline, note = figure(0, 100.0)
+    record("agent CPU, TurtleBot3 load", value, "% core", baseline, ref, "<= 1 %", note)
+
+
 def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
+    from ros_helpers import DomainLease
+
+    # The TurtleBot3 figures in a domain of their own: an agent discovering the sink's
+    # subscriptions to every flood topic held ~0.8 MB more, which is not the robot's load.
+    robot_lease = DomainLease()
+    robot_env = dict(env, ROS_DOMAIN_ID=str(robot_lease.domain_id))
     sink = Child(["bench/ros_peer.py"], env=env, ready="ready")
     source = Child(["bench/ros_peer.py"], env=env, ready="ready")
     try:
-        here = measure_tree(tree or str(REPO), env, domain_id, quick, sink)
-        there = measure_tree(reference, env, domain_id, quick, sink) if reference else None
+        here = measure_tree(tree or str(REPO), env, domain_id, quick, sink, robot_env,
+                            robot_lease.domain_id)
+        there = measure_tree(reference, env, domain_id, quick, sink, robot_env,
+                             robot_lease.domain_id) if reference else None
         # The floor: bare rclpy publish(bytes) into the same kind of subscriber.
         sink.ask("sub /cost_floor be")
         sent, _elapsed, cpu = source.ask("flood /cost_floor be 3", timeout=60).split()
@@ -330,6 +374,7 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
     finally:
         sink.close()
         source.close()
+        robot_lease.release()
     ref = "reference agent (%s)" % reference if reference else None
 
     def base(key, fallback, index=None):
@@ -406,12 +451,17 @@ def main(argv=None):
                         help="source tree of another agent to measure in the same run as baseline")
     parser.add_argument("--tree", metavar="DIR",
                         help="measure the agent of this source tree instead of this checkout's")
+    parser.add_argument("--robot-only", type=int, metavar="RUNS",
+                        help="only the TurtleBot3 load's CPU and RSS, RUNS times (medians)")
     args = parser.parse_args(argv)
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
-        cost_benchmarks(env, lease.domain_id, args.quick, args.reference, args.tree)
+        if args.robot_only:
+            robot_only(env, lease.domain_id, args.robot_only, args.reference, args.tree)
+        else:
+            cost_benchmarks(env, lease.domain_id, args.quick, args.reference, args.tree)
     finally:
         lease.release()
     print_table()

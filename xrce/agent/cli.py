@@ -25,7 +25,7 @@ import signal
 import socket
 import sys
 
-from xrce.agent import demo, interfaces, links, observability, udp_links
+from xrce.agent import interfaces, links, observability, udp_links
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -243,6 +243,21 @@ def _pty_links(args, agent):
     return [serial_links.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
 
 
+# The demo's options are defined here and its module imported only when it runs: every agent
+# process builds the whole parser, and xrce.agent.demo is none of its business.
+
+def _add_demo_options(parser):
+    parser.add_argument("--serial", action="store_true",
+                        help="robot on the agent's pseudoterminal at 115200 baud (default UDP)")
+    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
+                        help="stop after S seconds (default: until Ctrl-C)")
+
+
+def _run_demo(args):
+    from xrce.agent import demo
+    return demo.run(args)
+
+
 class Subcommand:
     """One row of the subcommand table. An agent transport gives ``make_links(args, agent)``; any
     other tool gives ``run(args) -> exit code``."""
@@ -284,7 +299,7 @@ register(Subcommand("stats", "show a running agent's counters live (see --stats-
 register(Subcommand("build-interfaces", "build ROS interface packages (.msg/.srv) for rclpy",
                     interfaces.add_build_options, run=interfaces.run_build_command))
 register(Subcommand("demo", "run the agent, a simulated TurtleBot3 and a ROS node driving it",
-                    demo.add_options, run=demo.run))
+                    _add_demo_options, run=_run_demo))
 
 
 def build_parser():
@@ -442,6 +457,7 @@ def main(argv=None):
         refs = load_refs(args.refs) if args.refs else None
     except CliError as exc:
         parser.error(str(exc))
+    del parser  # the agent runs for days: not with every subcommand's options kept alive
     configure_logging(args.verbose)
     interfaces.add_search_dirs(args.interfaces)
     if args.middleware == "dds":
@@ -452,6 +468,11 @@ def main(argv=None):
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
+        from xrce.agent import fastdds_profile, rclpy_services
+        rclpy_services.defer_unused()  # before anything imports rclpy.node
+        if fastdds_profile.install():  # before any participant: Fast DDS reads it once
+            logging.getLogger("xrce.agent.rosenv").debug(
+                "Fast DDS participant profile: %s", fastdds_profile.PROFILE_PATH)
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown

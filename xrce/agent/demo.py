@@ -5,7 +5,9 @@ The agent (``-m dds``) and the robot (``python -m xrce.examples.turtlebot3``, ov
 process group, so a terminal Ctrl-C reaches only the demo, which then stops the robot first (it
 deletes its session) and the agent second. This process is the ROS side: it prints what arrives on
 ``/sensor_state`` and ``/odom`` once a second and drives a square on ``/cmd_vel``. It uses the
-user's ROS_DOMAIN_ID (default 0), so ``ros2 topic echo /odom`` works alongside.
+user's ROS_DOMAIN_ID (default 0), so ``ros2 topic echo /odom`` works alongside. Its options
+(``--serial``, ``--duration``) are declared in ``xrce.agent.cli``, which imports this module only
+when the demo runs.
 """
 
 from __future__ import annotations
@@ -27,13 +29,6 @@ ANGULAR_SPEED = 0.6
 COMMAND_PERIOD_S = 0.1  # 10 Hz: well inside the robot's 0.5 s fail-safe
 PRINT_PERIOD_S = 1.0
 START_TIMEOUT_S = 60.0
-
-
-def add_options(parser):
-    parser.add_argument("--serial", action="store_true",
-                        help="robot on the agent's pseudoterminal at 115200 baud (default UDP)")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
-                        help="stop after S seconds (default: until Ctrl-C)")
 
 
 def _say(text):

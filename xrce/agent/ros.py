@@ -29,7 +29,6 @@ from xrce.agent.ros_domain import (
     EXECUTOR_EVENTS,
     EXECUTOR_SINGLE,
     IDLE_WAIT_S,
-    NO_TYPE_DESCRIPTION,
     DomainRuntime,
     ReaderHandoff,
     in_thread,
@@ -202,11 +201,7 @@ class RosMiddleware(RosServices, Middleware):
         node_name, namespace = node_name_and_namespace(name or "", fallback)
 
         def make_node():
-            # No parameter services, /rosout publisher or type description service: each costs
-            # DDS endpoints and discovery traffic, and an agent may host hundreds of nodes.
-            node = Node(node_name, namespace=namespace, context=domain.context,
-                        start_parameter_services=False, enable_rosout=False,
-                        use_global_arguments=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
+            node = domain.make_node(node_name, namespace)
             domain.executor.add_node(node)
             domain.nodes.add(node)
             return node

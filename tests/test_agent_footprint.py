@@ -1,0 +1,123 @@
+"""What the agent process leaves out to stay small (bench/agent_cost.py measures the memory)."""
+
+import subprocess
+import sys
+
+import pytest
+
+from agent_process import REPO, AgentProcess
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+
+
+def test_no_rcl_log_file(ros_domain, tmp_path):  # noqa: F811
+    """rcl's own log file stays closed (xrce/agent/ros_domain.py ROS_ARGS); every rclpy process
+    that opens it leaves one file per start in ROS_LOG_DIR."""
+    pytest.importorskip("rclpy")
+    with AgentProcess("udp4", env={"ROS_LOG_DIR": str(tmp_path)}) as agent:
+        assert agent.banner
+    assert agent.proc.returncode == 0
+    assert list(tmp_path.iterdir()) == []
+
+
+_MODULES_OF_A_SERVING_AGENT = r"""
+import io, os, sys, threading
+banner = threading.Event()
+
+
+class Watch(io.TextIOWrapper):
+    def write(self, text):
+        if "agent on port" in text:
+            banner.set()
+        return super().write(text)
+
+
+sys.stdout = Watch(sys.stdout.detach(), line_buffering=True)
+
+
+def report():
+    banner.wait(60)
+    sys.stderr.write("MODULES " + " ".join(sorted(sys.modules)) + "\n")
+    sys.stderr.flush()
+    os._exit(0)
+
+
+threading.Thread(target=report, daemon=True).start()
+from xrce.agent.launcher import main
+main(sys.argv[1:])
+"""
+
+# Each was imported by every agent once; each is only needed by some subcommand or option.
+_NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.tcp_links",
+                                "xrce.agent.serial_links", "shutil", "ssl",
+                                "xml.etree.ElementTree")
+
+
+def _modules_of_a_serving_agent(*args):
+    run = subprocess.run([sys.executable, "-c", _MODULES_OF_A_SERVING_AGENT, *args], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    line = [text for text in run.stderr.splitlines() if text.startswith("MODULES ")]
+    assert line, run.stdout + run.stderr
+    return set(line[0].split()[1:])
+
+
+def test_a_udp_agent_leaves_out_what_other_subcommands_use():
+    modules = _modules_of_a_serving_agent("udp4", "-p", "0", "-m", "ced")
+    assert "xrce.agent.udp_links" in modules and "xrce.agent.engine" in modules
+    assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
+
+
+def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_domain):  # noqa: F811
+    """rclpy's parameter and logger services stay unloaded (xrce/agent/rclpy_services.py): of
+    rcl_interfaces' eight service types only the one rclpy.node names is imported."""
+    pytest.importorskip("rclpy")
+    modules = _modules_of_a_serving_agent("udp4", "-p", "0")
+    assert "rclpy.node" in modules and "rcl_interfaces.srv._list_parameters" in modules
+    loaded = sorted(name for name in modules if name.startswith("rcl_interfaces.srv._"))
+    assert loaded == ["rcl_interfaces.srv._list_parameters"]
+    assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
+
+
+_NODE_WITH_PARAMETER_SERVICES = """
+import sys
+import rclpy
+from xrce.agent import rclpy_services
+rclpy_services.defer_unused()
+from rclpy.context import Context
+from rclpy.node import Node
+import rcl_interfaces.srv
+assert "rcl_interfaces.srv._get_parameters" not in sys.modules
+context = Context()
+rclpy.init(args=[], context=context)
+node = Node("deferred_services", context=context, enable_rosout=False, enable_logger_service=True)
+services = dict(node.get_service_names_and_types_by_node("deferred_services", "/"))
+print(sorted(services))
+print(rcl_interfaces.srv.GetParameters.Request().names)
+node.destroy_node()
+rclpy.shutdown(context=context)
+"""
+
+
+def test_deferred_rclpy_services_still_start_when_a_node_asks(ros_domain):  # noqa: F811
+    pytest.importorskip("rclpy")
+    run = subprocess.run([sys.executable, "-c", _NODE_WITH_PARAMETER_SERVICES], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    for service in ("/deferred_services/get_parameters", "/deferred_services/list_parameters",
+                    "/deferred_services/set_logger_levels"):
+        assert service in run.stdout, run.stdout
+
+
+def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
+    """The agent's nodes leave rclpy's /parameter_events publisher out (ros_domain.make_node):
+    nothing can change their parameters, and each such publisher held 74 KB."""
+    def publishers():
+        try:
+            return dict(ros_peer.node.get_publisher_names_and_types_by_node("xrce_agent", "/"))
+        except Exception:  # the node is not discovered yet
+            return {}
+
+    with AgentProcess("udp4"):
+        # Its wake topic's publisher seen: the node's publishers have been discovered.
+        assert wait_until(lambda: any("/_xrce_agent/wake_" in name for name in publishers()),
+                          timeout_s=20), publishers()
+        assert "/parameter_events" not in publishers()
