@@ -122,7 +122,7 @@ def test_integer_runs_and_arrays_are_range_checked_on_micropython():
 # is not kept. The values are the ones CPython's class carries from its definition.
 CONSTANTS_SCRIPT = """
 import sys
-from xrce.msgs import load_constants
+from xrce.msgs.constants import load_constants
 from xrce.msgs.sensor_msgs import BatteryState
 from xrce.msgs.nav_msgs import LoadMap_Response
 print("BEFORE", hasattr(BatteryState, "POWER_SUPPLY_STATUS_FULL"), hasattr(LoadMap_Response, "RESULT_SUCCESS"))

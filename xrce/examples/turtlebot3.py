@@ -47,7 +47,7 @@ _BATTERY_EMPTY_V = const(10.5)
 _BATTERY_CAPACITY_AH = const(1.8)
 _GRAVITY = const(9.80665)
 # sensor_msgs/BatteryState constants: on a board the class has them only after
-# xrce.msgs.load_constants(BatteryState), which would intern all 23 names for these three.
+# xrce.msgs.constants.load_constants(BatteryState), which would intern all 23 names for these three.
 _POWER_SUPPLY_STATUS_DISCHARGING = const(2)
 _POWER_SUPPLY_HEALTH_GOOD = const(1)
 _POWER_SUPPLY_TECHNOLOGY_LIPO = const(3)

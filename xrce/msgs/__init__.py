@@ -326,7 +326,9 @@ def _intern(text):
 
 # The class of ROS type "pkg/msg/Name" (or "pkg/srv/Name_Request"): `names` its fields, `specs`
 # their specs, `defaults` {field: value} or None; `constants` when the type has CONSTANT=value
-# definitions, which the generator writes to a module of their own (see load_constants).
+# definitions, which the generator writes to a module of their own: a board sets them on the class
+# only through xrce.msgs.constants.load_constants, CPython when the class is defined (what CPython
+# adds is in xrce/_cpython.py, which a board never loads).
 def _define(ros_type, names, specs, defaults=None, constants=False):
     package, kind, name = ros_type.split("/")
     namespace = {"__slots__": names, "_S": specs, "ROS_TYPE": _intern(ros_type),
@@ -335,33 +337,12 @@ def _define(ros_type, names, specs, defaults=None, constants=False):
         namespace["_D"] = defaults
     if IS_MICROPYTHON:
         return type(name, (_Message,), namespace)
-    # The defining module, as a class statement would have it (pickle needs it).
-    namespace["__module__"] = sys._getframe(1).f_globals["__name__"]
-    cls = type(name, (_Message,), namespace)
-    return load_constants(cls) if constants else cls
-
-
-# Sets the constants of message class `cls` (BatteryState.POWER_SUPPLY_STATUS_FULL ...) as its class
-# attributes and returns it. They live in xrce/msgs/<package>/_<Type>_constants.py: on a board each
-# name a loaded module holds stays in the string pool for good (sensor_msgs/BatteryState's 23 names
-# cost 1 KB of heap, as much as the class itself), so a board has them only after calling this (or
-# names the values it needs as const()). On CPython every class has them from its definition.
-def load_constants(cls):
-    package, _, name = cls.ROS_TYPE.split("/")
-    dotted = "xrce.msgs.%s._%s_constants" % (package, name)
-    module = _import(dotted)
-    for key, value in module.__dict__.items():
-        if key[0] != "_":
-            setattr(cls, key, value)
-    if IS_MICROPYTHON:  # the class holds the values now
-        del sys.modules[dotted]
-        _import("xrce.msgs." + package).__dict__.pop(dotted.rsplit(".", 1)[1], None)
-    return cls
+    return _cpython_class(name, _Message, namespace, constants)
 
 
 if not IS_MICROPYTHON:
     # CPython tools (xrce/client/cli.py) read Class._FIELDS (see xrce/_cpython.py).
-    from xrce._cpython import FieldTable
+    from xrce._cpython import FieldTable, message_class as _cpython_class
 
     _Message._FIELDS = FieldTable()
 
