@@ -82,9 +82,8 @@ def _set_yaw(quaternion, yaw):
 
 
 class _Periodic:
-    # A drift-free period: the next deadline advances by whole periods, not from 'now'.
-
-    __slots__ = ("period_ms", "due")
+    # A drift-free period: the next deadline advances by whole periods, not from 'now'. (No
+    # __slots__: MicroPython ignores them and would keep the tuple of names.)
 
     def __init__(self, period_ms, now):
         self.period_ms = period_ms
