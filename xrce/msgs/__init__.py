@@ -352,20 +352,21 @@ if not IS_MICROPYTHON:
 # imports its dependencies through their package too (`from xrce.msgs.std_msgs import Header`), so
 # each type is defined once. A board then drops a message's module (~115 bytes of heap a type: the
 # module, its globals, its entries in sys.modules and the package); a service's module stays, as
-# its request, response and descriptor are named one by one.
+# its request, response and descriptor are named one by one. A name without a module of its own
+# (SERVICES, Name_Request, Name_Response) goes to _lookup.py: trying the import first spares every
+# board the strings that would tell those names apart up front.
 def _type_attr(namespace, name):
     if not name or name[0] == "_":
         raise AttributeError(name)
-    if name == "SERVICES" or name.endswith("_Request") or name.endswith("_Response"):
-        from xrce.msgs._lookup import service_attr  # services: their own module, loaded on use
+    module = namespace["__name__"] + "._" + name
+    try:
+        value = getattr(_import(module), name)
+    except ImportError:
+        # SERVICES, or a service's Name_Request/Name_Response, which live in the service's module.
+        from xrce.msgs._lookup import service_attr
 
         value = service_attr(namespace, name)
     else:
-        module = namespace["__name__"] + "._" + name
-        try:
-            value = getattr(_import(module), name)
-        except ImportError:
-            raise AttributeError(name)
         if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"]:
             del sys.modules[module]
             namespace.pop("_" + name, None)
