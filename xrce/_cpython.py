@@ -41,9 +41,14 @@ class FieldTable:
         return _shape(cls)
 
 
+_FIELD_TABLE = FieldTable()
+
+
 def message_class(name, base, namespace, constants):
     """The class xrce.msgs._define makes on CPython: what a board's has, plus the defining module, as
-    a class statement would set it (pickle needs it), and the type's constants as class attributes."""
+    a class statement would set it (pickle needs it), the type's constants as class attributes, and
+    ``_FIELDS``, which CPython tools (xrce/client/cli.py) read, on the shared base class."""
+    base._FIELDS = _FIELD_TABLE
     namespace["__module__"] = sys._getframe(2).f_globals["__name__"]
     cls = type(name, (base,), namespace)
     if constants:

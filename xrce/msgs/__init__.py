@@ -341,10 +341,7 @@ def _define(ros_type, names, specs, defaults=None, constants=False):
 
 
 if not IS_MICROPYTHON:
-    # CPython tools (xrce/client/cli.py) read Class._FIELDS (see xrce/_cpython.py).
-    from xrce._cpython import FieldTable, message_class as _cpython_class
-
-    _Message._FIELDS = FieldTable()
+    from xrce._cpython import message_class as _cpython_class
 
 
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
