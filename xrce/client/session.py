@@ -459,9 +459,9 @@ def _agent_activity(buf, flags, s, e):
         r.u8()
         r.raw(8)
         if r.boolean():  # properties: the general decoder knows how to skip them
-            from xrce.submessages import Info
-            info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
-            return info.impl_status, info.availability
+            from xrce.client.discovery import info_activity
+
+            return info_activity(buf, flags, s, e)
     if not r.boolean():
         return impl_status, None
     if r.u8() != _OBJK_AGENT:
