@@ -42,8 +42,7 @@ LAYERED_IMPORTS = (
     "xrce.msgs",
     # optional features (Session methods named in xrce.client.on_demand load it first)
     "xrce.client.recovery",
-    "xrce.client.on_demand",
-    "xrce.client.timesync",
+    "xrce.client.on_demand",  # time sync, ping and delete: the rest of the minimum core
     "xrce.client.fragments",
     "xrce.client.services",
     "xrce.client.discovery",

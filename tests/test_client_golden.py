@@ -164,7 +164,7 @@ def test_ping_outside_and_inside_a_session():
 
 
 def test_time_sync(monkeypatch):
-    import xrce.client.timesync as timesync
+    import xrce.client.on_demand as timesync
     agent, session = new_session("timesync")
     replies = [decode_message(entry[1])[1][0] for entry in agent.agent_queue]
     for reply in replies:
@@ -183,7 +183,7 @@ def test_time_sync(monkeypatch):
 
 def _timestamp_reply(session, originate_ns, received_ns, transmitted_ns, t3_ns, monkeypatch):
     import struct
-    import xrce.client.timesync as timesync
+    import xrce.client.on_demand as timesync
     monkeypatch.setattr(timesync, "epoch_ns", lambda: t3_ns)
     session._sync_originate = originate_ns
     reply = struct.pack("<iIiIiI", *divmod(transmitted_ns, 10**9), *divmod(received_ns, 10**9),

@@ -154,3 +154,19 @@ def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
                 carried += message[s:e]
     assert carried == expected
     assert transport.sent[0][4] == (C.WRITE_DATA if small else C.FRAGMENT)
+
+
+
+@pytest.mark.parametrize("properties", [None, [("uxr_hl", "010000")]])
+@pytest.mark.parametrize("impl_status,availability", [(1, 1), (0, 1), (1, 0)])
+def test_info_activity_with_and_without_agent_properties(properties, impl_status, availability):
+    # The session reads an INFO's implementation status and availability itself; one whose agent
+    # configuration carries properties goes through the general decoder (xrce.client.discovery).
+    from xrce.cdr import CdrWriter
+    from xrce.client.session import _agent_activity
+    from xrce.session_payloads import Info
+
+    w = CdrWriter()
+    Info(C.REQUEST_ID_PING, impl_status=impl_status, availability=availability, properties=properties).encode(w)
+    message = bytes(8) + w.getvalue()  # where a payload starts: after a keyless header and its subheader
+    assert _agent_activity(message, 1, 8, len(message)) == (impl_status, availability)

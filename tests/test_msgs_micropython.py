@@ -115,3 +115,34 @@ def test_integer_runs_and_arrays_are_range_checked_on_micropython():
     assert "BODY " + expected in result.stdout
     assert "PLAN 3" in result.stdout  # (h) then (i, B), then the arrays: a wider item starts a new run
     assert "REJECTED 5" in result.stdout
+
+
+# On a board a type's constants stay out of the heap until asked for: the class has none after its
+# import, all of them after load_constants (which hands the class back), and the constants module
+# is not kept. The values are the ones CPython's class carries from its definition.
+CONSTANTS_SCRIPT = """
+import sys
+from xrce.msgs.constants import load_constants
+from xrce.msgs.sensor_msgs import BatteryState
+from xrce.msgs.nav_msgs import LoadMap_Response
+print("BEFORE", hasattr(BatteryState, "POWER_SUPPLY_STATUS_FULL"), hasattr(LoadMap_Response, "RESULT_SUCCESS"))
+assert load_constants(BatteryState) is BatteryState
+load_constants(LoadMap_Response)
+print("AFTER", BatteryState.POWER_SUPPLY_STATUS_FULL, BatteryState.POWER_SUPPLY_TECHNOLOGY_VRLA,
+      LoadMap_Response.RESULT_UNDEFINED_FAILURE)
+print("KEPT", [name for name in sys.modules if name.endswith("_constants")])
+print("ENCODES", BatteryState(power_supply_status=BatteryState.POWER_SUPPLY_STATUS_FULL).to_bytes() ==
+      BatteryState(power_supply_status=4).to_bytes())
+"""
+
+
+def test_message_constants_load_on_request_on_micropython():
+    result = run_micropython(CONSTANTS_SCRIPT, heap=1024 * 1024, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "BEFORE False False" in result.stdout
+    assert "AFTER %d %d %d" % (sensor_msgs.BatteryState.POWER_SUPPLY_STATUS_FULL,
+                               sensor_msgs.BatteryState.POWER_SUPPLY_TECHNOLOGY_VRLA,
+                               nav_msgs.LoadMap_Response.RESULT_UNDEFINED_FAILURE) in result.stdout
+    assert "AFTER 4 8 255" in result.stdout
+    assert "KEPT []" in result.stdout
+    assert "ENCODES True" in result.stdout

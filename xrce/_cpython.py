@@ -1,7 +1,8 @@
 # What only CPython runs, kept out of the modules a board loads (the code of a function a board
 # never calls would still cost it heap): MicroPython's tick functions (xrce/compat.py imports them
-# on CPython) and the message classes' _FIELDS table.
+# on CPython), the message classes' _FIELDS table and what xrce.msgs._define adds on CPython.
 
+import sys
 import time
 
 # Milliseconds and microseconds of the monotonic clock, with a period for tick arithmetic that
@@ -38,3 +39,20 @@ class FieldTable:
         from xrce.msgs._dict import _shape
 
         return _shape(cls)
+
+
+_FIELD_TABLE = FieldTable()
+
+
+def message_class(name, base, namespace, constants):
+    """The class xrce.msgs._define makes on CPython: what a board's has, plus the defining module, as
+    a class statement would set it (pickle needs it), the type's constants as class attributes, and
+    ``_FIELDS``, which CPython tools (xrce/client/cli.py) read, on the shared base class."""
+    base._FIELDS = _FIELD_TABLE
+    namespace["__module__"] = sys._getframe(2).f_globals["__name__"]
+    cls = type(name, (base,), namespace)
+    if constants:
+        from xrce.msgs.constants import load_constants
+
+        load_constants(cls)
+    return cls

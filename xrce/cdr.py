@@ -40,7 +40,8 @@ class CdrWriter:
     # ``buf`` may be a preallocated bytearray (reused between messages: call ``reset``); ``pos`` is
     # where writing starts and ``origin`` the offset alignment is counted from.
 
-    __slots__ = ("buf", "pos", "origin")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("buf", "pos", "origin")
 
     def __init__(self, buf=None, pos=0, origin=None):
         self.buf = bytearray(64) if buf is None else buf
@@ -121,7 +122,8 @@ class CdrWriter:
 class CdrReader:
     # Reads CDR values from ``buf[pos:end]``; alignment counted from ``origin``.
 
-    __slots__ = ("buf", "pos", "end", "origin", "_fmt")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("buf", "pos", "end", "origin", "_fmt")
 
     def __init__(self, buf, pos=0, end=None, origin=None, little=True):
         self.buf = buf

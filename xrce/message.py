@@ -6,7 +6,7 @@
 
 import struct
 
-from xrce import DecodeError, EncodeError, cdr, const
+from xrce import DecodeError, EncodeError, IS_MICROPYTHON, cdr, const
 
 # xrce.constants names these too; local constants fold into the code and spare a board that module.
 _CREATE_CLIENT = const(0)
@@ -62,7 +62,8 @@ class MessageWriter(cdr.CdrWriter):
     # ``end_submessage`` frame payloads in. ``begin_submessage`` returns the writer itself, to write
     # the payload with.
 
-    __slots__ = ("_sub_start",)
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("_sub_start",)
 
     def __init__(self, capacity=512):
         cdr.CdrWriter.__init__(self, bytearray(capacity), 0, 0)

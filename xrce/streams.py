@@ -5,7 +5,7 @@
 # retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
 # client resends everything unacknowledged, which is wire-compatible but wasteful).
 
-from xrce import EncodeError, const, ticks_diff
+from xrce import EncodeError, IS_MICROPYTHON, const, ticks_diff
 
 _SEQ_INITIAL = const(0xFFFF)  # "last sent/handled" before the first message, so the first seq is 0
 _NACK_BITS = const(16)
@@ -41,7 +41,8 @@ def _check_history(history):
 
 
 class OutputBestEffortStream:
-    __slots__ = ("stream_id", "last_sent")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("stream_id", "last_sent")
 
     def __init__(self, stream_id):
         self.stream_id = stream_id
@@ -56,7 +57,8 @@ class OutputBestEffortStream:
 
 
 class InputBestEffortStream:
-    __slots__ = ("stream_id", "last_handled")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("stream_id", "last_handled")
 
     def __init__(self, stream_id):
         self.stream_id = stream_id
@@ -76,8 +78,9 @@ class InputBestEffortStream:
 class OutputReliableStream:
     # Sent messages kept until acknowledged; at most ``history`` in flight.
 
-    __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
-                 "retransmissions", "suppressed")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
+                     "retransmissions", "suppressed")
 
     def __init__(self, stream_id, history):
         _check_history(history)
@@ -159,7 +162,8 @@ class OutputReliableStream:
 class InputReliableStream:
     # Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order.
 
-    __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates")
+    if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
+        __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates")
 
     def __init__(self, stream_id, window):
         _check_history(window)

@@ -35,7 +35,7 @@ while len(received) < 3 and deadline > 0:
     deadline -= 1
 print("received", len(received), received[0].linear.x if received else None)
 print("epoch_ms", session.epoch_ms())
-# The methods the session loads on first use (xrce.client.teardown) work on a board too.
+# The methods the session loads on first use (xrce.client.on_demand) work on a board too.
 session.cancel_data(reader)
 session.delete_entity(writer)
 print("delete_entity", session.run_until_all_status(2000))

@@ -48,3 +48,11 @@ def _info_locators(data):
     except DecodeError:
         pass
     return []
+
+
+# ``(implementation status, availability)`` of an INFO whose agent configuration carries properties,
+# for the session (xrce.client.session._agent_activity reads the usual INFO itself): the general
+# decoder knows how to skip them, and its names stay out of every board's string pool.
+def info_activity(buf, flags, s, e):
+    info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
+    return info.impl_status, info.availability

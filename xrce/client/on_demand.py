@@ -1,30 +1,46 @@
-# Session methods that load on first use: services (xrce.client.services), deleting entities or
-# the session and waiting for delivery (xrce.client.teardown), time sync (xrce.client.timesync),
-# the ping inside the session (xrce.client.ping) and the link state. Session.__getattr__ hands
-# every name it does not have to ``session_attr``; the table of names lives here, not in the
-# session module, because on a board its strings and code would cost every firmware heap (0.7 KB),
-# used or not.
+# Session methods that load on first use: the rest of the minimum core, which every firmware
+# that syncs time, pings or deletes pays for only once it does (time sync, the ping inside the
+# session, deleting entities or the session, waiting for delivery), and the link state; services
+# live in xrce.client.services, loaded by their first call. Session.__getattr__ hands every name
+# it does not have to ``session_attr``; neither this table nor these functions are in the session
+# module, where a board would pay for them used or not.
+#
+# One module, not one per feature: a board pays each loaded module's own objects and names (module,
+# globals, imports, file name) on top of its code, and a firmware that syncs time also pings and
+# deletes (the minimum core of a session).
 
-# Each module's names as one space-separated string, looked up as " name ": on a board every string
-# of a tuple would be an object of its own (the tuples cost 0.3 KB more).
+import struct
+
+from xrce import DecodeError, const, epoch_ns, ticks_diff, ticks_us
+
+_DELETE = const(3)
+_READ_DATA = const(8)
+_TIMESTAMP = const(14)
+_FLAG_LITTLE_ENDIAN = const(0x01)
+_STREAM_NONE = const(0x00)
+_STATUS_NONE = const(0xFF)
+_REQUEST_ID_LOGOUT_OBJECTID_CLIENT = b"\x00\x02\xff\xfe"
+
+# The names each source serves, as one space-separated string, looked up as " name ": on a board
+# every string of a tuple would be an object of its own.
 _SERVICES = (" create_requester create_replier create_service_client create_service_server"
              " send_request send_reply ")
-_TEARDOWN = " delete delete_entity cancel_data run_until_confirm_delivery "
+_HERE = " sync_time ping delete delete_entity cancel_data run_until_confirm_delivery "
 
 
 def session_attr(session, name):
-    # Modules are imported by full name: on MicroPython `from xrce.client import teardown` looks the
-    # module up as an attribute of the package first, and the package's __getattr__ (the session
-    # module's, for ping_agent) raises AttributeError instead of letting the import go on.
+    if " " in name:
+        raise AttributeError(name)
     word = " %s " % name
-    if word in _SERVICES:
+    if word in _HERE:
+        function = globals()[name]
+    elif word in _SERVICES:
+        # Imported by full name: on MicroPython `from xrce.client import services` looks the module
+        # up as an attribute of the package first, and the package's __getattr__ (the session
+        # module's, for ping_agent) raises AttributeError instead of letting the import go on.
         import xrce.client.services as module
-    elif word in _TEARDOWN:
-        import xrce.client.teardown as module
-    elif name == "sync_time":
-        import xrce.client.timesync as module
-    elif name == "ping":
-        import xrce.client.ping as module
+
+        function = getattr(module, name)
     elif name == "link_state":
         # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
         link = session.link
@@ -35,12 +51,123 @@ def session_attr(session, name):
         return LINK_STATE_NAMES[link.state]
     else:
         raise AttributeError(name)
-    function = getattr(module, name)
+    # Set on the class: later look-ups find a method there, which a board calls without allocating
+    # (send_request and send_reply run at message rate) and without a closure kept per method.
+    setattr(type(session), name, function)
+    return getattr(session, name)
 
-    def method(*args, **kwargs):
-        return function(session, *args, **kwargs)
 
-    # Kept on the instance: later calls find it there and allocate nothing (send_request and
-    # send_reply run at message rate).
-    setattr(session, name, method)
-    return method
+# ------------------------------------------------------------------ time sync
+
+# NTP-style offset of the agent's clock from one TIMESTAMP/TIMESTAMP_REPLY exchange
+# (XRCE-WIRE.md §5); Session.epoch_ns applies it.
+def sync_time(session, timeout_ms=1000, attempts=1):
+    # True when the offset was updated.
+    session.flush()
+    for _ in range(attempts):
+        originate = epoch_ns()
+        session._sync_originate = originate
+        w = session._begin_control(_TIMESTAMP)
+        w.i32(originate // 1000000000)
+        w.u32(originate % 1000000000)
+        session._send_control()
+        if session._wait(timeout_ms, lambda: session._sync_originate is None):
+            return True
+    session._sync_originate = None
+    return False
+
+
+def on_timestamp_reply(session, buf, flags, s, e):
+    # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
+    if e - s < 24:
+        raise DecodeError("short TIMESTAMP_REPLY")
+    t = struct.unpack_from("<iIiIiI" if flags & 1 else ">iIiIiI", buf, s)
+    t0 = session._sync_originate
+    if t0 is None or t[4] * 1000000000 + t[5] != t0:
+        session.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
+        return
+    t3 = epoch_ns()
+    session._sync_originate = None
+    received = t[2] * 1000000000 + t[3]
+    transmitted = t[0] * 1000000000 + t[1]
+    # The offset is only known to within half the exchange's round trip, and one stalled
+    # exchange (a GC pause, a busy link) can be milliseconds off. Like NTP's clock filter,
+    # keep the tightest exchange; the bound it gave ages by half at each slower one, so a
+    # drifting clock is still followed within a few syncs.
+    rtt = (t3 - t0) - (transmitted - received)
+    if session.time_synced and rtt > session.time_rtt_ns:
+        session.time_rtt_ns += (session.time_rtt_ns >> 1) + 1
+        return
+    session.time_rtt_ns = rtt
+    twice = (t0 + t3) - (received + transmitted)
+    # Halved rounding toward zero, as the C client's int64 division does.
+    session.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
+    session.time_synced = True
+
+
+# ------------------------------------------------------------------ ping in the session
+
+def ping(session, timeout_ms=1000, attempts=1):
+    # GET_INFO inside the session: True only if the agent still knows this session. (The
+    # session-less ping is xrce.client.ping.ping_agent.)
+    session.flush()
+    for _ in range(attempts):
+        session._pong_in_session = False
+        sent = ticks_us()
+        session._send_ping()
+        if session._wait(timeout_ms, lambda: session._pong_in_session):
+            session.last_rtt_us = ticks_diff(ticks_us(), sent)
+            return True
+    return False
+
+
+# ------------------------------------------------------------------ ending things
+
+def delete_entity(session, object_id, stream_id=None):
+    # Buffer a DELETE of one entity (the agent deletes its children). Returns the request id.
+    rid = session.next_request_id()
+    session._buffer(stream_id, _DELETE, _FLAG_LITTLE_ENDIAN, rid, object_id, b"")
+    session._statuses[rid] = _STATUS_NONE
+    if session.link is not None:
+        session.link.forget(object_id)
+    return rid
+
+
+def cancel_data(session, reader_id, stream_id=None):
+    # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
+    from xrce.client.wire import read_data_body
+
+    rid = session.next_request_id()
+    session._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id,
+                    read_data_body(_STREAM_NONE, (0, 0, 0, 0)))
+    session._read_requests.pop(reader_id, None)
+    return rid
+
+
+def delete(session, attempts=10, timeout_ms=1000):
+    # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
+    session.flush()
+    session._begin_control(_DELETE).raw(_REQUEST_ID_LOGOUT_OBJECTID_CLIENT)
+    session._control.end_submessage()
+    message = session._control.getvalue()
+    session._delete_status = None
+    for _ in range(attempts):
+        session._send(message)
+        if session._wait(timeout_ms, lambda: session._delete_status is not None):
+            break
+    session.connected = False
+    return session._delete_status is not None
+
+
+def run_until_confirm_delivery(session, timeout_ms=1000):
+    # Flush and wait until every reliable message sent has been acknowledged (a firmware's loop
+    # does not need this: its streams deliver as it spins).
+    session.flush()
+    return session._wait(timeout_ms, lambda: _all_delivered(session))
+
+
+def _all_delivered(session):
+    for out in session._outputs.values():
+        if out.reliable and out.state.pending():
+            return False
+    return True

@@ -1,7 +1,7 @@
-# Pinging the agent: the session-less ping (GET_INFO with header 0x80), whether an agent answers on
-# a transport before any session exists, as micro-ROS firmware waits for its agent; and the ping
-# inside a session (Session.ping, through xrce.client.on_demand), whether the agent still knows the
-# session. Its own module so that a board that never pings pays nothing for it;
+# The session-less ping (GET_INFO with header 0x80): whether an agent answers on a transport before
+# any session exists, as micro-ROS firmware waits for its agent. (The ping inside a session,
+# Session.ping, is in xrce.client.on_demand.) Its own module so that a board that never pings pays
+# nothing for it;
 # `from xrce.client.session import ping_agent` still works. (The link monitor, xrce.client.recovery,
 # sends its pings itself without waiting for them.)
 
@@ -43,15 +43,3 @@ def _is_pong(data):
         pass
     return False
 
-
-def ping(session, timeout_ms=1000, attempts=1):
-    # GET_INFO inside the session: True only if the agent still knows this session.
-    session.flush()
-    for _ in range(attempts):
-        session._pong_in_session = False
-        sent = ticks_us()
-        session._send_ping()
-        if session._wait(timeout_ms, lambda: session._pong_in_session):
-            session.last_rtt_us = ticks_diff(ticks_us(), sent)
-            return True
-    return False

@@ -18,8 +18,8 @@
 # message exactly as with the C client.
 #
 # A board pays for what it imports: the session-less ping (xrce.client.ping), services
-# (xrce.client.services), deleting single entities and cancelling delivery (xrce.client.teardown),
-# time sync (xrce.client.timesync), fragmentation (xrce.client.fragments), agent discovery
+# (xrce.client.services), time sync, the ping inside the session, deleting entities or the session
+# (xrce.client.on_demand), fragmentation (xrce.client.fragments), agent discovery
 # (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
 # submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
 # general codec the agent uses.
@@ -216,8 +216,9 @@ class Session(Outbound):
         return (index << 4) | kind
 
     def __getattr__(self, name):
-        # Services, deletion (of entities or the session), waiting for delivery, time sync and the
-        # link state cost a board nothing until first used (xrce.client.on_demand).
+        # Time sync, the ping in the session, deletion (of entities or the session), waiting for
+        # delivery, services and the link state cost a board nothing until first used
+        # (xrce.client.on_demand).
         from xrce.client.on_demand import session_attr
 
         return session_attr(self, name)
@@ -410,7 +411,7 @@ class Session(Outbound):
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
             elif sub_id == _TIMESTAMP_REPLY:
-                from xrce.client.timesync import on_timestamp_reply  # loaded by sync_time
+                from xrce.client.on_demand import on_timestamp_reply  # loaded by sync_time
 
                 on_timestamp_reply(self, buf, flags, s, e)
             elif sub_id == _STATUS_AGENT:
@@ -458,9 +459,9 @@ def _agent_activity(buf, flags, s, e):
         r.u8()
         r.raw(8)
         if r.boolean():  # properties: the general decoder knows how to skip them
-            from xrce.submessages import Info
-            info = Info.decode(CdrReader(buf, s, e, 0, bool(flags & 1)), flags)
-            return info.impl_status, info.availability
+            from xrce.client.discovery import info_activity
+
+            return info_activity(buf, flags, s, e)
     if not r.boolean():
         return impl_status, None
     if r.u8() != _OBJK_AGENT:

@@ -46,6 +46,11 @@ _BATTERY_FULL_V = const(12.4)  # 3S LiPo, 1800 mAh
 _BATTERY_EMPTY_V = const(10.5)
 _BATTERY_CAPACITY_AH = const(1.8)
 _GRAVITY = const(9.80665)
+# sensor_msgs/BatteryState constants: on a board the class has them only after
+# xrce.msgs.constants.load_constants(BatteryState), which would intern all 23 names for these three.
+_POWER_SUPPLY_STATUS_DISCHARGING = const(2)
+_POWER_SUPPLY_HEALTH_GOOD = const(1)
+_POWER_SUPPLY_TECHNOLOGY_LIPO = const(3)
 
 TIME_SYNC_PERIOD_MS = const(10000)
 FAILSAFE_MS = const(500)
@@ -77,9 +82,8 @@ def _set_yaw(quaternion, yaw):
 
 
 class _Periodic:
-    # A drift-free period: the next deadline advances by whole periods, not from 'now'.
-
-    __slots__ = ("period_ms", "due")
+    # A drift-free period: the next deadline advances by whole periods, not from 'now'. (No
+    # __slots__: MicroPython ignores them and would keep the tuple of names.)
 
     def __init__(self, period_ms, now):
         self.period_ms = period_ms
@@ -154,9 +158,9 @@ class TurtleBot3:
         self._imu.linear_acceleration.z = _GRAVITY
         self._battery = BatteryState()
         self._battery.design_capacity = _BATTERY_CAPACITY_AH
-        self._battery.power_supply_status = BatteryState.POWER_SUPPLY_STATUS_DISCHARGING
-        self._battery.power_supply_health = BatteryState.POWER_SUPPLY_HEALTH_GOOD
-        self._battery.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_LIPO
+        self._battery.power_supply_status = _POWER_SUPPLY_STATUS_DISCHARGING
+        self._battery.power_supply_health = _POWER_SUPPLY_HEALTH_GOOD
+        self._battery.power_supply_technology = _POWER_SUPPLY_TECHNOLOGY_LIPO
         self._battery.present = True
         self._odom = Odometry()
         self._odom.header.frame_id = "odom"

@@ -325,25 +325,23 @@ def _intern(text):
 
 
 # The class of ROS type "pkg/msg/Name" (or "pkg/srv/Name_Request"): `names` its fields, `specs`
-# their specs, `defaults` {field: value} or None, keyword arguments its constants.
-def _define(ros_type, names, specs, defaults=None, **constants):
+# their specs, `defaults` {field: value} or None; `constants` when the type has CONSTANT=value
+# definitions, which the generator writes to a module of their own: a board sets them on the class
+# only through xrce.msgs.constants.load_constants, CPython when the class is defined (what CPython
+# adds is in xrce/_cpython.py, which a board never loads).
+def _define(ros_type, names, specs, defaults=None, constants=False):
     package, kind, name = ros_type.split("/")
-    constants["__slots__"] = names
-    constants["_S"] = specs
-    constants["ROS_TYPE"] = _intern(ros_type)
-    constants["TYPE_NAME"] = _intern("%s::%s::dds_::%s_" % (package, kind, name))
+    namespace = {"__slots__": names, "_S": specs, "ROS_TYPE": _intern(ros_type),
+                 "TYPE_NAME": _intern("%s::%s::dds_::%s_" % (package, kind, name))}
     if defaults is not None:
-        constants["_D"] = defaults
-    if not IS_MICROPYTHON:  # the defining module, as a class statement would have it (pickle needs it)
-        constants["__module__"] = sys._getframe(1).f_globals["__name__"]
-    return type(name, (_Message,), constants)
+        namespace["_D"] = defaults
+    if IS_MICROPYTHON:
+        return type(name, (_Message,), namespace)
+    return _cpython_class(name, _Message, namespace, constants)
 
 
 if not IS_MICROPYTHON:
-    # CPython tools (xrce/client/cli.py) read Class._FIELDS (see xrce/_cpython.py).
-    from xrce._cpython import FieldTable
-
-    _Message._FIELDS = FieldTable()
+    from xrce._cpython import message_class as _cpython_class
 
 
 # __getattr__ of a generated package (`namespace` is its globals): imports the module that defines
@@ -351,20 +349,21 @@ if not IS_MICROPYTHON:
 # imports its dependencies through their package too (`from xrce.msgs.std_msgs import Header`), so
 # each type is defined once. A board then drops a message's module (~115 bytes of heap a type: the
 # module, its globals, its entries in sys.modules and the package); a service's module stays, as
-# its request, response and descriptor are named one by one.
+# its request, response and descriptor are named one by one. A name without a module of its own
+# (SERVICES, Name_Request, Name_Response) goes to _lookup.py: trying the import first spares every
+# board the strings that would tell those names apart up front.
 def _type_attr(namespace, name):
     if not name or name[0] == "_":
         raise AttributeError(name)
-    if name == "SERVICES" or name.endswith("_Request") or name.endswith("_Response"):
-        from xrce.msgs._lookup import service_attr  # services: their own module, loaded on use
+    module = namespace["__name__"] + "._" + name
+    try:
+        value = getattr(_import(module), name)
+    except ImportError:
+        # SERVICES, or a service's Name_Request/Name_Response, which live in the service's module.
+        from xrce.msgs._lookup import service_attr
 
         value = service_attr(namespace, name)
     else:
-        module = namespace["__name__"] + "._" + name
-        try:
-            value = getattr(_import(module), name)
-        except ImportError:
-            raise AttributeError(name)
         if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"]:
             del sys.modules[module]
             namespace.pop("_" + name, None)

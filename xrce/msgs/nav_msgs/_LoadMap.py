@@ -12,11 +12,7 @@ LoadMap_Response = _define(
     'nav_msgs/srv/LoadMap_Response',
     ('map', 'result', ),
     (OccupancyGrid, "B", ),
-    RESULT_SUCCESS=0,
-    RESULT_MAP_DOES_NOT_EXIST=1,
-    RESULT_INVALID_MAP_DATA=2,
-    RESULT_INVALID_MAP_METADATA=3,
-    RESULT_UNDEFINED_FAILURE=255,
+    constants=True,
 )
 
 

@@ -5,7 +5,5 @@ JoyFeedback = _define(
     'sensor_msgs/msg/JoyFeedback',
     ('type', 'id', 'intensity', ),
     "BBf",
-    TYPE_LED=0,
-    TYPE_RUMBLE=1,
-    TYPE_BUZZER=2,
+    constants=True,
 )

@@ -7,8 +7,5 @@ NavSatFix = _define(
     'sensor_msgs/msg/NavSatFix',
     ('header', 'status', 'latitude', 'longitude', 'altitude', 'position_covariance', 'position_covariance_type', ),
     (std_msgs.Header, NavSatStatus, "d", "d", "d", ("F", 9, "d"), "B", ),
-    COVARIANCE_TYPE_UNKNOWN=0,
-    COVARIANCE_TYPE_APPROXIMATED=1,
-    COVARIANCE_TYPE_DIAGONAL_KNOWN=2,
-    COVARIANCE_TYPE_KNOWN=3,
+    constants=True,
 )

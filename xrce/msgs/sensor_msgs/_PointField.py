@@ -5,12 +5,5 @@ PointField = _define(
     'sensor_msgs/msg/PointField',
     ('name', 'offset', 'datatype', 'count', ),
     "sIBI",
-    INT8=1,
-    UINT8=2,
-    INT16=3,
-    UINT16=4,
-    INT32=5,
-    UINT32=6,
-    FLOAT32=7,
-    FLOAT64=8,
+    constants=True,
 )

@@ -6,6 +6,5 @@ Range = _define(
     'sensor_msgs/msg/Range',
     ('header', 'radiation_type', 'field_of_view', 'min_range', 'max_range', 'range', 'variance', ),
     (std_msgs.Header, "B", "f", "f", "f", "f", "f", ),
-    ULTRASOUND=0,
-    INFRARED=1,
+    constants=True,
 )

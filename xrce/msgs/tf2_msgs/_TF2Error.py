@@ -5,11 +5,5 @@ TF2Error = _define(
     'tf2_msgs/msg/TF2Error',
     ('error', 'error_string', ),
     "Bs",
-    NO_ERRORS=0,
-    LOOKUP_ERROR=1,
-    CONNECTIVITY_ERROR=2,
-    EXTRAPOLATION_ERROR=3,
-    INVALID_ARGUMENT_ERROR=4,
-    TIMEOUT_ERROR=5,
-    TRANSFORM_ERROR=6,
+    constants=True,
 )

@@ -5,10 +5,5 @@ Sound = _define(
     'turtlebot3_msgs/msg/Sound',
     ('value', ),
     "B",
-    OFF=0,
-    ON=1,
-    LOW_BATTERY=2,
-    ERROR=3,
-    BUTTON1=4,
-    BUTTON2=5,
+    constants=True,
 )
