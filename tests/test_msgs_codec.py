@@ -379,3 +379,15 @@ def test_generator_rejects_bad_definitions(tmp_path, capsys, text, needle):
     (pkg / "msg" / "Bad.msg").write_text(text)
     assert msggen.main([str(pkg), "-o", str(tmp_path / "out")]) == 2
     assert needle in capsys.readouterr().err
+
+
+def test_codec_objects_answer_unknown_and_dunder_names_with_attribute_error():
+    # The methods xrce.cdr_more attaches on first use go through the classes' __getattr__; a name
+    # neither class has (a slotted instance's __dict__ included) must be a plain AttributeError,
+    # not a recursion through that hook.
+    writer, reader = CdrWriter(), CdrReader(b"\x00" * 8)
+    for codec in (writer, reader):
+        assert not hasattr(codec, "__dict__")
+        assert not hasattr(codec, "no_such_method")
+    writer.f64(2.5)
+    assert CdrReader(bytes(writer.buf)).f64() == 2.5

@@ -29,7 +29,9 @@ _BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
 def _more(self, name):
     import xrce.cdr_more  # noqa: F401
 
-    if getattr(type(self), name, None) is None:  # not one of them either
+    # Dunder names (``__dict__`` of a slotted instance, ``__length_hint__``...) are never
+    # xrce.cdr_more's, and the class may hold one the instance lacks: asking again would recurse.
+    if name[0] == "_" or getattr(type(self), name, None) is None:
         raise AttributeError(name)
     return getattr(self, name)
 
