@@ -92,6 +92,10 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:])
+        if not stream_id & 0x80:
+            fastpath = getattr(link, "fastpath", None)
+            if fastpath is not None:  # the next ones may not need Python (xrce.agent.fastpath)
+                fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
             self._acknack_soon(client, stream)
         return True

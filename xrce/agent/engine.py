@@ -109,6 +109,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -172,6 +173,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
 
     def _tick_locked(self) -> None:
         self._resume_parked_locked()
+        for fastpath in self.fastpaths:
+            fastpath.fold()  # when clients were last heard, before liveliness judges them
         now = self.clock()
         due = NEVER
         if self.timelines.pending:
@@ -189,6 +192,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                 due = client_due
         if due < NEVER:
             self._wake_at(due)
+        for fastpath in self.fastpaths:
+            fastpath.sync()  # dead clients come back through Python
 
     @property
     def next_wakeup(self) -> Optional[float]:
