@@ -258,3 +258,36 @@ def test_python_keeps_order_while_it_holds_datagrams(ros_peer):  # noqa: F811
     finally:
         receiver.remove_writer(handle, 0x0015)
         ros_peer.node.destroy_publisher(publisher)
+
+
+# ------------------------------------------------------------------------------------ packaging
+
+@pytest.mark.parametrize("env, compiled", [({}, True), ({"CC": "false"}, False),
+                                           ({"XRCE_FASTPATH": "0"}, False)],
+                         ids=["with-a-compiler", "without-a-compiler", "left-out"])
+def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled):
+    """A plain ``pip install`` builds the compiled path when it can and installs xrce anyway when
+    it cannot (no compiler); XRCE_FASTPATH=0 leaves it out: a pure, platform-independent wheel."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    import zipfile
+
+    from agent_process import REPO
+
+    # A copy without the checkout's own build products (an in-place .so, build/) to mislead it.
+    source = tmp_path / "src"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(
+        ".venv", "node_modules", "build", "*.so", ".git", "__pycache__", "*.egg-info", ".*cache"))
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", tmp_path,
+                            source],
+                           env=dict(os.environ, **env), stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, timeout=300)
+    assert build.returncode == 0, build.stdout[-3000:]
+    (wheel,) = tmp_path.glob("xrce-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert any(n.startswith("xrce/agent/_fastpath.") and n.endswith(".so") for n in names) == compiled
+    assert "xrce/agent/fastpath.py" in names
+    if env.get("XRCE_FASTPATH") == "0":
+        assert wheel.name.endswith("-py3-none-any.whl"), wheel.name
