@@ -1,20 +1,23 @@
 /* Optional compiled receive path of the UDP link: best-effort WRITE_DATA straight into rcl.
  *
- * Why it exists: at a robot's rates the agent's cost is wake-ups of the Python loop, and at high
- * rates the Python work per datagram; both were measured at their floors in Python
- * (bench/agent_cost.py). Here one thread without the GIL owns the UDP socket's reads. A datagram
+ * Why it exists: per datagram, the Python data path had reached its floor (bench/agent_cost.py);
+ * what is left of the cost is Python work, not the kernel. Here the UDP link's read, on the asyncio
+ * loop's thread as before, takes a batch of datagrams with recvmmsg and the GIL released. A datagram
  * whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered, on a
- * best-effort stream Python registered, is published with rcl_publish_serialized_message from this
- * thread. Every other datagram (reliable streams, fragments, control, unknown clients, anything
- * malformed) is queued unchanged for the Python link, which takes the queue when an eventfd wakes
- * its loop: Python keeps every decision it makes today. xrce/agent/fastpath.py is the Python side.
+ * best-effort stream Python registered, is published with rcl_publish_serialized_message right
+ * here. At the first datagram that is not (reliable streams, fragments, control, unknown clients,
+ * anything malformed) the batch stops being handled here: it and every datagram behind it go back
+ * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
+ * order. xrce/agent/fastpath.py is the Python side.
+ *
+ * Measured and not kept: a thread of its own reading the socket and waking the loop through an
+ * eventfd for the rest. Best-effort was cheaper still, but every other datagram then cost two
+ * wake-ups instead of one: reliable traffic, ping and the robot load got worse.
  *
  * Ownership: Python decides what is fast (clients, streams, writers and their rcl publishers) and
- * removes a writer before it destroys the publisher; the mutex makes that removal wait for a publish
- * in progress. This thread owns the input sequence number of every registered stream: Python asks
- * (stream_accept) for the datagrams of those streams it handles. To keep those decisions in arrival
- * order, nothing is published here while Python still holds datagrams it was handed ("unfinished").
- * Counters accumulate here and Python folds them into its own (fold).
+ * removes a writer before it destroys the publisher. This module owns the input sequence number of
+ * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself.
+ * Counters accumulate here and Python folds them into its own (fold) after each read.
  *
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
  * builds with no ROS headers, and without rclpy loaded the Python path simply stays in charge.
@@ -26,11 +29,9 @@
 #include <dlfcn.h>
 #include <errno.h>
 #include <netinet/in.h>
-#include <poll.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <string.h>
-#include <sys/eventfd.h>
 #include <sys/mman.h>
 #include <sys/socket.h>
 #include <time.h>
@@ -38,7 +39,6 @@
 
 #define BATCH 64            /* datagrams per recvmmsg */
 #define MAX_DATAGRAM 65536  /* UDP's limit: nothing is ever truncated */
-#define QUEUE_BYTES_LIMIT (8u << 20)  /* datagrams waiting for Python; beyond, dropped and counted */
 #define WRITE_DATA 0x07
 #define FORMAT_MASK 0x0E
 #define FORMAT_DATA 0x00
@@ -85,30 +85,22 @@ typedef struct Client {
     int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
 } Client;
 
-typedef struct Pending {
-    struct Pending *next;
-    struct sockaddr_storage addr;
-    socklen_t addr_len;
-    size_t length;
-    uint8_t data[];
-} Pending;
-
 typedef struct {
     PyObject_HEAD
-    int sock, notify_fd, stop_fd;
-    pthread_t thread;
-    int running;
+    int sock;
+    /* Registration runs on the loop's thread, which is also the one reading; the mutex keeps any
+     * other thread that calls in from seeing the tables half changed while the GIL is released. */
     pthread_mutex_t mutex;
     Client *clients;
     long next_handle;
     int enabled;
-    Pending *head, *tail;
-    size_t queued, queued_bytes, unfinished;  /* unfinished: queued + taken, not yet finished */
-    int notified;
     /* Agent-wide counters since the last fold. */
-    uint64_t messages, bytes, samples, stale, publish_errors, queue_drops;
+    uint64_t messages, bytes, samples, stale, publish_errors;
     /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
     uint8_t (*buffers)[MAX_DATAGRAM];
+    struct mmsghdr messages_hdr[BATCH];
+    struct iovec vectors[BATCH];
+    struct sockaddr_storage sources[BATCH];
 } Receiver;
 
 static int64_t now_ns(void) {
@@ -170,7 +162,7 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
     /* Every submessage must be a WRITE_DATA to a registered writer, or Python takes it all:
      * the same walk as xrce/message.py iter_submessages, every length checked. */
     size_t pos = session_id < 0x80 ? 8 : 4, count = 0;
-    while (length - pos >= 4) {
+    while (pos + 4 <= length) {
         size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
         size_t end = pos + 4 + sub_length;
         if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
@@ -179,9 +171,8 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
             return 0;
         count++;
         pos = (end + 3) & ~(size_t)3;
-        if (pos > length) break;
     }
-    if (count == 0 || self->unfinished) return 0;
+    if (count == 0) return 0;
     uint16_t seq = data[2] | (data[3] << 8);
     client->messages++;
     client->bytes += length;
@@ -212,70 +203,6 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
         pos = (pos + 4 + sub_length + 3) & ~(size_t)3;
     }
     return 1;
-}
-
-/* Hand a datagram to Python. Called locked; returns 1 if Python must be woken. */
-static int queue_for_python(Receiver *self, const uint8_t *data, size_t length,
-                            const struct sockaddr_storage *from, socklen_t from_len) {
-    if (self->queued_bytes + length > QUEUE_BYTES_LIMIT) {
-        self->queue_drops++;
-        return 0;
-    }
-    Pending *item = malloc(sizeof(Pending) + length);
-    if (item == NULL) {
-        self->queue_drops++;
-        return 0;
-    }
-    item->next = NULL;
-    memcpy(&item->addr, from, from_len);
-    item->addr_len = from_len;
-    item->length = length;
-    memcpy(item->data, data, length);
-    if (self->tail) self->tail->next = item; else self->head = item;
-    self->tail = item;
-    self->queued++;
-    self->queued_bytes += length;
-    self->unfinished++;
-    if (self->notified) return 0;
-    self->notified = 1;
-    return 1;
-}
-
-static void *receive_loop(void *arg) {
-    Receiver *self = arg;
-    static __thread struct mmsghdr messages[BATCH];
-    static __thread struct iovec vectors[BATCH];
-    static __thread struct sockaddr_storage sources[BATCH];
-    struct pollfd fds[2] = {{self->sock, POLLIN, 0}, {self->stop_fd, POLLIN, 0}};
-    for (;;) {
-        if (poll(fds, 2, -1) < 0 && errno != EINTR) break;
-        if (fds[1].revents) break;
-        for (int i = 0; i < BATCH; i++) {
-            vectors[i].iov_base = self->buffers[i];
-            vectors[i].iov_len = MAX_DATAGRAM;
-            memset(&messages[i].msg_hdr, 0, sizeof messages[i].msg_hdr);
-            messages[i].msg_hdr.msg_iov = &vectors[i];
-            messages[i].msg_hdr.msg_iovlen = 1;
-            messages[i].msg_hdr.msg_name = &sources[i];
-            messages[i].msg_hdr.msg_namelen = sizeof sources[i];
-        }
-        int count = recvmmsg(self->sock, messages, BATCH, MSG_DONTWAIT, NULL);
-        if (count <= 0) continue;  /* EAGAIN, or an ICMP error of an earlier send: nothing lost */
-        int wake = 0;
-        pthread_mutex_lock(&self->mutex);
-        for (int i = 0; i < count; i++) {
-            size_t length = messages[i].msg_len;
-            if (!try_fast(self, self->buffers[i], length, &sources[i]))
-                wake |= queue_for_python(self, self->buffers[i], length, &sources[i],
-                                         messages[i].msg_hdr.msg_namelen);
-        }
-        pthread_mutex_unlock(&self->mutex);
-        if (wake) {
-            uint64_t one = 1;
-            if (write(self->notify_fd, &one, sizeof one) < 0) { /* the counter is already set */ }
-        }
-    }
-    return NULL;
 }
 
 /* ----------------------------------------------------------------------------- Python side */
@@ -334,89 +261,70 @@ static void free_client(Client *c) {
 static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
     static char *names[] = {"sock", NULL};
     if (!PyArg_ParseTupleAndKeywords(args, kwargs, "i", names, &self->sock)) return -1;
-    self->notify_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-    self->stop_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-    if (self->notify_fd < 0 || self->stop_fd < 0) {
-        PyErr_SetFromErrno(PyExc_OSError);
-        return -1;
-    }
     pthread_mutex_init(&self->mutex, NULL);
     self->enabled = 1;
     self->next_handle = 1;
     return 0;
 }
 
-static PyObject *Receiver_start(Receiver *self, PyObject *unused) {
-    if (self->running) Py_RETURN_NONE;
+static void Receiver_dealloc(Receiver *self) {
+    for (Client *c = self->clients, *n; c; c = n) { n = c->next; free_client(c); }
+    if (self->buffers) munmap(self->buffers, (size_t)BATCH * MAX_DATAGRAM);
+    pthread_mutex_destroy(&self->mutex);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* read() -> (datagrams for Python, more): one recvmmsg batch from the non-blocking socket, handled
+ * here up to the first datagram that is not fast; that one and the rest come back as
+ * [(bytes, address)], in order. more: the batch was full, the socket may hold more. */
+static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
+    (void)unused;
     if (self->buffers == NULL) {
         void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
                          MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
         if (map == MAP_FAILED) return PyErr_SetFromErrno(PyExc_OSError);
         self->buffers = map;
     }
-    int error = pthread_create(&self->thread, NULL, receive_loop, self);
-    if (error) {
-        errno = error;
+    for (int i = 0; i < BATCH; i++) {
+        self->vectors[i].iov_base = self->buffers[i];
+        self->vectors[i].iov_len = MAX_DATAGRAM;
+        memset(&self->messages_hdr[i].msg_hdr, 0, sizeof self->messages_hdr[i].msg_hdr);
+        self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
+        self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
+        self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
+        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+    }
+    int count, handled = 0, error = 0;
+    Py_BEGIN_ALLOW_THREADS  /* rclpy's executor thread may run meanwhile */
+    count = recvmmsg(self->sock, self->messages_hdr, BATCH, MSG_DONTWAIT, NULL);
+    if (count < 0) error = errno;
+    pthread_mutex_lock(&self->mutex);
+    while (handled < count && try_fast(self, self->buffers[handled],
+                                       self->messages_hdr[handled].msg_len,
+                                       &self->sources[handled]))
+        handled++;
+    pthread_mutex_unlock(&self->mutex);
+    Py_END_ALLOW_THREADS
+    if (count < 0) {
+        if (error == EAGAIN || error == EWOULDBLOCK || error == EINTR)
+            return Py_BuildValue("([]O)", Py_False);
+        errno = error;  /* e.g. an ICMP error of an earlier send: the caller logs it */
         return PyErr_SetFromErrno(PyExc_OSError);
     }
-    self->running = 1;
-    Py_RETURN_NONE;
-}
-
-static void stop_thread(Receiver *self) {
-    if (!self->running) return;
-    uint64_t one = 1;
-    if (write(self->stop_fd, &one, sizeof one) < 0) { /* already signalled */ }
-    Py_BEGIN_ALLOW_THREADS
-    pthread_join(self->thread, NULL);
-    Py_END_ALLOW_THREADS
-    self->running = 0;
-}
-
-static PyObject *Receiver_stop(Receiver *self, PyObject *unused) {
-    stop_thread(self);
-    Py_RETURN_NONE;
-}
-
-static void Receiver_dealloc(Receiver *self) {
-    stop_thread(self);
-    for (Client *c = self->clients, *n; c; c = n) { n = c->next; free_client(c); }
-    for (Pending *p = self->head, *n; p; p = n) { n = p->next; free(p); }
-    if (self->buffers) munmap(self->buffers, (size_t)BATCH * MAX_DATAGRAM);
-    if (self->notify_fd > 0) close(self->notify_fd);
-    if (self->stop_fd > 0) close(self->stop_fd);
-    pthread_mutex_destroy(&self->mutex);
-    Py_TYPE(self)->tp_free((PyObject *)self);
-}
-
-static PyObject *Receiver_take(Receiver *self, PyObject *unused) {
-    uint64_t counter;
-    if (read(self->notify_fd, &counter, sizeof counter) < 0) { /* not set: nothing new */ }
-    pthread_mutex_lock(&self->mutex);
-    Pending *items = self->head;
-    self->head = self->tail = NULL;
-    self->queued = self->queued_bytes = 0;
-    self->notified = 0;
-    pthread_mutex_unlock(&self->mutex);
-    PyObject *list = PyList_New(0);
-    for (Pending *p = items, *n; p; p = n) {
-        n = p->next;
-        PyObject *item = list ? Py_BuildValue("(y#N)", p->data, (Py_ssize_t)p->length,
-                                              address_tuple(&p->addr)) : NULL;
-        if (item == NULL || PyList_Append(list, item) < 0) Py_CLEAR(list);
-        Py_XDECREF(item);
-        free(p);
+    PyObject *rest = PyList_New(count - handled);
+    if (rest == NULL) return NULL;
+    for (int i = handled; i < count; i++) {
+        PyObject *address = address_tuple(&self->sources[i]);
+        PyObject *item = address ? Py_BuildValue("(y#N)", self->buffers[i],
+                                                 (Py_ssize_t)self->messages_hdr[i].msg_len,
+                                                 address) : NULL;
+        if (item == NULL) {
+            Py_DECREF(rest);
+            return NULL;
+        }
+        PyList_SET_ITEM(rest, i - handled, item);
     }
-    return list;
-}
-
-static PyObject *Receiver_finished(Receiver *self, PyObject *arg) {
-    Py_ssize_t count = PyLong_AsSsize_t(arg);
-    if (count < 0 && PyErr_Occurred()) return NULL;
-    pthread_mutex_lock(&self->mutex);
-    self->unfinished = (size_t)count > self->unfinished ? 0 : self->unfinished - count;
-    pthread_mutex_unlock(&self->mutex);
-    Py_RETURN_NONE;
+    return Py_BuildValue("(NO)", rest, count == BATCH ? Py_True : Py_False);
 }
 
 static PyObject *Receiver_add_client(Receiver *self, PyObject *args) {
@@ -556,8 +464,8 @@ static PyObject *Receiver_add_writer(Receiver *self, PyObject *args) {
     return PyBool_FromLong(w != NULL);
 }
 
-/* remove_writer(handle, object_id): returns (samples, bytes) not folded yet. Once it returns, this
- * thread holds no reference to the publisher (the mutex covers every publish). */
+/* remove_writer(handle, object_id): returns (samples, bytes) not folded yet. Once it returns,
+ * nothing here refers to the publisher any more (the mutex covers every publish). */
 static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
     long handle;
     int object_id;
@@ -579,7 +487,7 @@ static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
 }
 
 /* fold(): the counters since the previous fold, reset here:
- * ((messages, bytes, samples, stale, publish_errors, queue_drops),
+ * ((messages, bytes, samples, stale, publish_errors),
  *  [(handle, messages, bytes, last_seen_ns)], [(handle, object_id, samples, bytes)]) */
 static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
     PyObject *clients = PyList_New(0), *writers = PyList_New(0), *result = NULL;
@@ -604,14 +512,12 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
             w->samples = w->sample_bytes = 0;
         }
     }
-    PyObject *totals = Py_BuildValue("(KKKKKK)", (unsigned long long)self->messages,
+    PyObject *totals = Py_BuildValue("(KKKKK)", (unsigned long long)self->messages,
                                      (unsigned long long)self->bytes,
                                      (unsigned long long)self->samples,
                                      (unsigned long long)self->stale,
-                                     (unsigned long long)self->publish_errors,
-                                     (unsigned long long)self->queue_drops);
-    self->messages = self->bytes = self->samples = self->stale = 0;
-    self->publish_errors = self->queue_drops = 0;
+                                     (unsigned long long)self->publish_errors);
+    self->messages = self->bytes = self->samples = self->stale = self->publish_errors = 0;
     pthread_mutex_unlock(&self->mutex);
     if (!failed && totals) result = Py_BuildValue("(NOO)", totals, clients, writers);
     else Py_XDECREF(totals);
@@ -621,40 +527,35 @@ done:
     return result;
 }
 
-/* handle(data, address): run try_fast on one datagram as the thread would, for tests and fuzzing
- * without a socket; True if it was taken here, False if Python would have it. */
+/* handle(data, address): try_fast on one datagram as read() would, for tests and fuzzing without
+ * a socket; True if it was taken here, False if Python would have it. */
 static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
     Py_buffer data;
     PyObject *address;
     if (!PyArg_ParseTuple(args, "y*O", &data, &address)) return NULL;
     struct sockaddr_storage from;
     socklen_t from_len;
-    if (parse_address(address, &from, &from_len) < 0 || data.len > MAX_DATAGRAM) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "datagram too long");
+    if (parse_address(address, &from, &from_len) < 0) {
         PyBuffer_Release(&data);
         return NULL;
     }
     /* A private copy: try_fast writes the encapsulation header into its buffer. */
     uint8_t *copy = malloc(data.len ? data.len : 1);
+    if (copy == NULL) {
+        PyBuffer_Release(&data);
+        return PyErr_NoMemory();
+    }
     memcpy(copy, data.buf, data.len);
     pthread_mutex_lock(&self->mutex);
     int taken = try_fast(self, copy, data.len, &from);
-    if (!taken) queue_for_python(self, copy, data.len, &from, from_len);
     pthread_mutex_unlock(&self->mutex);
     free(copy);
     PyBuffer_Release(&data);
     return PyBool_FromLong(taken);
 }
 
-static PyObject *Receiver_notify_fd(Receiver *self, void *unused) {
-    return PyLong_FromLong(self->notify_fd);
-}
-
 static PyMethodDef Receiver_methods[] = {
-    {"start", (PyCFunction)Receiver_start, METH_NOARGS, "start the receive thread"},
-    {"stop", (PyCFunction)Receiver_stop, METH_NOARGS, "stop and join the receive thread"},
-    {"take", (PyCFunction)Receiver_take, METH_NOARGS, "[(datagram, address)] queued for Python"},
-    {"finished", (PyCFunction)Receiver_finished, METH_O, "Python is done with N taken datagrams"},
+    {"read", (PyCFunction)Receiver_read, METH_NOARGS, "([(datagram, address)] for Python, more)"},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
     {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
     {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},
@@ -669,11 +570,6 @@ static PyMethodDef Receiver_methods[] = {
     {NULL},
 };
 
-static PyGetSetDef Receiver_getset[] = {
-    {"notify_fd", (getter)Receiver_notify_fd, NULL, "readable when take() has datagrams", NULL},
-    {NULL},
-};
-
 static PyTypeObject ReceiverType = {
     PyVarObject_HEAD_INIT(NULL, 0)
     .tp_name = "xrce.agent._fastpath.Receiver",
@@ -683,7 +579,6 @@ static PyTypeObject ReceiverType = {
     .tp_init = (initproc)Receiver_init,
     .tp_dealloc = (destructor)Receiver_dealloc,
     .tp_methods = Receiver_methods,
-    .tp_getset = Receiver_getset,
 };
 
 /* resolve_rcl(): True once rcl_publish_serialized_message is found in an already loaded librcl. */

@@ -1,18 +1,19 @@
 """The UDP link's optional compiled receive path (``xrce/agent/_fastpath.c``), Python side.
 
-When the extension is built and the middleware is rclpy, a thread without the GIL reads the UDP
-socket and publishes best-effort WRITE_DATA of registered writers straight through rcl; every other
-datagram comes back here, unchanged and in order, and goes through the link's usual ``_deliver``.
+When the extension is built and the middleware is rclpy, the UDP link's read goes through C: one
+``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl,
+and from the first datagram that needs Python on, the rest of the batch handed back unchanged and in
+order to the link's usual ``_deliver``. Same thread, same wake-ups as the Python read.
 ``XRCE_FASTPATH=0`` (or a missing extension, or another middleware) leaves the pure Python path.
 
 What is fast is decided here, one piece at a time, when the Python path has just handled a
 best-effort sample (``DataPath._fast_write`` calls ``offer``): the client (by key, or by source
 address for sessions without a key in the header), the stream (its sequence number moves into C;
-Python's stream object becomes a ``CompiledStream`` asking C) and the writer (its rcl publisher).
+Python's stream object becomes a ``CompiledStream`` asking C) and the writer (its rcl publisher,
+which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
-pending, the capture tap or -v 6 trace on) is disabled so that its datagrams all come to Python.
-C's counters are folded into the agent's, the client's, the link's and the writer's whenever the
-loop handles datagrams, on every ``tick`` and once a second while samples flow.
+pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
+counters are folded into the agent's, the link's, the clients' and the writers' after every read.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ try:
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
-FOLD_PERIOD_S = 1.0  # how stale `xrce-agent stats` may be while only compiled traffic flows
+READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
 
 
 def enabled_by_environment() -> bool:
@@ -97,29 +98,16 @@ class CompiledClient:
 
 
 class FastPath:
-    """One UDP link's compiled receiver, bound to the agent the link delivers to."""
+    """One UDP link's compiled read, bound to the agent the link delivers to."""
 
     def __init__(self, link, sock, agent):
         self.link = link
         self.agent = agent
         self.receiver = _fastpath.Receiver(sock.fileno())
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
-        self._loop = None
-        self._fold_timer = None
-
-    def start(self, loop) -> None:
-        self._loop = loop
-        loop.add_reader(self.receiver.notify_fd, self._on_ready)
-        self.receiver.start()
-        self.agent.fastpaths.append(self)
+        agent.fastpaths.append(self)
 
     def close(self) -> None:
-        if self._loop is not None:
-            self._loop.remove_reader(self.receiver.notify_fd)
-        if self._fold_timer is not None:
-            self._fold_timer.cancel()
-            self._fold_timer = None
-        self.receiver.stop()
         with self.agent.lock:
             for client in list(self.clients.values()):
                 if client.fast is not None:
@@ -127,21 +115,30 @@ class FastPath:
         if self in self.agent.fastpaths:
             self.agent.fastpaths.remove(self)
 
-    # -- datagrams C left to Python -------------------------------------------------------
-
-    def _on_ready(self) -> None:
-        items = self.receiver.take()
-        try:
-            link = self.link
-            stats = link.stats
-            for data, addr in items:
+    def read_ready(self) -> None:
+        """The link's socket is readable (``loop.add_reader``)."""
+        link = self.link
+        stats = link.stats
+        read = self.receiver.read
+        handed = False
+        for _ in range(READ_ROUNDS):  # bounded: TCP and serial links share the loop
+            try:
+                rest, more = read()
+            except OSError as exc:
+                # ICMP errors (port unreachable after a client went away) arrive here on Linux.
+                log.debug("%s: socket error %s", link.name, exc)
+                continue
+            for data, addr in rest:
                 stats.bytes_in += len(data)
                 link._deliver(addr, data)
-        finally:
-            self.receiver.finished(len(items))
-        with self.agent.lock:
+                handed = True
+            if not more:
+                break
+        if self.clients:
+            # No lock: these counters are only ever written on the loop's thread.
             self.fold()
-            self.sync()
+            if handed:
+                self.sync()
 
     # -- registration ---------------------------------------------------------------------
 
@@ -177,8 +174,6 @@ class FastPath:
             if address:
                 self.receiver.add_writer(state.handle, entry.object_id, address)
                 state.writers.add(entry.object_id)
-        if self._fold_timer is None and self._loop is not None:
-            self._fold_timer = self._loop.call_later(FOLD_PERIOD_S, self._periodic_fold)
 
     def sync(self) -> None:
         """Disable the clients that need the engine's attention; re-enable the others."""
@@ -196,9 +191,8 @@ class FastPath:
 
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
-        (messages, size, samples, stale, publish_errors, queue_drops), clients, writers = \
-            self.receiver.fold()
-        if messages or queue_drops:
+        (messages, size, samples, stale, publish_errors), clients, writers = self.receiver.fold()
+        if messages:
             stats = self.agent.stats
             stats.messages_in += messages
             stats.bytes_in += size
@@ -206,7 +200,6 @@ class FastPath:
             stats.dropped += stale
             self.link.stats.messages_in += messages
             self.link.stats.bytes_in += size
-            self.link.stats.drops += queue_drops
         if publish_errors:
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
@@ -228,14 +221,6 @@ class FastPath:
             if entry is not None:
                 entry.samples += count
                 entry.sample_bytes += size
-
-    def _periodic_fold(self) -> None:
-        self._fold_timer = None
-        with self.agent.lock:
-            self.fold()
-        if self.clients:
-            self._fold_timer = self._loop.call_later(FOLD_PERIOD_S, self._periodic_fold)
-
 
 def attach(link, sock) -> Optional[FastPath]:
     """A ``FastPath`` for ``link`` if the extension, the environment and the agent allow one."""

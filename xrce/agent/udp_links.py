@@ -98,10 +98,8 @@ class UdpServer(Link):
         self._sock = sock
         from xrce.agent import fastpath  # after the middleware started: it looks for rcl
         self.fastpath = fastpath.attach(self, sock)
-        if self.fastpath is not None:
-            self.fastpath.start(self._loop)
-        else:
-            self._loop.add_reader(sock.fileno(), self._read_ready)
+        self._loop.add_reader(sock.fileno(), self._read_ready if self.fastpath is None
+                              else self.fastpath.read_ready)
 
     def describe(self):
         return "%s agent on port %d" % (self.name, self.port)
@@ -126,11 +124,10 @@ class UdpServer(Link):
 
     async def close(self):
         if self._sock is not None:
+            self._loop.remove_reader(self._sock.fileno())
             if self.fastpath is not None:
                 self.fastpath.close()
                 self.fastpath = None
-            else:
-                self._loop.remove_reader(self._sock.fileno())
             self._sock.close()
             self._sock = None
 
