@@ -6,6 +6,7 @@ the same, for in-order, stale, duplicate and Python-only datagrams on one best-e
 deleted writer and a restarted session. Then the C parser alone against hostile datagrams.
 """
 
+import datetime
 import random
 import time
 
@@ -162,6 +163,53 @@ def test_compiled_and_python_paths_deliver_and_count_the_same(ros_peer, ros_doma
         assert deltas["dropped"] == 3 and deltas["decode_errors"] == 0, deltas
         assert deltas["client_last_seen_s"] < FOLD_WAIT_S + 1.0, deltas
     assert compiled[1]["bytes_in"] == python[1]["bytes_in"] == compiled[1]["client_bytes_in"]
+
+
+@pytest.mark.parametrize("switch", ["1", "0"], ids=["compiled", "python"])
+def test_a_client_heard_only_through_the_compiled_path_stays_alive(ros_peer, ros_domain, switch):  # noqa: F811
+    """Liveliness judges the time C last heard a client: samples that never reach Python keep it
+    alive; silence makes it dead; its next sample revives it through Python and is delivered."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    received = []
+    topic = "/fastpath_alive_" + switch
+    ros_peer.node.create_subscription(Twist_ros(), topic, lambda m: received.append(m.linear.x),
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+    with AgentProcess("udp4", "-m", "dds", "-v", "5", "--client-dead-time", "400",
+                      env={"XRCE_FASTPATH": switch}) as agent:
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="alive")
+            writer = session.create_writer(node, topic, Twist, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+            time.sleep(0.5)
+            frames = twist_datagrams(session, writer, [1, 2])
+            send = session.transport.inner.send
+            send(with_seq(frames[0], 0))  # revives it if the set-up took longer than a dead time
+            time.sleep(0.1)
+            sending = datetime.datetime.now()
+            for seq in range(1, 61):  # 1.2 s at 50 Hz, three dead times
+                send(with_seq(frames[0], seq))
+                time.sleep(0.02)
+            sent = datetime.datetime.now()
+            time.sleep(0.9)  # silent: dead
+            send(with_seq(frames[1], 61))
+            assert wait_until(lambda: 2.0 in received, 5), received
+            time.sleep(0.2)
+        finally:
+            session.close()
+    output = "".join(agent.output)
+    key = session.key.hex()
+    events = [(datetime.datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f"),
+               "dead" if "dead" in line else "alive")
+              for line in output.splitlines()
+              if key in line and (": dead" in line or "alive again" in line)]
+    assert not [e for e in events if sending <= e[0] <= sent], events  # heard all along
+    assert [kind for when, kind in events if when > sent] == ["dead", "alive"], events
+    assert received.count(1.0) >= 55
+    if switch == "1":
+        assert "best-effort samples take the compiled path" in output
 
 
 # ------------------------------------------------------------------------ hostile input, C alone

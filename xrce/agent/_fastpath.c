@@ -284,15 +284,14 @@ static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
                          MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
         if (map == MAP_FAILED) return PyErr_SetFromErrno(PyExc_OSError);
         self->buffers = map;
-    }
-    for (int i = 0; i < BATCH; i++) {
-        self->vectors[i].iov_base = self->buffers[i];
-        self->vectors[i].iov_len = MAX_DATAGRAM;
-        memset(&self->messages_hdr[i].msg_hdr, 0, sizeof self->messages_hdr[i].msg_hdr);
-        self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
-        self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
-        self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
-        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+        for (int i = 0; i < BATCH; i++) {
+            self->vectors[i].iov_base = self->buffers[i];
+            self->vectors[i].iov_len = MAX_DATAGRAM;
+            self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
+            self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
+            self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
+            self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+        }
     }
     int count, handled = 0, error = 0;
     Py_BEGIN_ALLOW_THREADS  /* rclpy's executor thread may run meanwhile */
@@ -305,6 +304,8 @@ static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
         handled++;
     pthread_mutex_unlock(&self->mutex);
     Py_END_ALLOW_THREADS
+    for (int i = 0; i < count; i++)  /* the kernel wrote the address lengths of these */
+        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
     if (count < 0) {
         if (error == EAGAIN || error == EWOULDBLOCK || error == EINTR)
             return Py_BuildValue("([]O)", Py_False);

@@ -24,6 +24,7 @@ import time
 from typing import Dict, Optional
 
 from xrce.agent.session import TRACE
+from xrce.streams import InputBestEffortStream
 
 log = logging.getLogger("xrce.agent")
 
@@ -89,11 +90,14 @@ class CompiledClient:
         path.fold()
         for object_id in list(self.writers):
             self.forget_writer(client, object_id)
+        for stream_id in self.streams:  # the sequence numbers come back to Python
+            if isinstance(client.in_best_effort.get(stream_id), CompiledStream):
+                stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
+                seq = path.receiver.stream_seq(self.handle, stream_id)
+                if seq is not None:
+                    stream.last_handled = seq
         path.receiver.remove_client(self.handle)
         path.clients.pop(self.handle, None)
-        for stream_id in self.streams:
-            if isinstance(client.in_best_effort.get(stream_id), CompiledStream):
-                del client.in_best_effort[stream_id]
         client.fast = None
 
 
