@@ -8,6 +8,8 @@ cost, serial, sessions, footprint, restart. ``cost`` (bench/agent_cost.py) is wh
 robot's computer: CPU per message at fixed offered rates, idle CPU, the TurtleBot3 load, memory,
 ping; ``--reference DIR`` measures another source tree's agent beside it in the same run.
 ``restart`` (bench/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
+``ros`` and ``latency`` live in bench/ros_bridge.py; serial, sessions and footprint here. Figures
+and their table: bench/figures.py; child processes and the UDP echo baseline: bench/harness.py.
 
 Agents (``xrce-agent``), the rclpy peers (bench/ros_peer.py) and client swarms
 (bench/session_swarm.py) each run in their own process; ROS traffic stays on a leased ROS domain
@@ -16,14 +18,11 @@ peers, as they would not be in a deployment: every figure includes that contenti
 """
 
 import argparse
-import json
 import math
 import os
 import re
-import statistics
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -33,300 +32,14 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from agent_process import AgentProcess  # noqa: E402
 from ros_helpers import DomainLease  # noqa: E402
-from xrce.agent.observability import fetch_stats  # noqa: E402
+from xrce.agent.stats_view import fetch_stats  # noqa: E402
 
-PYTHON = sys.executable
-FIGURES = []
-
-
-class Figure:
-    __slots__ = ("name", "value", "unit", "baseline", "baseline_name", "target", "note")
-
-    def __init__(self, name, value, unit, baseline, baseline_name, target="", note=""):
-        self.name, self.value, self.unit = name, value, unit
-        self.baseline, self.baseline_name = baseline, baseline_name
-        self.target, self.note = target, note
-
-    @property
-    def ratio(self):
-        if self.value is None or not self.baseline:
-            return None
-        return self.value / self.baseline
-
-    def as_json(self):
-        return {"name": self.name, "value": _round(self.value), "unit": self.unit,
-                "baseline": _round(self.baseline), "ratio": _round(self.ratio, 3),
-                "baseline_name": self.baseline_name, "target": self.target, "note": self.note}
-
-
-def _round(value, digits=1):
-    if value is None:
-        return None
-    if isinstance(value, float):
-        return round(value, digits) if abs(value) >= 1 or digits > 1 else round(value, 3)
-    return value
-
-
-def record(*args, **kwargs):
-    figure = Figure(*args, **kwargs)
-    FIGURES.append(figure)
-    print(json.dumps(figure.as_json()), flush=True)
-    return figure
-
-
-def percentile(values, fraction):
-    ordered = sorted(values)
-    if not ordered:
-        return None
-    index = min(len(ordered) - 1, max(0, int(math.ceil(fraction * len(ordered))) - 1))
-    return ordered[index]
-
-
-def stats_port(agent):
-    return int(re.search(r"stats on 127\.0\.0\.1:(\d+)", agent.banner).group(1))
-
-
-def cpu_seconds(pid):
-    """User + system CPU time of a process and its threads, from /proc."""
-    with open("/proc/%d/stat" % pid) as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    ticks = os.sysconf("SC_CLK_TCK")
-    return (int(fields[11]) + int(fields[12])) / ticks
-
-
-class Child:
-    """A line-protocol child process (ros_peer.py, session_swarm.py, serial_flood.py)."""
-
-    def __init__(self, args, env=None, ready=None, timeout=60):
-        self.proc = subprocess.Popen([PYTHON, *args], cwd=REPO, env=env, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                     bufsize=1)
-        if ready is not None:
-            line = self.readline(timeout)
-            if not line.startswith(ready):
-                self.close()
-                raise RuntimeError("%s did not start: %r" % (args[0], line))
-            self.first_line = line
-
-    def readline(self, timeout=120):
-        result = []
-        reader = threading.Thread(target=lambda: result.append(self.proc.stdout.readline()),
-                                  daemon=True)
-        reader.start()
-        reader.join(timeout)
-        if not result:
-            raise RuntimeError("no answer within %.0f s" % timeout)
-        return result[0].strip()
-
-    def ask(self, line, timeout=120):
-        self.proc.stdin.write(line + "\n")
-        self.proc.stdin.flush()
-        return self.readline(timeout)
-
-    def close(self):
-        if self.proc.poll() is None:
-            try:
-                self.proc.stdin.write("quit\n")
-                self.proc.stdin.flush()
-                self.proc.stdin.close()
-            except (BrokenPipeError, OSError):
-                pass
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        for stream in (self.proc.stdin, self.proc.stdout):
-            try:
-                stream.close()
-            except (BrokenPipeError, OSError):
-                pass
-
-
-def arrival_rate(peer, topic):
-    count, first, last = peer.ask("count %s" % topic).split()
-    count, first, last = int(count), float(first), float(last)
-    return (count - 1) / (last - first) if count > 1 and last > first else 0.0, count
-
-
-def wait_for(predicate, timeout_s=10.0, interval_s=0.05):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(interval_s)
-    return True
-
-
-# ----------------------------------------------------------------------------------- ROS figures
-
-def ros_benchmarks(env, domain_id, seconds, latency_count, ping_count, groups):
-    from xrce.client.session import Session
-    from xrce.msgs.geometry_msgs import Twist, Vector3
-    from xrce.transports.udp import UdpTransport
-
-    sink = Child(["bench/ros_peer.py"], env=env, ready="ready")
-    source = Child(["bench/ros_peer.py"], env=env, ready="ready")
-    agent = AgentProcess("udp4", "-m", "dds", "-v", "0", "--stats-port", "0", env=env)
-    agent.__enter__()
-    session = Session(UdpTransport("127.0.0.1", agent.port), history=16)
-    try:
-        if not session.create(attempts=5, timeout_ms=2000):
-            raise RuntimeError("no session with the dds agent")
-        node = session.create_participant(domain_id=domain_id, name="bench_client")
-
-        if "ros" in groups:
-            for kind, reliable in (("be", False), ("rel", True)):
-                bare = "/bare_%s" % kind
-                sink.ask("sub %s %s" % (bare, kind))
-                source.ask("flood %s %s %.1f" % (bare, kind, seconds), timeout=seconds + 30)
-                time.sleep(0.3)
-                baseline, _ = arrival_rate(sink, bare)
-
-                topic = "/xrce_%s" % kind
-                sink.ask("sub %s %s" % (topic, kind))
-                writer = session.create_writer(node, topic, Twist, reliable=reliable, depth=1000)
-                if not session.run_until_all_status(5000):
-                    raise RuntimeError("writer not created: %r" % session.last_statuses)
-                wait_for(lambda: sink.ask("publishers %s" % topic) != "0")
-                time.sleep(0.5)
-                stream = session.reliable if reliable else session.best_effort
-                sample = Twist(linear=Vector3(x=1.0))
-                sent = 0
-                cpu_before = cpu_seconds(agent.proc.pid)
-                start = time.monotonic()
-                end = start + seconds
-                while time.monotonic() < end:
-                    for _ in range(50):
-                        session.write(writer, sample, stream_id=stream)
-                        session.flush()
-                    sent += 50
-                    if reliable:
-                        session.spin_once(0)
-                elapsed = time.monotonic() - start
-                agent_cpu = (cpu_seconds(agent.proc.pid) - cpu_before) / elapsed
-                if reliable:
-                    session.run_until_confirm_delivery(5000)
-                time.sleep(0.5)
-                rate, received = arrival_rate(sink, topic)
-                record("client->ROS %s" % ("reliable" if reliable else "best-effort"), rate,
-                       "msg/s", baseline, "bare rclpy pub->same sub",
-                       ">= 0.8" if not reliable else "",
-                       "client sent %.0f msg/s, sub got %d of %d, agent CPU %.0f %% of one core"
-                       % (sent / elapsed, received, sent, 100 * agent_cpu))
-
-            # ROS -> client: the bare publisher's own rate is the baseline.
-            topic = "/to_client"
-            got = []
-            session.create_reader(node, topic, Twist, lambda m: got.append(time.monotonic()),
-                                  reliable=False, depth=1000)
-            if not session.run_until_all_status(5000):
-                raise RuntimeError("reader not created: %r" % session.last_statuses)
-            answer = []
-            flood = threading.Thread(target=lambda: answer.append(
-                source.ask("flood %s be %.1f" % (topic, seconds), timeout=seconds + 30)))
-            flood.start()
-            while flood.is_alive():
-                session.spin_once(10)
-            session.run_until_timeout(500)
-            published, published_s = answer[0].split()[:2]
-            baseline = int(published) / float(published_s)
-            rate = (len(got) - 1) / (got[-1] - got[0]) if len(got) > 1 else 0.0
-            record("ROS->client best-effort", rate, "msg/s", baseline, "bare rclpy publish rate",
-                   "", "client got %d of %s" % (len(got), published))
-
-        if "latency" in groups:
-            # Ping: GET_INFO in the session, timed by the client; baseline: raw UDP echo.
-            rtts = []
-            for _ in range(ping_count):
-                if session.ping(timeout_ms=1000):
-                    rtts.append(session.last_rtt_us)
-            echo = udp_echo_rtts(ping_count)
-            record("ping RTT p50", percentile(rtts, 0.5), "us", percentile(echo, 0.5),
-                   "raw UDP echo p50 (Python, loopback)", "< 200 us")
-            record("ping RTT p99", percentile(rtts, 0.99), "us", percentile(echo, 0.99),
-                   "raw UDP echo p99")
-
-            # End to end: client write -> rclpy callback; baseline: rclpy pub -> same sub.
-            sink.ask("lat /bare_lat be")
-            source.ask("stamped /bare_lat be %d 200" % latency_count, timeout=latency_count / 100 + 30)
-            time.sleep(0.3)
-            bare = [s * 1e3 for s in json.loads(sink.ask("latency /bare_lat"))]
-            sink.ask("lat /xrce_lat be")
-            writer = session.create_writer(node, "/xrce_lat", Twist, reliable=False)
-            if not session.run_until_all_status(5000):
-                raise RuntimeError("latency writer not created")
-            wait_for(lambda: sink.ask("publishers /xrce_lat") != "0")
-            time.sleep(0.5)
-            sample = Twist()
-            start = time.monotonic()
-            for index in range(latency_count):
-                due = start + index / 200.0
-                while True:
-                    now = time.monotonic()
-                    if now >= due:
-                        break
-                    session.spin_once(0)
-                    remaining = due - time.monotonic()
-                    if remaining > 0.001:
-                        time.sleep(remaining - 0.0005)
-                sample.linear.x = time.monotonic()
-                session.write(writer, sample, stream_id=session.best_effort)
-                session.flush()
-            time.sleep(0.5)
-            xrce = [s * 1e3 for s in json.loads(sink.ask("latency /xrce_lat"))]
-            note = "received %d of %d" % (len(xrce), latency_count)
-            record("end-to-end latency p50", percentile(xrce, 0.5), "ms", percentile(bare, 0.5),
-                   "bare rclpy pub->sub p50", "< 1 ms", note)
-            record("end-to-end latency p99", percentile(xrce, 0.99), "ms", percentile(bare, 0.99),
-                   "bare rclpy pub->sub p99", "< 5 ms", note)
-    finally:
-        try:
-            session.delete(attempts=2, timeout_ms=500)
-        finally:
-            session.close()
-            agent.stop()
-            sink.close()
-            source.close()
-
-
-UDP_ECHO = r"""
-import socket, sys
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.bind(("127.0.0.1", 0))
-print(s.getsockname()[1], flush=True)
-while True:
-    data, addr = s.recvfrom(2048)
-    if data == b"quit":
-        break
-    s.sendto(data, addr)
-"""
-
-
-def udp_echo_rtts(count):
-    """Round trips of a 16-byte datagram to a Python echo process, in microseconds."""
-    import socket
-
-    echo = subprocess.Popen([PYTHON, "-c", UDP_ECHO], stdout=subprocess.PIPE, text=True)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        address = ("127.0.0.1", int(echo.stdout.readline()))
-        sock.settimeout(1.0)
-        rtts = []
-        for _ in range(count):
-            start = time.perf_counter_ns()
-            sock.sendto(b"0123456789abcdef", address)
-            sock.recvfrom(2048)
-            rtts.append((time.perf_counter_ns() - start) / 1000.0)
-        sock.sendto(b"quit", address)
-        echo.wait(5)
-        return rtts
-    finally:
-        sock.close()
-        if echo.poll() is None:
-            echo.kill()
-            echo.wait()
-        echo.stdout.close()
+from figures import print_table, record  # noqa: E402
+from harness import PYTHON, Child, cpu_seconds, stats_port  # noqa: E402
+from ros_bridge import ros_benchmarks  # noqa: E402
+# bench/agent_cost.py takes these from here too.
+from figures import percentile  # noqa: E402, F401
+from harness import udp_echo_rtts, wait_for  # noqa: E402, F401
 
 
 # ----------------------------------------------------------------------------------- serial
@@ -450,32 +163,6 @@ def footprint():
 
 # ----------------------------------------------------------------------------------- main
 
-def print_table():
-    headers = ("figure", "value", "unit", "baseline", "ratio", "target", "baseline is")
-    rows = []
-    for f in FIGURES:
-        rows.append((f.name, _text(f.value), f.unit, _text(f.baseline),
-                     "-" if f.ratio is None else "%.3f" % f.ratio, f.target or "-",
-                     f.baseline_name))
-    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h)
-              for i, h in enumerate(headers)]
-    print()
-    print("| " + " | ".join(h.ljust(w) for h, w in zip(headers, widths)) + " |")
-    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    for row in rows:
-        print("| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |")
-    notes = [(f.name, f.note) for f in FIGURES if f.note]
-    for name, note in notes:
-        print("  %s: %s" % (name, note))
-
-
-def _text(value):
-    if value is None:
-        return "-"
-    if isinstance(value, float):
-        return "%.3f" % value if abs(value) < 10 else "%.0f" % value
-    return str(value)
-
 
 GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart")
 
@@ -503,7 +190,6 @@ def main(argv=None):
                            latency_count=300 if quick else 2000,
                            ping_count=300 if quick else 2000, groups=groups)
         if "cost" in groups:
-            sys.modules.setdefault("run", sys.modules[__name__])  # one FIGURES list for both
             from agent_cost import cost_benchmarks
             cost_benchmarks(env, lease.domain_id, quick, args.reference)
         if "serial" in groups:

@@ -28,7 +28,8 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from run import PYTHON, cpu_seconds, record  # noqa: E402
+from figures import record  # noqa: E402
+from harness import PYTHON, cpu_seconds  # noqa: E402
 
 BURST_PERIOD_S = 0.001
 
@@ -199,7 +200,7 @@ def record_floors(floors):
 
 
 def main(argv=None):
-    from run import print_table
+    from figures import print_table
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0)

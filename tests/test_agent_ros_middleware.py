@@ -345,7 +345,7 @@ from xrce.agent.launcher import _import_asyncio_without_tls
 _import_asyncio_without_tls()
 import asyncio
 from xrce.agent.middleware import EndpointQosSpec, TopicSpec, TypeNotReady
-from xrce.agent.observability import DIAGNOSTIC_ARRAY_TYPE, _diagnostic_type
+from xrce.agent.diagnostics import DIAGNOSTIC_ARRAY_TYPE, diagnostic_array_type
 from xrce.agent.ros import RosMiddleware
 
 async def main():
@@ -368,8 +368,8 @@ async def main():
             mw.create_datawriter((1, base + 2), (1, base + 1), (1, base), qos)
             mw.create_subscriber((1, base + 3), (1, 1))
             mw.create_datareader((1, base + 4), (1, base + 3), (1, base), qos, lambda body: None)
-        assert _diagnostic_type() is not None
-        publisher = mw.agent_publisher(int(sys.argv[1]), _diagnostic_type(), "/diagnostics")
+        assert diagnostic_array_type() is not None
+        publisher = mw.agent_publisher(int(sys.argv[1]), diagnostic_array_type(), "/diagnostics")
         assert publisher.subscriber_count() == 0
     finally:
         await mw.close()

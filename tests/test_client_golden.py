@@ -164,7 +164,7 @@ def test_ping_outside_and_inside_a_session():
 
 
 def test_time_sync(monkeypatch):
-    import xrce.client.session as session_module
+    import xrce.client.timesync as timesync
     agent, session = new_session("timesync")
     replies = [decode_message(entry[1])[1][0] for entry in agent.agent_queue]
     for reply in replies:
@@ -173,7 +173,7 @@ def test_time_sync(monkeypatch):
         # accepted and the arithmetic is checked exactly.
         t3 = reply.originate_ns + (reply.transmit_ns - reply.receive_ns) + 1000000
         stamps = iter([reply.originate_ns, t3])
-        monkeypatch.setattr(session_module, "epoch_ns", lambda: next(stamps))
+        monkeypatch.setattr(timesync, "epoch_ns", lambda: next(stamps))
         assert session.sync_time(timeout_ms=500)
         delta = (reply.originate_ns + t3) - (reply.receive_ns + reply.transmit_ns)
         assert session.time_offset_ns == int(delta / 2)
@@ -183,12 +183,12 @@ def test_time_sync(monkeypatch):
 
 def _timestamp_reply(session, originate_ns, received_ns, transmitted_ns, t3_ns, monkeypatch):
     import struct
-    import xrce.client.session as session_module
-    monkeypatch.setattr(session_module, "epoch_ns", lambda: t3_ns)
+    import xrce.client.timesync as timesync
+    monkeypatch.setattr(timesync, "epoch_ns", lambda: t3_ns)
     session._sync_originate = originate_ns
     reply = struct.pack("<iIiIiI", *divmod(transmitted_ns, 10**9), *divmod(received_ns, 10**9),
                         *divmod(originate_ns, 10**9))
-    session._on_timestamp_reply(reply, 1, 0, len(reply))
+    timesync.on_timestamp_reply(session, reply, 1, 0, len(reply))
 
 
 def test_time_sync_keeps_the_tightest_exchange_and_follows_drift(monkeypatch):

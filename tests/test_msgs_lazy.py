@@ -6,6 +6,7 @@ import pytest
 from mp_harness import run_micropython
 
 from xrce import msggen
+from xrce.tools import msg_parser
 from xrce.msgs import lookup
 from xrce.tools import mpy
 
@@ -125,13 +126,13 @@ def _kind(ftype):
     # messages, 3 bytes (octet arrays).
     if ftype.is_nested:
         return 2 if ftype.array else 1
-    if ftype.is_primitive and ftype.array and msggen.PRIMITIVES[ftype.base][2] == "octet":
+    if ftype.is_primitive and ftype.array and msg_parser.PRIMITIVES[ftype.base][2] == "octet":
         return 3
     return 0
 
 
 def test_inferred_field_tables_match_the_definitions():
-    packages = [msggen.load_package(d) for d in msggen.shipped_package_dirs()]
+    packages = [msg_parser.load_package(d) for d in msggen.shipped_package_dirs()]
     checked = 0
     for _, messages, services in packages:
         for spec in list(messages) + [s for srv in services for s in (srv.request, srv.response)]:

@@ -1,8 +1,9 @@
 """Round trips of the generated message classes: against rclpy's own serialization for every type
 rclpy can import, and against themselves for tf2_msgs/turtlebot3_msgs (no rclpy wheels yet).
 
-Field metadata comes from the generator's own parser (xrce.msggen), so the hypothesis strategies
-cover exactly the fields the generated code handles and the converters know each ROS primitive.
+Field metadata comes from the generator's own parser (xrce.tools.msg_parser), so the hypothesis
+strategies cover exactly the fields the generated code handles and the converters know each ROS
+primitive.
 Values are compared after decoding, never as raw bytes: rclpy leaves garbage in CDR padding.
 """
 
@@ -15,6 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from xrce import msggen
+from xrce.tools import msg_parser
 from xrce.msgs import lookup
 
 VENV_SHARE = os.path.join(sys.prefix, "share")
@@ -24,7 +26,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def load_all_specs():
     """(registry "pkg/Type" -> spec, list of every message/request/response spec)."""
-    packages = [msggen.load_package(d) for d in msggen.shipped_package_dirs()]
+    packages = [msg_parser.load_package(d) for d in msggen.shipped_package_dirs()]
     registry = msggen.build_registry(packages)
     specs = []
     for _, messages, services in packages:
@@ -36,7 +38,7 @@ def load_all_specs():
 
 REGISTRY, ALL_SPECS = load_all_specs()
 
-_INT_BOUNDS = msggen.INT_RANGES
+_INT_BOUNDS = msg_parser.INT_RANGES
 
 
 def _scalar(ftype):
@@ -63,7 +65,7 @@ def field_values(ftype):
         lo = hi = ftype.array_size
     else:
         lo, hi = 0, 3 if ftype.array_size is None else min(ftype.array_size, 3)
-    if ftype.is_primitive and msggen.PRIMITIVES[ftype.base][2] == "octet":
+    if ftype.is_primitive and msg_parser.PRIMITIVES[ftype.base][2] == "octet":
         return st.binary(min_size=lo, max_size=max(hi, lo))
     return st.lists(_scalar(ftype), min_size=lo, max_size=max(hi, lo))
 

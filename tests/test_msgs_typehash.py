@@ -63,10 +63,11 @@ def test_interfaces_parse_and_hash(package, tmp_path):
 
 def test_generated_classes_follow_the_definition_files():
     from xrce import msggen
+    from xrce.tools import msg_parser
     from xrce.msgs import lookup
 
     for package in msggen.SHIPPED_FROM_REPO:
-        _, messages, services = msggen.load_package(os.fspath(INTERFACES / package))
+        _, messages, services = msg_parser.load_package(os.fspath(INTERFACES / package))
         specs = list(messages) + [s for srv in services for s in (srv.request, srv.response)]
         for spec in specs:
             cls = lookup(spec.ros_type)

@@ -15,8 +15,7 @@
 
 import struct
 
-from xrce.compat import IS_MICROPYTHON
-from xrce.errors import DecodeError, EncodeError
+from xrce import DecodeError, EncodeError, IS_MICROPYTHON
 
 # Value written into alignment padding. Only tests change it: encoding twice with different fills
 # reveals which bytes are padding, the bytes a byte-exact comparison with captures must mask.

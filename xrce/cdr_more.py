@@ -2,8 +2,8 @@
 # module loads: at import of xrce.cdr on CPython, at the first call of one of them on MicroPython (see
 # xrce.cdr's _more). Each is defined here only, so encoding and decoding still live in one place.
 
+from xrce import EncodeError
 from xrce.cdr import CdrReader, CdrWriter
-from xrce.errors import EncodeError
 
 
 def _write_i8(self, value):

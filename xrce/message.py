@@ -6,9 +6,7 @@
 
 import struct
 
-from xrce import cdr
-from xrce.compat import const
-from xrce.errors import DecodeError, EncodeError
+from xrce import DecodeError, EncodeError, cdr, const
 
 # xrce.constants names these too; local constants fold into the code and spare a board that module.
 _CREATE_CLIENT = const(0)

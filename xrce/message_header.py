@@ -3,7 +3,7 @@
 # Importable as xrce.message.Header and xrce.message.decode_header, whose __getattr__ loads this
 # module on first use; a client never does.
 
-from xrce.errors import DecodeError
+from xrce import DecodeError
 from xrce.message import header_size
 
 _SESSION_ID_WITHOUT_KEY_MASK = 0x80

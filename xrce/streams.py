@@ -5,8 +5,7 @@
 # retransmits exactly the sequence numbers a NACK names (the eProsima agent's policy; the eProsima
 # client resends everything unacknowledged, which is wire-compatible but wasteful).
 
-from xrce.compat import const, ticks_diff
-from xrce.errors import EncodeError
+from xrce import EncodeError, const, ticks_diff
 
 _SEQ_INITIAL = const(0xFFFF)  # "last sent/handled" before the first message, so the first seq is 0
 _NACK_BITS = const(16)

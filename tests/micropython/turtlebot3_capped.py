@@ -14,14 +14,15 @@ heap figures are live bytes (after collection) above the interpreter's own basel
 import sys
 
 import mpheap
-from xrce.compat import ticks_diff, ticks_ms
+from xrce import ticks_diff, ticks_ms
 
 # The example's modules, one per step: the harness can collect only between steps, while a board's
 # collector also runs in the middle of an import. (xrce.client.fragments: the session loads it on the
-# first /odom, which does not fit one message.)
-MODULES = ("nodeudp_transport", "xrce.compat", "xrce.errors", "xrce.cdr", "xrce.message",
-           "xrce.streams", "xrce.client.wire", "xrce.client.session", "xrce.client.ping",
-           "xrce.client.recovery", "xrce.client.fragments", "xrce.transports.custom", "xrce.msgs")
+# first /odom, which does not fit one message; xrce.client.on_demand and xrce.client.timesync on the
+# first time sync.)
+MODULES = ("nodeudp_transport", "xrce.cdr", "xrce.message", "xrce.streams", "xrce.client.wire",
+           "xrce.client.session", "xrce.client.ping", "xrce.client.recovery", "xrce.client.fragments",
+           "xrce.client.on_demand", "xrce.client.timesync", "xrce.transports.custom", "xrce.msgs")
 TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),
          ("xrce.msgs.turtlebot3_msgs", "SensorState"), ("xrce.msgs.sensor_msgs", "Imu"),
          ("xrce.msgs.sensor_msgs", "BatteryState"), ("xrce.msgs.nav_msgs", "Odometry"),

@@ -106,7 +106,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self._acks_due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
-        # ("out"), e.g. by a capture file (xrce.agent.observability); None costs one test.
+        # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
         self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent

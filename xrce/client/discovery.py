@@ -1,10 +1,9 @@
 # Agent discovery (GET_INFO request 0x0009), apart from the session so boards that know their
 # agent's address never load it. ``from xrce.client.session import discover_agents`` still works.
 
+from xrce import DecodeError, ticks_add, ticks_diff, ticks_ms
 from xrce import constants as C
 from xrce.cdr import CdrReader
-from xrce.compat import ticks_add, ticks_diff, ticks_ms
-from xrce.errors import DecodeError
 from xrce.message import MessageWriter, decode_header, iter_submessages
 # The two payloads discovery sends and reads, not the whole codec of xrce.submessages.
 from xrce.payload import write_submessage

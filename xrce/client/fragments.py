@@ -3,8 +3,7 @@
 # Loaded by the session the first time a reliable sample does not fit a message, or a FRAGMENT
 # arrives; a board whose samples always fit never pays for it.
 
-from xrce.compat import const
-from xrce.errors import DecodeError
+from xrce import DecodeError, const
 from xrce.message import iter_submessages
 
 _FRAGMENT = const(13)

@@ -1,10 +1,12 @@
-# The session-less ping (GET_INFO with header 0x80): whether an agent answers on a transport before
-# any session exists, as micro-ROS firmware waits for its agent. Its own module so that a board
-# that never pings pays nothing for it; `from xrce.client.session import ping_agent` still works.
+# Pinging the agent: the session-less ping (GET_INFO with header 0x80), whether an agent answers on
+# a transport before any session exists, as micro-ROS firmware waits for its agent; and the ping
+# inside a session (Session.ping, through xrce.client.on_demand), whether the agent still knows the
+# session. Its own module so that a board that never pings pays nothing for it;
+# `from xrce.client.session import ping_agent` still works. (The link monitor, xrce.client.recovery,
+# sends its pings itself without waiting for them.)
 
+from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce.client.session import _agent_activity
-from xrce.compat import const, ticks_add, ticks_diff, ticks_ms, ticks_us
-from xrce.errors import DecodeError
 from xrce.message import header_size, iter_submessages
 
 _INFO = const(6)
@@ -39,4 +41,17 @@ def _is_pong(data):
                 return availability is not None and availability > 0
     except DecodeError:
         pass
+    return False
+
+
+def ping(session, timeout_ms=1000, attempts=1):
+    # GET_INFO inside the session: True only if the agent still knows this session.
+    session.flush()
+    for _ in range(attempts):
+        session._pong_in_session = False
+        sent = ticks_us()
+        session._send_ping()
+        if session._wait(timeout_ms, lambda: session._pong_in_session):
+            session.last_rtt_us = ticks_diff(ticks_us(), sent)
+            return True
     return False

@@ -11,7 +11,7 @@
 # an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
 # the session's run loops.
 
-from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
+from xrce import const, ticks_add, ticks_diff, ticks_ms
 
 _OBJK_PARTICIPANT = const(0x01)
 _CREATE = const(1)
@@ -26,8 +26,7 @@ LINK_STATE_NAMES = ("connected", "silent", "lost")
 
 
 class LinkMonitor:
-    __slots__ = ("session", "liveliness_ms", "retry_ms", "max_missed", "on_state", "state",
-                 "missed", "max_pings", "next_ping", "next_attempt", "recoveries")
+    # No __slots__: see xrce.client.wire._Output.
 
     def __init__(self, session, liveliness_ms=500, retry_ms=250, max_missed=3, on_state=None):
         self.session = session
@@ -118,10 +117,3 @@ class LinkMonitor:
             # An answering agent resets ``missed`` above, and the next ping then waits for
             # ``liveliness_ms`` of silence again: the short period only applies to a silent link.
             self.next_ping = ticks_add(now, self.retry_ms)
-
-
-def link_state(session):
-    # Session.link_state: 'connected', 'silent' (the agent is quiet, pings are out) or 'lost'
-    # (re-creating).
-    return LINK_STATE_NAMES[session.link.state] if session.link is not None else (
-        "connected" if session.connected else "lost")

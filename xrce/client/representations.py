@@ -2,7 +2,7 @@
 # representations, and datawriters/datareaders with a full ``xrce.objects.EndpointQos``. Loaded by
 # Session on first use; a board that creates its entities in binary never pays for it.
 
-from xrce.compat import const
+from xrce import const
 
 _OBJK_DATAREADER = const(0x06)
 _REPRESENTATION_BY_REFERENCE = const(0x01)

@@ -5,10 +5,9 @@
 # ``create_service_server``, ``send_request`` and ``send_reply`` here on first use, so a board that
 # uses no service never loads this module.
 
+from xrce import DecodeError, const
 from xrce.cdr import CdrWriter
 from xrce.client.session import _decode_sample
-from xrce.compat import const
-from xrce.errors import DecodeError
 
 _OBJK_REQUESTER = const(0x07)
 _OBJK_REPLIER = const(0x08)

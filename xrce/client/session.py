@@ -19,17 +19,16 @@
 #
 # A board pays for what it imports: the session-less ping (xrce.client.ping), services
 # (xrce.client.services), deleting single entities and cancelling delivery (xrce.client.teardown),
-# fragmentation (xrce.client.fragments), agent discovery (xrce.client.discovery) and auto-recovery
-# (xrce.client.recovery) load on first use; the
+# time sync (xrce.client.timesync), fragmentation (xrce.client.fragments), agent discovery
+# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
 # submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
 # general codec the agent uses.
 
-import struct
-
+from xrce import (
+    DecodeError, XrceError, const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms,
+)
 from xrce.cdr import CdrReader
-from xrce.client import wire
-from xrce.compat import const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms, ticks_us
-from xrce.errors import DecodeError, XrceError
+from xrce.client.wire import Outbound, _Output, ros_topic_name  # noqa: F401  (ros_topic_name: public here)
 from xrce.message import MessageWriter, header_size, iter_submessages
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
@@ -42,45 +41,29 @@ _STREAM_NONE = const(0x00)
 _BUILTIN_BEST_EFFORT = const(0x01)
 _BUILTIN_RELIABLE = const(0x80)
 _CREATE_CLIENT = const(0)
-_CREATE = const(1)
 _GET_INFO = const(2)
 _STATUS_AGENT = const(4)
 _STATUS = const(5)
 _INFO = const(6)
-_WRITE_DATA = const(7)
-_READ_DATA = const(8)
 _DATA = const(9)
 _ACKNACK = const(10)
 _HEARTBEAT = const(11)
 _FRAGMENT = const(13)
-_TIMESTAMP = const(14)
 _TIMESTAMP_REPLY = const(15)
-_FLAG_LITTLE_ENDIAN = const(0x01)
-_REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
-_OBJK_PARTICIPANT = const(0x01)
-_OBJK_TOPIC = const(0x02)
-_OBJK_PUBLISHER = const(0x03)
-_OBJK_SUBSCRIBER = const(0x04)
-_OBJK_DATAWRITER = const(0x05)
-_OBJK_DATAREADER = const(0x06)
 _OBJK_REQUESTER = const(0x07)
 _OBJK_AGENT = const(0x0D)
 _OBJECTID_CLIENT = const(0xFFFE)
-_REPRESENTATION_IN_BINARY = const(0x03)
 _STATUS_OK = const(0x00)
 _STATUS_OK_MATCHED = const(0x01)
 _STATUS_NONE = const(0xFF)
 _REQUEST_ID_LOGOUT = const(0x0002)
 _FIRST_REQUEST_ID = const(0x000A)
 _INFO_ACTIVITY = const(0x02)
-_QOS_RELIABLE = const(0x0001)
-_QOS_KEEP_LAST = const(0x0002)
-_QOS_TRANSIENT_LOCAL = const(0x0008)
-_MAX_SAMPLES_UNLIMITED = const(0xFFFF)
 
 # Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
 _SLOT_OVERHEAD = const(4)
+_FIRST_OUTPUT_BUFFER = const(64)
 
 
 class SessionError(XrceError):
@@ -88,25 +71,9 @@ class SessionError(XrceError):
     pass
 
 
-def ros_topic_name(name, prefix="rt"):
-    # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
-    return prefix + (name if name.startswith("/") else "/" + name)
-
-
-class _Output(MessageWriter):
-    # An output stream: the message open on it and its sequence state (xrce.streams).
-    __slots__ = ("stream_id", "state", "reliable", "has_content")
-
-    def __init__(self, stream_id, state, capacity):
-        MessageWriter.__init__(self, capacity)
-        self.stream_id = stream_id
-        self.state = state
-        self.reliable = stream_id >= 0x80
-        self.has_content = False
-
-
-class Session:
-    # One XRCE client session over a transport (see ``xrce.transports``).
+class Session(Outbound):
+    # One XRCE client session over a transport (see ``xrce.transports``); entity creation, writing
+    # and the output path come from ``Outbound`` (xrce.client.wire).
 
     def __init__(self, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4,
                  mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
@@ -136,13 +103,16 @@ class Session:
 
         self._outputs = {}
         self._inputs = {}
+        # An output buffer starts small and grows (doubling) to the largest message its stream
+        # has built, at most about max_message: a firmware sending 60-byte samples keeps 64 bytes,
+        # not the 508 a full message could take, and it grows once, not per message.
         for i in range(best_effort_streams):
             sid = _BUILTIN_BEST_EFFORT + i
-            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), self.max_message)
+            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), _FIRST_OUTPUT_BUFFER)
             self._inputs[sid] = InputBestEffortStream(sid)
         for i in range(reliable_streams):
             sid = _BUILTIN_RELIABLE + i
-            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), self.max_message)
+            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
             self._inputs[sid] = InputReliableStream(sid, history)
         self.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
         self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
@@ -245,264 +215,12 @@ class Session:
         self._object_counters[kind] = index
         return (index << 4) | kind
 
-    # ------------------------------------------------------------------ entity creation
-
-    def _create(self, kind, blob, tail_id, object_id_, stream_id, flags, xml=None, ref=None):
-        # ``blob``: the binary representation, unused when an ``xml`` or ``ref`` text is given.
-        fmt = _REPRESENTATION_IN_BINARY
-        if xml is not None or ref is not None:
-            # XML and reference creation cost a board nothing until used.
-            from xrce.client.representations import textual
-            fmt, blob = textual(xml, ref)
-        oid = self.new_object_id(kind) if object_id_ is None else object_id_
-        rid = self.next_request_id()
-        body = wire.create_body(kind, fmt, blob, tail_id)
-        self._buffer(stream_id, _CREATE, _FLAG_LITTLE_ENDIAN | flags, rid, oid, body)
-        self._statuses[rid] = _STATUS_NONE
-        if self.link is not None:
-            self.link.forget(oid)
-            self._creations.append((oid, body))
-        return oid
-
-    def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
-                           stream_id=None, flags=_REUSE_REPLACE):
-        # A participant (a ROS node on the agent). Returns its object id; the request is buffered.
-        return self._create(_OBJK_PARTICIPANT, wire.participant_blob(name), domain_id, object_id,
-                            stream_id, flags, xml, ref)
-
-    def create_topic(self, participant_id, topic_name=None, type_name=None, xml=None, ref=None,
-                     object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        blob = wire.topic_blob(topic_name, type_name) if xml is None and ref is None else None
-        return self._create(_OBJK_TOPIC, blob, participant_id, object_id, stream_id, flags, xml, ref)
-
-    def create_publisher(self, participant_id, xml=None, object_id=None, stream_id=None,
-                         flags=_REUSE_REPLACE):
-        return self._create(_OBJK_PUBLISHER, wire.PUBSUB_BLOB, participant_id, object_id, stream_id,
-                            flags, xml)
-
-    def create_subscriber(self, participant_id, xml=None, object_id=None, stream_id=None,
-                          flags=_REUSE_REPLACE):
-        return self._create(_OBJK_SUBSCRIBER, wire.PUBSUB_BLOB, participant_id, object_id, stream_id,
-                            flags, xml)
-
-    @staticmethod
-    def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
-        # ``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
-        # take an ``xrce.objects.EndpointQos`` for QoS beyond these.
-        flags = (_QOS_RELIABLE if reliable else 0) | (_QOS_KEEP_LAST if keep_last else 0)
-        if transient_local:
-            flags |= _QOS_TRANSIENT_LOCAL
-        return flags, depth if depth else None
-
-    def _endpoint(self, kind, parent_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
-        blob = None
-        if xml is None and ref is None:
-            if qos is None:
-                qos = self.endpoint_qos()
-            if isinstance(qos, tuple):
-                blob = wire.endpoint_blob(topic_id, qos[0], qos[1], kind == _OBJK_DATAREADER)
-            else:  # a full EndpointQos (deadline, lifespan, user data): the general codec
-                from xrce.client.representations import endpoint_blob
-                blob = endpoint_blob(kind, topic_id, qos)
-        return self._create(kind, blob, parent_id, object_id_, stream_id, flags, xml, ref)
-
-    def create_datawriter(self, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        return self._endpoint(_OBJK_DATAWRITER, publisher_id, topic_id, qos, xml, ref, object_id,
-                              stream_id, flags)
-
-    def create_datareader(self, subscriber_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        return self._endpoint(_OBJK_DATAREADER, subscriber_id, topic_id, qos, xml, ref, object_id,
-                              stream_id, flags)
-
     def __getattr__(self, name):
-        # Services, deletion (of entities or the session), waiting for delivery and the link state
-        # cost a board nothing until first used.
-        if name in ("create_requester", "create_replier", "create_service_client", "create_service_server",
-                    "send_request", "send_reply"):
-            import xrce.client.services as module
-        elif name in ("delete", "delete_entity", "cancel_data", "run_until_confirm_delivery"):
-            # Imported by full name: on MicroPython `from xrce.client import teardown` looks the
-            # module up as an attribute of the package first, and the package's __getattr__ (this
-            # module's, for ping_agent) raises AttributeError instead of letting the import go on.
-            import xrce.client.teardown as module
-        elif name == "link_state":
-            from xrce.client.recovery import link_state
-            return link_state(self)
-        else:
-            raise AttributeError(name)
-        function = getattr(module, name)
-        return lambda *args, **kwargs: function(self, *args, **kwargs)
+        # Services, deletion (of entities or the session), waiting for delivery, time sync and the
+        # link state cost a board nothing until first used (xrce.client.on_demand).
+        from xrce.client.on_demand import session_attr
 
-    # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
-
-    def create_writer(self, participant_id, topic, msg_class, reliable=True, depth=10,
-                      transient_local=False, stream_id=None):
-        # Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class.
-        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
-                                     stream_id=stream_id)
-        publisher_id = self.create_publisher(participant_id, stream_id=stream_id)
-        return self.create_datawriter(publisher_id, topic_id,
-                                      self.endpoint_qos(reliable, True, depth, transient_local),
-                                      stream_id=stream_id)
-
-    def create_reader(self, participant_id, topic, msg_class, callback, reliable=True, depth=10,
-                      transient_local=False, stream_id=None, data_stream_id=None):
-        # Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
-        #
-        # ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
-        # for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
-        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
-                                     stream_id=stream_id)
-        subscriber_id = self.create_subscriber(participant_id, stream_id=stream_id)
-        reader_id = self.create_datareader(subscriber_id, topic_id,
-                                           self.endpoint_qos(reliable, True, depth, transient_local),
-                                           stream_id=stream_id)
-        self.set_reader_callback(reader_id, callback, msg_class)
-        if data_stream_id is None:
-            data_stream_id = self.reliable if reliable else self.best_effort
-        self.read_data(reader_id, data_stream_id, stream_id=stream_id)
-        return reader_id
-
-    # ------------------------------------------------------------------ data
-
-    def set_reader_callback(self, reader_id, callback, msg_class=None):
-        # ``callback(data)`` for every DATA of this reader/requester/replier.
-        #
-        # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
-        # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
-        # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
-        self._readers[reader_id] = (callback, msg_class)  # a tuple: no class for a board to load
-
-    def read_data(self, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_UNLIMITED,
-                  max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
-                  stream_id=None):
-        # Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``.
-        control = (max_samples, max_elapsed_time, max_bytes_per_second,
-                   min_pace_period) if delivery else None
-        rid = self.next_request_id()
-        if data_stream_id is None:
-            data_stream_id = self.reliable
-        body = wire.read_data_body(data_stream_id, control)
-        self._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id, body)
-        if self.link is not None:
-            self._read_requests[reader_id] = body
-        return rid
-
-    def write(self, writer_id, data, stream_id=None):
-        # Buffer one sample (a generated message object or its serialized bytes).
-        #
-        # Reliable samples larger than a message are fragmented; when the window is full the session
-        # spins (bounded by 1 s) to make room. Returns the request id, or 0 if the sample was dropped.
-        return self._write_sample(writer_id, data, None, stream_id)
-
-    def _write_sample(self, object_id_, data, prefix, stream_id):
-        if self.link is not None and not self.connected:
-            # The link is lost (re-creating the session): nothing written now can arrive, and a
-            # best-effort message sent between CREATE_CLIENT and its answer would reach the new
-            # session with a sequence number far ahead of the restarted stream's, so the agent
-            # dropped every sample until the stream caught up (issue 12: 3.5-7 s at 20 Hz).
-            self.dropped_writes += 1
-            return 0
-        rid = self.next_request_id()
-        # FORMAT_DATA (0) in the flags
-        if not self._buffer(stream_id, _WRITE_DATA, _FLAG_LITTLE_ENDIAN, rid, object_id_, data, prefix):
-            self.dropped_writes += 1
-            return 0
-        return rid
-
-    # ------------------------------------------------------------------ output path
-
-    def _buffer(self, stream_id, sub_id, flags, request_id, object_id_, body, prefix=None):
-        # Append a request submessage (see ``wire.put_request``) to its stream's open message; True
-        # when it is buffered or sent.
-        if stream_id is None:
-            stream_id = self.reliable
-        out = self._outputs.get(stream_id)
-        if out is None:
-            raise SessionError("no output stream 0x%02X" % stream_id)
-        for _ in range(2):
-            if not out.has_content and not self._begin_with_room(out):
-                return False
-            mark = out.pos
-            wire.put_request(out.begin_submessage(sub_id, flags), request_id, object_id_, body, prefix)
-            out.end_submessage()
-            end = out.pos
-            if end <= self.max_message:
-                out.has_content = True
-                return True
-            out.pos = mark
-            mark = (mark + 3) & ~3  # where the submessage itself starts
-            if not out.has_content or self.header_size + end - mark > self.max_message:
-                break
-            self._close_message(out)  # the open message is full: send it and retry in a fresh one
-        if not out.reliable:
-            return False  # a best-effort message cannot be fragmented (the C client refuses too)
-        # Too big for any message: fragment the submessage just written at ``mark``..``end``.
-        from xrce.client.fragments import write_fragmented
-        return write_fragmented(self, out, mark, end)
-
-    def _begin_with_room(self, out, timeout_ms=1000):
-        # Open a new message on ``out``. A reliable stream whose window is full spins up to
-        # ``timeout_ms`` for room; False if none came.
-        if out.reliable:
-            seq = out.state.next_seq()
-            if seq is None:
-                if not self.connected:
-                    return False  # a lost link frees no room until the session is re-created
-                self._wait(timeout_ms, out.state.has_room)
-                if out.has_content:
-                    return True  # a callback run while waiting opened a message: append to it
-                seq = out.state.next_seq()
-                if seq is None:
-                    return False
-        else:
-            seq = 0  # best-effort messages get their sequence number when sent
-        out.begin(self.session_id, out.stream_id, seq, self._header_key)
-        out.has_content = False
-        return True
-
-    def _close_message(self, out):
-        # Send the open message of ``out`` (trailing padding to 4, as the C client).
-        if not out.has_content:
-            return
-        out.pad_to_4()
-        if out.reliable:
-            message = out.getvalue()
-            out.state.commit(out.state.next_seq(), message)
-            self._send(message)
-            self._schedule_heartbeat(out.stream_id)
-        else:
-            out.set_seq(out.state.next_seq())
-            self._send(out.view())
-        out.has_content = False
-
-    def flush(self):
-        # Send every stream's open message.
-        for out in self._outputs.values():
-            if out.has_content:
-                self._close_message(out)
-
-    def _begin_control(self, sub_id, session_id=None, key=None):
-        # Start a stream-0 message with one submessage; returns the writer for its payload.
-        mw = self._control
-        if session_id is None:
-            session_id, key = self.session_id, self._header_key
-        mw.begin(session_id, _STREAM_NONE, 0, key)
-        return mw.begin_submessage(sub_id, _FLAG_LITTLE_ENDIAN)
-
-    def _send(self, message):
-        self.messages_out += 1
-        self.transport.send(message)
-
-    def _send_control(self):
-        self._control.end_submessage()
-        self._send(self._control.view())
-
-    def _schedule_heartbeat(self, stream_id):
-        if stream_id not in self._next_heartbeat:
-            self._next_heartbeat[stream_id] = ticks_add(ticks_ms(), self.heartbeat_ms)
+        return session_attr(self, name)
 
     # ------------------------------------------------------------------ running
 
@@ -588,34 +306,7 @@ class Session:
                 ok = False
         return ok
 
-    # ------------------------------------------------------------------ ping and time
-
-    def ping(self, timeout_ms=1000, attempts=1):
-        # GET_INFO inside the session: True only if the agent still knows this session.
-        self.flush()
-        for _ in range(attempts):
-            self._pong_in_session = False
-            sent = ticks_us()
-            self._send_ping()
-            if self._wait(timeout_ms, lambda: self._pong_in_session):
-                self.last_rtt_us = ticks_diff(ticks_us(), sent)
-                return True
-        return False
-
-    def sync_time(self, timeout_ms=1000, attempts=1):
-        # NTP-style offset from one TIMESTAMP/TIMESTAMP_REPLY; True when it was updated.
-        self.flush()
-        for _ in range(attempts):
-            originate = epoch_ns()
-            self._sync_originate = originate
-            w = self._begin_control(_TIMESTAMP)
-            w.i32(originate // 1000000000)
-            w.u32(originate % 1000000000)
-            self._send_control()
-            if self._wait(timeout_ms, lambda: self._sync_originate is None):
-                return True
-        self._sync_originate = None
-        return False
+    # ------------------------------------------------------------------ time
 
     def epoch_ns(self):
         # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
@@ -719,7 +410,9 @@ class Session:
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
             elif sub_id == _TIMESTAMP_REPLY:
-                self._on_timestamp_reply(buf, flags, s, e)
+                from xrce.client.timesync import on_timestamp_reply  # loaded by sync_time
+
+                on_timestamp_reply(self, buf, flags, s, e)
             elif sub_id == _STATUS_AGENT:
                 if e - s < 1:
                     raise DecodeError("empty STATUS_AGENT")
@@ -744,33 +437,6 @@ class Session:
             deliver(oid & 0x0F, callback, msg_class, data)
         else:
             callback(_decode_sample(msg_class, data))
-
-    def _on_timestamp_reply(self, buf, flags, s, e):
-        # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
-        if e - s < 24:
-            raise DecodeError("short TIMESTAMP_REPLY")
-        t = struct.unpack_from("<iIiIiI" if flags & 1 else ">iIiIiI", buf, s)
-        t0 = self._sync_originate
-        if t0 is None or t[4] * 1000000000 + t[5] != t0:
-            self.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
-            return
-        t3 = epoch_ns()
-        self._sync_originate = None
-        received = t[2] * 1000000000 + t[3]
-        transmitted = t[0] * 1000000000 + t[1]
-        # The offset is only known to within half the exchange's round trip, and one stalled
-        # exchange (a GC pause, a busy link) can be milliseconds off. Like NTP's clock filter,
-        # keep the tightest exchange; the bound it gave ages by half at each slower one, so a
-        # drifting clock is still followed within a few syncs.
-        rtt = (t3 - t0) - (transmitted - received)
-        if self.time_synced and rtt > self.time_rtt_ns:
-            self.time_rtt_ns += (self.time_rtt_ns >> 1) + 1
-            return
-        self.time_rtt_ns = rtt
-        twice = (t0 + t3) - (received + transmitted)
-        # Halved rounding toward zero, as the C client's int64 division does.
-        self.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
-        self.time_synced = True
 
 
 def _never():

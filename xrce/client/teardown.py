@@ -4,8 +4,8 @@
 # deliver as it spins). Loaded on first use (see Session.__getattr__); a firmware that creates its
 # entities once and keeps them never pays for these.
 
+from xrce import const
 from xrce.client import wire
-from xrce.compat import const
 
 _DELETE = const(3)
 _REQUEST_ID_LOGOUT_OBJECTID_CLIENT = b"\x00\x02\xff\xfe"

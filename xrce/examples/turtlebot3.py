@@ -20,8 +20,8 @@
 
 import math
 
+from xrce import const, ticks_add, ticks_diff, ticks_ms
 from xrce.client.session import Session, ping_agent
-from xrce.compat import const, ticks_add, ticks_diff, ticks_ms
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
 from xrce.msgs.sensor_msgs import BatteryState, Imu

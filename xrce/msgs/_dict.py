@@ -3,7 +3,7 @@
 # A class's field shapes come from its field specs (_S, see __init__.py): a nested message, a list
 # of messages, bytes (octet arrays), or a plain value.
 
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.msgs import _PACK_ERRORS
 
 _VALUE, _NESTED, _NESTED_LIST, _BYTES = 0, 1, 2, 3

@@ -2,9 +2,9 @@
 # by the first type that has one, so a board that sends Twist or String never loads this module.
 # Comments rather than docstrings for the same reason as in __init__.py.
 
-from xrce.errors import DecodeError, EncodeError
+from xrce import DecodeError, EncodeError
 from xrce.msgs import (
-    _CODES, _PACK_ERRORS, _SIZES, _bool, _default, _get_field, _get_string, _pack_into, _put,
+    _CODES, _PACK_ERRORS, _SIZES, _default, _get_field, _get_string, _pack_into, _put,
     _put_field, _put_string, _take, _unpack_from,
 )
 
@@ -78,7 +78,8 @@ def _get_ext(r, t):
     if item == "B":
         return r.raw(n)
     if item == "?":
-        return [_bool(b) for b in r.raw(n)]
+        r._need(n)
+        return [r.boolean() for _ in range(n)]
     if not number:
         return [_get_field(r, item) for _ in range(n)]
     if not n:

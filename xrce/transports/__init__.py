@@ -11,7 +11,7 @@
 #
 # Submodules are not imported here so that a MicroPython build loads only the transport it uses.
 
-from xrce.errors import XrceError
+from xrce import XrceError
 
 
 class TransportError(XrceError):

@@ -13,8 +13,7 @@
 # ``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
 # a single ``write_cb`` call.
 
-from xrce.compat import ticks_add, ticks_diff, ticks_ms
-from xrce.errors import EncodeError
+from xrce import EncodeError, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 
 # Framing and its CRC tables load only for framing=True: a packet link never pays for them.

@@ -11,8 +11,7 @@
 #
 # TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
 
-from xrce.compat import const
-from xrce.errors import EncodeError
+from xrce import EncodeError, const
 from xrce.transports.crc import crc16_arc
 
 FLAG = const(0x7E)

@@ -4,8 +4,7 @@
 # already configured UART object). The client's address defaults to 1 and the agent's to 0, as
 # ``uxr_init_serial_transport`` is used by the examples and by rmw's serial transport.
 
-from xrce.compat import IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
-from xrce.errors import EncodeError
+from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 from xrce.transports.crc import get_crc
 from xrce.transports.framing import FrameDecoder, encode_frame

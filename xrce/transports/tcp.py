@@ -8,8 +8,7 @@ try:
 except ImportError:  # pragma: no cover - MicroPython ports that name it usocket
     import usocket as socket
 
-from xrce.compat import IS_MICROPYTHON, ticks_add, ticks_diff, ticks_ms
-from xrce.errors import EncodeError
+from xrce import EncodeError, IS_MICROPYTHON, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError, is_timeout_error
 from xrce.transports.framing import LengthPrefixDecoder, encode_length_prefixed
 

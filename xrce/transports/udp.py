@@ -9,8 +9,7 @@ try:
 except ImportError:  # pragma: no cover - MicroPython ports that name it usocket
     import usocket as socket
 
-from xrce.compat import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
-from xrce.errors import EncodeError
+from xrce import EncodeError, IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError, is_timeout_error
 
 DEFAULT_MTU = 512

@@ -1,0 +1,153 @@
+"""Agent engine: objects (XRCE-WIRE.md §4, §5): CREATE with REUSE/REPLACE, the stream a STATUS
+goes back on, DELETE and its cascade, XML and reference representations, and a CREATE that waits
+for its type to be built."""
+
+from engine_peer import BIN, REF, REPLACE, REUSE, XML, Clock, Link, Peer, data_of
+from xrce import constants as C
+from xrce.agent.ced import CedMiddleware
+from xrce.agent.engine import Agent
+from xrce.agent.xmlrep import refs_from_profiles
+from xrce.objects import ParticipantBin, PubSubBin, TopicBin
+from xrce.submessages import Create, Delete, WriteData
+
+
+def test_create_reuse_replace_table(ced_agent):
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    assert peer.connect()[1] == C.STATUS_OK
+    mw = agent.middleware
+    p1, p2 = ParticipantBin("one"), ParticipantBin("two")
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p1) == C.STATUS_OK
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p1) == C.STATUS_ERR_ALREADY_EXISTS
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p1, flags=REUSE) == C.STATUS_OK_MATCHED
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p2, flags=REUSE) == C.STATUS_ERR_MISMATCH
+    # A different domain (tail) is a different representation too.
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p1, 3, flags=REUSE) == C.STATUS_ERR_MISMATCH
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p1, flags=REUSE | REPLACE) == \
+        C.STATUS_OK_MATCHED
+    assert peer.create(0x0012, C.OBJK_TOPIC, BIN, TopicBin("t", "T"), 0x0011) == C.STATUS_OK
+    assert (agent.clients[peer.key].key_int, 0x0012) in mw.topics
+    # REUSE|REPLACE with another representation re-creates the participant and drops its children.
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p2, flags=REUSE | REPLACE) == C.STATUS_OK
+    assert not mw.topics and len(mw.participants) == 1
+    # REPLACE alone always re-creates, even when identical.
+    assert peer.create(0x0012, C.OBJK_TOPIC, BIN, TopicBin("t", "T"), 0x0011) == C.STATUS_OK
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, BIN, p2, flags=REPLACE) == C.STATUS_OK
+    assert not mw.topics
+    # The parent must exist; its kind nibble is forced (0x0010 means participant 0x0011).
+    assert peer.create(0x0022, C.OBJK_TOPIC, BIN, TopicBin("t", "T"), 0x0020) == \
+        C.STATUS_ERR_UNKNOWN_REFERENCE
+    assert peer.create(0x0020, C.OBJK_TOPIC, BIN, TopicBin("t", "T"), 0x0010) == C.STATUS_OK
+    assert 0x0022 in agent.clients[peer.key].objects  # own nibble replaced by the kind too
+
+
+def test_status_stream_follows_request_stream(ced_agent):
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    peer.send(0x01, Create(0x50, 0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("x"), 0))
+    assert peer.statuses() == [(0x01, 0x50, C.STATUS_OK)]
+    peer.send(0x80, Create(0x51, 0x0021, C.OBJK_PARTICIPANT, BIN, ParticipantBin("y"), 0))
+    assert peer.statuses() == [(0x80, 0x51, C.STATUS_OK)]
+    peer.send(0, Create(0x52, 0x0031, C.OBJK_PARTICIPANT, BIN, ParticipantBin("z"), 0))
+    assert peer.statuses() == [(0x01, 0x52, C.STATUS_OK)]
+    peer.send(0x80, Delete(0x53, 0x0011))
+    assert peer.statuses() == [(0x80, 0x53, C.STATUS_OK)]
+    peer.send(0x80, Delete(0x54, 0x0011))
+    assert peer.statuses() == [(0x80, 0x54, C.STATUS_ERR_UNKNOWN_REFERENCE)]
+
+
+def test_failing_submessage_stops_the_rest_of_the_message(ced_agent):
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    peer.send(0x80, WriteData(0x50, 0x0995, b"nobody"),
+              Create(0x51, 0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("x"), 0))
+    assert peer.statuses() == []
+    assert not agent.clients[peer.key].objects
+
+
+def test_delete_cascades_to_children(ced_agent):
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    peer.build_pubsub()
+    peer.send(0x80, Delete(0x70, 0x0011))
+    assert peer.statuses() == [(0x80, 0x70, C.STATUS_OK)]
+    mw = agent.middleware
+    assert not (mw.participants or mw.topics or mw.groups or mw.writers or mw.readers)
+
+
+def test_xml_and_reference_representations(ced_agent, monkeypatch):
+    agent, link = ced_agent
+    profiles = """<?xml version="1.0"?>
+    <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"><profiles>
+      <participant profile_name="node"><domainId>7</domainId><rtps><name>ref_node</name></rtps></participant>
+      <topic profile_name="chatter"><name>rt/chatter</name><dataType>std_msgs::msg::dds_::String_</dataType></topic>
+      <data_writer profile_name="writer"><topic><name>rt/chatter</name><dataType>std_msgs::msg::dds_::String_</dataType>
+        <historyQos><kind>KEEP_LAST</kind><depth>3</depth></historyQos></topic>
+        <qos><reliability><kind>BEST_EFFORT</kind></reliability></qos></data_writer>
+    </profiles></dds>"""
+    agent.refs = refs_from_profiles(profiles)
+    assert set(agent.refs) == {"node", "chatter", "writer"}
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, REF, "node", 255) == C.STATUS_OK
+    assert agent.middleware.participants[(peer.agent.clients[peer.key].key_int, 0x0011)] == 7
+    assert peer.create(0x0012, C.OBJK_TOPIC, REF, "chatter", 0x0011) == C.STATUS_OK
+    assert peer.create(0x0013, C.OBJK_PUBLISHER, XML, "", 0x0011) == C.STATUS_OK
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, REF, "writer", 0x0013) == C.STATUS_OK
+    (writer,) = agent.middleware.writers.values()
+    assert (writer.topic, writer.qos.reliable, writer.qos.depth) == ("rt/chatter", False, 3)
+    assert peer.create(0x0025, C.OBJK_DATAWRITER, REF, "missing", 0x0013) == C.STATUS_ERR_DDS_ERROR
+    assert peer.create(0x0035, C.OBJK_DATAWRITER, XML,
+                       "<dds><data_writer><topic><name>rt/other</name></topic></data_writer></dds>",
+                       0x0013) == C.STATUS_ERR_DDS_ERROR  # no such topic in the participant
+    assert peer.create(0x0045, C.OBJK_DATAWRITER, XML, "<dds><data_wr", 0x0013) == \
+        C.STATUS_ERR_DDS_ERROR
+    assert peer.create(0x0023, C.OBJK_PUBLISHER, REF, "node", 0x0011) == C.STATUS_ERR_INVALID_DATA
+    monkeypatch.setenv("XRCE_DOMAIN_ID_OVERRIDE", "42")
+    assert peer.create(0x0021, C.OBJK_PARTICIPANT, XML,
+                       "<dds><participant><rtps><name>n</name></rtps></participant></dds>", 255) == 0
+    assert agent.middleware.participants[(agent.clients[peer.key].key_int, 0x0021)] == 42
+
+
+class SlowTypeMiddleware(CedMiddleware):
+    """CED, except that topics of type ``slow::...`` need a build that finishes when told to."""
+
+    def __init__(self):
+        super().__init__()
+        import concurrent.futures
+        self.build = concurrent.futures.Future()
+
+    def create_topic(self, key, participant, topic):
+        if topic.type_name.startswith("slow::") and not self.build.done():
+            from xrce.agent.middleware import TypeNotReady
+            raise TypeNotReady("slow is being built", self.build)
+        return super().create_topic(key, participant, topic)
+
+
+def test_a_create_waiting_for_its_type_parks_only_its_client():
+    link = Link()
+    middleware = SlowTypeMiddleware()
+    agent = Agent(middleware)
+    agent.clock = Clock()
+    waiting, other = Peer(agent, link, "waiting"), Peer(agent, link, "other", key=b"\x01\x02\x03\x04")
+    assert waiting.connect()[1] == 0 and other.connect()[1] == 0
+    assert waiting.create(0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("p"), 0) == 0
+    # The topic and, in a later message, its writer's publisher: neither is answered yet.
+    topic_request = waiting.next_request()
+    waiting.send(0x80, Create(topic_request, 0x0012, C.OBJK_TOPIC, BIN,
+                              TopicBin("rt/slow", "slow::msg::dds_::Thing_"), 0x0011, 1))
+    publisher_request = waiting.next_request()
+    waiting.send(0x80, Create(publisher_request, 0x0013, C.OBJK_PUBLISHER, BIN, PubSubBin(), 0x0011, 1))
+    assert waiting.statuses() == []
+    # Meanwhile another client is served as usual.
+    other.build_pubsub("rt/fast")
+    other.read()
+    other.write(b"\x02\x00\x00\x00a\x00")
+    assert data_of(other.take()) == [b"\x02\x00\x00\x00a\x00"]
+    # The build finishes: the parked CREATE and everything queued behind it run, in order.
+    middleware.build.set_result(None)
+    agent.tick()
+    assert waiting.statuses() == [(0x80, topic_request, 0), (0x80, publisher_request, 0)]

@@ -1,0 +1,97 @@
+"""``/diagnostics``: with ``-m dds`` and ``diagnostic_msgs`` importable, a
+``diagnostic_msgs/DiagnosticArray`` goes out once a second in every ROS domain the agent has joined
+where some node subscribes to it: one status for the agent, one per client, named after the client
+key. Its content is an ``Observer`` snapshot (xrce.agent.observability).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING
+
+from xrce.cdr import CdrWriter
+
+if TYPE_CHECKING:
+    from xrce.agent.observability import Observer
+
+# One logger for everything observability does (xrce.agent.observability wires this module in).
+log = logging.getLogger("xrce.agent.observability")
+
+STALE_AFTER_S = 5.0  # a client silent this long is reported WARN on /diagnostics
+DIAGNOSTIC_ARRAY_TYPE = "diagnostic_msgs::msg::dds_::DiagnosticArray_"
+DIAGNOSTIC_OK = 0  # diagnostic_msgs/DiagnosticStatus levels
+DIAGNOSTIC_WARN = 1
+
+
+def diagnostic_array_type():
+    """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed."""
+    try:
+        from xrce.agent.rostypes import raw_message_type
+        return raw_message_type(DIAGNOSTIC_ARRAY_TYPE)
+    except Exception as exc:  # no rclpy or no diagnostic_msgs: the agent runs without
+        log.debug("no /diagnostics: %s", exc)
+        return None
+
+
+def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
+    """A DiagnosticArray, one status for the agent and one per client (``xrce_agent: client
+    KEY``), as its CDR body (XCDR1 little-endian, no encapsulation header).
+
+    Encoded here rather than through the generated Python classes: building ~20 message objects
+    a second cost more CPU than a TurtleBot3's whole sensor traffic, and importing the classes
+    pulls in rosidl's code generator (lark, empy: +5 MB resident)."""
+    statuses = [(DIAGNOSTIC_OK, "xrce_agent", "%d clients" % len(snapshot["clients"]),
+                 "xrce_agent", [(k, str(v)) for k, v in snapshot["agent"].items()])]
+    for client in snapshot["clients"]:
+        stale = client["last_seen_s"] >= STALE_AFTER_S
+        statuses.append((
+            DIAGNOSTIC_WARN if stale else DIAGNOSTIC_OK,
+            "xrce_agent: client %s" % client["key"],
+            "silent for %.1f s" % client["last_seen_s"] if stale
+            else "session 0x%02X on %s" % (client["session_id"], client["link"]),
+            client["key"],
+            [(k, "" if v is None else str(v)) for k, v in client.items() if k != "key"]))
+    writer = CdrWriter(bytearray(512))
+    writer.i32(stamp_ns // 1000000000)  # header.stamp
+    writer.u32(stamp_ns % 1000000000)
+    writer.string("")  # header.frame_id
+    writer.u32(len(statuses))
+    for level, name, message, hardware_id, values in statuses:
+        writer.u8(level)
+        writer.string(name)
+        writer.string(message)
+        writer.string(hardware_id)
+        writer.u32(len(values))
+        for key, value in values:
+            writer.string(key)
+            writer.string(value)
+    return writer.getvalue()
+
+
+class DiagnosticsPublisher:
+    """Publishes ``diagnostic_array`` in every domain a ``RosMiddleware`` has joined, while some
+    ROS node subscribes to /diagnostics there (nobody listening: no snapshot is built)."""
+
+    def __init__(self, observer: Observer, middleware, message_type):
+        self.observer = observer
+        self.middleware = middleware
+        self.message_type = message_type
+        self.published = 0
+
+    def publish(self) -> None:
+        body = None
+        for domain_id in self.middleware.domain_ids():
+            publisher = self.middleware.agent_publisher(domain_id, self.message_type,
+                                                        "/diagnostics")
+            if publisher is None or not publisher.subscriber_count():
+                continue
+            if body is None:
+                body = diagnostic_array(self.observer.snapshot(), time.time_ns())
+            publisher.write(body)
+            self.published += 1
+
+
+__all__ = [
+    "DIAGNOSTIC_ARRAY_TYPE", "DiagnosticsPublisher", "diagnostic_array", "diagnostic_array_type",
+]

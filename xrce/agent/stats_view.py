@@ -1,0 +1,141 @@
+"""Text views of an ``Observer`` snapshot (xrce.agent.observability).
+
+- ``xrce-agent stats -p PORT`` reads a running agent's ``--stats-port`` (one JSON document per TCP
+  connection) and redraws its links, clients and topics as terminal tables (plain ANSI, no
+  dependency).
+- ``summary_lines``: the periodic one-line summaries the agent logs at ``-v 5``.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import sys
+import time
+
+from xrce.agent.timeline import format_timeline
+
+
+def _number(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return "%.1f" % value if value < 1000 else "%.0f" % value
+    return str(value)
+
+
+def _table(headers, rows) -> list:
+    widths = [len(h) for h in headers]
+    text_rows = [[_number(v) for v in row] for row in rows]
+    for row in text_rows:
+        widths = [max(w, len(cell)) for w, cell in zip(widths, row)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(headers, widths))]
+    lines.append("  ".join("-" * w for w in widths))
+    for row in text_rows:
+        lines.append("  ".join(cell.rjust(w) if i else cell.ljust(w)
+                               for i, (cell, w) in enumerate(zip(row, widths))))
+    return lines
+
+
+def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5) -> str:
+    """The stats view: links, clients (busiest first) and topics as plain-text tables."""
+    agent = snapshot["agent"]
+    lines = ["xrce-agent up %.0f s: %d clients, in %d msg / %d B, out %d msg / %d B, "
+             "dropped %d (decode %d), retransmissions %d" % (
+                 snapshot["uptime_s"], len(snapshot["clients"]), agent["messages_in"],
+                 agent["bytes_in"], agent["messages_out"], agent["bytes_out"], agent["dropped"],
+                 agent["decode_errors"], agent["retransmissions"]), ""]
+    lines += _table(("link", "msg in", "msg out", "bytes in", "bytes out", "drops", "crc"),
+                    [(l["name"], l["messages_in"], l["messages_out"], l["bytes_in"],
+                      l["bytes_out"], l["drops"], l["crc_errors"]) for l in snapshot["links"]])
+    clients = sorted(snapshot["clients"], key=lambda c: -(c["messages_in_per_s"]
+                                                          + c["messages_out_per_s"]))
+    lines.append("")
+    lines += _table(("client", "link", "msg/s in", "msg/s out", "msg in", "msg out", "B/s in",
+                     "B/s out", "decode", "dup", "retx", "rtt ms", "skew ms", "seen s"),
+                    [(c["key"], c["link"], c["messages_in_per_s"], c["messages_out_per_s"],
+                      c["messages_in"], c["messages_out"], c["bytes_in_per_s"],
+                      c["bytes_out_per_s"], c["decode_errors"], c["duplicates"],
+                      c["retransmissions"], c["rtt_ms"], c["timestamp_skew_ms"],
+                      c["last_seen_s"]) for c in clients[:max_clients]])
+    if len(clients) > max_clients:
+        lines.append("... %d more clients" % (len(clients) - max_clients))
+    lines.append("")
+    lines += _table(("topic", "direction", "type", "endpoints", "samples", "samples/s", "B/s"),
+                    [(t["topic"], t["direction"], t["type"], t["endpoints"], t["samples"],
+                      t["samples_per_s"], t["bytes_per_s"]) for t in snapshot["topics"]])
+    recoveries = snapshot.get("recoveries") or []
+    if recoveries:
+        lines += ["", "recoveries (latest last):"]
+        lines += ["  " + format_timeline(t) for t in recoveries[-max_recoveries:]]
+    return "\n".join(lines)
+
+
+def summary_lines(snapshot: dict) -> list:
+    """The ``-v 5`` periodic summary: one line for the agent, one per client that moved."""
+    agent = snapshot["agent"]
+    lines = ["summary: %d clients; in %d msg %d B, out %d msg %d B; dropped %d, decode errors %d, "
+             "retransmissions %d, crc errors %d" % (
+                 len(snapshot["clients"]), agent["messages_in"], agent["bytes_in"],
+                 agent["messages_out"], agent["bytes_out"], agent["dropped"],
+                 agent["decode_errors"], agent["retransmissions"],
+                 sum(l["crc_errors"] for l in snapshot["links"]))]
+    for c in snapshot["clients"]:
+        if c["messages_in_per_s"] or c["messages_out_per_s"]:
+            lines.append("client %s on %s: %.1f msg/s in, %.1f msg/s out, retx %d, rtt %s ms, "
+                         "seen %.1f s ago" % (c["key"], c["link"], c["messages_in_per_s"],
+                                              c["messages_out_per_s"], c["retransmissions"],
+                                              _number(c["rtt_ms"]), c["last_seen_s"]))
+    for t in snapshot["topics"]:
+        if t["samples_per_s"]:
+            lines.append("topic %s %s: %.1f samples/s, %.0f B/s" % (
+                t["topic"], t["direction"], t["samples_per_s"], t["bytes_per_s"]))
+    return lines
+
+
+# ------------------------------------------------------------------------------------ stats command
+
+def fetch_stats(port: int, host: str = "127.0.0.1", timeout_s: float = 2.0) -> dict:
+    """One snapshot from a running agent's ``--stats-port``."""
+    with socket.create_connection((host, port), timeout=timeout_s) as sock:
+        chunks = []
+        while True:
+            chunk = sock.recv(65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    return json.loads(b"".join(chunks))
+
+
+def add_stats_options(parser) -> None:
+    parser.add_argument("-p", "--port", type=int, required=True,
+                        help="the agent's --stats-port")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("-i", "--interval", type=float, default=1.0, metavar="S",
+                        help="seconds between refreshes (default 1)")
+    parser.add_argument("--once", action="store_true", help="print one table and exit")
+    parser.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
+
+
+def run_stats(args) -> int:
+    """``xrce-agent stats``: poll a running agent and redraw its tables until Ctrl-C."""
+    clear = "\x1b[H\x1b[2J" if sys.stdout.isatty() and not args.once else ""
+    try:
+        while True:
+            try:
+                snapshot = fetch_stats(args.port, args.host)
+            except (OSError, ValueError) as exc:
+                sys.stderr.write("xrce-agent: error: cannot read stats from %s:%d: %s\n"
+                                 % (args.host, args.port, exc))
+                return 1
+            text = json.dumps(snapshot) if args.json else format_snapshot(snapshot)
+            sys.stdout.write(clear + text + "\n")
+            sys.stdout.flush()
+            if args.once:
+                return 0
+            time.sleep(args.interval)
+    except KeyboardInterrupt:
+        return 0
+
+
+__all__ = ["add_stats_options", "fetch_stats", "format_snapshot", "run_stats", "summary_lines"]
