@@ -15,7 +15,7 @@ import pytest
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_observability import client_row, stats_port
-from xrce.agent.observability import fetch_stats
+from xrce.agent.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist, Vector3
 from xrce.transports.udp import UdpTransport

@@ -173,8 +173,6 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
 
     def _tick_locked(self) -> None:
         self._resume_parked_locked()
-        for fastpath in self.fastpaths:
-            fastpath.fold()  # when clients were last heard, before liveliness judges them
         now = self.clock()
         due = NEVER
         if self.timelines.pending:
@@ -193,7 +191,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         if due < NEVER:
             self._wake_at(due)
         for fastpath in self.fastpaths:
-            fastpath.sync()  # dead clients come back through Python
+            # Its counters were folded after the read that brought them; clients found dead
+            # just now must come back through Python.
+            fastpath.sync()
 
     @property
     def next_wakeup(self) -> Optional[float]:
