@@ -4,12 +4,16 @@ With a ROS 2 sourced in the installing shell (ROS_DISTRO set) xrce runs on that 
 a second one from PyPI; otherwise the ros-jazzy-* wheels from PyPI are a dependency (on the platforms
 PyPI has them for). XRCE_ROS=pypi|system overrides the guess. The rules live in
 xrce/agent/rosenv.py, loaded by path: the package itself is not importable in pip's build environment.
+
+The agent's compiled UDP receive path (xrce/agent/_fastpath.c, see xrce/agent/fastpath.py) is an
+optional extension: without a C compiler pip still installs xrce and the agent runs pure Python.
+XRCE_FASTPATH=0 at build time leaves it out (a pure, platform-independent wheel).
 """
 
 import importlib.util
 import os
 
-from setuptools import setup
+from setuptools import Extension, setup
 
 _spec = importlib.util.spec_from_file_location(
     "_xrce_rosenv", os.path.join(os.path.dirname(os.path.abspath(__file__)), "xrce", "agent", "rosenv.py"))
@@ -21,4 +25,9 @@ try:
 except ValueError as exc:
     raise SystemExit("xrce: %s" % exc) from None
 
-setup(install_requires=_install_requires, extras_require=_extras_require)
+_extensions = []
+if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
+    _extensions.append(Extension("xrce.agent._fastpath", ["xrce/agent/_fastpath.c"],
+                                 extra_compile_args=["-O2"], optional=True))
+
+setup(install_requires=_install_requires, extras_require=_extras_require, ext_modules=_extensions)

@@ -119,7 +119,10 @@ def xrce_wheels(tmp_path_factory):
     root = tmp_path_factory.mktemp("wheels")
     require_package_index(root / "probe")
     wheels = {}
-    for kind, extra in (("pypi", {}), ("system", {"ROS_DISTRO": "jazzy"})):
+    # XRCE_FASTPATH=0: the platform-independent wheel a release publishes for every machine (a Pi
+    # included); the agent's compiled UDP path comes with a build from source (tests/test_fastpath.py).
+    for kind, extra in (("pypi", {"XRCE_FASTPATH": "0"}),
+                        ("system", {"ROS_DISTRO": "jazzy", "XRCE_FASTPATH": "0"})):
         out = root / kind
         built = run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", out, REPO],
                     env=clean_env(**extra), timeout=300)

@@ -9,6 +9,10 @@ here, so this module is the one to read and profile for throughput:
   bounded per client), on the middleware's own thread when the client's link allows it;
   ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``_send_on_stream`` numbers, stores (reliable) and fragments output.
+
+With the optional compiled UDP path (``xrce.agent.fastpath``), best-effort WRITE_DATA of writers
+this path has handled once are published by the UDP link's read before they reach Python; what
+``_fast_write`` hands it (``offer``) is how it learns which ones.
 """
 
 from __future__ import annotations
@@ -92,6 +96,10 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:])
+        if not stream_id & 0x80:
+            fastpath = getattr(link, "fastpath", None)
+            if fastpath is not None:  # the next ones may not need Python (xrce.agent.fastpath)
+                fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
             self._acknack_soon(client, stream)
         return True

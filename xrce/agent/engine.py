@@ -109,6 +109,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -189,6 +190,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                 due = client_due
         if due < NEVER:
             self._wake_at(due)
+        for fastpath in self.fastpaths:
+            # Its counters were folded after the read that brought them; clients found dead
+            # just now must come back through Python.
+            fastpath.sync()
 
     @property
     def next_wakeup(self) -> Optional[float]:

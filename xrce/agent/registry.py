@@ -232,6 +232,8 @@ class ObjectRegistry:
         if entry.reader is not None:
             client.queued_bytes -= sum(len(sample) for sample in entry.reader.queue)
             entry.reader.queue.clear()
+        if client.fast is not None:  # the compiled path lets go of the publisher first
+            client.fast.forget_writer(client, object_id)
         try:
             self.middleware.delete(client.entity(object_id))
         except Exception:

@@ -290,6 +290,14 @@ class RosMiddleware(RosServices, Middleware):
             return True
         return write
 
+    def publisher_address(self, writer: EntityKey) -> int | None:
+        """The address of a datawriter's rcl_publisher_t, for the compiled UDP path
+        (xrce.agent.fastpath), which must forget it before ``delete``; None if rclpy hides it."""
+        record = self._entities.get(writer)
+        if record is None or record.kind != "datawriter":
+            return None
+        return getattr(getattr(record.publisher, "handle", None), "pointer", None)
+
     # -- inspection ---------------------------------------------------------------------------
 
     def reader_stats(self, reader: EntityKey) -> tuple[int, int]:

@@ -152,6 +152,8 @@ class ClientProxy:
         # While a CREATE waits for its type to be built: the messages to process afterwards, in
         # order, starting with the rest of the one that held the CREATE. None when not parked.
         self.parked: Optional[list] = None
+        # xrce.agent.fastpath.CompiledClient while the UDP link's compiled path knows this client.
+        self.fast: Any = None
         # Per-client counters for xrce.agent.observability; plain ints so the hot path stays cheap.
         self.created_at = now
         self.messages_in = 0
@@ -171,6 +173,8 @@ class ClientProxy:
         return (self.key_int, object_id)
 
     def reset_streams(self) -> None:
+        if self.fast is not None:  # its sequence numbers live in the compiled path
+            self.fast.drop(self)
         self.in_best_effort.clear()
         self.in_reliable.clear()
         self.out_best_effort.clear()
@@ -286,6 +290,8 @@ class SessionTable:
             del self.endpoints[(client.link, client.endpoint)]
 
     def _delete_client(self, client: ClientProxy) -> None:
+        if client.fast is not None:  # before any of its publishers is destroyed
+            client.fast.drop(client)
         for object_id in [oid for oid, e in client.objects.items() if e.parent is None]:
             if object_id in client.objects:
                 self._delete_object(client, object_id)

@@ -86,6 +86,7 @@ class UdpServer(Link):
         self.port = None
         self._loop = None
         self._sock = None
+        self.fastpath = None  # xrce.agent.fastpath.FastPath when the compiled path reads the socket
 
     async def start(self):
         # The socket is read directly rather than through create_datagram_endpoint: asyncio's
@@ -95,7 +96,10 @@ class UdpServer(Link):
         sock = _open_udp_socket(self.family, self.host, self.requested_port)
         self.port = sock.getsockname()[1]
         self._sock = sock
-        self._loop.add_reader(sock.fileno(), self._read_ready)
+        from xrce.agent import fastpath  # after the middleware started: it looks for rcl
+        self.fastpath = fastpath.attach(self, sock)
+        self._loop.add_reader(sock.fileno(), self._read_ready if self.fastpath is None
+                              else self.fastpath.read_ready)
 
     def describe(self):
         return "%s agent on port %d" % (self.name, self.port)
@@ -121,6 +125,9 @@ class UdpServer(Link):
     async def close(self):
         if self._sock is not None:
             self._loop.remove_reader(self._sock.fileno())
+            if self.fastpath is not None:
+                self.fastpath.close()
+                self.fastpath = None
             self._sock.close()
             self._sock = None
 

@@ -1,0 +1,369 @@
+"""The UDP link's compiled receive path (xrce/agent/_fastpath.c, xrce/agent/fastpath.py).
+
+End to end through real agent processes, real sockets and real rclpy, once with the compiled path
+and once with ``XRCE_FASTPATH=0``: both must deliver the same samples in the same order and count
+the same, for in-order, stale, duplicate and Python-only datagrams on one best-effort stream, a
+deleted writer and a restarted session. Then the C parser alone against hostile datagrams.
+"""
+
+import datetime
+import random
+import time
+
+import pytest
+
+from agent_process import AgentProcess
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from test_observability import client_row, stats_port
+from xrce.agent.stats_view import fetch_stats
+from xrce.client.session import Session
+from xrce.msgs.geometry_msgs import Twist, Vector3
+from xrce.transports.udp import UdpTransport
+
+try:
+    from xrce.agent import _fastpath as fastpath
+except ImportError:  # built without a compiler: only the packaging tests apply
+    fastpath = None
+needs_extension = pytest.mark.skipif(fastpath is None, reason="xrce.agent._fastpath not built")
+
+
+class CapturingTransport:
+    """Keeps what the session sends instead of sending it while ``capture`` is on."""
+
+    def __init__(self, transport):
+        self.inner = transport
+        self.capture = False
+        self.captured = []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def send(self, message):
+        if self.capture:
+            self.captured.append(bytearray(message))
+            return True
+        return self.inner.send(message)
+
+
+def twist_datagrams(session, writer, values):
+    """The exact best-effort datagram of each sample Twist(linear.x=value), not sent."""
+    transport = session.transport
+    transport.capture, transport.captured = True, []
+    try:
+        for value in values:
+            session.write(writer, Twist(linear=Vector3(x=float(value))), stream_id=session.best_effort)
+            session.flush()
+    finally:
+        transport.capture = False
+    return transport.captured
+
+
+def with_seq(datagram, seq):
+    out = bytearray(datagram)
+    out[2], out[3] = seq & 0xFF, seq >> 8
+    return bytes(out)
+
+
+def run_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
+    """Drive one agent; returns (values received in ROS, counter deltas, agent output)."""
+    received = []
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    ros_peer.node.create_subscription(Twist_ros(), topic, lambda m: received.append(m.linear.x),
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+    with AgentProcess("udp4", "-m", "dds", "-v", "5", "--stats-port", "0", env=env) as agent:
+        port = stats_port(agent)
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="fastpath")
+            writer = session.create_writer(node, topic, Twist, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            before = fetch_stats(port)
+            values = list(range(1, 21))
+            frames = twist_datagrams(session, writer, values)
+            send = session.transport.inner.send
+            for seq in range(5):  # in order: the first ones take the Python path and register
+                send(with_seq(frames[seq], seq))
+            time.sleep(0.2)
+            send(with_seq(frames[10], 10))  # a gap: best-effort takes it
+            send(with_seq(frames[11], 11))
+            send(with_seq(frames[15], 5))  # older: dropped
+            send(with_seq(frames[16], 11))  # repeated: dropped
+            unknown = bytearray(frames[17])  # a writer the client never created: Python's
+            unknown[(4 if unknown[0] & 0x80 else 8) + 7] ^= 0x0F  # the object id's low byte
+            send(with_seq(unknown, 12))
+            send(with_seq(frames[12], 12))  # the number was used by the message before: dropped
+            send(with_seq(frames[13], 13))
+            for seq in range(14, 0x10010, 0x1000):  # across the 16-bit wrap, always newer
+                send(with_seq(frames[14], seq & 0xFFFF))
+            assert wait_until(lambda: len(received) >= 25, 10), received
+            time.sleep(FOLD_WAIT_S)
+            after = fetch_stats(port)
+
+            # Deleting the writer: no publish afterwards, through any path, and the agent serves on.
+            session.delete_entity(writer)
+            assert session.run_until_all_status(5000)
+            for seq in range(0x20, 0x28):
+                send(with_seq(frames[18], seq))
+            assert session.ping(timeout_ms=1000)
+
+            # A restarted session starts its streams again at 0.
+            first_part = len(received)
+            assert session.create(attempts=5, timeout_ms=1000)
+            writer = session.create_writer(node, topic, Twist, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            frames = twist_datagrams(session, writer, [100, 101, 102])
+            seq = 0  # from 0 again; resent until the new publisher is matched
+            deadline = time.monotonic() + 10
+            while 102.0 not in received and time.monotonic() < deadline:
+                for frame in frames:
+                    send(with_seq(frame, seq))
+                    seq += 1
+                time.sleep(0.2)
+            assert 102.0 in received
+            time.sleep(0.3)
+            assert set(received[first_part:]) == {100.0, 101.0, 102.0}, received[first_part:]
+            del received[first_part:]
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+    output = "".join(agent.output)
+    deltas = {name: after["agent"][name] - before["agent"][name]
+              for name in ("messages_in", "bytes_in", "samples_in", "dropped", "decode_errors")}
+    row_before, row_after = client_row(before, session), client_row(after, session)
+    deltas["client_messages_in"] = row_after["messages_in"] - row_before["messages_in"]
+    deltas["client_bytes_in"] = row_after["bytes_in"] - row_before["bytes_in"]
+    deltas["client_last_seen_s"] = row_after["last_seen_s"]
+    topic_row = [t for t in after["topics"]
+                 if t["topic"].endswith(topic.lstrip("/")) and t["direction"] == "to_ros"]
+    deltas["topic_samples"] = topic_row[0]["samples"] if topic_row else None
+    return received, deltas, output
+
+
+FOLD_WAIT_S = 1.5  # the compiled path's counters reach the stats within a second
+
+
+def Twist_ros():
+    from geometry_msgs.msg import Twist as RosTwist
+    return RosTwist
+
+
+@needs_extension
+def test_compiled_and_python_paths_deliver_and_count_the_same(ros_peer, ros_domain):  # noqa: F811
+    compiled = run_scenario(ros_peer, ros_domain, "/fastpath_on", {"XRCE_FASTPATH": "1"})
+    python = run_scenario(ros_peer, ros_domain, "/fastpath_off", {"XRCE_FASTPATH": "0"})
+
+    expected = [1.0, 2.0, 3.0, 4.0, 5.0, 11.0, 12.0, 14.0] + [15.0] * 17
+    assert python[0] == expected
+    assert compiled[0] == expected
+    assert "best-effort samples take the compiled path" in compiled[2]
+    assert "udp4: compiled receive path" in compiled[2]
+    assert "compiled receive path" not in python[2].replace("compiled receive path off", "")
+    # 5 + 2 + 2 stale + unknown writer + used number + 1 + 17 across the wrap = 29 messages.
+    for deltas in (compiled[1], python[1]):
+        assert deltas["messages_in"] == 29 and deltas["client_messages_in"] == 29, deltas
+        assert deltas["samples_in"] == 25 and deltas["topic_samples"] == 25, deltas
+        assert deltas["dropped"] == 3 and deltas["decode_errors"] == 0, deltas
+        assert deltas["client_last_seen_s"] < FOLD_WAIT_S + 1.0, deltas
+    assert compiled[1]["bytes_in"] == python[1]["bytes_in"] == compiled[1]["client_bytes_in"]
+
+
+@pytest.mark.parametrize("switch", [pytest.param("1", marks=needs_extension), "0"],
+                         ids=["compiled", "python"])
+def test_a_client_heard_only_through_the_compiled_path_stays_alive(ros_peer, ros_domain, switch):  # noqa: F811
+    """Liveliness judges the time C last heard a client: samples that never reach Python keep it
+    alive; silence makes it dead; its next sample revives it through Python and is delivered."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    received = []
+    topic = "/fastpath_alive_" + switch
+    ros_peer.node.create_subscription(Twist_ros(), topic, lambda m: received.append(m.linear.x),
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
+    with AgentProcess("udp4", "-m", "dds", "-v", "5", "--client-dead-time", "400",
+                      env={"XRCE_FASTPATH": switch}) as agent:
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="alive")
+            writer = session.create_writer(node, topic, Twist, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+            time.sleep(0.5)
+            frames = twist_datagrams(session, writer, [1, 2])
+            send = session.transport.inner.send
+            send(with_seq(frames[0], 0))  # revives it if the set-up took longer than a dead time
+            time.sleep(0.1)
+            sending = datetime.datetime.now()
+            for seq in range(1, 61):  # 1.2 s at 50 Hz, three dead times
+                send(with_seq(frames[0], seq))
+                time.sleep(0.02)
+            sent = datetime.datetime.now()
+            time.sleep(0.9)  # silent: dead
+            send(with_seq(frames[1], 61))
+            assert wait_until(lambda: 2.0 in received, 5), received
+            time.sleep(0.2)
+        finally:
+            session.close()
+    output = "".join(agent.output)
+    key = session.key.hex()
+    events = [(datetime.datetime.strptime(line[:23], "%Y-%m-%d %H:%M:%S,%f"),
+               "dead" if "dead" in line else "alive")
+              for line in output.splitlines()
+              if key in line and (": dead" in line or "alive again" in line)]
+    assert not [e for e in events if sending <= e[0] <= sent], events  # heard all along
+    assert [kind for when, kind in events if when > sent] == ["dead", "alive"], events
+    assert received.count(1.0) >= 55
+    if switch == "1":
+        assert "best-effort samples take the compiled path" in output
+
+
+# ------------------------------------------------------------------------ hostile input, C alone
+
+KEY = b"\x0a\x0b\x0c\x0d"
+ADDRESS = ("127.0.0.1", 40000)
+
+
+def keyed_datagram(seq, object_id=0x0015, body=b"\x00" * 48, session_id=0x01, stream_id=0x01):
+    length = 4 + len(body)
+    return bytes((session_id, stream_id, seq & 0xFF, seq >> 8)) + KEY + bytes(
+        (0x07, 0x01, length & 0xFF, length >> 8, 0x00, 0x01, object_id >> 8, object_id & 0xFF)) + body
+
+
+@needs_extension
+def test_hostile_datagrams_are_left_to_python_or_published(ros_peer):  # noqa: F811
+    """Mutations of a valid datagram (bytes changed, cut, extended, lying lengths): each is either
+    published here, as a valid fast datagram, or left to Python; nothing crashes and the
+    counters add up."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    publisher = ros_peer.node.create_publisher(
+        Twist_ros(), "/fastpath_fuzz", QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert fastpath.resolve_rcl()
+    receiver = fastpath.Receiver(-1)  # no socket: handle() runs read()'s check on one datagram
+    try:
+        handle = receiver.add_client(0x01, KEY, None)
+        receiver.add_stream(handle, 0x01, 0xFFFF)
+        receiver.add_writer(handle, 0x0015, publisher.handle.pointer)
+        rng = random.Random(9)
+        valid = keyed_datagram(0)
+        taken = 0
+        for index in range(20000):
+            data = bytearray(valid)
+            data[2], data[3] = index & 0xFF, (index >> 8) & 0xFF
+            for _ in range(rng.randrange(1, 4)):
+                kind = rng.randrange(4)
+                if kind == 0 and data:
+                    data[rng.randrange(len(data))] = rng.randrange(256)
+                elif kind == 1:
+                    del data[rng.randrange(len(data) + 1):]
+                elif kind == 2:
+                    data += bytes(rng.randrange(256) for _ in range(rng.randrange(1, 16)))
+                elif len(data) > 11:  # a length field claiming more or less than there is
+                    data[10], data[11] = rng.randrange(256), rng.randrange(256)
+            taken += receiver.handle(bytes(data), ADDRESS)
+        totals, clients, writers = receiver.fold()
+        messages, _size, samples, stale, errors = totals
+        assert taken == messages == clients[0][1] and errors == 0
+        assert samples == sum(row[2] for row in writers) and samples + stale >= taken > 1000
+    finally:
+        receiver.remove_writer(handle, 0x0015)
+        ros_peer.node.destroy_publisher(publisher)
+
+
+@needs_extension
+def test_registration_sequence_numbers_and_removal(ros_peer):  # noqa: F811
+    from rclpy.qos import QoSProfile
+    publisher = ros_peer.node.create_publisher(Twist_ros(), "/fastpath_order", QoSProfile(depth=10))
+    assert fastpath.resolve_rcl()
+    receiver = fastpath.Receiver(-1)
+    try:
+        handle = receiver.add_client(0x01, KEY, None)
+        receiver.add_stream(handle, 0x01, 0xFFFF)
+        receiver.add_writer(handle, 0x0015, publisher.handle.pointer)
+        assert not receiver.handle(keyed_datagram(0, object_id=0x0025), ADDRESS)  # unknown writer
+        assert not receiver.handle(keyed_datagram(0, session_id=0x02), ADDRESS)  # other session
+        assert not receiver.handle(keyed_datagram(0, stream_id=0x02), ADDRESS)  # other stream
+        assert not receiver.handle(keyed_datagram(0, stream_id=0x81), ADDRESS)  # reliable
+        # Python handles seq 0 and 1 itself, against the number kept here.
+        assert receiver.stream_accept(handle, 0x01, 0) and receiver.stream_accept(handle, 0x01, 1)
+        assert not receiver.stream_accept(handle, 0x01, 1)
+        assert receiver.handle(keyed_datagram(2), ADDRESS)
+        assert receiver.handle(keyed_datagram(2), ADDRESS)  # taken, as a repeat: dropped
+        assert receiver.handle(keyed_datagram(1), ADDRESS)  # older: dropped
+        assert receiver.stream_seq(handle, 0x01) == 2
+        totals, clients, writers = receiver.fold()
+        assert totals == (3, 3 * len(keyed_datagram(2)), 1, 2, 0)  # one published, two stale
+        assert writers == [(handle, 0x0015, 1, 48)] and clients[0][:3] == (handle, 3, 3 * 64)
+        receiver.set_client_enabled(handle, False)  # e.g. dead: Python must revive it
+        assert not receiver.handle(keyed_datagram(3), ADDRESS)
+        receiver.set_client_enabled(handle, True)
+        receiver.set_enabled(False)  # the capture tap or the trace on
+        assert not receiver.handle(keyed_datagram(3), ADDRESS)
+        receiver.set_enabled(True)
+        assert receiver.handle(keyed_datagram(3), ADDRESS)
+        assert receiver.remove_writer(handle, 0x0015) == (1, 48)
+        assert not receiver.handle(keyed_datagram(4), ADDRESS)  # no writer: Python's
+        receiver.remove_client(handle)
+        assert receiver.stream_seq(handle, 0x01) is None
+    finally:
+        receiver.remove_writer(handle, 0x0015)
+        ros_peer.node.destroy_publisher(publisher)
+
+
+@needs_extension
+def test_keyless_sessions_are_told_apart_by_source_address(ros_peer):  # noqa: F811
+    from rclpy.qos import QoSProfile
+    publisher = ros_peer.node.create_publisher(Twist_ros(), "/fastpath_keyless", QoSProfile(depth=10))
+    assert fastpath.resolve_rcl()
+    receiver = fastpath.Receiver(-1)
+    try:
+        for address in (ADDRESS, ("::1", 40000, 0, 0)):
+            handle = receiver.add_client(0x81, b"\0\0\0\0", address)
+            receiver.add_stream(handle, 0x01, 0xFFFF)
+            receiver.add_writer(handle, 0x0015, publisher.handle.pointer)
+            datagram = bytes((0x81, 0x01, 0, 0, 0x07, 0x01, 52, 0, 0, 1, 0x00, 0x15)) + bytes(48)
+            assert receiver.handle(datagram, address)
+            other_port = (address[0], 40001) + tuple(address[2:])
+            assert not receiver.handle(datagram, other_port)
+            assert not receiver.handle(datagram, ("127.0.0.2", 40000))
+            receiver.remove_writer(handle, 0x0015)
+            receiver.remove_client(handle)
+    finally:
+        ros_peer.node.destroy_publisher(publisher)
+
+
+# ------------------------------------------------------------------------------------ packaging
+
+@pytest.mark.parametrize("env, compiled", [({}, True), ({"CC": "false"}, False),
+                                           ({"XRCE_FASTPATH": "0"}, False)],
+                         ids=["with-a-compiler", "without-a-compiler", "left-out"])
+def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled):
+    """A plain ``pip install`` builds the compiled path when it can and installs xrce anyway when
+    it cannot (no compiler); XRCE_FASTPATH=0 leaves it out: a pure, platform-independent wheel."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    import zipfile
+
+    import sysconfig
+
+    from agent_process import REPO
+
+    if compiled and not shutil.which((sysconfig.get_config_var("CC") or "cc").split()[0]):
+        pytest.skip("no C compiler here")
+    # A copy without the checkout's own build products (an in-place .so, build/) to mislead it.
+    source = tmp_path / "src"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(
+        ".venv", "node_modules", "build", "*.so", ".git", "__pycache__", "*.egg-info", ".*cache"))
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", tmp_path,
+                            source],
+                           env=dict(os.environ, **env), stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, timeout=300)
+    assert build.returncode == 0, build.stdout[-3000:]
+    (wheel,) = tmp_path.glob("xrce-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert any(n.startswith("xrce/agent/_fastpath.") and n.endswith(".so") for n in names) == compiled
+    assert "xrce/agent/fastpath.py" in names
+    if env.get("XRCE_FASTPATH") == "0":
+        assert wheel.name.endswith("-py3-none-any.whl"), wheel.name

@@ -1,0 +1,618 @@
+/* Optional compiled receive path of the UDP link: best-effort WRITE_DATA straight into rcl.
+ *
+ * Why it exists: per datagram, the Python data path had reached its floor (bench/agent_cost.py);
+ * what is left of the cost is Python work, not the kernel. Here the UDP link's read, on the asyncio
+ * loop's thread as before, takes a batch of datagrams with recvmmsg and the GIL released. A datagram
+ * whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered, on a
+ * best-effort stream Python registered, is published with rcl_publish_serialized_message right
+ * here. At the first datagram that is not (reliable streams, fragments, control, unknown clients,
+ * anything malformed) the batch stops being handled here: it and every datagram behind it go back
+ * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
+ * order. xrce/agent/fastpath.py is the Python side.
+ *
+ * Measured and not kept: a thread of its own reading the socket and waking the loop through an
+ * eventfd for the rest. Best-effort was cheaper still, but every other datagram then cost two
+ * wake-ups instead of one: reliable traffic, ping and the robot load got worse.
+ *
+ * Ownership: Python decides what is fast (clients, streams, writers and their rcl publishers) and
+ * removes a writer before it destroys the publisher. This module owns the input sequence number of
+ * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself.
+ * Counters accumulate here and Python folds them into its own (fold) after each read.
+ *
+ * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
+ * builds with no ROS headers, and without rclpy loaded the Python path simply stays in charge.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <arpa/inet.h>
+#include <dlfcn.h>
+#include <errno.h>
+#include <netinet/in.h>
+#include <pthread.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#define BATCH 64            /* datagrams per recvmmsg */
+#define MAX_DATAGRAM 65536  /* UDP's limit: nothing is ever truncated */
+#define WRITE_DATA 0x07
+#define FORMAT_MASK 0x0E
+#define FORMAT_DATA 0x00
+
+/* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
+ * them; rmw reads only buffer and buffer_length of a message it publishes. */
+typedef struct {
+    void *allocate, *deallocate, *reallocate, *zero_allocate, *state;
+} rcutils_allocator_t;
+typedef struct {
+    uint8_t *buffer;
+    size_t buffer_length;
+    size_t buffer_capacity;
+    rcutils_allocator_t allocator;
+} serialized_message_t;
+typedef int (*publish_serialized_fn)(const void *publisher, const serialized_message_t *message,
+                                     void *allocation);
+static publish_serialized_fn rcl_publish_serialized;
+
+typedef struct Writer {
+    struct Writer *next;
+    uint16_t object_id;
+    const void *publisher;  /* rcl_publisher_t *, valid while registered */
+    uint64_t samples, sample_bytes;
+} Writer;
+
+typedef struct Stream {
+    struct Stream *next;
+    uint8_t stream_id;
+    uint16_t last_seq;  /* the last accepted sequence number (XRCE-WIRE.md §1) */
+} Stream;
+
+typedef struct Client {
+    struct Client *next;
+    long handle;
+    int enabled;  /* Python clears it while the client needs its attention (dead, parked, ...) */
+    uint8_t session_id;
+    uint8_t key[4];                /* sessions with the key in the header (id < 0x80) */
+    struct sockaddr_storage addr;  /* sessions without: identified by the source address */
+    socklen_t addr_len;
+    Stream *streams;
+    Writer *writers;
+    uint64_t messages, bytes;
+    int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
+} Client;
+
+typedef struct {
+    PyObject_HEAD
+    int sock;
+    /* Registration runs on the loop's thread, which is also the one reading; the mutex keeps any
+     * other thread that calls in from seeing the tables half changed while the GIL is released. */
+    pthread_mutex_t mutex;
+    Client *clients;
+    long next_handle;
+    int enabled;
+    /* Agent-wide counters since the last fold. */
+    uint64_t messages, bytes, samples, stale, publish_errors;
+    /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
+    uint8_t (*buffers)[MAX_DATAGRAM];
+    struct mmsghdr messages_hdr[BATCH];
+    struct iovec vectors[BATCH];
+    struct sockaddr_storage sources[BATCH];
+} Receiver;
+
+static int64_t now_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+/* 16-bit serial-number order (xrce/streams.py seq_less). */
+static int seq_less(uint16_t a, uint16_t b) {
+    if (a == b) return 0;
+    return (a < b && b - a < 0x8000) || (a > b && a - b > 0x8000);
+}
+
+static int same_address(const struct sockaddr_storage *a, const struct sockaddr_storage *b) {
+    if (a->ss_family != b->ss_family) return 0;
+    if (a->ss_family == AF_INET) {
+        const struct sockaddr_in *x = (const void *)a, *y = (const void *)b;
+        return x->sin_port == y->sin_port && x->sin_addr.s_addr == y->sin_addr.s_addr;
+    }
+    if (a->ss_family == AF_INET6) {
+        const struct sockaddr_in6 *x = (const void *)a, *y = (const void *)b;
+        return x->sin6_port == y->sin6_port && x->sin6_scope_id == y->sin6_scope_id &&
+               memcmp(&x->sin6_addr, &y->sin6_addr, sizeof x->sin6_addr) == 0;
+    }
+    return 0;
+}
+
+static Client *find_client(Receiver *self, const uint8_t *data, const struct sockaddr_storage *from) {
+    for (Client *c = self->clients; c; c = c->next) {
+        if (c->session_id != data[0]) continue;
+        if (data[0] < 0x80 ? memcmp(c->key, data + 4, 4) == 0 : same_address(&c->addr, from))
+            return c;
+    }
+    return NULL;
+}
+
+static Writer *find_writer(Client *c, uint16_t object_id) {
+    for (Writer *w = c->writers; w; w = w->next)
+        if (w->object_id == object_id) return w;
+    return NULL;
+}
+
+static Stream *find_stream(Client *c, uint8_t stream_id) {
+    for (Stream *s = c->streams; s; s = s->next)
+        if (s->stream_id == stream_id) return s;
+    return NULL;
+}
+
+/* Publish the datagram here if all of it is fast; 0 when Python must have it. Called locked. */
+static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
+    if (!self->enabled || rcl_publish_serialized == NULL || length < 12) return 0;
+    uint8_t session_id = data[0];
+    if ((session_id & 0x7F) == 0 || data[1] == 0 || data[1] >= 0x80) return 0;
+    Client *client = find_client(self, data, from);
+    if (client == NULL || !client->enabled) return 0;
+    Stream *stream = find_stream(client, data[1]);
+    if (stream == NULL) return 0;
+    /* Every submessage must be a WRITE_DATA to a registered writer, or Python takes it all:
+     * the same walk as xrce/message.py iter_submessages, every length checked. */
+    size_t pos = session_id < 0x80 ? 8 : 4, count = 0;
+    while (pos + 4 <= length) {
+        size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
+        size_t end = pos + 4 + sub_length;
+        if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
+            sub_length < 4 || end > length ||
+            find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7])) == NULL)
+            return 0;
+        count++;
+        pos = (end + 3) & ~(size_t)3;
+    }
+    if (count == 0) return 0;
+    uint16_t seq = data[2] | (data[3] << 8);
+    client->messages++;
+    client->bytes += length;
+    client->last_seen_ns = now_ns();
+    self->messages++;
+    self->bytes += length;
+    if (!seq_less(stream->last_seq, seq)) {
+        self->stale++;  /* older or repeated: a best-effort stream drops it */
+        return 1;
+    }
+    stream->last_seq = seq;
+    pos = session_id < 0x80 ? 8 : 4;
+    while (count--) {
+        size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
+        Writer *writer = find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7]));
+        /* ROS wants the CDR body behind its 4-byte encapsulation header (XRCE-WIRE.md §14);
+         * the request and object ids in front of the sample are that space, already used. */
+        uint8_t *body = data + pos + 4;
+        body[0] = 0x00, body[1] = 0x01, body[2] = 0x00, body[3] = 0x00;
+        serialized_message_t message = {body, sub_length, sub_length, {0}};
+        self->samples++;
+        writer->samples++;
+        writer->sample_bytes += sub_length - 4;
+        if (rcl_publish_serialized(writer->publisher, &message, NULL) != 0) {
+            self->publish_errors++;  /* as in Python, a failed write ends the message */
+            break;
+        }
+        pos = (pos + 4 + sub_length + 3) & ~(size_t)3;
+    }
+    return 1;
+}
+
+/* ----------------------------------------------------------------------------- Python side */
+
+static PyObject *address_tuple(const struct sockaddr_storage *addr) {
+    char text[INET6_ADDRSTRLEN];
+    if (addr->ss_family == AF_INET) {
+        const struct sockaddr_in *a = (const void *)addr;
+        inet_ntop(AF_INET, &a->sin_addr, text, sizeof text);
+        return Py_BuildValue("(si)", text, ntohs(a->sin_port));
+    }
+    const struct sockaddr_in6 *a = (const void *)addr;
+    inet_ntop(AF_INET6, &a->sin6_addr, text, sizeof text);
+    return Py_BuildValue("(siII)", text, ntohs(a->sin6_port), ntohl(a->sin6_flowinfo),
+                         a->sin6_scope_id);
+}
+
+static int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_t *len) {
+    const char *host;
+    int port;
+    unsigned int flowinfo = 0, scope_id = 0;
+    memset(out, 0, sizeof *out);
+    if (!PyArg_ParseTuple(tuple, "si|II", &host, &port, &flowinfo, &scope_id)) return -1;
+    struct sockaddr_in *v4 = (void *)out;
+    struct sockaddr_in6 *v6 = (void *)out;
+    if (inet_pton(AF_INET, host, &v4->sin_addr) == 1) {
+        v4->sin_family = AF_INET;
+        v4->sin_port = htons(port);
+        *len = sizeof *v4;
+        return 0;
+    }
+    if (inet_pton(AF_INET6, host, &v6->sin6_addr) == 1) {
+        v6->sin6_family = AF_INET6;
+        v6->sin6_port = htons(port);
+        v6->sin6_flowinfo = htonl(flowinfo);
+        v6->sin6_scope_id = scope_id;
+        *len = sizeof *v6;
+        return 0;
+    }
+    PyErr_Format(PyExc_ValueError, "not a numeric address: %s", host);
+    return -1;
+}
+
+static Client *client_by_handle(Receiver *self, long handle) {
+    for (Client *c = self->clients; c; c = c->next)
+        if (c->handle == handle) return c;
+    return NULL;
+}
+
+static void free_client(Client *c) {
+    for (Writer *w = c->writers, *n; w; w = n) { n = w->next; free(w); }
+    for (Stream *s = c->streams, *n; s; s = n) { n = s->next; free(s); }
+    free(c);
+}
+
+static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
+    static char *names[] = {"sock", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwargs, "i", names, &self->sock)) return -1;
+    pthread_mutex_init(&self->mutex, NULL);
+    self->enabled = 1;
+    self->next_handle = 1;
+    return 0;
+}
+
+static void Receiver_dealloc(Receiver *self) {
+    for (Client *c = self->clients, *n; c; c = n) { n = c->next; free_client(c); }
+    if (self->buffers) munmap(self->buffers, (size_t)BATCH * MAX_DATAGRAM);
+    pthread_mutex_destroy(&self->mutex);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* read() -> (datagrams for Python, more): one recvmmsg batch from the non-blocking socket, handled
+ * here up to the first datagram that is not fast; that one and the rest come back as
+ * [(bytes, address)], in order. more: the batch was full, the socket may hold more. */
+static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
+    (void)unused;
+    if (self->buffers == NULL) {
+        void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
+                         MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        if (map == MAP_FAILED) return PyErr_SetFromErrno(PyExc_OSError);
+        self->buffers = map;
+        for (int i = 0; i < BATCH; i++) {
+            self->vectors[i].iov_base = self->buffers[i];
+            self->vectors[i].iov_len = MAX_DATAGRAM;
+            self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
+            self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
+            self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
+            self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+        }
+    }
+    int count, handled = 0, error = 0;
+    Py_BEGIN_ALLOW_THREADS  /* rclpy's executor thread may run meanwhile */
+    count = recvmmsg(self->sock, self->messages_hdr, BATCH, MSG_DONTWAIT, NULL);
+    if (count < 0) error = errno;
+    pthread_mutex_lock(&self->mutex);
+    while (handled < count && try_fast(self, self->buffers[handled],
+                                       self->messages_hdr[handled].msg_len,
+                                       &self->sources[handled]))
+        handled++;
+    pthread_mutex_unlock(&self->mutex);
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < count; i++)  /* the kernel wrote the address lengths of these */
+        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+    if (count < 0) {
+        if (error == EAGAIN || error == EWOULDBLOCK || error == EINTR)
+            return Py_BuildValue("([]O)", Py_False);
+        errno = error;  /* e.g. an ICMP error of an earlier send: the caller logs it */
+        return PyErr_SetFromErrno(PyExc_OSError);
+    }
+    PyObject *rest = PyList_New(count - handled);
+    if (rest == NULL) return NULL;
+    for (int i = handled; i < count; i++) {
+        PyObject *address = address_tuple(&self->sources[i]);
+        PyObject *item = address ? Py_BuildValue("(y#N)", self->buffers[i],
+                                                 (Py_ssize_t)self->messages_hdr[i].msg_len,
+                                                 address) : NULL;
+        if (item == NULL) {
+            Py_DECREF(rest);
+            return NULL;
+        }
+        PyList_SET_ITEM(rest, i - handled, item);
+    }
+    return Py_BuildValue("(NO)", rest, count == BATCH ? Py_True : Py_False);
+}
+
+static PyObject *Receiver_add_client(Receiver *self, PyObject *args) {
+    int session_id;
+    Py_buffer key = {0};
+    PyObject *address;
+    if (!PyArg_ParseTuple(args, "iy*O", &session_id, &key, &address)) return NULL;
+    Client *c = calloc(1, sizeof *c);
+    if (c == NULL) {
+        PyBuffer_Release(&key);
+        return PyErr_NoMemory();
+    }
+    c->session_id = (uint8_t)session_id;
+    memcpy(c->key, key.buf, key.len < 4 ? key.len : 4);
+    PyBuffer_Release(&key);
+    if (session_id >= 0x80 && parse_address(address, &c->addr, &c->addr_len) < 0) {
+        free(c);
+        return NULL;
+    }
+    c->enabled = 1;
+    pthread_mutex_lock(&self->mutex);
+    c->handle = self->next_handle++;
+    c->next = self->clients;
+    self->clients = c;
+    pthread_mutex_unlock(&self->mutex);
+    return PyLong_FromLong(c->handle);
+}
+
+static PyObject *Receiver_remove_client(Receiver *self, PyObject *arg) {
+    long handle = PyLong_AsLong(arg);
+    if (handle == -1 && PyErr_Occurred()) return NULL;
+    pthread_mutex_lock(&self->mutex);
+    for (Client **link = &self->clients; *link; link = &(*link)->next) {
+        if ((*link)->handle == handle) {
+            Client *c = *link;
+            *link = c->next;
+            free_client(c);
+            break;
+        }
+    }
+    pthread_mutex_unlock(&self->mutex);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Receiver_set_client_enabled(Receiver *self, PyObject *args) {
+    long handle;
+    int enabled;
+    if (!PyArg_ParseTuple(args, "lp", &handle, &enabled)) return NULL;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    if (c) c->enabled = enabled;
+    pthread_mutex_unlock(&self->mutex);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Receiver_set_enabled(Receiver *self, PyObject *arg) {
+    int enabled = PyObject_IsTrue(arg);
+    if (enabled < 0) return NULL;
+    pthread_mutex_lock(&self->mutex);
+    self->enabled = enabled;
+    pthread_mutex_unlock(&self->mutex);
+    Py_RETURN_NONE;
+}
+
+/* add_stream(handle, stream_id, last_seq): from now on the sequence number lives here. */
+static PyObject *Receiver_add_stream(Receiver *self, PyObject *args) {
+    long handle;
+    int stream_id, last_seq;
+    if (!PyArg_ParseTuple(args, "lii", &handle, &stream_id, &last_seq)) return NULL;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
+    if (c && s == NULL && (s = calloc(1, sizeof *s)) != NULL) {
+        s->stream_id = (uint8_t)stream_id;
+        s->next = c->streams;
+        c->streams = s;
+    }
+    if (s) s->last_seq = (uint16_t)last_seq;
+    pthread_mutex_unlock(&self->mutex);
+    if (c && s == NULL) return PyErr_NoMemory();
+    return PyBool_FromLong(s != NULL);
+}
+
+/* stream_accept(handle, stream_id, seq): the best-effort check for a datagram Python handles. */
+static PyObject *Receiver_stream_accept(Receiver *self, PyObject *args) {
+    long handle;
+    int stream_id, seq;
+    if (!PyArg_ParseTuple(args, "lii", &handle, &stream_id, &seq)) return NULL;
+    int accepted = 0;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
+    if (s && seq_less(s->last_seq, (uint16_t)seq)) {
+        s->last_seq = (uint16_t)seq;
+        accepted = 1;
+    }
+    pthread_mutex_unlock(&self->mutex);
+    return PyBool_FromLong(accepted);
+}
+
+static PyObject *Receiver_stream_seq(Receiver *self, PyObject *args) {
+    long handle;
+    int stream_id;
+    if (!PyArg_ParseTuple(args, "li", &handle, &stream_id)) return NULL;
+    long seq = -1;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
+    if (s) seq = s->last_seq;
+    pthread_mutex_unlock(&self->mutex);
+    if (seq < 0) Py_RETURN_NONE;
+    return PyLong_FromLong(seq);
+}
+
+/* add_writer(handle, object_id, publisher_address): the address of an rcl_publisher_t that Python
+ * keeps alive until remove_writer has returned. */
+static PyObject *Receiver_add_writer(Receiver *self, PyObject *args) {
+    long handle;
+    int object_id;
+    unsigned long long address;
+    if (!PyArg_ParseTuple(args, "liK", &handle, &object_id, &address)) return NULL;
+    if (address == 0) {
+        PyErr_SetString(PyExc_ValueError, "null publisher");
+        return NULL;
+    }
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Writer *w = c ? find_writer(c, (uint16_t)object_id) : NULL;
+    if (c && w == NULL && (w = calloc(1, sizeof *w)) != NULL) {
+        w->object_id = (uint16_t)object_id;
+        w->next = c->writers;
+        c->writers = w;
+    }
+    if (w) w->publisher = (const void *)(uintptr_t)address;
+    pthread_mutex_unlock(&self->mutex);
+    if (c && w == NULL) return PyErr_NoMemory();
+    return PyBool_FromLong(w != NULL);
+}
+
+/* remove_writer(handle, object_id): returns (samples, bytes) not folded yet. Once it returns,
+ * nothing here refers to the publisher any more (the mutex covers every publish). */
+static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
+    long handle;
+    int object_id;
+    if (!PyArg_ParseTuple(args, "li", &handle, &object_id)) return NULL;
+    uint64_t samples = 0, bytes = 0;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    for (Writer **link = c ? &c->writers : NULL; link && *link; link = &(*link)->next) {
+        if ((*link)->object_id == (uint16_t)object_id) {
+            Writer *w = *link;
+            *link = w->next;
+            samples = w->samples, bytes = w->sample_bytes;
+            free(w);
+            break;
+        }
+    }
+    pthread_mutex_unlock(&self->mutex);
+    return Py_BuildValue("(KK)", (unsigned long long)samples, (unsigned long long)bytes);
+}
+
+/* fold(): the counters since the previous fold, reset here:
+ * ((messages, bytes, samples, stale, publish_errors),
+ *  [(handle, messages, bytes, last_seen_ns)], [(handle, object_id, samples, bytes)]) */
+static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
+    PyObject *clients = PyList_New(0), *writers = PyList_New(0), *result = NULL;
+    if (clients == NULL || writers == NULL) goto done;
+    pthread_mutex_lock(&self->mutex);
+    int failed = 0;
+    for (Client *c = self->clients; c && !failed; c = c->next) {
+        if (c->messages) {
+            PyObject *row = Py_BuildValue("(lKKL)", c->handle, (unsigned long long)c->messages,
+                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns);
+            failed = row == NULL || PyList_Append(clients, row) < 0;
+            Py_XDECREF(row);
+            c->messages = c->bytes = 0;
+        }
+        for (Writer *w = c->writers; w && !failed; w = w->next) {
+            if (!w->samples) continue;
+            PyObject *row = Py_BuildValue("(liKK)", c->handle, (int)w->object_id,
+                                          (unsigned long long)w->samples,
+                                          (unsigned long long)w->sample_bytes);
+            failed = row == NULL || PyList_Append(writers, row) < 0;
+            Py_XDECREF(row);
+            w->samples = w->sample_bytes = 0;
+        }
+    }
+    PyObject *totals = Py_BuildValue("(KKKKK)", (unsigned long long)self->messages,
+                                     (unsigned long long)self->bytes,
+                                     (unsigned long long)self->samples,
+                                     (unsigned long long)self->stale,
+                                     (unsigned long long)self->publish_errors);
+    self->messages = self->bytes = self->samples = self->stale = self->publish_errors = 0;
+    pthread_mutex_unlock(&self->mutex);
+    if (!failed && totals) result = Py_BuildValue("(NOO)", totals, clients, writers);
+    else Py_XDECREF(totals);
+done:
+    Py_XDECREF(clients);
+    Py_XDECREF(writers);
+    return result;
+}
+
+/* handle(data, address): try_fast on one datagram as read() would, for tests and fuzzing without
+ * a socket; True if it was taken here, False if Python would have it. */
+static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
+    Py_buffer data;
+    PyObject *address;
+    if (!PyArg_ParseTuple(args, "y*O", &data, &address)) return NULL;
+    struct sockaddr_storage from;
+    socklen_t from_len;
+    if (parse_address(address, &from, &from_len) < 0) {
+        PyBuffer_Release(&data);
+        return NULL;
+    }
+    /* A private copy: try_fast writes the encapsulation header into its buffer. */
+    uint8_t *copy = malloc(data.len ? data.len : 1);
+    if (copy == NULL) {
+        PyBuffer_Release(&data);
+        return PyErr_NoMemory();
+    }
+    memcpy(copy, data.buf, data.len);
+    pthread_mutex_lock(&self->mutex);
+    int taken = try_fast(self, copy, data.len, &from);
+    pthread_mutex_unlock(&self->mutex);
+    free(copy);
+    PyBuffer_Release(&data);
+    return PyBool_FromLong(taken);
+}
+
+static PyMethodDef Receiver_methods[] = {
+    {"read", (PyCFunction)Receiver_read, METH_NOARGS, "([(datagram, address)] for Python, more)"},
+    {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
+    {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
+    {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},
+    {"set_enabled", (PyCFunction)Receiver_set_enabled, METH_O, NULL},
+    {"add_stream", (PyCFunction)Receiver_add_stream, METH_VARARGS, NULL},
+    {"stream_accept", (PyCFunction)Receiver_stream_accept, METH_VARARGS, NULL},
+    {"stream_seq", (PyCFunction)Receiver_stream_seq, METH_VARARGS, NULL},
+    {"add_writer", (PyCFunction)Receiver_add_writer, METH_VARARGS, NULL},
+    {"remove_writer", (PyCFunction)Receiver_remove_writer, METH_VARARGS, NULL},
+    {"fold", (PyCFunction)Receiver_fold, METH_NOARGS, NULL},
+    {"handle", (PyCFunction)Receiver_handle, METH_VARARGS, NULL},
+    {NULL},
+};
+
+static PyTypeObject ReceiverType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "xrce.agent._fastpath.Receiver",
+    .tp_basicsize = sizeof(Receiver),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Receiver_init,
+    .tp_dealloc = (destructor)Receiver_dealloc,
+    .tp_methods = Receiver_methods,
+};
+
+/* resolve_rcl(): True once rcl_publish_serialized_message is found in an already loaded librcl. */
+static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
+    if (rcl_publish_serialized == NULL) {
+        void *library = dlopen("librcl.so", RTLD_NOW | RTLD_NOLOAD);
+        if (library != NULL) {
+            rcl_publish_serialized = (publish_serialized_fn)dlsym(library,
+                                                                  "rcl_publish_serialized_message");
+            dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
+        }
+    }
+    return PyBool_FromLong(rcl_publish_serialized != NULL);
+}
+
+static PyMethodDef module_methods[] = {
+    {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
+    {NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "xrce.agent._fastpath", NULL, -1, module_methods,
+};
+
+PyMODINIT_FUNC PyInit__fastpath(void) {
+    if (PyType_Ready(&ReceiverType) < 0) return NULL;
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) return NULL;
+    Py_INCREF(&ReceiverType);
+    if (PyModule_AddObject(m, "Receiver", (PyObject *)&ReceiverType) < 0) {
+        Py_DECREF(&ReceiverType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -1,0 +1,246 @@
+"""The UDP link's optional compiled receive path (``xrce/agent/_fastpath.c``), Python side.
+
+When the extension is built and the middleware is rclpy, the UDP link's read goes through C: one
+``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl,
+and from the first datagram that needs Python on, the rest of the batch handed back unchanged and in
+order to the link's usual ``_deliver``. Same thread, same wake-ups as the Python read.
+``XRCE_FASTPATH=0`` (or a missing extension, or another middleware) leaves the pure Python path.
+
+What is fast is decided here, one piece at a time, when the Python path has just handled a
+best-effort sample (``DataPath._fast_write`` calls ``offer``): the client (by key, or by source
+address for sessions without a key in the header), the stream (its sequence number moves into C;
+Python's stream object becomes a ``CompiledStream`` asking C) and the writer (its rcl publisher,
+which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
+A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
+pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
+counters are folded into the agent's, the link's, the clients' and the writers' after every read.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from typing import Dict, Optional
+
+from xrce.agent.session import TRACE
+from xrce.streams import InputBestEffortStream
+
+log = logging.getLogger("xrce.agent")
+
+try:
+    from xrce.agent import _fastpath
+except ImportError:  # built without a compiler: the Python path serves
+    _fastpath = None
+
+READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
+
+
+def enabled_by_environment() -> bool:
+    return os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false")
+
+
+class CompiledStream:
+    """Stands in for a best-effort ``InputBestEffortStream`` whose sequence number C owns."""
+
+    __slots__ = ("stream_id", "_receiver", "_handle")
+
+    def __init__(self, receiver, handle: int, stream_id: int):
+        self.stream_id = stream_id
+        self._receiver = receiver
+        self._handle = handle
+
+    @property
+    def last_handled(self) -> int:
+        seq = self._receiver.stream_seq(self._handle, self.stream_id)
+        return 0xFFFF if seq is None else seq
+
+    def accept(self, seq: int) -> bool:
+        return self._receiver.stream_accept(self._handle, self.stream_id, seq)
+
+    def reset(self) -> None:
+        self._receiver.add_stream(self._handle, self.stream_id, 0xFFFF)
+
+
+class CompiledClient:
+    """What C knows of one client: its handle, streams and writers."""
+
+    __slots__ = ("path", "handle", "streams", "writers", "enabled")
+
+    def __init__(self, path: "FastPath", handle: int):
+        self.path = path
+        self.handle = handle
+        self.streams: set = set()
+        self.writers: set = set()
+        self.enabled = True
+
+    def forget_writer(self, client, object_id: int) -> None:
+        """Before the writer's publisher is destroyed: C holds no pointer to it afterwards."""
+        if object_id in self.writers:
+            self.writers.discard(object_id)
+            samples, size = self.path.receiver.remove_writer(self.handle, object_id)
+            entry = client.objects.get(object_id)
+            if entry is not None:
+                entry.samples += samples
+                entry.sample_bytes += size
+
+    def drop(self, client) -> None:
+        """The client is deleted or its streams reset: C forgets it (counters folded first)."""
+        path = self.path
+        path.fold()
+        for object_id in list(self.writers):
+            self.forget_writer(client, object_id)
+        for stream_id in self.streams:  # the sequence numbers come back to Python
+            if isinstance(client.in_best_effort.get(stream_id), CompiledStream):
+                stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
+                seq = path.receiver.stream_seq(self.handle, stream_id)
+                if seq is not None:
+                    stream.last_handled = seq
+        path.receiver.remove_client(self.handle)
+        path.clients.pop(self.handle, None)
+        client.fast = None
+
+
+class FastPath:
+    """One UDP link's compiled read, bound to the agent the link delivers to."""
+
+    def __init__(self, link, sock, agent):
+        self.link = link
+        self.agent = agent
+        self.receiver = _fastpath.Receiver(sock.fileno())
+        self.clients: Dict[int, object] = {}  # handle -> ClientProxy
+        agent.fastpaths.append(self)
+
+    def close(self) -> None:
+        with self.agent.lock:
+            for client in list(self.clients.values()):
+                if client.fast is not None:
+                    client.fast.drop(client)
+        if self in self.agent.fastpaths:
+            self.agent.fastpaths.remove(self)
+
+    def read_ready(self) -> None:
+        """The link's socket is readable (``loop.add_reader``)."""
+        link = self.link
+        stats = link.stats
+        read = self.receiver.read
+        handed = False
+        for _ in range(READ_ROUNDS):  # bounded: TCP and serial links share the loop
+            try:
+                rest, more = read()
+            except OSError as exc:
+                # ICMP errors (port unreachable after a client went away) arrive here on Linux.
+                log.debug("%s: socket error %s", link.name, exc)
+                continue
+            for data, addr in rest:
+                stats.bytes_in += len(data)
+                link._deliver(addr, data)
+                handed = True
+            if not more:
+                break
+        if self.clients:
+            # No lock: these counters are only ever written on the loop's thread.
+            self.fold()
+            if handed:
+                self.sync()
+
+    # -- registration ---------------------------------------------------------------------
+
+    def _eligible(self, client) -> bool:
+        agent = self.agent
+        return client.alive and not client.dead and client.parked is None and \
+            client.link is self.link and not (agent.timelines.pending and
+                                              client.key in agent.timelines.pending)
+
+    def offer(self, client, stream_id: int, entry) -> None:
+        """The Python path just accepted a best-effort sample for ``entry`` on ``stream_id``:
+        make what is not compiled yet compiled, if the client qualifies."""
+        agent = self.agent
+        if agent.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
+            return
+        state: Optional[CompiledClient] = client.fast
+        if state is None:
+            key = client.key if client.session_id < 0x80 else b"\0\0\0\0"
+            handle = self.receiver.add_client(client.session_id, key, client.endpoint)
+            state = client.fast = CompiledClient(self, handle)
+            self.clients[handle] = client
+            log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
+        if stream_id not in state.streams:
+            stream = client.in_best_effort.get(stream_id)
+            if stream is None:
+                return
+            self.receiver.add_stream(state.handle, stream_id, stream.last_handled)
+            client.in_best_effort[stream_id] = CompiledStream(self.receiver, state.handle, stream_id)
+            state.streams.add(stream_id)
+        if entry.object_id not in state.writers:
+            address_of = getattr(agent.middleware, "publisher_address", None)
+            address = address_of(client.entity(entry.object_id)) if address_of else None
+            if address:
+                self.receiver.add_writer(state.handle, entry.object_id, address)
+                state.writers.add(entry.object_id)
+
+    def sync(self) -> None:
+        """Disable the clients that need the engine's attention; re-enable the others."""
+        self.receiver.set_enabled(self.agent.tap is None and not log.isEnabledFor(TRACE))
+        for client in self.clients.values():
+            state = client.fast
+            if state is None:
+                continue
+            eligible = self._eligible(client)
+            if eligible != state.enabled:
+                state.enabled = eligible
+                self.receiver.set_client_enabled(state.handle, eligible)
+
+    # -- counters -------------------------------------------------------------------------
+
+    def fold(self) -> None:
+        """Move C's counters into the agent's, the link's, the clients' and the writers'."""
+        (messages, size, samples, stale, publish_errors), clients, writers = self.receiver.fold()
+        if messages:
+            stats = self.agent.stats
+            stats.messages_in += messages
+            stats.bytes_in += size
+            stats.samples_in += samples
+            stats.dropped += stale
+            self.link.stats.messages_in += messages
+            self.link.stats.bytes_in += size
+        if publish_errors:
+            log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
+        # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
+        offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
+            else 0.0
+        for handle, count, size, seen_ns in clients:
+            client = self.clients.get(handle)
+            if client is None:
+                continue
+            client.messages_in += count
+            client.bytes_in += size
+            client.probes = 0
+            seen = seen_ns / 1e9 + offset
+            if seen > client.last_seen:
+                client.last_seen = seen
+        for handle, object_id, count, size in writers:
+            client = self.clients.get(handle)
+            entry = client.objects.get(object_id) if client is not None else None
+            if entry is not None:
+                entry.samples += count
+                entry.sample_bytes += size
+
+def attach(link, sock) -> Optional[FastPath]:
+    """A ``FastPath`` for ``link`` if the extension, the environment and the agent allow one."""
+    agent = link.receiver
+    if _fastpath is None:
+        log.debug("%s: compiled receive path not built; Python path", link.name)
+        return None
+    if not enabled_by_environment():
+        log.debug("%s: compiled receive path off (XRCE_FASTPATH); Python path", link.name)
+        return None
+    if getattr(getattr(agent, "middleware", None), "publisher_address", None) is None or \
+            not hasattr(agent, "fastpaths"):
+        log.debug("%s: middleware without rcl publishers; Python path", link.name)
+        return None
+    if not _fastpath.resolve_rcl():
+        log.debug("%s: rcl_publish_serialized_message not found; Python path", link.name)
+        return None
+    log.debug("%s: compiled receive path", link.name)
+    return FastPath(link, sock, agent)
