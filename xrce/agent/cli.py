@@ -459,7 +459,8 @@ def main(argv=None):
         parser.error(str(exc))
     del parser  # the agent runs for days: not with every subcommand's options kept alive
     configure_logging(args.verbose)
-    interfaces.add_search_dirs(args.interfaces)
+    if args.interfaces:  # the build code loads only when there is something to tell it
+        interfaces.add_search_dirs(args.interfaces)
     if args.middleware == "dds":
         from xrce.agent import rosenv
         try:  # the one line saying which ROS 2, rclpy and RMW this agent joins

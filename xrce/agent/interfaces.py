@@ -16,12 +16,23 @@ import os
 import sys
 import threading
 
-from xrce.agent.interface_build import InterfaceBuildError, build, find_packages, search_dirs
 from xrce.agent.interface_registry import REGISTRY_NAME, default_site_dir
-# Used through this module: the .pth hook calls activate_registry, the agent's command line
-# add_search_dirs (--interfaces DIR).
-from xrce.agent.interface_build import add_search_dirs  # noqa: F401
+# Used through this module: the .pth hook calls activate_registry.
 from xrce.agent.interface_registry import activate_registry  # noqa: F401
+
+# The build code (xrce.agent.interface_build: package search, hashing, cmake) loads when a build or
+# the search path is first needed, also for callers that name it through this module (the agent's
+# --interfaces DIR calls add_search_dirs): the .pth hook imports this module in every interpreter
+# of the environment, and an agent whose types are built already never needs it.
+_FROM_BUILD = ("InterfaceBuildError", "add_search_dirs", "build", "find_packages", "search_dirs")
+
+
+def __getattr__(name):
+    if name in _FROM_BUILD:
+        from xrce.agent import interface_build
+
+        return getattr(interface_build, name)
+    raise AttributeError("module %r has no attribute %r" % (__name__, name))
 
 
 # ----------------------------------------------------------------------------- agent's lazy path
@@ -33,6 +44,8 @@ LAZY_BUILD_TIMEOUT_S = 600.0
 
 
 def find_in_search_path(package_name):
+    from xrce.agent.interface_build import find_packages, search_dirs
+
     dirs = [d for d in search_dirs() if os.path.isdir(d)]
     return find_packages(dirs).get(package_name) if dirs else None
 
@@ -45,6 +58,8 @@ def start_package_build(package_name):
     """
     global _lazy_executor
     import concurrent.futures
+
+    from xrce.agent.interface_build import build
 
     with _lazy_lock:
         future = _lazy_builds.get(package_name)
@@ -63,6 +78,8 @@ def ensure_package(package_name, timeout_s=None):
     """Build ``package_name`` from the interface search path if it is there and wait for it; True
     when built (or cached) and registered, False when no such package is in the search path."""
     import concurrent.futures
+
+    from xrce.agent.interface_build import InterfaceBuildError
 
     future = start_package_build(package_name)
     if future is None:
@@ -89,6 +106,8 @@ def add_build_options(parser):
 
 
 def run_build_command(args):
+    from xrce.agent.interface_build import InterfaceBuildError, build
+
     def report(result):
         sys.stdout.write("%s %s %s %.2fs\n" % ("cached" if result.cached else "built",
                                                result.name, result.prefix, result.seconds))
