@@ -49,7 +49,9 @@ main(sys.argv[1:])
 # Each was imported by every agent once; each is only needed by some subcommand or option.
 _NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.tcp_links",
                                 "xrce.agent.serial_links", "shutil", "ssl",
-                                "xml.etree.ElementTree")
+                                "xml.etree.ElementTree", "xrce.agent.xmlrep",
+                                "xrce.agent.capture", "xrce.agent.stats_view",
+                                "xrce.agent.interface_build")
 
 
 def _modules_of_a_serving_agent(*args):

@@ -11,12 +11,7 @@ from __future__ import annotations
 
 import time
 
-
-def endpoint_text(endpoint) -> str:
-    """A link endpoint as one word (capture files split on spaces)."""
-    if isinstance(endpoint, tuple) and len(endpoint) >= 2:
-        return "%s:%s" % (endpoint[0], endpoint[1])
-    return str(endpoint).replace(" ", "")
+from xrce.agent.observability import endpoint_text
 
 
 class CaptureWriter:
@@ -87,4 +82,4 @@ def decode_capture(path: str):
             yield record, header, payloads
 
 
-__all__ = ["CaptureWriter", "CapturedMessage", "decode_capture", "endpoint_text", "read_capture"]
+__all__ = ["CaptureWriter", "CapturedMessage", "decode_capture", "read_capture"]

@@ -68,6 +68,19 @@ class EndpointQosSpec:
     durability: str = "volatile"  # volatile | transient_local | transient | persistent
 
 
+# Fast DDS defaults when a representation is silent: a DataWriter is RELIABLE + TRANSIENT_LOCAL, a
+# DataReader BEST_EFFORT + VOLATILE, and both keep the last sample only. Here, not in
+# xrce.agent.xmlrep, because binary endpoints without QoS take them too and must not load the XML
+# code for them.
+WRITER_DEFAULTS = EndpointQosSpec(reliable=True, keep_last=True, depth=1, durability="transient_local")
+READER_DEFAULTS = EndpointQosSpec(reliable=False, keep_last=True, depth=1, durability="volatile")
+
+
+class XmlRepresentationError(ValueError):
+    """The XML does not describe the object kind it was sent for (raised by xrce.agent.xmlrep,
+    defined here so that the engine can catch it without loading that module)."""
+
+
 @dataclass(frozen=True)
 class TopicSpec:
     name: str  # DDS topic name as the client sent it, e.g. "rt/chatter"

@@ -30,11 +30,8 @@ import logging
 import time
 
 from xrce import constants as C
-from xrce.agent.capture import CaptureWriter, endpoint_text
 from xrce.agent.diagnostics import DiagnosticsPublisher, diagnostic_array_type
-from xrce.agent.stats_view import summary_lines
 # The `xrce-agent stats` subcommand is registered (xrce/agent/cli.py) through this module.
-from xrce.agent.stats_view import add_stats_options, run_stats  # noqa: F401
 
 log = logging.getLogger("xrce.agent.observability")
 
@@ -52,6 +49,13 @@ def _link_crc_errors(link) -> int:
 
 def _ms(seconds):
     return None if seconds is None else round(seconds * 1000.0, 3)
+
+
+def endpoint_text(endpoint) -> str:
+    """A link endpoint as one word (capture files split on spaces)."""
+    if isinstance(endpoint, tuple) and len(endpoint) >= 2:
+        return "%s:%s" % (endpoint[0], endpoint[1])
+    return str(endpoint).replace(" ", "")
 
 
 class Observer:
@@ -219,7 +223,11 @@ class Observability:
         self.observer = Observer(agent, links)
         self.stats_server = StatsServer(self.observer, stats_port) if stats_port is not None \
             else None
-        self.capture = CaptureWriter(capture) if capture else None
+        self.capture = None
+        if capture:
+            from xrce.agent.capture import CaptureWriter
+
+            self.capture = CaptureWriter(capture)
         self.summary_period = summary_period
         self.diagnostics = None
         if diagnostics and middleware is not None and hasattr(middleware, "agent_publisher"):
@@ -257,6 +265,8 @@ class Observability:
                     self.diagnostics.publish()
                 if next_summary is not None and time.monotonic() >= next_summary:
                     next_summary += self.summary_period
+                    from xrce.agent.stats_view import summary_lines
+
                     for line in summary_lines(self.observer.snapshot()):
                         log.debug("%s", line)
             except Exception:  # observability must never stop the agent
@@ -278,4 +288,23 @@ class Observability:
             self.capture.close()
 
 
-__all__ = ["Observability", "Observer", "StatsServer", "add_agent_options"]
+# `xrce-agent stats`: its options are declared with every subcommand's, its code (xrce.agent.stats_view)
+# loads only when it runs; a serving agent never needs it.
+def add_stats_options(parser) -> None:
+    parser.add_argument("-p", "--port", type=int, required=True,
+                        help="the agent's --stats-port")
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("-i", "--interval", type=float, default=1.0, metavar="S",
+                        help="seconds between refreshes (default 1)")
+    parser.add_argument("--once", action="store_true", help="print one table and exit")
+    parser.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
+
+
+def run_stats(args) -> int:
+    from xrce.agent.stats_view import run_stats as run
+
+    return run(args)
+
+
+__all__ = ["Observability", "Observer", "StatsServer", "add_agent_options", "add_stats_options",
+           "endpoint_text", "run_stats"]

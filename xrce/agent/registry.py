@@ -13,9 +13,9 @@ import os
 from typing import Optional
 
 from xrce import constants as C, names as wire_names
-from xrce.agent import xmlrep
 from xrce.agent.middleware import (
-    EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
+    READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
+    TypeNotReady, XmlRepresentationError,
 )
 from xrce.agent.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.errors import DecodeError
@@ -97,7 +97,7 @@ class ObjectRegistry:
             status = self._build(client, request, entry)
         except TypeNotReady as pending:
             raise Parked(pending.future)
-        except (MiddlewareError, xmlrep.XmlRepresentationError) as exc:
+        except (MiddlewareError, XmlRepresentationError) as exc:
             log.warning("client %s: creating %s 0x%04X failed: %s", client.key.hex(),
                         wire_names.OBJECT_KIND_NAMES.get(kind), object_id, exc)
             status = C.STATUS_ERR_DDS_ERROR
@@ -127,7 +127,7 @@ class ObjectRegistry:
                 name = rep.name or DEFAULT_PARTICIPANT_NAME
                 profile_domain = None
             else:
-                parsed = xmlrep.parse_participant(self._xml_text(request))
+                parsed = _xml().parse_participant(self._xml_text(request))
                 name = parsed.name or (rep if fmt == C.REPRESENTATION_BY_REFERENCE else "") \
                     or DEFAULT_PARTICIPANT_NAME
                 profile_domain = parsed.domain_id
@@ -145,14 +145,14 @@ class ObjectRegistry:
             if fmt == C.REPRESENTATION_IN_BINARY:
                 spec = TopicSpec(rep.topic_name, rep.type_name or rep.type_reference or "")
             else:
-                spec = xmlrep.parse_topic(self._xml_text(request))
+                spec = _xml().parse_topic(self._xml_text(request))
             entry.topic_spec = spec
             mw.create_topic(key, client.entity(entry.parent), spec)
         elif kind in _GROUP_KINDS:
             if fmt == C.REPRESENTATION_BY_REFERENCE:
                 return C.STATUS_ERR_INVALID_DATA  # groups have no by-reference representation
             if fmt == C.REPRESENTATION_AS_XML_STRING:
-                xmlrep.check_group(rep, "publisher" if kind == C.OBJK_PUBLISHER else "subscriber")
+                _xml().check_group(rep, "publisher" if kind == C.OBJK_PUBLISHER else "subscriber")
             if kind == C.OBJK_PUBLISHER:
                 mw.create_publisher(key, client.entity(entry.parent))
             else:
@@ -165,7 +165,7 @@ class ObjectRegistry:
                     return C.STATUS_ERR_UNKNOWN_REFERENCE
                 qos = _binary_qos(rep.qos, writer)
             else:
-                parsed = xmlrep.parse_endpoint(self._xml_text(request), writer)
+                parsed = _xml().parse_endpoint(self._xml_text(request), writer)
                 topic = self._find_topic(client, entry.parent, parsed.topic.name)
                 if topic is None:
                     raise MiddlewareError("no topic %r in this participant" % parsed.topic.name)
@@ -184,7 +184,7 @@ class ObjectRegistry:
                 spec = ServiceSpec(rep.service_name, rep.request_type, rep.reply_type,
                                    rep.request_topic, rep.reply_topic)
             else:
-                spec = xmlrep.parse_service(
+                spec = _xml().parse_service(
                     self._xml_text(request), "requester" if kind == C.OBJK_REQUESTER else "replier")
             qos = EndpointQosSpec()
             entry.reader = ReaderState(_queue_bound(qos))
@@ -241,9 +241,17 @@ class ObjectRegistry:
 
 
 
+def _xml():
+    # XML representations load with the first XML request: clients creating their entities in
+    # binary (eProsima's C client with binary creation, xrce.client) never pay for it (~0.1 MB).
+    from xrce.agent import xmlrep
+
+    return xmlrep
+
+
 def _binary_qos(qos, writer: bool) -> EndpointQosSpec:
     if qos is None:
-        return xmlrep.WRITER_DEFAULTS if writer else xmlrep.READER_DEFAULTS
+        return WRITER_DEFAULTS if writer else READER_DEFAULTS
     durability = "volatile"
     for flag, name in _DURABILITY_FLAGS:
         if qos.flags & flag:

@@ -107,16 +107,6 @@ def fetch_stats(port: int, host: str = "127.0.0.1", timeout_s: float = 2.0) -> d
     return json.loads(b"".join(chunks))
 
 
-def add_stats_options(parser) -> None:
-    parser.add_argument("-p", "--port", type=int, required=True,
-                        help="the agent's --stats-port")
-    parser.add_argument("--host", default="127.0.0.1")
-    parser.add_argument("-i", "--interval", type=float, default=1.0, metavar="S",
-                        help="seconds between refreshes (default 1)")
-    parser.add_argument("--once", action="store_true", help="print one table and exit")
-    parser.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
-
-
 def run_stats(args) -> int:
     """``xrce-agent stats``: poll a running agent and redraw its tables until Ctrl-C."""
     clear = "\x1b[H\x1b[2J" if sys.stdout.isatty() and not args.once else ""
@@ -138,4 +128,4 @@ def run_stats(args) -> int:
         return 0
 
 
-__all__ = ["add_stats_options", "fetch_stats", "format_snapshot", "run_stats", "summary_lines"]
+__all__ = ["fetch_stats", "format_snapshot", "run_stats", "summary_lines"]

@@ -14,17 +14,9 @@ from typing import TYPE_CHECKING, Dict, Optional
 if TYPE_CHECKING:
     import xml.etree.ElementTree as ET
 
-from xrce.agent.middleware import EndpointQosSpec, ServiceSpec, TopicSpec
-
-
-class XmlRepresentationError(ValueError):
-    """The XML does not describe the object kind it was sent for."""
-
-
-# Fast DDS defaults when the XML is silent: a DataWriter is RELIABLE + TRANSIENT_LOCAL, a DataReader
-# BEST_EFFORT + VOLATILE, and both keep the last sample only.
-WRITER_DEFAULTS = EndpointQosSpec(reliable=True, keep_last=True, depth=1, durability="transient_local")
-READER_DEFAULTS = EndpointQosSpec(reliable=False, keep_last=True, depth=1, durability="volatile")
+from xrce.agent.middleware import (  # noqa: F401 (the defaults and the error are named from here too)
+    READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, ServiceSpec, TopicSpec, XmlRepresentationError,
+)
 
 _DURABILITY = {
     "VOLATILE": "volatile",
