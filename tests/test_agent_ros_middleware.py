@@ -13,7 +13,8 @@ from std_msgs.msg import String
 from test_msgs.srv import BasicTypes
 
 from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
-from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, UnknownTypeError
+from xrce.agent.middleware import (EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
+                                   UnknownTypeError)
 from xrce.agent.ros import RosMiddleware
 from xrce.agent.ros_domain import ENCAPSULATION_LE
 from xrce.agent.rostypes import dds_topic_to_ros, node_name_and_namespace, service_class
@@ -110,18 +111,23 @@ async def test_participants_show_as_nodes_and_close_removes_them(ros_domain, ros
 
 async def test_unknown_type_names_the_package(middleware, ros_domain):  # noqa: F811
     participant = make_participant(middleware, ros_domain)
-    # A package that is neither installed nor in any interface directory the agent could build.
+    # A package that is neither installed nor in any interface directory the agent could build:
+    # the search runs in a child interpreter, so the first answer is "wait", the next the error.
+    spec = TopicSpec("rt/sensor_state", "nowhere_robot_msgs::msg::dds_::SensorState_")
+    with pytest.raises(TypeNotReady) as pending:
+        middleware.create_topic(key(0x02), participant, spec)
+    assert pending.value.future.result(timeout=60) is False
     with pytest.raises(UnknownTypeError, match="nowhere_robot_msgs is not installed.*build-interfaces"):
-        middleware.create_topic(key(0x02), participant,
-                                TopicSpec("rt/sensor_state", "nowhere_robot_msgs::msg::dds_::SensorState_"))
+        middleware.create_topic(key(0x02), participant, spec)
     with pytest.raises(UnknownTypeError, match="std_msgs.msg has no interface NoSuchType"):
         middleware.create_topic(key(0x02), participant,
                                 TopicSpec("rt/x", "std_msgs::msg::dds_::NoSuchType_"))
+    service = ServiceSpec("svc", "nope_srvs::srv::dds_::X_Request_", "nope_srvs::srv::dds_::X_Response_")
+    with pytest.raises(TypeNotReady) as pending:
+        middleware.create_requester(key(0x07), participant, service, QOS, lambda c, b: None)
+    assert pending.value.future.result(timeout=60) is False
     with pytest.raises(UnknownTypeError):
-        middleware.create_requester(key(0x07), participant,
-                                    ServiceSpec("svc", "nope_srvs::srv::dds_::X_Request_",
-                                                "nope_srvs::srv::dds_::X_Response_"), QOS,
-                                    lambda c, b: None)
+        middleware.create_requester(key(0x07), participant, service, QOS, lambda c, b: None)
 
 
 @pytest.mark.parametrize("executor", ["events", "single"])

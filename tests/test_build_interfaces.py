@@ -157,6 +157,10 @@ def test_agent_builds_a_missing_type_on_first_use(clean_venv, tmp_path, ros_doma
             other.close()
         assert client.run_until_all_status(90000), client.last_statuses
         lazy_s = time.monotonic() - started
+        # The build ran in a child interpreter: its imports (numpy alone is 14 MB) are not left
+        # behind in an agent that runs for days.
+        mapped = Path("/proc/%d/maps" % agent.proc.pid).read_text()
+        assert "numpy" not in mapped and "_elementtree" not in mapped
         prefixes = [p for p in (cache_home / "xrce" / "interfaces").iterdir() if p.is_dir()]
         assert len(prefixes) == 1 and (prefixes[0] / "lib").is_dir()
 

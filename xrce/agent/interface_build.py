@@ -312,3 +312,28 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
     if register_results:
         register(results, site_dir)
     return results
+
+
+# ----------------------------------------------------------------------------- the agent's child
+
+NOT_IN_SEARCH_PATH = 3  # exit code of main(): no interface package of that name in the directories
+
+
+def main(argv=None):
+    """``python -m xrce.agent.interface_build PACKAGE DIR...``: build and register PACKAGE (with its
+    in-tree dependencies) from DIRs. The agent's lazy build runs this in a child interpreter
+    (xrce.agent.interfaces), so that nothing a build imports stays in the agent's memory."""
+    argv = sys.argv[1:] if argv is None else argv
+    package, dirs = argv[0], [d for d in argv[1:] if os.path.isdir(d)]
+    try:
+        if not dirs or package not in find_packages(dirs):
+            return NOT_IN_SEARCH_PATH
+        build(dirs, names=[package])
+    except InterfaceBuildError as exc:
+        sys.stderr.write("%s\n" % exc)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -106,17 +106,16 @@ def _build_missing_package(package: str) -> bool:
     from xrce.agent import interfaces
 
     future = interfaces.start_package_build(package)
-    if future is None:
-        return False
     if not future.done():
-        log.info("building interface package %s for a client; its CREATE waits for the build",
-                 package)
+        log.info("building interface package %s for a client if the interface search path has "
+                 "it; its CREATE waits", package)
         raise TypeNotReady("interface package %s is being built" % package, future)
     error = future.exception()
     if error is not None:
         raise UnknownTypeError("building %s failed: %s" % (package, error)) from None
-    log.info("built interface package %s", package)
-    return True
+    if future.result():
+        log.info("built interface package %s", package)
+    return future.result()
 
 
 def _import_module(package: str, module_name: str):
