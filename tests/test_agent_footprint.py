@@ -110,8 +110,8 @@ def test_deferred_rclpy_services_still_start_when_a_node_asks(ros_domain):  # no
 
 
 def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
-    """The agent's nodes leave rclpy's /parameter_events publisher out (ros_domain.make_node):
-    nothing can change their parameters, and each such publisher held 74 KB."""
+    """The agent's nodes leave rclpy's /parameter_events publisher out (ros_domain.AgentNode):
+    nothing can change their parameters, and that publisher's history cost memory."""
     def publishers():
         try:
             return dict(ros_peer.node.get_publisher_names_and_types_by_node("xrce_agent", "/"))
@@ -123,3 +123,28 @@ def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
         assert wait_until(lambda: any("/_xrce_agent/wake_" in name for name in publishers()),
                           timeout_s=20), publishers()
         assert "/parameter_events" not in publishers()
+
+
+def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_domain):  # noqa: F811
+    """Only the publisher of rclpy's own construction is left out: a client's writer on
+    /parameter_events, made later through the same node, is a real one."""
+    import rclpy
+    from rcl_interfaces.msg import ParameterEvent
+    from rclpy.context import Context
+    from rclpy.publisher import Publisher
+
+    from xrce.agent.ros_domain import NO_TYPE_DESCRIPTION, AgentNode
+
+    context = Context()
+    rclpy.init(args=[], context=context, domain_id=ros_domain)
+    try:
+        node = AgentNode("footprint_probe", context=context, start_parameter_services=False,
+                         enable_rosout=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
+        assert node.get_parameter("use_sim_time").value is False  # declared without a publisher
+        assert not any(p.topic_name == "/parameter_events" for p in node.publishers)
+        writer = node.create_publisher(ParameterEvent, "/parameter_events", 10)
+        assert isinstance(writer, Publisher) and writer.topic_name == "/parameter_events"
+        writer.publish(ParameterEvent())
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
