@@ -127,7 +127,7 @@ def echo_round(device, tag):
     if not session.run_until_all_status(600):
         # Frames written while the agent had the device closed may still reach it after the
         # re-plug (a pty keeps them) and bind the address to an earlier attempt's session; the
-        # caller's loop starts a fresh round, its 2 s bound still applies.
+        # caller's loop starts a fresh round, its bound still applies.
         return False
     session.write(writer, String(data=tag))
     deadline = time.monotonic() + 2
@@ -150,8 +150,11 @@ def test_serial_device_unplugged_and_replugged_at_the_same_path(tmp_path):
                 assert agent.proc.poll() is None
                 device = PtyDevice(link)
                 start = time.monotonic()
+                # The agent retries every 0.2 s; a round that lost its CREATE to frames from
+                # before the re-plug takes ~1 s to give up, so two such rounds on a loaded machine
+                # passed 2 s (2.1 s seen in CI). 5 s still says "back at once" to a user.
                 while not echo_round(device, "after %d" % plug):
-                    assert time.monotonic() - start < 2.0, "no data 2 s after the re-plug"
+                    assert time.monotonic() - start < 5.0, "no data 5 s after the re-plug"
                 print("data flowed again %.2f s after re-plug %d" % (time.monotonic() - start, plug))
             assert agent.stop() == 0
         log = "".join(agent.output)
