@@ -416,11 +416,12 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
     ref_threads = there["robot_threads"] if there is not None else None
     record("agent main thread CPU, TurtleBot3 load", 100 * main_cpu, "% core",
            100 * ref_threads[0][0] if ref_threads else None, ref or "-", "",
-           "the asyncio loop's thread, %.0f switch-ins/s (%s); all threads %.1f %% at %.0f/s "
-           "(%s), from /proc/<pid>/task/*/schedstat over 5 s"
+           "the asyncio loop's thread, %.0f switch-ins/s (%s); all threads %.2f %% at %.0f/s "
+           "(%s), from /proc/<pid>/task/*/schedstat over 5 s (ns, where /proc/<pid>/stat "
+           "counts 10 ms ticks)"
            % (main_wakes, "reference %.0f/s" % ref_threads[0][1] if ref_threads else "-",
               100 * all_cpu, all_wakes,
-              "reference %.1f %% at %.0f/s" % (100 * ref_threads[1][0], ref_threads[1][1])
+              "reference %.2f %% at %.0f/s" % (100 * ref_threads[1][0], ref_threads[1][1])
               if ref_threads else "-"))
     record("agent RSS, TurtleBot3 load", here["robot_rss"], "MB", base("robot_rss", None),
            ref or "-", "<= 50 MB", "idle, no client: %.1f MB" % here["rss_idle"])
