@@ -164,3 +164,39 @@ def test_diagnostics_name_the_client(ros_peer, ros_domain):  # noqa: F811
             session.delete(attempts=2, timeout_ms=500)
         finally:
             session.close()
+
+
+def _main_thread_switches(pid):
+    with open("/proc/%d/task/%d/schedstat" % (pid, pid)) as schedstat:
+        return int(schedstat.read().split()[2])
+
+
+def _main_thread_wakes_over(pid, seconds):
+    before = _main_thread_switches(pid)
+    time.sleep(seconds)
+    return _main_thread_switches(pid) - before
+
+
+def test_the_agent_sleeps_until_someone_subscribes_to_diagnostics(ros_peer, ros_domain):  # noqa: F811
+    """No client, no --stats-port, nobody on /diagnostics: the agent's loop thread does not wake
+    at all (it used to, once a second, to count rates nobody read). A subscription starts the
+    rounds (the publisher's matched event), its end stops them again."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    with AgentProcess("udp4", "-m", "dds") as agent:
+        pid = agent.proc.pid
+        time.sleep(2)  # start-up and DDS discovery settle
+        assert _main_thread_wakes_over(pid, 3) <= 1
+
+        arrays = []
+        subscription = ros_peer.node.create_subscription(
+            DiagnosticArray, "/diagnostics", arrays.append,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        assert wait_until(lambda: arrays, timeout_s=15), "no /diagnostics once subscribed"
+        assert arrays[-1].status[0].name == "xrce_agent"
+
+        ros_peer.node.destroy_subscription(subscription)
+        time.sleep(2)  # the unmatch reaches the agent
+        count = len(arrays)
+        assert _main_thread_wakes_over(pid, 3) <= 1
+        assert len(arrays) == count

@@ -79,11 +79,16 @@ class DiagnosticsPublisher:
         self.message_type = message_type
         self.published = 0
 
+    def publisher(self, domain_id: int, on_matched=None):
+        """The /diagnostics publisher of ``domain_id`` (made on first use, with ``on_matched``
+        called as subscriptions come and go); None if the agent has not joined it."""
+        return self.middleware.agent_publisher(domain_id, self.message_type, "/diagnostics",
+                                               on_matched=on_matched)
+
     def publish(self) -> None:
         body = None
         for domain_id in self.middleware.domain_ids():
-            publisher = self.middleware.agent_publisher(domain_id, self.message_type,
-                                                        "/diagnostics")
+            publisher = self.publisher(domain_id)
             if publisher is None or not publisher.subscriber_count():
                 continue
             if body is None:

@@ -3,7 +3,7 @@
 - ``Observer`` turns the engine's counters (``AgentStats``, the per-client fields of
   ``ClientProxy``, per-entity sample counts, each link's ``LinkStats`` and frame decoders) into a
   JSON-able snapshot with per-client and per-topic rates. Rates are differences between two
-  ``update_rates()`` calls, made once a second by ``Observability``.
+  ``update_rates()`` calls, made once a second by ``Observability`` while anything shows them.
 - ``StatsServer``: ``--stats-port PORT`` serves that snapshot as one JSON document to every TCP
   connection on 127.0.0.1 (TCP, not UDP: a thousand clients do not fit in one datagram).
   ``xrce-agent stats -p PORT`` polls it and redraws a terminal table (xrce.agent.stats_view).
@@ -110,6 +110,12 @@ class Observer:
             rates[key] = tuple(max(0, c - p) / elapsed for c, p in zip(counters, previous[1]))
         self._previous = {key: (now, counters) for key, counters in current.items()}
         self._rates = rates
+
+    def restart_rates(self) -> None:
+        """Forget the last counters: the next ``update_rates`` starts a new baseline (after a
+        pause in the rounds, a rate over the whole pause would mislead)."""
+        self._previous = {}
+        self._rates = {}
 
     def snapshot(self) -> dict:
         now = self.clock()
@@ -234,7 +240,15 @@ class Observability:
             message_type = diagnostic_array_type()
             if message_type is not None:
                 self.diagnostics = DiagnosticsPublisher(self.observer, middleware, message_type)
+        # The once-a-second round (rates, capture flush, /diagnostics, summaries) runs only while
+        # something shows its result: nothing polls in an agent nobody watches. /diagnostics
+        # counts while some subscription matches the agent's publisher (its matched event), or
+        # always where the RMW has no such event.
+        self._always = stats_port is not None or capture is not None or bool(summary_period)
+        self._diagnostics_publishers = []
+        self._diagnostics_unmatched_events = False
         self._task = None
+        self._closed = False
 
     @classmethod
     def from_args(cls, args, agent, links, middleware):
@@ -248,7 +262,39 @@ class Observability:
             self.agent.tap = self.capture
         if self.stats_server is not None:
             await self.stats_server.start()
-        self._task = asyncio.ensure_future(self._run())
+        if self.diagnostics is not None:
+            self.diagnostics.middleware.add_domain_listener(self._watch_domain)
+        self._update_rounds()
+
+    def _watch_domain(self, domain_id: int) -> None:
+        publisher = self.diagnostics.publisher(domain_id, self._update_rounds)
+        if publisher is None:
+            return
+        self._diagnostics_publishers.append(publisher)
+        if not publisher.matched_events:
+            self._diagnostics_unmatched_events = True
+        self._update_rounds()
+
+    def _rounds_needed(self) -> bool:
+        if self._always or self._diagnostics_unmatched_events:
+            return True
+        return any(publisher.subscriber_count() for publisher in self._diagnostics_publishers)
+
+    def _update_rounds(self) -> None:
+        """Start or stop the once-a-second round as its readers come and go (loop thread)."""
+        if self._closed:
+            return
+        needed = self._rounds_needed()
+        if needed and self._task is None:
+            self.observer.restart_rates()
+            self._task = asyncio.ensure_future(self._run())
+        elif not needed and self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+    @property
+    def rounds_running(self) -> bool:
+        return self._task is not None
 
     def describe(self):
         return self.stats_server.describe() if self.stats_server is not None else None
@@ -273,6 +319,7 @@ class Observability:
                 log.warning("observability round failed", exc_info=True)
 
     async def close(self) -> None:
+        self._closed = True
         if self._task is not None:
             self._task.cancel()
             try:

@@ -94,10 +94,11 @@ class _ReaderRecord:
 class AgentPublisher:
     """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
 
-    __slots__ = ("publisher",)
+    __slots__ = ("publisher", "matched_events")
 
-    def __init__(self, publisher):
+    def __init__(self, publisher, matched_events: bool = False):
         self.publisher = publisher
+        self.matched_events = matched_events
 
     def write(self, body: bytes) -> None:
         self.publisher.publish(ENCAPSULATION_LE + body)
@@ -141,6 +142,7 @@ class RosMiddleware(RosServices, Middleware):
         self._agent_publishers: dict[tuple, object] = {}
         # Domains being joined at start-up (asyncio futures of their DomainRuntime).
         self._joining: dict[int, asyncio.Future] = {}
+        self._domain_listeners: list = []  # called with each domain id joined (loop thread)
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -160,8 +162,23 @@ class RosMiddleware(RosServices, Middleware):
                 raise
             except Exception as exc:
                 raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
-            self._domains[domain_id] = domain
+            self._joined(domain_id, domain)
         return domain
+
+    def _joined(self, domain_id: int, runtime: DomainRuntime) -> None:
+        self._domains[domain_id] = runtime
+        for listener in list(self._domain_listeners):
+            try:
+                listener(domain_id)
+            except Exception:
+                log.warning("domain %d: a listener failed", domain_id, exc_info=True)
+
+    def add_domain_listener(self, listener) -> None:
+        """Call ``listener(domain_id)`` on the loop's thread for every ROS domain the agent has
+        joined and joins from now on."""
+        self._domain_listeners.append(listener)
+        for domain_id in list(self._domains):
+            listener(domain_id)
 
     def _record(self, key: EntityKey, kinds: tuple):
         record = self._entities.get(key)
@@ -309,11 +326,14 @@ class RosMiddleware(RosServices, Middleware):
         """The ROS domains the agent has joined (one per domain its clients asked for)."""
         return list(self._domains)
 
-    def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10):
+    def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
+                        on_matched=None):
         """An ``AgentPublisher`` of the agent's own node ``xrce_agent`` in a domain already
         joined, made on first use and destroyed with the domain; None when the agent has not
         joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
-        (rcl publish is thread-safe)."""
+        (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
+        called on the loop's thread whenever a subscription matches or unmatches it; where the
+        RMW has no such event, ``publisher.matched_events`` is False."""
         domain = self._domains.get(domain_id)
         if domain is None or self._closed:
             return None
@@ -321,10 +341,23 @@ class RosMiddleware(RosServices, Middleware):
         if publisher is not None:
             return publisher
 
-        def make_publisher():
-            return domain.agent_node.create_publisher(message_type, topic, depth)
+        loop = self._get_loop()
 
-        publisher = AgentPublisher(domain.call(make_publisher, self.entity_timeout_s))
+        def matched(_info) -> None:  # on the executor thread
+            loop.call_soon_threadsafe(on_matched)
+
+        def make_publisher():
+            if on_matched is not None:
+                from rclpy.event_handler import PublisherEventCallbacks
+                try:
+                    return domain.agent_node.create_publisher(
+                        message_type, topic, depth,
+                        event_callbacks=PublisherEventCallbacks(matched=matched)), True
+                except Exception as exc:  # an RMW without the matched event
+                    log.debug("%s: no matched events (%s)", topic, exc)
+            return domain.agent_node.create_publisher(message_type, topic, depth), False
+
+        publisher = AgentPublisher(*domain.call(make_publisher, self.entity_timeout_s))
         self._agent_publishers[(domain_id, topic)] = publisher
         return publisher
 
@@ -409,7 +442,6 @@ class RosMiddleware(RosServices, Middleware):
         if self._closed or domain_id in self._domains:
             await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
             return
-        self._domains[domain_id] = runtime
         # The runtime makes its agent node with its first job; make it now, so the DDS
         # participant exists (and is being discovered) before any client is served. The CLI opens
         # its links only after this, so building the node never competes with answering a
@@ -418,6 +450,7 @@ class RosMiddleware(RosServices, Middleware):
             await in_thread(self._loop, runtime.call, lambda: None, self.entity_timeout_s)
         except MiddlewareError as exc:
             log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
+        self._joined(domain_id, runtime)
 
     async def close(self) -> None:
         if self._closed:
