@@ -278,7 +278,13 @@ class Observability:
     def _rounds_needed(self) -> bool:
         if self._always or self._diagnostics_unmatched_events:
             return True
-        return any(publisher.subscriber_count() for publisher in self._diagnostics_publishers)
+        for publisher in self._diagnostics_publishers:
+            try:
+                if publisher.subscriber_count():
+                    return True
+            except Exception:  # destroyed with its domain (agent shutting down): no subscriber
+                continue
+        return False
 
     def _update_rounds(self) -> None:
         """Start or stop the once-a-second round as its readers come and go (loop thread)."""
@@ -291,10 +297,6 @@ class Observability:
         elif not needed and self._task is not None:
             self._task.cancel()
             self._task = None
-
-    @property
-    def rounds_running(self) -> bool:
-        return self._task is not None
 
     def describe(self):
         return self.stats_server.describe() if self.stats_server is not None else None

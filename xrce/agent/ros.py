@@ -344,7 +344,10 @@ class RosMiddleware(RosServices, Middleware):
         loop = self._get_loop()
 
         def matched(_info) -> None:  # on the executor thread
-            loop.call_soon_threadsafe(on_matched)
+            try:
+                loop.call_soon_threadsafe(on_matched)
+            except RuntimeError:  # the loop has closed: the agent is gone
+                pass
 
         def make_publisher():
             if on_matched is not None:
@@ -457,6 +460,7 @@ class RosMiddleware(RosServices, Middleware):
             return
         self._closed = True
         self._agent_publishers.clear()
+        self._domain_listeners.clear()
         for record in self._entities.values():
             if record.kind != "participant":
                 self._detach(record)
