@@ -27,6 +27,9 @@
 
 #include <arpa/inet.h>
 #include <dlfcn.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 #include <errno.h>
 #include <netinet/in.h>
 #include <pthread.h>
@@ -595,8 +598,20 @@ static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
     return PyBool_FromLong(rcl_publish_serialized != NULL);
 }
 
+/* malloc_trim(0) once start-up is over (xrce.agent.engine). Here rather than through ctypes:
+   the ctypes package, once imported, stays in the process (0.57 MB of classes). */
+static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
+#if defined(__GLIBC__)
+    malloc_trim(0);
+    Py_RETURN_TRUE;
+#else
+    Py_RETURN_FALSE;
+#endif
+}
+
 static PyMethodDef module_methods[] = {
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
+    {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
     {NULL},
 };
 
