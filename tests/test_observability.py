@@ -5,9 +5,12 @@ rclpy subscriber in an isolated domain."""
 
 import os
 import re
+import socket
 import subprocess
 import sys
 import time
+
+import pytest
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -21,6 +24,7 @@ from xrce.msgs.std_msgs import String
 from xrce.submessages import CreateClient, Delete, GetInfo, Info, Status, StatusAgent, encode_message
 from xrce.transports.framing import encode_frame
 from xrce.transports.serial import SerialTransport
+from xrce.transports import TransportError
 from xrce.transports.udp import UdpTransport
 
 
@@ -132,6 +136,27 @@ def test_capture_file_decodes_back_in_order(tmp_path):
     assert all(r.link == "udp4" and r.endpoint.startswith("127.0.0.1:") for r in records)
     times = [r.time for r in records]
     assert times == sorted(times) and abs(times[0] - time.time()) < 120
+
+
+def test_capture_names_an_ipv6_endpoint_in_brackets(tmp_path):
+    if not socket.has_ipv6:
+        pytest.skip("no IPv6")
+    capture = tmp_path / "agent6.capture"
+    with AgentProcess("udp6", "-m", "ced", "--capture", str(capture)) as agent:
+        try:
+            transport = UdpTransport("::1", agent.port)
+        except TransportError:
+            pytest.skip("no IPv6 loopback")
+        port = transport._sock.getsockname()[1]
+        session = Session(transport, history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    records = list(read_capture(str(capture)))
+    assert len(records) == 2
+    assert {r.endpoint for r in records} == {"[::1]:%d" % port}
 
 
 def test_diagnostics_name_the_client(ros_peer, ros_domain):  # noqa: F811

@@ -52,9 +52,12 @@ def _ms(seconds):
 
 
 def endpoint_text(endpoint) -> str:
-    """A link endpoint as one word (capture files split on spaces)."""
+    """A link endpoint as one word (capture files split on spaces). An IPv6 address goes in
+    brackets, as in a URL: its own colons would run into the port's otherwise (a link-local
+    one keeps its ``%scope``, which the socket puts in the host)."""
     if isinstance(endpoint, tuple) and len(endpoint) >= 2:
-        return "%s:%s" % (endpoint[0], endpoint[1])
+        host = endpoint[0]
+        return ("[%s]:%s" if ":" in str(host) else "%s:%s") % (host, endpoint[1])
     return str(endpoint).replace(" ", "")
 
 
