@@ -53,6 +53,22 @@ def _gone():
     return "xrce.client.entities" not in sys.modules and "entities" not in sys.modules["xrce.client"].__dict__
 
 
+def _drop_entities():
+    sys.modules.pop("xrce.client.entities", None)
+
+
+# The mean time of ROUNDS calls of ``function``, each after ``before()`` and in a step of its own.
+def _mean_us(function, before):
+    took = 0
+    for _ in range(ROUNDS):
+        before()
+        began = ticks_us()
+        function()
+        took += ticks_diff(ticks_us(), began)
+        yield
+    return took // ROUNDS
+
+
 def main():
     yield
     start = mpheap.live if mpheap else 0
@@ -119,33 +135,14 @@ def main():
         # A participant created through the session (the module imported for the call) and through
         # the module held by the caller (what CPython's bound methods cost), and a bare import.
         timed = Session(Capture(), key=b"\x01\x02\x03\x05", auto_recover=False, history=16)
-        took = 0
-        for _ in range(ROUNDS):
-            began = ticks_us()
-            timed.create_participant(name="t")
-            took += ticks_diff(ticks_us(), began)
-            timed.flush()
-            yield
-        print("CALL_US", took // ROUNDS)
+        mean = yield from _mean_us(lambda: timed.create_participant(name="t"), timed.flush)
+        print("CALL_US", mean)
         import xrce.client.entities as held
 
-        took = 0
-        for _ in range(ROUNDS):
-            began = ticks_us()
-            held.create_participant(timed, name="t")
-            took += ticks_diff(ticks_us(), began)
-            timed.flush()
-            yield
-        print("HELD_CALL_US", took // ROUNDS)
-        took = 0
-        for _ in range(ROUNDS):
-            del sys.modules["xrce.client.entities"]
-            began = ticks_us()
-            import xrce.client.entities  # noqa: F401,F811
-
-            took += ticks_diff(ticks_us(), began)
-            yield
-        print("LOAD_US", took // ROUNDS)
+        mean = yield from _mean_us(lambda: held.create_participant(timed, name="t"), timed.flush)
+        print("HELD_CALL_US", mean)
+        mean = yield from _mean_us(lambda: __import__("xrce.client.entities"), _drop_entities)
+        print("LOAD_US", mean)
     for message in transport.sent:
         print("SENT", "".join("%02x" % byte for byte in message))
 
