@@ -155,10 +155,10 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session.dropped_writes = 0
 
 
-def _error(text):
+def _error(message):
     from xrce.client.session import SessionError
 
-    raise SessionError(text)
+    raise SessionError(message)
 
 
 def create(session, attempts=10, timeout_ms=1000):
@@ -210,16 +210,16 @@ def _body(w):
 
 # A CREATE's body starts with the object kind and, but for a participant (domain id), ends with
 # the parent's object id: _forget reads them there.
-def create_body(kind, fmt, representation, tail_id):
-    # representation: blob bytes (fmt binary) or the XML/reference text.
+def create_body(kind, fmt, blob, tail_id):
+    # blob: the representation's bytes (fmt binary) or the XML/reference text.
     w = _body_writer()
     w.u8(kind)
     w.u8(fmt)
     if fmt == _REPRESENTATION_IN_BINARY:
-        w.u32(len(representation))  # sequence<octet>
-        w.raw(representation)
+        w.u32(len(blob))  # sequence<octet>
+        w.raw(blob)
     else:
-        w.string(representation)
+        w.string(blob)
     if kind == _OBJK_PARTICIPANT:
         w._put("<h", 2, tail_id)  # int16: the writer's i16 lives in xrce.cdr_more
     elif kind <= _OBJK_REPLIER:
@@ -269,12 +269,12 @@ PUBSUB_BLOB = b"\x00\x00"  # no name, no QoS
 
 
 # Datawriter (reader False) or datareader: topic id, QoS flags and history depth, nothing else.
-def endpoint_blob(topic_id, qos_flags, depth, reader):
+def endpoint_blob(topic_id, flags, depth, reader):
     w = CdrWriter(bytearray(16))
     w.u8(topic_id >> 8)
     w.u8(topic_id & 0xFF)
     w.u8(1)
-    w.u16(qos_flags)
+    w.u16(flags)
     w.u8(depth is not None)
     if depth is not None:
         w.u16(depth)
@@ -346,7 +346,7 @@ def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False)
     return flags, depth if depth else None
 
 
-def _endpoint(session, kind, parent_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
+def _endpoint(session, kind, tail_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
     blob = None
     if xml is None and ref is None:
         if qos is None:
@@ -356,7 +356,7 @@ def _endpoint(session, kind, parent_id, topic_id, qos, xml, ref, object_id_, str
         else:  # a full EndpointQos (deadline, lifespan, user data): the general codec
             from xrce.client.representations import endpoint_blob as full_qos_blob
             blob = full_qos_blob(kind, topic_id, qos)
-    return _create(session, kind, blob, parent_id, object_id_, stream_id, flags, xml, ref)
+    return _create(session, kind, blob, tail_id, object_id_, stream_id, flags, xml, ref)
 
 
 def create_datawriter(session, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
