@@ -18,7 +18,8 @@ SCRIPT = Path(__file__).resolve().parent / "micropython" / "entities_client.py"
 CALLS = ("Session", "create", "create_participant", "create_writer", "create_reader", "create_topic",
          "create_subscriber", "create_datareader", "read_data", "flush", "cancel_data", "delete_entity",
          "_restore", "delete")
-REFUSED = ("''", "' '", "'create_writer create_reader'", "'__wrapped__'", "'_NAMES'", "'session_attr'", "'bind'")
+REFUSED = ("''", "' '", "'create_writer create_reader'", "'__wrapped__'", "'_NAMES'", "'session_attr'",
+           "'bind'")
 
 
 def _parse(stdout):

@@ -96,9 +96,9 @@ def _read_rest(self):
 _WRITER = (("i8", _write_i8), ("boolean", _write_boolean), ("i16", _write_i16), ("i32", _write_i32),
            ("octets", _write_octets), ("i64", _write_i64), ("u64", _write_u64), ("f32", _write_f32),
            ("f64", _write_f64))
-_READER = (("i8", _read_i8), ("i16", _read_i16), ("u16", _read_u16), ("i32", _read_i32), ("i64", _read_i64), ("u64", _read_u64),
-           ("f32", _read_f32), ("f64", _read_f64), ("octets", _read_octets), ("remaining", _read_remaining),
-           ("rest", _read_rest))
+_READER = (("i8", _read_i8), ("i16", _read_i16), ("u16", _read_u16), ("i32", _read_i32), ("i64", _read_i64),
+           ("u64", _read_u64), ("f32", _read_f32), ("f64", _read_f64), ("octets", _read_octets),
+           ("remaining", _read_remaining), ("rest", _read_rest))
 
 for _name, _method in _WRITER:
     setattr(CdrWriter, _name, _method)

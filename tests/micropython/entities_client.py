@@ -53,6 +53,10 @@ def _gone():
     return "xrce.client.entities" not in sys.modules and "entities" not in sys.modules["xrce.client"].__dict__
 
 
+def _ignore(message):
+    pass
+
+
 def _drop_entities():
     sys.modules.pop("xrce.client.entities", None)
 
@@ -96,7 +100,7 @@ def main():
     yield
     writer = call("create_writer", lambda: session.create_writer(node, "/mp_chatter", String, reliable=False))
     yield
-    reader = call("create_reader", lambda: session.create_reader(node, "/mp_cmd", Twist, lambda message: None))
+    reader = call("create_reader", lambda: session.create_reader(node, "/mp_cmd", Twist, _ignore))
     yield
     topic = call("create_topic", lambda: session.create_topic(node, "rt/raw", "std_msgs::msg::dds_::String_"))
     yield
