@@ -9,6 +9,7 @@ package(
         "cdr_more.py",
         "client/__init__.py",
         "client/discovery.py",
+        "client/entities.py",
         "client/fragments.py",
         "client/on_demand.py",
         "client/ping.py",

@@ -1,10 +1,11 @@
-"""The client's lean encoders (xrce/client/wire.py, the session's control submessages) write the
-same bytes as the general codec the agent decodes with (xrce/submessages.py, xrce/objects.py)."""
+"""The client's lean encoders (xrce/client/wire.py and entities.py, the session's control
+submessages) write the same bytes as the general codec the agent decodes with (xrce/submessages.py,
+xrce/objects.py)."""
 
 import pytest
 
 from xrce import constants as C
-from xrce.client import wire
+from xrce.client import entities, wire
 from xrce.client.session import Session
 from xrce.message import MessageWriter
 from xrce.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
@@ -34,24 +35,24 @@ def _message(payload, session_id=0x81):
 
 @pytest.mark.parametrize("name", [None, "", "talker", "a_node_with_a_longer_name"])
 def test_participant_blob(name):
-    assert wire.participant_blob(name) == ParticipantBin(name).to_blob()
+    assert entities.participant_blob(name) == ParticipantBin(name).to_blob()
 
 
 @pytest.mark.parametrize("type_name", [None, "std_msgs::msg::dds_::String_"])
 def test_topic_blob(type_name):
-    assert wire.topic_blob("rt/chatter", type_name) == TopicBin("rt/chatter", type_name).to_blob()
+    assert entities.topic_blob("rt/chatter", type_name) == TopicBin("rt/chatter", type_name).to_blob()
 
 
 def test_pubsub_blob():
-    assert wire.PUBSUB_BLOB == PubSubBin().to_blob()
+    assert entities.PUBSUB_BLOB == PubSubBin().to_blob()
 
 
 @pytest.mark.parametrize("flags", [0, C.QOS_RELIABLE | C.QOS_KEEP_LAST, C.QOS_KEEP_LAST | C.QOS_TRANSIENT_LOCAL])
 @pytest.mark.parametrize("depth", [None, 1, 10, 0xFFFF])
 def test_endpoint_blobs(flags, depth):
     qos = EndpointQos(flags, depth)
-    assert wire.endpoint_blob(0x12, flags, depth, False) == DataWriterBin(0x12, qos).to_blob()
-    assert wire.endpoint_blob(0x12, flags, depth, True) == DataReaderBin(0x12, qos).to_blob()
+    assert entities.endpoint_blob(0x12, flags, depth, False) == DataWriterBin(0x12, qos).to_blob()
+    assert entities.endpoint_blob(0x12, flags, depth, True) == DataReaderBin(0x12, qos).to_blob()
 
 
 @pytest.mark.parametrize("kind, rep, tail", [
@@ -64,7 +65,7 @@ def test_endpoint_blobs(flags, depth):
 ])
 def test_create_binary(kind, rep, tail):
     flags = C.FLAG_LITTLE_ENDIAN | C.FLAG_REUSE | C.FLAG_REPLACE
-    lean = _Lean(C.CREATE, flags, 0x1234, 0x0156, wire.create_body(kind, C.REPRESENTATION_IN_BINARY, rep.to_blob(), tail))
+    lean = _Lean(C.CREATE, flags, 0x1234, 0x0156, entities.create_body(kind, C.REPRESENTATION_IN_BINARY, rep.to_blob(), tail))
     assert _message(lean) == _message(Create(0x1234, 0x0156, kind, C.REPRESENTATION_IN_BINARY, rep, tail, flags))
 
 
@@ -72,14 +73,14 @@ def test_create_binary(kind, rep, tail):
                                        (C.REPRESENTATION_BY_REFERENCE, "profile"),
                                        (C.REPRESENTATION_AS_XML_STRING, "")])
 def test_create_text(fmt, text):
-    lean = _Lean(C.CREATE, 1, 11, 0x0011, wire.create_body(C.OBJK_TOPIC, fmt, text, 0x0001))
+    lean = _Lean(C.CREATE, 1, 11, 0x0011, entities.create_body(C.OBJK_TOPIC, fmt, text, 0x0001))
     assert _message(lean) == _message(Create(11, 0x0011, C.OBJK_TOPIC, fmt, text, 0x0001, 1))
 
 
 @pytest.mark.parametrize("delivery", [None, (0xFFFF, 0, 0, 0), (3, 2, 100, 7), (0, 0, 0, 0)])
 def test_read_data_and_delete(delivery):
     control = DeliveryControl(*delivery) if delivery is not None else None
-    lean = _Lean(C.READ_DATA, 1, 12, 0x0016, wire.read_data_body(0x80, delivery))
+    lean = _Lean(C.READ_DATA, 1, 12, 0x0016, entities.read_data_body(0x80, delivery))
     assert _message(lean) == _message(ReadData(12, 0x0016, 0x80, control))
     assert _message(_Lean(C.DELETE, 1, 13, 0x0016, b"")) == _message(Delete(13, 0x0016))
 

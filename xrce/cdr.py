@@ -7,11 +7,12 @@
 # MicroPython-safe: only ``struct`` with explicit byte order, no ``?`` type code (MicroPython lacks it).
 # Every read is bounds-checked first, so hostile input raises only ``DecodeError``.
 #
-# The classes here hold what the client core calls; the values it never writes or reads (int8, int64,
-# float, a writer's bool; a reader's uint16, int32, octets, remaining() and rest()) are defined in xrce.cdr_more, which the
-# first use of one of them loads (``_more``): each method costs a board heap for as long as its
-# class lives, and a firmware that only publishes and subscribes never pays for those. On CPython
-# (the agent, the tools) they are attached at import, so both classes are complete from the start.
+# The classes here hold what the client core calls; the values it never writes or reads (int8, int16,
+# int32, int64, float, octets, a writer's bool; a reader's uint16, remaining() and rest()) are
+# defined in xrce.cdr_more, which the first use of one of them loads (``_more``): each method costs a
+# board heap for as long as its class lives, and a firmware that only publishes and subscribes never
+# pays for those. On CPython (the agent, the tools) they are attached at import, so both classes are
+# complete from the start.
 
 import struct
 
@@ -86,14 +87,8 @@ class CdrWriter:
         self.buf[self.pos] = value
         self.pos += 1
 
-    def i16(self, value):
-        self._put("<h", 2, value)
-
     def u16(self, value):
         self._put("<H", 2, value)
-
-    def i32(self, value):
-        self._put("<i", 4, value)
 
     def u32(self, value):
         self._put("<I", 4, value)
@@ -111,11 +106,6 @@ class CdrWriter:
         self.u32(len(data) + 1)
         self.raw(data)
         self.u8(0)
-
-    def octets(self, data):
-        # sequence<octet>: uint32 count then the bytes.
-        self.u32(len(data))
-        self.raw(data)
 
     def getvalue(self):
         return bytes(self.buf[:self.pos])
@@ -165,9 +155,6 @@ class CdrReader:
         if value > 1:
             raise DecodeError("bool must be 0 or 1, got %d" % value)
         return value == 1
-
-    def i16(self):
-        return self._get(0, 2)
 
     def u32(self):
         return self._get(3, 4)

@@ -16,6 +16,20 @@ def _write_boolean(self, value):
     self.u8(1 if value else 0)
 
 
+def _write_i16(self, value):
+    self._put("<h", 2, value)
+
+
+def _write_i32(self, value):
+    self._put("<i", 4, value)
+
+
+def _write_octets(self, data):
+    # sequence<octet>: uint32 count then the bytes.
+    self.u32(len(data))
+    self.raw(data)
+
+
 def _write_i64(self, value):
     self._put("<q", 8, value)
 
@@ -35,6 +49,10 @@ def _write_f64(self, value):
 def _read_i8(self):
     value = self.u8()
     return value - 256 if value > 127 else value
+
+
+def _read_i16(self):
+    return self._get(0, 2)
 
 
 def _read_u16(self):
@@ -75,11 +93,12 @@ def _read_rest(self):
     return data
 
 
-_WRITER = (("i8", _write_i8), ("boolean", _write_boolean), ("i64", _write_i64), ("u64", _write_u64),
-           ("f32", _write_f32), ("f64", _write_f64))
-_READER = (("i8", _read_i8), ("u16", _read_u16), ("i32", _read_i32), ("i64", _read_i64), ("u64", _read_u64),
-           ("f32", _read_f32), ("f64", _read_f64), ("octets", _read_octets), ("remaining", _read_remaining),
-           ("rest", _read_rest))
+_WRITER = (("i8", _write_i8), ("boolean", _write_boolean), ("i16", _write_i16), ("i32", _write_i32),
+           ("octets", _write_octets), ("i64", _write_i64), ("u64", _write_u64), ("f32", _write_f32),
+           ("f64", _write_f64))
+_READER = (("i8", _read_i8), ("i16", _read_i16), ("u16", _read_u16), ("i32", _read_i32), ("i64", _read_i64),
+           ("u64", _read_u64), ("f32", _read_f32), ("f64", _read_f64), ("octets", _read_octets),
+           ("remaining", _read_remaining), ("rest", _read_rest))
 
 for _name, _method in _WRITER:
     setattr(CdrWriter, _name, _method)

@@ -1,31 +1,26 @@
 # Session methods that load on first use: the rest of the minimum core, which every firmware
-# that syncs time, pings or deletes pays for only once it does (time sync, the ping inside the
-# session, deleting entities or the session, waiting for delivery), and the link state; services
-# live in xrce.client.services, loaded by their first call. Session.__getattr__ hands every name
-# it does not have to ``session_attr``; neither this table nor these functions are in the session
-# module, where a board would pay for them used or not.
+# that syncs time or pings pays for only once it does (time sync and the agent's clock in ms, the
+# ping inside the session, waiting for delivery), and the link state; services live in
+# xrce.client.services, loaded by their first call. Session.__getattr__ hands every name that
+# neither it nor xrce.client.entities (set-up and teardown, loaded per call on a board) has to
+# ``session_attr``; neither this table nor these functions are in the session module, where a board
+# would pay for them used or not.
 #
 # One module, not one per feature: a board pays each loaded module's own objects and names (module,
-# globals, imports, file name) on top of its code, and a firmware that syncs time also pings and
-# deletes (the minimum core of a session).
+# globals, imports, file name) on top of its code, and a firmware that syncs time also pings (the
+# minimum core of a session).
 
 import struct
 
 from xrce import DecodeError, const, epoch_ns, ticks_diff, ticks_us
 
-_DELETE = const(3)
-_READ_DATA = const(8)
 _TIMESTAMP = const(14)
-_FLAG_LITTLE_ENDIAN = const(0x01)
-_STREAM_NONE = const(0x00)
-_STATUS_NONE = const(0xFF)
-_REQUEST_ID_LOGOUT_OBJECTID_CLIENT = b"\x00\x02\xff\xfe"
 
 # The names each source serves, as one space-separated string, looked up as " name ": on a board
 # every string of a tuple would be an object of its own.
 _SERVICES = (" create_requester create_replier create_service_client create_service_server"
              " send_request send_reply ")
-_HERE = " sync_time ping delete delete_entity cancel_data run_until_confirm_delivery "
+_HERE = " sync_time epoch_ms ping run_until_confirm_delivery "
 
 
 def session_attr(session, name):
@@ -68,7 +63,7 @@ def sync_time(session, timeout_ms=1000, attempts=1):
         originate = epoch_ns()
         session._sync_originate = originate
         w = session._begin_control(_TIMESTAMP)
-        w.i32(originate // 1000000000)
+        w._put("<i", 4, originate // 1000000000)  # int32: the writer's i32 lives in xrce.cdr_more
         w.u32(originate % 1000000000)
         session._send_control()
         if session._wait(timeout_ms, lambda: session._sync_originate is None):
@@ -105,6 +100,10 @@ def on_timestamp_reply(session, buf, flags, s, e):
     session.time_synced = True
 
 
+def epoch_ms(session):
+    return session.epoch_ns() // 1000000
+
+
 # ------------------------------------------------------------------ ping in the session
 
 def ping(session, timeout_ms=1000, attempts=1):
@@ -121,43 +120,7 @@ def ping(session, timeout_ms=1000, attempts=1):
     return False
 
 
-# ------------------------------------------------------------------ ending things
-
-def delete_entity(session, object_id, stream_id=None):
-    # Buffer a DELETE of one entity (the agent deletes its children). Returns the request id.
-    rid = session.next_request_id()
-    session._buffer(stream_id, _DELETE, _FLAG_LITTLE_ENDIAN, rid, object_id, b"")
-    session._statuses[rid] = _STATUS_NONE
-    if session.link is not None:
-        session.link.forget(object_id)
-    return rid
-
-
-def cancel_data(session, reader_id, stream_id=None):
-    # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
-    from xrce.client.wire import read_data_body
-
-    rid = session.next_request_id()
-    session._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id,
-                    read_data_body(_STREAM_NONE, (0, 0, 0, 0)))
-    session._read_requests.pop(reader_id, None)
-    return rid
-
-
-def delete(session, attempts=10, timeout_ms=1000):
-    # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
-    session.flush()
-    session._begin_control(_DELETE).raw(_REQUEST_ID_LOGOUT_OBJECTID_CLIENT)
-    session._control.end_submessage()
-    message = session._control.getvalue()
-    session._delete_status = None
-    for _ in range(attempts):
-        session._send(message)
-        if session._wait(timeout_ms, lambda: session._delete_status is not None):
-            break
-    session.connected = False
-    return session._delete_status is not None
-
+# ------------------------------------------------------------------ waiting for delivery
 
 def run_until_confirm_delivery(session, timeout_ms=1000):
     # Flush and wait until every reliable message sent has been acknowledged (a firmware's loop

@@ -8,16 +8,10 @@
 # implementation status 0). Pinging every ``retry_ms`` is what notices a restarted agent soon: its
 # first answer says the session is unknown. While lost it repeats CREATE_CLIENT every ``retry_ms``;
 # once the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so
-# an agent that kept them reuses them) and carries on. Nothing here blocks: ``poll`` is called from
-# the session's run loops.
+# an agent that kept them reuses them; xrce.client.entities keeps that log and replays it) and
+# carries on. Nothing here blocks: ``poll`` is called from the session's run loops.
 
-from xrce import const, ticks_add, ticks_diff, ticks_ms
-
-_OBJK_PARTICIPANT = const(0x01)
-_CREATE = const(1)
-_READ_DATA = const(8)
-_FLAG_LITTLE_ENDIAN = const(0x01)
-_FLAGS_REUSE_REPLACE = const(0x07)  # little-endian | FLAG_REUSE | FLAG_REPLACE
+from xrce import const, ticks_add, ticks_diff
 
 _LINK_CONNECTED = const(0)
 _LINK_SILENT = const(1)  # the agent has been quiet for a while; pings are out
@@ -57,41 +51,13 @@ class LinkMonitor:
         self.next_attempt = now
         self._set(_LINK_LOST)
 
-    def _restore(self):
-        # The agent accepted our CREATE_CLIENT again: re-create what we had and resume.
-        session = self.session
-        session.connected = True
-        session._reset_streams()
-        session._last_heard = ticks_ms()
-        for object_id, body in session._creations:
-            session._buffer(None, _CREATE, _FLAGS_REUSE_REPLACE, session.next_request_id(), object_id, body)
-        for reader_id, body in session._read_requests.items():
-            session._buffer(None, _READ_DATA, _FLAG_LITTLE_ENDIAN, session.next_request_id(), reader_id, body)
-        session.flush()
-
-    def forget(self, object_id):
-        # Drop an entity and everything created under it from the re-creation log.
-        session = self.session
-        gone = [object_id]
-        kept = []
-        for create in session._creations:
-            # The body starts with the kind and, but for a participant, ends with the parent's id.
-            oid, body = create
-            if oid in gone or (body[0] != _OBJK_PARTICIPANT and (body[-2] << 8 | body[-1]) in gone):
-                gone.append(oid)
-            else:
-                kept.append(create)
-        session._creations = kept
-        for oid in gone:
-            session._read_requests.pop(oid, None)
-
     def poll(self, now):
         session = self.session
         if self.state == _LINK_LOST:
             if session.create_status == 0:  # STATUS_OK to our CREATE_CLIENT
                 self.missed = 0
                 self.recoveries += 1
-                self._restore()
+                session._restore()  # xrce.client.entities: re-creates what the session had
                 self._set(_LINK_CONNECTED)
             elif ticks_diff(now, self.next_attempt) >= 0:
                 session._send_create_client()

@@ -18,28 +18,24 @@
 # message exactly as with the C client.
 #
 # A board pays for what it imports: the session-less ping (xrce.client.ping), services
-# (xrce.client.services), time sync, the ping inside the session, deleting entities or the session
+# (xrce.client.services), time sync, the ping inside the session and waiting for delivery
 # (xrce.client.on_demand), fragmentation (xrce.client.fragments), agent discovery
-# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use; the
-# submessages a session sends are written by the lean encoders of xrce.client.wire, not by the
-# general codec the agent uses.
+# (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use. What a session
+# does at set-up, never per message (its construction, ``create``, entity creation, READ_DATA,
+# deleting entities or the session: xrce.client.entities) a board loads for each call and drops
+# again. The submessages a session sends are written by the lean encoders of xrce.client.wire, not by
+# the general codec the agent uses.
 
-from xrce import (
-    DecodeError, XrceError, const, epoch_ns, random_client_key, ticks_add, ticks_diff, ticks_ms,
-)
+import sys
+
+from xrce import DecodeError, IS_MICROPYTHON, XrceError, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrReader
-from xrce.client.wire import Outbound, _Output, ros_topic_name  # noqa: F401  (ros_topic_name: public here)
-from xrce.message import MessageWriter, header_size, iter_submessages
-from xrce.streams import (
-    InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
-)
+from xrce.client.wire import Outbound
+from xrce.message import iter_submessages
 
 # Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
-_DEFAULT_SESSION_ID = const(0x81)
 _STREAM_NONE = const(0x00)
-_BUILTIN_BEST_EFFORT = const(0x01)
-_BUILTIN_RELIABLE = const(0x80)
 _CREATE_CLIENT = const(0)
 _GET_INFO = const(2)
 _STATUS_AGENT = const(4)
@@ -60,11 +56,6 @@ _REQUEST_ID_LOGOUT = const(0x0002)
 _FIRST_REQUEST_ID = const(0x000A)
 _INFO_ACTIVITY = const(0x02)
 
-# Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
-# message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
-_SLOT_OVERHEAD = const(4)
-_FIRST_OUTPUT_BUFFER = const(64)
-
 
 class SessionError(XrceError):
     # The session is not usable for the requested operation (not created, window full, ...).
@@ -72,101 +63,18 @@ class SessionError(XrceError):
 
 
 class Session(Outbound):
-    # One XRCE client session over a transport (see ``xrce.transports``); entity creation, writing
-    # and the output path come from ``Outbound`` (xrce.client.wire).
+    # One XRCE client session over a transport (see ``xrce.transports``); writing and the output
+    # path come from ``Outbound`` (xrce.client.wire), set-up and entity creation from
+    # xrce.client.entities.
 
-    def __init__(self, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4,
-                 mtu=None, best_effort_streams=1, reliable_streams=1, heartbeat_ms=100,
-                 max_reassembly=None, on_topic=None, auto_recover=True, liveliness_ms=500,
-                 on_link_state=None):
-        if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
-            raise SessionError("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
-        self.transport = transport
-        if key is None:
-            key = random_client_key()
-        elif isinstance(key, int):
-            key = bytes(((key >> 24) & 0xFF, (key >> 16) & 0xFF, (key >> 8) & 0xFF, key & 0xFF))
-        if len(key) != 4 or key == b"\x00\x00\x00\x00":
-            raise SessionError("client key must be 4 bytes and not zero")
-        self.key = bytes(key)
-        self.session_id = session_id
-        self._header_key = self.key if session_id < 0x80 else None
-        self.header_size = header_size(session_id)
-        self.mtu = transport.mtu if mtu is None else mtu
-        self.max_message = self.mtu - _SLOT_OVERHEAD
-        self.history = history
-        self.heartbeat_ms = heartbeat_ms
-        # Fragmented input may span at most this many bytes (the C client's limit is history slots).
-        self.max_reassembly = max_reassembly if max_reassembly is not None else 16 * self.mtu
-        self.on_topic = on_topic
-        self.connected = False
-
-        self._outputs = {}
-        self._inputs = {}
-        # An output buffer starts small and grows (doubling) to the largest message its stream
-        # has built, at most about max_message: a firmware sending 60-byte samples keeps 64 bytes,
-        # not the 508 a full message could take, and it grows once, not per message.
-        for i in range(best_effort_streams):
-            sid = _BUILTIN_BEST_EFFORT + i
-            self._outputs[sid] = _Output(sid, OutputBestEffortStream(sid), _FIRST_OUTPUT_BUFFER)
-            self._inputs[sid] = InputBestEffortStream(sid)
-        for i in range(reliable_streams):
-            sid = _BUILTIN_RELIABLE + i
-            self._outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
-            self._inputs[sid] = InputReliableStream(sid, history)
-        self.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
-        self.reliable = _BUILTIN_RELIABLE if reliable_streams else None
-
-        self._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
-        self.last_request_id = _FIRST_REQUEST_ID - 1
-        self._object_counters = {}
-        self._statuses = {}
-        self._readers = {}
-        self.create_status = None
-        self._pong_in_session = False
-        self._delete_status = None
-        self._sync_originate = None
-        self._reassembly = None
-        self._next_heartbeat = {}
-        self._last_heard = ticks_ms()
-        self._session_unknown = False
-        # What to re-create after the agent lost the session (see xrce.client.recovery): a CREATE's
-        # (object id, body) and a READ_DATA's body by reader id; the request ids are new then.
-        self._creations = []
-        self._read_requests = {}
-        self.link = None
-        if auto_recover:
-            from xrce.client.recovery import LinkMonitor
-            self.link = LinkMonitor(self, liveliness_ms, on_state=on_link_state)
-        self.time_offset_ns = 0
-        self.time_rtt_ns = 0  # round trip of the exchange time_offset_ns came from
-        self.time_synced = False
-        self.last_rtt_us = None
-        self.last_statuses = {}
-        # Counters for observability and tests.
-        self.messages_in = 0
-        self.messages_out = 0
-        self.decode_errors = 0
-        self.dropped_messages = 0
-        self.stale_timestamps = 0
-        self.dropped_writes = 0
+    def __init__(self, *args, **kwargs):
+        # Session(transport, key=None, session_id=0x81, history=4, mtu=None, best_effort_streams=1,
+        # reliable_streams=1, heartbeat_ms=100, max_reassembly=None, on_topic=None,
+        # auto_recover=True, liveliness_ms=500, on_link_state=None): xrce.client.entities.init,
+        # which CPython binds here.
+        _entities().init(self, *args, **kwargs)
 
     # ------------------------------------------------------------------ session lifecycle
-
-    def create(self, attempts=10, timeout_ms=1000):
-        # CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session.
-        self.create_status = None
-        for _ in range(attempts):
-            self._send_create_client()
-            if self._wait(timeout_ms, lambda: self.create_status is not None):
-                break
-        if self.create_status is None:
-            return False
-        self.connected = self.create_status == _STATUS_OK
-        if self.connected:
-            self._reset_streams()
-            self._last_heard = ticks_ms()
-        return self.connected
 
     def _send_create_client(self):
         header_session = self.session_id & _SESSION_ID_WITHOUT_KEY_MASK
@@ -187,19 +95,10 @@ class Session(Outbound):
         w.u32(_INFO_ACTIVITY)
         self._send_control()
 
-    def _reset_streams(self):
-        for out in self._outputs.values():
-            out.state.reset()
-            out.has_content = False
-        for stream in self._inputs.values():
-            stream.reset()
-        self._reassembly = None
-        self._next_heartbeat = {}
-
     def close(self):
         self.transport.close()
 
-    # ------------------------------------------------------------------ request and object ids
+    # ------------------------------------------------------------------ request ids
 
     def next_request_id(self):
         rid = self.last_request_id + 1
@@ -208,20 +107,11 @@ class Session(Outbound):
         self.last_request_id = rid
         return rid
 
-    def new_object_id(self, kind):
-        index = self._object_counters.get(kind, 0) + 1
-        if index > 0xFFF:
-            raise SessionError("object index must be 0..4095")
-        self._object_counters[kind] = index
-        return (index << 4) | kind
-
     def __getattr__(self, name):
-        # Time sync, the ping in the session, deletion (of entities or the session), waiting for
-        # delivery, services and the link state cost a board nothing until first used
-        # (xrce.client.on_demand).
-        from xrce.client.on_demand import session_attr
-
-        return session_attr(self, name)
+        # Set-up and teardown (xrce.client.entities) for one call on a board; then time sync, the
+        # ping in the session, waiting for delivery, services and the link state, which cost a
+        # board nothing until first used (xrce.client.on_demand).
+        return _entities().session_attr(self, name)
 
     # ------------------------------------------------------------------ running
 
@@ -312,9 +202,6 @@ class Session(Outbound):
     def epoch_ns(self):
         # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
         return epoch_ns() - self.time_offset_ns
-
-    def epoch_ms(self):
-        return self.epoch_ns() // 1000000
 
     # ------------------------------------------------------------------ input path
 
@@ -466,12 +353,25 @@ def _agent_activity(buf, flags, s, e):
         return impl_status, None
     if r.u8() != _OBJK_AGENT:
         raise DecodeError("INFO activity is not an agent's")
-    return impl_status, r.i16()
+    return impl_status, r._get(0, 2)  # int16: the reader's i16 lives in xrce.cdr_more
+
+
+# xrce.client.entities for one call: a board drops it again, as xrce.msgs drops its _plan, so its
+# code is garbage once the call returns (a firmware creates its entities at set-up, not per message).
+def _entities():
+    import xrce.client.entities as module
+
+    if IS_MICROPYTHON:
+        del sys.modules["xrce.client.entities"]
+        sys.modules["xrce.client"].__dict__.pop("entities", None)
+    return module
 
 
 def __getattr__(name):
     # The session-less ping and agent discovery live in their own modules; this keeps
     # `from xrce.client.session import ping_agent` working without every board paying for them.
+    if name == "ros_topic_name":
+        return _entities().ros_topic_name
     if name == "ping_agent":
         from xrce.client.ping import ping_agent
         return ping_agent
@@ -479,3 +379,7 @@ def __getattr__(name):
         from xrce.client.discovery import discover_agents
         return discover_agents
     raise AttributeError(name)
+
+
+if not IS_MICROPYTHON:
+    _entities().bind(Session)

@@ -1,5 +1,7 @@
-# What a client session writes: the submessages it sends and the binary object representations of
-# the entities it creates, lean enough for a board.
+# What a client session writes at message rate: requests and samples into the open message of their
+# stream, and the output path they all go through, lean enough for a board. The bodies and binary
+# object representations of the entities it creates are in xrce.client.entities, which a board
+# loads only while it creates them.
 #
 # The general codec (xrce/submessages.py, xrce/objects.py) has one class per submessage and per
 # object kind, each with encode and decode and a repr: what the agent needs, and ~22 KB of heap on
@@ -8,12 +10,11 @@
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
 from xrce import const, ticks_add, ticks_ms
-from xrce.cdr import CdrWriter
 from xrce.message import MessageWriter
 
-_OBJK_PARTICIPANT = const(1)
-_OBJK_REPLIER = const(8)
-_REPRESENTATION_IN_BINARY = const(3)
+_STREAM_NONE = const(0x00)
+_WRITE_DATA = const(7)
+_FLAG_LITTLE_ENDIAN = const(0x01)
 
 
 # CREATE, DELETE, READ_DATA and WRITE_DATA: the request and object ids, then a body prepared once
@@ -38,247 +39,9 @@ def put_request(w, request_id, object_id, body, prefix=None):
             w.origin = saved
 
 
-# A payload starts 4-aligned in its message and the ids take 4 bytes, so a body written from
-# offset 4 of a scratch buffer aligns exactly as it will in any message.
-def _body_writer():
-    return CdrWriter(bytearray(48), 4, 0)
-
-
-def _body(w):
-    return bytes(w.buf[4:w.pos])
-
-
-# A CREATE's body starts with the object kind and, but for a participant (domain id), ends with
-# the parent's object id: xrce.client.recovery reads them there.
-def create_body(kind, fmt, representation, tail_id):
-    # representation: blob bytes (fmt binary) or the XML/reference text.
-    w = _body_writer()
-    w.u8(kind)
-    w.u8(fmt)
-    if fmt == _REPRESENTATION_IN_BINARY:
-        w.octets(representation)
-    else:
-        w.string(representation)
-    if kind == _OBJK_PARTICIPANT:
-        w.i16(tail_id)
-    elif kind <= _OBJK_REPLIER:
-        w.u8(tail_id >> 8)
-        w.u8(tail_id & 0xFF)
-    return _body(w)
-
-
-# READ_DATA's body: the stream to deliver on, FORMAT_DATA, no content filter, and an optional
-# DeliveryControl (max_samples, max_elapsed_time, max_bytes_per_second, min_pace_period).
-def read_data_body(stream_id, delivery):
-    w = _body_writer()
-    w.u8(stream_id)
-    w.u8(0)
-    w.u8(0)
-    w.u8(delivery is not None)
-    if delivery is not None:
-        for value in delivery:
-            w.u16(value)
-    return _body(w)
-
-
-# Binary object representations (XRCE-WIRE.md §4): CDR blobs aligned from their own first byte.
-
-def _opt_string(w, value):
-    w.u8(value is not None)
-    if value is not None:
-        w.string(value)
-
-
-def participant_blob(name):
-    w = CdrWriter(bytearray(32))
-    w.u8(0)  # no domain reference
-    _opt_string(w, name)
-    return w.getvalue()
-
-
-def topic_blob(topic_name, type_name):
-    w = CdrWriter(bytearray(64))
-    w.string(topic_name)
-    w.u8(0)  # no type reference
-    _opt_string(w, type_name)
-    return w.getvalue()
-
-
-PUBSUB_BLOB = b"\x00\x00"  # no name, no QoS
-
-
-# Datawriter (reader False) or datareader: topic id, QoS flags and history depth, nothing else.
-def endpoint_blob(topic_id, qos_flags, depth, reader):
-    w = CdrWriter(bytearray(16))
-    w.u8(topic_id >> 8)
-    w.u8(topic_id & 0xFF)
-    w.u8(1)
-    w.u16(qos_flags)
-    w.u8(depth is not None)
-    if depth is not None:
-        w.u16(depth)
-    w.u8(0)  # deadline
-    w.u8(0)  # lifespan
-    w.u8(0)  # user data
-    w.u8(0)  # ownership strength / time-based filter
-    if reader:
-        w.u8(0)  # content filter
-    return w.getvalue()
-
-
-_CREATE = const(1)
-_READ_DATA = const(8)
-_FLAG_LITTLE_ENDIAN = const(0x01)
-_REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
-_OBJK_TOPIC = const(0x02)
-_OBJK_PUBLISHER = const(0x03)
-_OBJK_SUBSCRIBER = const(0x04)
-_OBJK_DATAWRITER = const(0x05)
-_OBJK_DATAREADER = const(0x06)
-_STATUS_NONE = const(0xFF)
-_QOS_RELIABLE = const(0x0001)
-_QOS_KEEP_LAST = const(0x0002)
-_QOS_TRANSIENT_LOCAL = const(0x0008)
-_MAX_SAMPLES_UNLIMITED = const(0xFFFF)
-
-_STREAM_NONE = const(0x00)
-_WRITE_DATA = const(7)
-
-def ros_topic_name(name, prefix="rt"):
-    # '/chatter' or 'chatter' → 'rt/chatter' (micro-ROS' naming of ROS topics in DDS).
-    return prefix + (name if name.startswith("/") else "/" + name)
-
-
 class Outbound:
-    # What ``xrce.client.session.Session`` sends on its streams: entity creation, READ_DATA,
-    # samples, and the output path they all go through.
-
-    def _create(self, kind, blob, tail_id, object_id_, stream_id, flags, xml=None, ref=None):
-        # ``blob``: the binary representation, unused when an ``xml`` or ``ref`` text is given.
-        fmt = _REPRESENTATION_IN_BINARY
-        if xml is not None or ref is not None:
-            # XML and reference creation cost a board nothing until used.
-            from xrce.client.representations import textual
-            fmt, blob = textual(xml, ref)
-        oid = self.new_object_id(kind) if object_id_ is None else object_id_
-        rid = self.next_request_id()
-        body = create_body(kind, fmt, blob, tail_id)
-        self._buffer(stream_id, _CREATE, _FLAG_LITTLE_ENDIAN | flags, rid, oid, body)
-        self._statuses[rid] = _STATUS_NONE
-        if self.link is not None:
-            self.link.forget(oid)
-            self._creations.append((oid, body))
-        return oid
-
-    def create_participant(self, domain_id=0, name=None, xml=None, ref=None, object_id=None,
-                           stream_id=None, flags=_REUSE_REPLACE):
-        # A participant (a ROS node on the agent). Returns its object id; the request is buffered.
-        return self._create(_OBJK_PARTICIPANT, participant_blob(name), domain_id, object_id,
-                            stream_id, flags, xml, ref)
-
-    def create_topic(self, participant_id, topic_name=None, type_name=None, xml=None, ref=None,
-                     object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        blob = topic_blob(topic_name, type_name) if xml is None and ref is None else None
-        return self._create(_OBJK_TOPIC, blob, participant_id, object_id, stream_id, flags, xml, ref)
-
-    def create_publisher(self, participant_id, xml=None, object_id=None, stream_id=None,
-                         flags=_REUSE_REPLACE):
-        return self._create(_OBJK_PUBLISHER, PUBSUB_BLOB, participant_id, object_id, stream_id,
-                            flags, xml)
-
-    def create_subscriber(self, participant_id, xml=None, object_id=None, stream_id=None,
-                          flags=_REUSE_REPLACE):
-        return self._create(_OBJK_SUBSCRIBER, PUBSUB_BLOB, participant_id, object_id, stream_id,
-                            flags, xml)
-
-    @staticmethod
-    def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
-        # ``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
-        # take an ``xrce.objects.EndpointQos`` for QoS beyond these.
-        flags = (_QOS_RELIABLE if reliable else 0) | (_QOS_KEEP_LAST if keep_last else 0)
-        if transient_local:
-            flags |= _QOS_TRANSIENT_LOCAL
-        return flags, depth if depth else None
-
-    def _endpoint(self, kind, parent_id, topic_id, qos, xml, ref, object_id_, stream_id, flags):
-        blob = None
-        if xml is None and ref is None:
-            if qos is None:
-                qos = self.endpoint_qos()
-            if isinstance(qos, tuple):
-                blob = endpoint_blob(topic_id, qos[0], qos[1], kind == _OBJK_DATAREADER)
-            else:  # a full EndpointQos (deadline, lifespan, user data): the general codec
-                from xrce.client.representations import endpoint_blob as full_qos_blob
-                blob = full_qos_blob(kind, topic_id, qos)
-        return self._create(kind, blob, parent_id, object_id_, stream_id, flags, xml, ref)
-
-    def create_datawriter(self, publisher_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        return self._endpoint(_OBJK_DATAWRITER, publisher_id, topic_id, qos, xml, ref, object_id,
-                              stream_id, flags)
-
-    def create_datareader(self, subscriber_id, topic_id=None, qos=None, xml=None, ref=None,
-                          object_id=None, stream_id=None, flags=_REUSE_REPLACE):
-        return self._endpoint(_OBJK_DATAREADER, subscriber_id, topic_id, qos, xml, ref, object_id,
-                              stream_id, flags)
-
-    # ROS-flavoured helpers: one call per publisher/subscription, as rmw_microxrcedds does.
-
-    def create_writer(self, participant_id, topic, msg_class, reliable=True, depth=10,
-                      transient_local=False, stream_id=None):
-        # Topic + publisher + datawriter for a ROS topic ('/chatter') of a generated message class.
-        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
-                                     stream_id=stream_id)
-        publisher_id = self.create_publisher(participant_id, stream_id=stream_id)
-        return self.create_datawriter(publisher_id, topic_id,
-                                      self.endpoint_qos(reliable, True, depth, transient_local),
-                                      stream_id=stream_id)
-
-    def create_reader(self, participant_id, topic, msg_class, callback, reliable=True, depth=10,
-                      transient_local=False, stream_id=None, data_stream_id=None):
-        # Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
-        #
-        # ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
-        # for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
-        topic_id = self.create_topic(participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
-                                     stream_id=stream_id)
-        subscriber_id = self.create_subscriber(participant_id, stream_id=stream_id)
-        reader_id = self.create_datareader(subscriber_id, topic_id,
-                                           self.endpoint_qos(reliable, True, depth, transient_local),
-                                           stream_id=stream_id)
-        self.set_reader_callback(reader_id, callback, msg_class)
-        if data_stream_id is None:
-            data_stream_id = self.reliable if reliable else self.best_effort
-        self.read_data(reader_id, data_stream_id, stream_id=stream_id)
-        return reader_id
-
-    # Reading.
-
-    def set_reader_callback(self, reader_id, callback, msg_class=None):
-        # ``callback(data)`` for every DATA of this reader/requester/replier.
-        #
-        # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
-        # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
-        # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
-        self._readers[reader_id] = (callback, msg_class)  # a tuple: no class for a board to load
-
-    def read_data(self, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_UNLIMITED,
-                  max_elapsed_time=0, max_bytes_per_second=0, min_pace_period=0, delivery=True,
-                  stream_id=None):
-        # Buffer a READ_DATA asking the agent to deliver samples on ``data_stream_id``.
-        control = (max_samples, max_elapsed_time, max_bytes_per_second,
-                   min_pace_period) if delivery else None
-        rid = self.next_request_id()
-        if data_stream_id is None:
-            data_stream_id = self.reliable
-        body = read_data_body(data_stream_id, control)
-        self._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id, body)
-        if self.link is not None:
-            self._read_requests[reader_id] = body
-        return rid
-
-    # Data and the output path: requests go into the open message of their stream, which is sent
-    # when full or on flush.
+    # What ``xrce.client.session.Session`` sends on its streams: requests go into the open message
+    # of their stream, which is sent when full or on flush.
 
     def write(self, writer_id, data, stream_id=None):
         # Buffer one sample (a generated message object or its serialized bytes).

@@ -211,24 +211,24 @@ class TurtleBot3:
         yield
         self.sync_clock()
         yield
+        # Creating entities buffers their requests, waiting for their STATUS is the exchange: a stage
+        # each, since on a board the creation loads xrce.client.entities for the call and leaves its
+        # code as garbage, which the exchange would otherwise carry on top of its own.
         node = session.create_participant(domain_id=self.domain_id, name=self.node_name)
+        yield
         if not session.run_until_all_status(timeout_ms):
             self.log("turtlebot3: node not created: %r" % (session.last_statuses,))
             yield False
             return
         yield
-        self._add_writer(node, "sensor_state", "/sensor_state", SensorState, False, timeout_ms)
-        yield
-        self._add_writer(node, "imu", "/imu", Imu, False, timeout_ms)
-        yield
-        self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
-        yield
-        self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
-        yield
-        self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
-        yield
+        yield from self._add_writer(node, "sensor_state", "/sensor_state", SensorState, False, timeout_ms)
+        yield from self._add_writer(node, "imu", "/imu", Imu, False, timeout_ms)
+        yield from self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
+        yield from self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
+        yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
         session.create_reader(node, "/cmd_vel", Twist, self._on_cmd_vel,
                               reliable=self.cmd_vel_reliable, depth=10)
+        yield
         if not session.run_until_all_status(timeout_ms):
             self.log("turtlebot3: /cmd_vel subscription failed: %r" % (session.last_statuses,))
             self.failed_topics.append("cmd_vel")
@@ -244,8 +244,10 @@ class TurtleBot3:
         yield True
 
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
+        # Two stages of ``setup_stages``: the creation, then the exchange.
         session = self.session
         writer = session.create_writer(node, ros_name, msg_class, reliable=reliable, depth=10)
+        yield
         if session.run_until_all_status(timeout_ms):
             stream = session.reliable if reliable else session.best_effort
             self._writers[topic] = (writer, stream)
@@ -254,6 +256,7 @@ class TurtleBot3:
             self.failed_topics.append(topic)
             self.log("turtlebot3: %s not created (%s): %r" % (ros_name, msg_class.TYPE_NAME,
                                                                session.last_statuses))
+        yield
 
     def sync_clock(self):
         if self.session.sync_time(timeout_ms=200, attempts=3):
