@@ -66,6 +66,9 @@ def test_entities_module_is_dropped_after_each_call_and_sends_cpythons_bytes(for
     assert sent == expected_sent
     assert gone == {name: "True" for name in CALLS}
     assert attrs == expected_attrs == {name: "AttributeError" for name in REFUSED}
+    assert figures["LINK"] == cpython_run[4]["LINK"] == "connected"
+    # Twenty reads of link_state: no load of the entities module (~7 KB each) among them.
+    assert int(figures["LINK_ALLOC"]) < 1024, figures["LINK_ALLOC"]
     print("\n%s: per call (us, whole ms) %s;\n  a participant through the session %s us, through the module "
           "held %s us, one import of the module %s us; set-up: live heap %s B, peak %s B" % (
               form, times, figures["CALL_US"], figures["HELD_CALL_US"], figures["LOAD_US"],

@@ -4,7 +4,8 @@ records what the session sends and answers CREATE_CLIENT.
 
 Prints "SENT <hex>" for each message sent (compared between the interpreters), "GONE <call> <bool>"
 on MicroPython (the entities module is out of sys.modules and of its package after the call),
-"ATTR <name> <error type>" for names the session must refuse, and on MicroPython the heap
+"ATTR <name> <error type>" for names the session must refuse, "LINK <state>" (and on MicroPython
+"LINK_ALLOC", what reading it ROUNDS more times allocated), and on MicroPython the heap
 ("live_setup", "peak_setup") and the time each call took ("TIME <call> <us>"; "CALL_US", "HELD_CALL_US",
 "LOAD_US": means of a participant's creation through the session and through the module held by
 the caller, and of a bare import of the module).
@@ -125,6 +126,17 @@ def main():
     call("delete_entity", lambda: session.delete_entity(reader))
     yield
     call("_restore", lambda: session._restore())  # what auto-recovery sends after the agent lost the session
+    yield
+    # After its first read link_state is a property of the class: a firmware that polls it on every
+    # pass must not load xrce.client.entities each time (~7 KB of garbage a load).
+    print("LINK", session.link_state)
+    if IS_MICROPYTHON:
+        import gc
+
+        before = gc.mem_alloc()  # this port collects only between steps: the delta is all allocation
+        for _ in range(ROUNDS):
+            session.link_state
+        print("LINK_ALLOC", gc.mem_alloc() - before)
     yield
     call("delete", lambda: session.delete(attempts=1, timeout_ms=0))
     yield

@@ -37,19 +37,26 @@ def session_attr(session, name):
 
         function = getattr(module, name)
     elif name == "link_state":
-        # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
-        link = session.link
-        if link is None:
-            return "connected" if session.connected else "lost"
-        from xrce.client.recovery import LINK_STATE_NAMES
-
-        return LINK_STATE_NAMES[link.state]
+        # A property on the class like the methods: a firmware may read it on every pass, and on a
+        # board each name Session lacks first loads xrce.client.entities for one call.
+        function = property(_link_state)
     else:
         raise AttributeError(name)
-    # Set on the class: later look-ups find a method there, which a board calls without allocating
-    # (send_request and send_reply run at message rate) and without a closure kept per method.
+    # Set on the class: later look-ups find a method (or link_state's property) there, which a
+    # board calls without allocating (send_request and send_reply run at message rate), without a
+    # closure kept per method and without Session.__getattr__ loading xrce.client.entities.
     setattr(type(session), name, function)
     return getattr(session, name)
+
+
+def _link_state(session):
+    # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
+    link = session.link
+    if link is None:
+        return "connected" if session.connected else "lost"
+    from xrce.client.recovery import LINK_STATE_NAMES
+
+    return LINK_STATE_NAMES[link.state]
 
 
 # ------------------------------------------------------------------ time sync
