@@ -316,6 +316,7 @@ def _step():
         return 1
     # Nothing was collected during the step: what is allocated now is its high-water mark.
     high = gc.mem_alloc()
+    mpheap.high = high
     if high > mpheap.peak:
         mpheap.peak = high
     gc.collect()  # in this port: asks for a collection when this runPython call returns
@@ -338,7 +339,11 @@ async function main() {
   for (const mount of options.mounts) copyTree(mp.FS, mount.host, mount.target, mount.pyOnly);
   makeDirs(mp.FS, "/lib");
   for (const name of fs.readdirSync(HERE)) {
-    if (name.endsWith(".py")) mp.FS.writeFile(`/lib/${name}`, fs.readFileSync(path.join(HERE, name)));
+    // A mount may bring an adapter compiled to .mpy (a board would run it so): MicroPython looks
+    // for the .py first, so the source copy is left out.
+    if (name.endsWith(".py") && !mp.FS.analyzePath(`/lib/${name.slice(0, -3)}.mpy`).exists) {
+      mp.FS.writeFile(`/lib/${name}`, fs.readFileSync(path.join(HERE, name)));
+    }
   }
   makeDirs(mp.FS, "/app");
   const scriptPath = `/app/${path.basename(options.script)}`;
