@@ -319,12 +319,15 @@ def robot_only(env, domain_id, runs, reference=None, tree=None):
         for label, path in trees:
             agent = Agent(path, env)
             try:
-                cpu, rss, _threads = robot_load(agent, env, domain_id, IDLE_SECONDS)
+                cpu, rss, threads = robot_load(agent, env, domain_id, IDLE_SECONDS)
             finally:
                 agent.stop()
             results[label].append((cpu, rss))
-            print("run %d %s: TurtleBot3 load CPU %.2f %%, RSS %.2f MB"
-                  % (run + 1, label, 100 * cpu, rss), flush=True)
+            (main_cpu, main_switches), (all_cpu, all_switches) = threads
+            print("run %d %s: TurtleBot3 load CPU %.2f %%, RSS %.2f MB; main thread %.2f %% at %.0f "
+                  "switch-ins/s, all threads %.2f %% at %.0f/s"
+                  % (run + 1, label, 100 * cpu, rss, 100 * main_cpu, main_switches, 100 * all_cpu,
+                     all_switches), flush=True)
     here, there = results["here"], results.get("reference")
     median = lambda values: sorted(values)[len(values) // 2]  # noqa: E731
 
