@@ -11,6 +11,7 @@ package(
         "client/discovery.py",
         "client/entities.py",
         "client/fragments.py",
+        "client/lifecycle.py",
         "client/on_demand.py",
         "client/ping.py",
         "client/recovery.py",

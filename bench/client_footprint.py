@@ -43,9 +43,10 @@ LAYERED_IMPORTS = (
     # optional features (Session methods named in xrce.client.on_demand load it first)
     "xrce.client.recovery",
     "xrce.client.on_demand",  # time sync and ping: the rest of the minimum core
-    # set-up and teardown: a board imports it for each call and drops it again, so this is what
-    # it costs while a call runs, not what a firmware keeps
-    "xrce.client.entities",
+    # set-up and teardown: a board imports these for each call and drops them again, so this is
+    # what they cost while a call runs, not what a firmware keeps
+    "xrce.client.entities",  # creating and deleting entities, READ_DATA
+    "xrce.client.lifecycle",  # constructing, creating, deleting and restoring the session
     "xrce.client.fragments",
     "xrce.client.services",
     "xrce.client.discovery",

@@ -1,7 +1,8 @@
-"""Set-up and teardown (xrce.client.entities) under real MicroPython 1.27, from .py and from .mpy: the
-module is imported for each call and dropped again, the bytes the session sends for the session,
-its entities, their READ_DATAs, deletions and the re-creation after a lost session are CPython's,
-and names the session does not serve raise AttributeError (no recursion through the on-demand hook).
+"""Set-up and teardown (xrce.client.entities, xrce.client.lifecycle) under real MicroPython 1.27,
+from .py and from .mpy: each module is imported for a call and dropped again, the bytes the session
+sends for the session, its entities, their READ_DATAs, deletions and the re-creation after a lost
+session are CPython's, and names the session does not serve raise AttributeError (no recursion
+through the on-demand hook).
 
 With -s the test prints what a board pays per call (the module's import) and the set-up's heap."""
 

@@ -1,9 +1,10 @@
-"""Set-up and teardown through xrce.client.entities, run by tests/test_micropython_entities.py under
-MicroPython (run.mjs --stepped, from .py and from .mpy) and under CPython, over a transport that
-records what the session sends and answers CREATE_CLIENT.
+"""Set-up and teardown through xrce.client.entities and xrce.client.lifecycle, run by
+tests/test_micropython_entities.py under MicroPython (run.mjs --stepped, from .py and from .mpy)
+and under CPython, over a transport that records what the session sends and answers CREATE_CLIENT.
 
 Prints "SENT <hex>" for each message sent (compared between the interpreters), "GONE <call> <bool>"
-on MicroPython (the entities module is out of sys.modules and of its package after the call),
+on MicroPython (xrce.client.entities and xrce.client.lifecycle are out of sys.modules and of their
+package after the call),
 "ATTR <name> <error type>" for names the session must refuse, "LINK <state>" (and on MicroPython
 "LINK_ALLOC", what reading it ROUNDS more times allocated), and on MicroPython the heap
 ("live_setup", "peak_setup") and the time each call took ("TIME <call> <us>"; "CALL_US", "HELD_CALL_US",
@@ -51,7 +52,9 @@ class Capture:
 
 
 def _gone():
-    return "xrce.client.entities" not in sys.modules and "entities" not in sys.modules["xrce.client"].__dict__
+    package = sys.modules["xrce.client"].__dict__
+    return all("xrce.client." + name not in sys.modules and name not in package
+               for name in ("entities", "lifecycle"))
 
 
 def _ignore(message):

@@ -62,6 +62,7 @@ def main():
     start = ticks_ms()
     settled = None
     low = high = 0
+    peak_loop = 0  # the highest a step of the loop took the heap (absolute, as peak)
     # The live heap's low-water mark over the 10 s after settling and over the last 10 s: a leak
     # raises it, while messages that happen to be in flight (unacknowledged in a reliable window,
     # fragments being reassembled) when a step ends only move single samples.
@@ -69,6 +70,8 @@ def main():
     while ticks_diff(ticks_ms(), start) < run_ms:
         for _ in robot.step_stages():
             yield
+            if mpheap.high > peak_loop:  # the step just ended (set-up's last is already past)
+                peak_loop = mpheap.high
         live = mpheap.live
         elapsed = ticks_diff(ticks_ms(), start)
         if settled is None:
@@ -89,6 +92,7 @@ def main():
     print("low_last_10s", last_low - baseline)
     print("steps", mpheap.steps)
     print("peak", mpheap.peak)
+    print("peak_loop", peak_loop)
     print("commands_received", robot.commands_received)
     print("last_command", "%r,%r" % robot.last_command if robot.last_command else "-")
     print("time_syncs", robot.time_syncs)

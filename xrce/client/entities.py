@@ -1,8 +1,8 @@
-# What a session does at set-up, never per message: its construction (streams and buffers), creating
-# the session on the agent, creating entities and asking for their data, the object ids, the
-# re-creation log that auto-recovery replays, and deleting entities or the session.
+# Creating entities, never per message: the request bodies and binary representations, the object
+# ids, READ_DATA and its cancelling, deleting entities, and the re-creation log that auto-recovery
+# replays (xrce.client.lifecycle, which also constructs, creates and deletes the session itself).
 #
-# On a board the session imports this module for one call and drops it again (_entities in
+# On a board the session imports this module for one call and drops it again (_set_up_module in
 # xrce.client.session, as xrce.msgs drops its _plan), so its code is garbage as soon as the call
 # returns: a firmware creates its entities once and then keeps none of this. Each call pays the
 # import instead (bench/client_footprint.py, README's footprint section), which set-up can afford.
@@ -11,19 +11,9 @@
 # The functions here call each other directly, never through the session: on a board each session
 # attribute served from here imports the module once more.
 
-from xrce import const, random_client_key, ticks_ms
+from xrce import const
 from xrce.cdr import CdrWriter
-from xrce.client.wire import _Output
-from xrce.message import MessageWriter, header_size
-from xrce.streams import (
-    InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
-)
 
-_DEFAULT_SESSION_ID = const(0x81)
-_BUILTIN_BEST_EFFORT = const(0x01)
-_BUILTIN_RELIABLE = const(0x80)
-_FIRST_REQUEST_ID = const(0x000A)
-_STATUS_OK = const(0x00)
 _STATUS_NONE = const(0xFF)
 _CREATE = const(1)
 _DELETE = const(3)
@@ -43,17 +33,12 @@ _QOS_RELIABLE = const(0x0001)
 _QOS_KEEP_LAST = const(0x0002)
 _QOS_TRANSIENT_LOCAL = const(0x0008)
 _MAX_SAMPLES_UNLIMITED = const(0xFFFF)
-# Bytes the C client's slot keeps for its own bookkeeping; we advertise and send the same maximum
-# message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
-_SLOT_OVERHEAD = const(4)
-_FIRST_OUTPUT_BUFFER = const(64)
 
 # The session attributes served from here, one space-separated string looked up as " name " (on a
 # board every string of a tuple would be an object of its own).
-_NAMES = (" create create_participant create_topic create_publisher create_subscriber"
-          " create_datawriter create_datareader create_writer create_reader endpoint_qos"
-          " set_reader_callback read_data new_object_id delete delete_entity cancel_data _create"
-          " _reset_streams _restore ")
+_NAMES = (" create_participant create_topic create_publisher create_subscriber create_datawriter"
+          " create_datareader create_writer create_reader endpoint_qos set_reader_callback read_data"
+          " new_object_id delete_entity cancel_data _create ")
 
 
 # Session.__getattr__ on a board: the function ``name`` bound to ``session`` for one call; any
@@ -69,129 +54,27 @@ def session_attr(session, name):
     return on_demand(session, name)
 
 
-# CPython: the functions become Session's own methods (and its constructor).
+# CPython: the functions become Session's own methods, with xrce.client.lifecycle's (the constructor
+# among them).
 def bind(cls):
+    from xrce.client import lifecycle
+    from xrce.client.session import _LIFECYCLE
+
     for name in _NAMES.split():
         function = globals()[name]
         setattr(cls, name, staticmethod(function) if name == "endpoint_qos" else function)
-    cls.__init__ = init
-
-
-# ------------------------------------------------------------------ the session itself
-
-def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4, mtu=None,
-         best_effort_streams=1, reliable_streams=1, heartbeat_ms=100, max_reassembly=None,
-         on_topic=None, auto_recover=True, liveliness_ms=500, on_link_state=None):
-    if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
-        _error("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
-    session.transport = transport
-    if key is None:
-        key = random_client_key()
-    elif isinstance(key, int):
-        key = bytes(((key >> 24) & 0xFF, (key >> 16) & 0xFF, (key >> 8) & 0xFF, key & 0xFF))
-    if len(key) != 4 or key == b"\x00\x00\x00\x00":
-        _error("client key must be 4 bytes and not zero")
-    session.key = bytes(key)
-    session.session_id = session_id
-    session._header_key = session.key if session_id < 0x80 else None
-    session.header_size = header_size(session_id)
-    session.mtu = transport.mtu if mtu is None else mtu
-    session.max_message = session.mtu - _SLOT_OVERHEAD
-    session.history = history
-    session.heartbeat_ms = heartbeat_ms
-    # Fragmented input may span at most this many bytes (the C client's limit is history slots).
-    session.max_reassembly = max_reassembly if max_reassembly is not None else 16 * session.mtu
-    session.on_topic = on_topic
-    session.connected = False
-
-    outputs = session._outputs = {}
-    inputs = session._inputs = {}
-    # An output buffer starts small and grows (doubling) to the largest message its stream
-    # has built, at most about max_message: a firmware sending 60-byte samples keeps 64 bytes,
-    # not the 508 a full message could take, and it grows once, not per message.
-    for i in range(best_effort_streams):
-        sid = _BUILTIN_BEST_EFFORT + i
-        outputs[sid] = _Output(sid, OutputBestEffortStream(sid), _FIRST_OUTPUT_BUFFER)
-        inputs[sid] = InputBestEffortStream(sid)
-    for i in range(reliable_streams):
-        sid = _BUILTIN_RELIABLE + i
-        outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
-        inputs[sid] = InputReliableStream(sid, history)
-    session.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
-    session.reliable = _BUILTIN_RELIABLE if reliable_streams else None
-
-    session._control = MessageWriter(64)  # stream-0 messages: ACKNACK, HEARTBEAT, TIMESTAMP, ...
-    session.last_request_id = _FIRST_REQUEST_ID - 1
-    session._object_counters = {}
-    session._statuses = {}
-    session._readers = {}
-    session.create_status = None
-    session._pong_in_session = False
-    session._delete_status = None
-    session._sync_originate = None
-    session._reassembly = None
-    session._next_heartbeat = {}
-    session._last_heard = ticks_ms()
-    session._session_unknown = False
-    # What to re-create after the agent lost the session (xrce.client.recovery, _restore below): a
-    # CREATE's (object id, body) and a READ_DATA's body by reader id; the request ids are new then.
-    session._creations = []
-    session._read_requests = {}
-    session.link = None
-    if auto_recover:
-        from xrce.client.recovery import LinkMonitor
-        session.link = LinkMonitor(session, liveliness_ms, on_state=on_link_state)
-    session.time_offset_ns = 0
-    session.time_rtt_ns = 0  # round trip of the exchange time_offset_ns came from
-    session.time_synced = False
-    session.last_rtt_us = None
-    session.last_statuses = {}
-    # Counters for observability and tests.
-    session.messages_in = 0
-    session.messages_out = 0
-    session.decode_errors = 0
-    session.dropped_messages = 0
-    session.stale_timestamps = 0
-    session.dropped_writes = 0
-
-
-def _error(message):
-    from xrce.client.session import SessionError
-
-    raise SessionError(message)
-
-
-def create(session, attempts=10, timeout_ms=1000):
-    # CREATE_CLIENT until a STATUS_AGENT arrives; True if the agent accepted the session.
-    session.create_status = None
-    for _ in range(attempts):
-        session._send_create_client()
-        if session._wait(timeout_ms, lambda: session.create_status is not None):
-            break
-    if session.create_status is None:
-        return False
-    session.connected = session.create_status == _STATUS_OK
-    if session.connected:
-        _reset_streams(session)
-        session._last_heard = ticks_ms()
-    return session.connected
-
-
-def _reset_streams(session):
-    for out in session._outputs.values():
-        out.state.reset()
-        out.has_content = False
-    for stream in session._inputs.values():
-        stream.reset()
-    session._reassembly = None
-    session._next_heartbeat = {}
+    for name in _LIFECYCLE.split():
+        setattr(cls, name, getattr(lifecycle, name))
+    cls.__init__ = lifecycle.init
 
 
 def new_object_id(session, kind):
     counters = session._object_counters
     index = counters.get(kind, 0) + 1
     if index > 0xFFF:
-        _error("object index must be 0..4095")
+        from xrce.client.session import SessionError
+
+        raise SessionError("object index must be 0..4095")
     counters[kind] = index
     return (index << 4) | kind
 
@@ -450,21 +333,6 @@ def delete_entity(session, object_id, stream_id=None):
     return rid
 
 
-def delete(session, attempts=10, timeout_ms=1000):
-    # DELETE of the client (logout) until the agent's STATUS; True when confirmed.
-    session.flush()
-    session._begin_control(_DELETE).raw(b"\x00\x02\xff\xfe")  # REQUEST_ID_LOGOUT, OBJECTID_CLIENT
-    session._control.end_submessage()
-    message = session._control.getvalue()
-    session._delete_status = None
-    for _ in range(attempts):
-        session._send(message)
-        if session._wait(timeout_ms, lambda: session._delete_status is not None):
-            break
-    session.connected = False
-    return session._delete_status is not None
-
-
 # ------------------------------------------------------------------ the re-creation log
 
 def _forget(session, object_id):
@@ -481,17 +349,3 @@ def _forget(session, object_id):
     session._creations = kept
     for oid in gone:
         session._read_requests.pop(oid, None)
-
-
-def _restore(session):
-    # The agent accepted our CREATE_CLIENT again (xrce.client.recovery): re-create what we had
-    # (REUSE|REPLACE, so an agent that kept them reuses them) under new request ids, and resume.
-    session.connected = True
-    _reset_streams(session)
-    session._last_heard = ticks_ms()
-    for object_id, body in session._creations:
-        session._buffer(None, _CREATE, _FLAG_LITTLE_ENDIAN | _REUSE_REPLACE, session.next_request_id(),
-                        object_id, body)
-    for reader_id, body in session._read_requests.items():
-        session._buffer(None, _READ_DATA, _FLAG_LITTLE_ENDIAN, session.next_request_id(), reader_id, body)
-    session.flush()

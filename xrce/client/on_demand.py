@@ -2,9 +2,9 @@
 # that syncs time or pings pays for only once it does (time sync and the agent's clock in ms, the
 # ping inside the session, waiting for delivery), and the link state; services live in
 # xrce.client.services, loaded by their first call. Session.__getattr__ hands every name that
-# neither it nor xrce.client.entities (set-up and teardown, loaded per call on a board) has to
-# ``session_attr``; neither this table nor these functions are in the session module, where a board
-# would pay for them used or not.
+# neither it nor xrce.client.lifecycle and xrce.client.entities (set-up and teardown, loaded per
+# call on a board) has to ``session_attr``; neither this table nor these functions are in the
+# session module, where a board would pay for them used or not.
 #
 # One module, not one per feature: a board pays each loaded module's own objects and names (module,
 # globals, imports, file name) on top of its code, and a firmware that syncs time also pings (the

@@ -8,7 +8,8 @@
 # implementation status 0). Pinging every ``retry_ms`` is what notices a restarted agent soon: its
 # first answer says the session is unknown. While lost it repeats CREATE_CLIENT every ``retry_ms``;
 # once the agent accepts, the session re-creates every entity and READ_DATA it had (REUSE|REPLACE, so
-# an agent that kept them reuses them; xrce.client.entities keeps that log and replays it) and
+# an agent that kept them reuses them; xrce.client.entities keeps that log, xrce.client.lifecycle
+# replays it) and
 # carries on. Nothing here blocks: ``poll`` is called from the session's run loops.
 
 from xrce import const, ticks_add, ticks_diff
@@ -57,7 +58,7 @@ class LinkMonitor:
             if session.create_status == 0:  # STATUS_OK to our CREATE_CLIENT
                 self.missed = 0
                 self.recoveries += 1
-                session._restore()  # xrce.client.entities: re-creates what the session had
+                session._restore()  # xrce.client.lifecycle: re-creates what the session had
                 self._set(_LINK_CONNECTED)
             elif ticks_diff(now, self.next_attempt) >= 0:
                 session._send_create_client()

@@ -21,10 +21,10 @@
 # (xrce.client.services), time sync, the ping inside the session and waiting for delivery
 # (xrce.client.on_demand), fragmentation (xrce.client.fragments), agent discovery
 # (xrce.client.discovery) and auto-recovery (xrce.client.recovery) load on first use. What a session
-# does at set-up, never per message (its construction, ``create``, entity creation, READ_DATA,
-# deleting entities or the session: xrce.client.entities) a board loads for each call and drops
-# again. The submessages a session sends are written by the lean encoders of xrce.client.wire, not by
-# the general codec the agent uses.
+# does at set-up, never per message, a board loads for each call and drops again: creating entities,
+# READ_DATA and deleting entities (xrce.client.entities); constructing, creating, deleting and
+# restoring the session itself (xrce.client.lifecycle). The submessages a session sends are written
+# by the lean encoders of xrce.client.wire, not by the general codec the agent uses.
 
 import sys
 
@@ -64,15 +64,15 @@ class SessionError(XrceError):
 
 class Session(Outbound):
     # One XRCE client session over a transport (see ``xrce.transports``); writing and the output
-    # path come from ``Outbound`` (xrce.client.wire), set-up and entity creation from
-    # xrce.client.entities.
+    # path come from ``Outbound`` (xrce.client.wire), set-up from xrce.client.lifecycle and entity
+    # creation from xrce.client.entities.
 
     def __init__(self, *args, **kwargs):
         # Session(transport, key=None, session_id=0x81, history=4, mtu=None, best_effort_streams=1,
         # reliable_streams=1, heartbeat_ms=100, max_reassembly=None, on_topic=None,
-        # auto_recover=True, liveliness_ms=500, on_link_state=None): xrce.client.entities.init,
+        # auto_recover=True, liveliness_ms=500, on_link_state=None): xrce.client.lifecycle.init,
         # which CPython binds here.
-        _entities().init(self, *args, **kwargs)
+        _set_up_module("lifecycle").init(self, *args, **kwargs)
 
     # ------------------------------------------------------------------ session lifecycle
 
@@ -108,10 +108,13 @@ class Session(Outbound):
         return rid
 
     def __getattr__(self, name):
-        # Set-up and teardown (xrce.client.entities) for one call on a board; then time sync, the
-        # ping in the session, waiting for delivery, services and the link state, which cost a
-        # board nothing until first used (xrce.client.on_demand).
-        return _entities().session_attr(self, name)
+        # Set-up and teardown (xrce.client.lifecycle, xrce.client.entities) for one call on a
+        # board; then time sync, the ping in the session, waiting for delivery, services and the
+        # link state, which cost a board nothing until first used (xrce.client.on_demand).
+        if " " not in name and " %s " % name in _LIFECYCLE:
+            function = getattr(_set_up_module("lifecycle"), name)
+            return lambda *args, **kwargs: function(self, *args, **kwargs)
+        return _set_up_module("entities").session_attr(self, name)
 
     # ------------------------------------------------------------------ running
 
@@ -356,14 +359,22 @@ def _agent_activity(buf, flags, s, e):
     return impl_status, r._get(0, 2)  # int16: the reader's i16 lives in xrce.cdr_more
 
 
-# xrce.client.entities for one call: a board drops it again, as xrce.msgs drops its _plan, so its
-# code is garbage once the call returns (a firmware creates its entities at set-up, not per message).
-def _entities():
-    import xrce.client.entities as module
+# The session attributes xrce.client.lifecycle serves (a string looked up as " name ": on a board
+# each string of a tuple would be an object of its own). Told apart here, so that neither module
+# loads the other for a call.
+_LIFECYCLE = " create delete _reset_streams _restore "
 
+
+# xrce.client.<name> (entities, lifecycle) for one call: a board drops it again, as xrce.msgs drops
+# its _plan, so its code is garbage once the call returns (a firmware creates its session and
+# entities at set-up, not per message).
+def _set_up_module(name):
+    dotted = "xrce.client." + name
+    __import__(dotted)
+    module = sys.modules[dotted]
     if IS_MICROPYTHON:
-        del sys.modules["xrce.client.entities"]
-        sys.modules["xrce.client"].__dict__.pop("entities", None)
+        del sys.modules[dotted]
+        sys.modules["xrce.client"].__dict__.pop(name, None)
     return module
 
 
@@ -371,7 +382,7 @@ def __getattr__(name):
     # The session-less ping and agent discovery live in their own modules; this keeps
     # `from xrce.client.session import ping_agent` working without every board paying for them.
     if name == "ros_topic_name":
-        return _entities().ros_topic_name
+        return _set_up_module("entities").ros_topic_name
     if name == "ping_agent":
         from xrce.client.ping import ping_agent
         return ping_agent
@@ -382,4 +393,4 @@ def __getattr__(name):
 
 
 if not IS_MICROPYTHON:
-    _entities().bind(Session)
+    _set_up_module("entities").bind(Session)
