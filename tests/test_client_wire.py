@@ -3,12 +3,14 @@ submessages) write the same bytes as the general codec the agent decodes with (x
 xrce/objects.py)."""
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from xrce import constants as C
 from xrce.client import entities, wire
 from xrce.client.session import Session
 from xrce.message import MessageWriter
 from xrce.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.session_payloads import Locator
 from xrce.submessages import (
     AckNack, Create, DeliveryControl, Delete, GetInfo, ReadData, Timestamp, decode_message,
     write_submessage,
@@ -162,7 +164,7 @@ def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
 @pytest.mark.parametrize("impl_status,availability", [(1, 1), (0, 1), (1, 0)])
 def test_info_activity_with_and_without_agent_properties(properties, impl_status, availability):
     # The session reads an INFO's implementation status and availability itself; one whose agent
-    # configuration carries properties goes through the general decoder (xrce.client.discovery).
+    # configuration carries properties goes through discovery's INFO reader (xrce.client.discovery).
     from xrce.cdr import CdrWriter
     from xrce.client.session import _agent_activity
     from xrce.session_payloads import Info
@@ -171,3 +173,58 @@ def test_info_activity_with_and_without_agent_properties(properties, impl_status
     Info(C.REQUEST_ID_PING, impl_status=impl_status, availability=availability, properties=properties).encode(w)
     message = bytes(8) + w.getvalue()  # where a payload starts: after a keyless header and its subheader
     assert _agent_activity(message, 1, 8, len(message)) == (impl_status, availability)
+
+
+def test_discovery_get_info_is_the_general_codecs():
+    from xrce.client.discovery import _GET_INFO_DISCOVERY
+
+    mw = MessageWriter(32)
+    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
+    write_submessage(mw, GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT,
+                                 C.INFO_CONFIGURATION | C.INFO_ACTIVITY))
+    assert _GET_INFO_DISCOVERY == mw.getvalue()
+
+
+_ADDRESS_SIZES = {C.LOCATOR_SMALL: 2, C.LOCATOR_MEDIUM: 4, C.LOCATOR_LARGE: 16}
+
+
+@st.composite
+def _locators(draw):
+    kind = draw(st.sampled_from([C.LOCATOR_SMALL, C.LOCATOR_MEDIUM, C.LOCATOR_LARGE, C.LOCATOR_STRING]))
+    if kind == C.LOCATOR_STRING:
+        return Locator(kind, draw(st.text(max_size=12)))
+    bits = {C.LOCATOR_SMALL: 8, C.LOCATOR_MEDIUM: 16, C.LOCATOR_LARGE: 32}[kind]
+    return Locator(kind, draw(st.binary(min_size=_ADDRESS_SIZES[kind], max_size=_ADDRESS_SIZES[kind])),
+                   draw(st.integers(0, 2 ** bits - 1)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    impl_status=st.integers(0, 255),
+    config=st.none() | st.tuples(st.just(C.XRCE_COOKIE), st.sampled_from([C.XRCE_VERSION, b"\x02\x00"]),
+                                 st.just(C.XRCE_VENDOR_EPROSIMA)),
+    properties=st.none() | st.lists(st.tuples(st.text(max_size=8), st.text(max_size=8)), max_size=3),
+    availability=st.none() | st.integers(-2 ** 15, 2 ** 15 - 1),
+    locators=st.lists(_locators(), max_size=4),
+)
+def test_discovery_reads_info_as_the_general_codec_writes_it(impl_status, config, properties, availability,
+                                                             locators):
+    # discover_agents' own INFO reader (xrce.client.discovery) against the general codec's encoder
+    # (little-endian, as agents send it): every field it reports, with configuration, properties,
+    # activity and each locator kind present or not; string locators are left out of what it returns.
+    from xrce.client.discovery import _info_locators, read_info
+    from xrce.session_payloads import Info
+
+    if config is None:
+        properties = None  # properties travel inside the configuration
+    info = Info(C.REQUEST_ID_DISCOVERY, impl_status=impl_status, config=config, availability=availability,
+                locators=locators if availability is not None else (), properties=properties)
+    mw = MessageWriter(64)
+    mw.begin(C.SESSION_ID_NONE_WITHOUT_KEY, C.STREAM_NONE, 0)
+    info.encode(mw.begin_submessage(C.INFO, 1))
+    mw.end_submessage()
+    message = mw.getvalue()
+    addresses = [(loc.address, loc.port) for loc in info.locators if loc.fmt != C.LOCATOR_STRING]
+    assert read_info(message, 1, 8, len(message)) == (
+        impl_status, config[1] if config else None, availability, addresses)
+    assert _info_locators(message) == (addresses if config and config[1] == C.XRCE_VERSION else [])

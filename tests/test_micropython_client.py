@@ -2,6 +2,7 @@
 to a real ``xrce-agent`` over a custom transport bridged to Node's UDP socket: session, ping, time
 sync, entities, publish and receive."""
 
+import socket
 import threading
 import time
 from pathlib import Path
@@ -60,3 +61,34 @@ def test_micropython_client_against_the_real_agent():
     assert int(count) >= 3 and float(x) == 0.25
     assert abs(int(lines["epoch_ms"]) - time.time() * 1000) < 60000
     assert [m.data for m in peer.received] == ["from micropython %d" % i for i in range(10)]
+
+
+DISCOVERY_SCRIPT = """
+import sys
+from nodeudp_transport import make_callbacks
+from xrce.client.discovery import discover_agents
+from xrce.transports.custom import CustomTransport
+
+transport = CustomTransport(*make_callbacks("127.0.0.1", int(sys.argv[1])), framing=False)
+for address, port in discover_agents(transport, attempts=3, period_ms=500):
+    print("agent", ".".join(str(b) for b in address), port)
+print("done", True)
+"""
+
+
+def _free_udp_port():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_micropython_discovers_the_real_agent():
+    # discover_agents (its own GET_INFO and INFO reader, not the general codec) under MicroPython,
+    # unicast to a real agent's discovery port: it answers with one locator per local IPv4 address,
+    # each with its service port.
+    discovery_port = _free_udp_port()
+    with AgentProcess("udp4", "-m", "ced", "-d", str(discovery_port)) as agent:
+        result = run_micropython(DISCOVERY_SCRIPT, discovery_port, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "done True" in result.stdout
+    assert "agent 127.0.0.1 %d" % agent.port in result.stdout.splitlines(), result.stdout

@@ -348,7 +348,7 @@ def _agent_activity(buf, flags, s, e):
     if r.boolean():  # the agent's configuration: kind, cookie, version, vendor, properties
         r.u8()
         r.raw(8)
-        if r.boolean():  # properties: the general decoder knows how to skip them
+        if r.boolean():  # properties: discovery's INFO reader skips them
             from xrce.client.discovery import info_activity
 
             return info_activity(buf, flags, s, e)
