@@ -29,7 +29,7 @@ def _make_reflected_table(poly_reflected):
 
 
 _ARC_TABLE = _make_reflected_table(0xA001)
-_X25_TABLE = _make_reflected_table(0x8408)
+_X25_TABLE = None  # built by the first X.25 frame: the wire's default is ARC (512 bytes on a board)
 
 
 def crc16_arc_table(data, crc=0):
@@ -42,7 +42,10 @@ def crc16_arc_table(data, crc=0):
 
 def crc16_x25_table(data):
     # CRC-16/X.25 of ``data`` (bytes-like); pure-Python table version.
+    global _X25_TABLE
     table = _X25_TABLE
+    if table is None:
+        table = _X25_TABLE = _make_reflected_table(0x8408)
     crc = 0xFFFF
     for byte in data:
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
