@@ -406,3 +406,18 @@ def test_length_prefix_arbitrary_bytes_never_raise(chunks, max_len):
         total += len(chunk)
     assert decoder.dropped_bytes <= total
     assert len(decoder._view) == max_len
+
+
+def test_table_crcs_under_micropython():
+    # A board has no crcmod: the table versions give the catalogue check values there too, the
+    # X.25 table built by its first use.
+    from mp_harness import run_micropython
+
+    result = run_micropython(
+        "from xrce.transports import crc\n"
+        "print(crc._X25_TABLE is None, hex(crc.crc16_x25(b'123456789')), hex(crc.crc16_x25(b'123456789')),\n"
+        "      hex(crc.crc16_arc(b'123456789')), crc.HAVE_CRCMOD)\n",
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["True", "0x906e", "0x906e", "0xbb3d", "False"]
