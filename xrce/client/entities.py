@@ -1,6 +1,7 @@
 # Creating entities, never per message: the request bodies and binary representations, the object
-# ids, READ_DATA and its cancelling, deleting entities, and the re-creation log that auto-recovery
-# replays (xrce.client.lifecycle, which also constructs, creates and deletes the session itself).
+# ids, READ_DATA and its cancelling, deleting entities, and the re-creation log (which
+# xrce.client.lifecycle replays after a lost session; it also constructs, creates and deletes the
+# session itself).
 #
 # On a board the session imports this module for one call and drops it again (_set_up_module in
 # xrce.client.session, as xrce.msgs drops its _plan), so its code is garbage as soon as the call
