@@ -9,21 +9,24 @@ The callbacks follow the shape of micro-ROS' ``rmw_uros_set_custom_transport`` a
     read_cb(user, buf, size, timeout_ms) -> number of bytes copied into the bytearray ``buf``
 
 ``user`` is not needed: the socket handle lives in the closure. The bridge reports failures by
-returning -1 (see README.md), which the callbacks turn into the micro-ROS failure values.
+returning -1 (see README.md), which the callbacks turn into the micro-ROS failure values. Bytes
+go through ``nodeudp.send_at``/``recv_into``, which read and write them in place on the heap
+(``uctypes.addressof``): a send or a receive allocates nothing here, as a board's socket does not,
+so a capped run (tests/test_turtlebot3_heap.py) counts the firmware's heap and not the bridge's.
 
 Packet mode (``stream=False``, for ``framing=False``) hands over one datagram per read and, like
 ``recvfrom`` on a short buffer, drops whatever does not fit in ``size``. Stream mode (``stream=True``,
-for HDLC ``framing=True``) treats the datagrams as one byte stream and keeps the unread tail for
-the next read.
+for HDLC ``framing=True``) treats the datagrams as one byte stream: the bridge keeps the unread
+tail for the next read.
 """
 
-from binascii import hexlify, unhexlify
+from uctypes import addressof
 
 import nodeudp
 
 
 def make_callbacks(host, port, stream=False):
-    state = {"handle": None, "pending": b"", "pending_at": 0}
+    state = {"handle": None}
 
     def open_cb(user):
         if state["handle"] is not None:
@@ -37,8 +40,6 @@ def make_callbacks(host, port, stream=False):
     def close_cb(user):
         handle = state["handle"]
         state["handle"] = None
-        state["pending"] = b""
-        state["pending_at"] = 0
         if handle is None:
             return True
         return nodeudp.close(handle) > 0
@@ -47,32 +48,18 @@ def make_callbacks(host, port, stream=False):
         handle = state["handle"]
         if handle is None:
             return 0
-        # Hex strs cross the bridge without a PyProxy, which would pin the bytes on the heap.
-        written = nodeudp.send_hex(handle, hexlify(data).decode())
+        written = nodeudp.send_at(handle, addressof(data), len(data))
         return written if written > 0 else 0
 
     def read_cb(user, buf, size, timeout_ms):
         handle = state["handle"]
         if handle is None or size <= 0:
             return 0
-        data = state["pending"]
-        start = state["pending_at"]
-        if start >= len(data):
-            data = nodeudp.recv_hex(handle, timeout_ms)
-            if data is None or isinstance(data, int):  # timeout, or -1 on a bridge error
-                return 0
-            data = unhexlify(data)
-            start = 0
-        count = len(data) - start
-        if count > size:
-            count = size
-        memoryview(buf)[0:count] = memoryview(data)[start : start + count]
-        if stream and start + count < len(data):
-            state["pending"] = data
-            state["pending_at"] = start + count
-        else:
-            state["pending"] = b""
-            state["pending_at"] = 0
+        if size > len(buf):  # the bridge writes where it is told: never past the buffer
+            size = len(buf)
+        count = nodeudp.recv_into(handle, addressof(buf), size, timeout_ms, stream)
+        if count is None or count < 0:  # timeout, or -1 on a bridge error
+            return 0
         return count
 
     return open_cb, close_cb, write_cb, read_cb

@@ -175,8 +175,9 @@ function makeBytesBridge(mp) {
 // A JS exception thrown inside a function that MicroPython called is not turned into a Python
 // exception: it unwinds through the wasm frames and out of runPython, killing the script. So every
 // nodeudp function catches, remembers the message for last_error() and returns -1.
-function makeNodeUdp(reply, bytesBridge) {
+function makeNodeUdp(reply, bytesBridge, memory) {
   const rings = new Map();
+  const unread = new Map(); // handle -> the tail of a datagram recv_into left for the next read (stream mode)
   let nextHandle = 1;
   let lastError = "";
   const ringOf = (handle) => {
@@ -228,7 +229,42 @@ function makeNodeUdp(reply, bytesBridge) {
       const datagram = ring.shiftWaiting(wait);
       return datagram === null ? null : Buffer.from(datagram.buffer, datagram.byteOffset, datagram.byteLength).toString("hex");
     }),
+    // The same again without any Python object in between: the bytes are read from, or written
+    // into, the MicroPython heap at the address uctypes.addressof gave (the GC never moves an
+    // object, and the call is synchronous). A send or receive then allocates nothing on the
+    // MicroPython heap, as a board's socket does not; the hex strs above cost ~4 bytes of
+    // garbage per byte moved, which a capped run would otherwise count against the firmware.
+    send_at: guarded((handle, address, length) => {
+      ringOf(handle);
+      if (!Number.isInteger(address) || !Number.isInteger(length) || length < 0) {
+        throw new TypeError("send_at(handle, address: int, length: int)");
+      }
+      const payload = new Uint8Array(length);
+      for (let i = 0; i < length; i++) payload[i] = memory.getValue(address + i, "i8");
+      return reply.request("send", { handle, payload }, [payload.buffer]);
+    }),
+    // Copies at most `size` bytes of the next datagram to `address`; returns the count, or None on
+    // timeout. `stream`: keep what did not fit for the next call (a byte stream); otherwise it is
+    // dropped, as recvfrom drops the tail of a datagram longer than its buffer.
+    recv_into: guarded((handle, address, size, timeoutMs, stream) => {
+      const ring = ringOf(handle);
+      if (!Number.isInteger(address) || !Number.isInteger(size) || size < 0) {
+        throw new TypeError("recv_into(handle, address: int, size: int, timeout_ms, stream: bool)");
+      }
+      let datagram = unread.get(handle);
+      unread.delete(handle);
+      if (datagram === undefined) {
+        const wait = timeoutMs === null || timeoutMs === undefined ? Infinity : Math.max(0, timeoutMs);
+        datagram = ring.shiftWaiting(wait);
+        if (datagram === null) return null;
+      }
+      const count = Math.min(size, datagram.byteLength);
+      for (let i = 0; i < count; i++) memory.setValue(address + i, datagram[i], "i8");
+      if (stream && count < datagram.byteLength) unread.set(handle, datagram.slice(count));
+      return count;
+    }),
     close: guarded((handle) => {
+      unread.delete(handle);
       if (!rings.delete(handle)) return 0;
       reply.request("close", { handle });
       return 1;
@@ -350,7 +386,7 @@ async function main() {
   mp.FS.writeFile(scriptPath, fs.readFileSync(options.script));
 
   const reply = await startWorker();
-  mp.registerJsModule("nodeudp", makeNodeUdp(reply, makeBytesBridge(mp)));
+  mp.registerJsModule("nodeudp", makeNodeUdp(reply, makeBytesBridge(mp), mp._module));
   let status;
   try {
     mp.runPython(RUN_SCRIPT(scriptPath, [scriptPath, ...options.args], options.stepped));
