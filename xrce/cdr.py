@@ -108,7 +108,9 @@ class CdrWriter:
         self.u8(0)
 
     def getvalue(self):
-        return bytes(self.buf[:self.pos])
+        # Through a memoryview: slicing the bytearray would first copy the bytes into a second,
+        # transient bytearray (on a board, a reliable message's size in garbage per message).
+        return bytes(memoryview(self.buf)[:self.pos])
 
 
 class CdrReader:
