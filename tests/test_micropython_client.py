@@ -92,3 +92,66 @@ def test_micropython_discovers_the_real_agent():
     assert result.returncode == 0, result.stdout + result.stderr
     assert "done True" in result.stdout
     assert "agent 127.0.0.1 %d" % agent.port in result.stdout.splitlines(), result.stdout
+
+
+IDLE_SCRIPT = """
+import gc
+import sys
+from nodeudp_transport import make_callbacks
+from xrce import ticks_ms
+from xrce.client.session import Session
+from xrce.msgs.std_msgs import String
+from xrce.transports.custom import CustomTransport
+
+session = Session(CustomTransport(*make_callbacks("127.0.0.1", int(sys.argv[1])), framing=False),
+                  key=b"\\x4d\\x50\\x00\\x0b", history=8)
+assert session.create(attempts=5, timeout_ms=500)
+node = session.create_participant(name="idle")
+writer = session.create_writer(node, "/mp_idle", String)
+assert session.run_until_all_status(3000)
+sample = String(data="x")
+
+
+def idle_passes(count):
+    # What a firmware loop's pass costs when nothing arrives: gc.mem_alloc() counts every byte
+    # allocated meanwhile (this harness collects only between runPython calls).
+    gc.collect()
+    before = gc.mem_alloc()
+    for _ in range(count):
+        session.spin_once(0)
+    return gc.mem_alloc() - before
+
+
+def unacknowledged_passes(count):
+    # The same with a reliable message in flight: its heartbeat is scheduled, not yet due.
+    session.write(writer, sample)
+    session.flush()
+    now = ticks_ms()
+    gc.collect()
+    before = gc.mem_alloc()
+    for _ in range(count):
+        session._periodic(now)
+    return gc.mem_alloc() - before, len(session._next_heartbeat)
+
+
+idle_passes(2)
+print("idle", idle_passes(50))
+unacknowledged_passes(1)
+allocated, scheduled = unacknowledged_passes(50)
+print("unacknowledged", allocated, scheduled)
+assert session.run_until_confirm_delivery(2000)
+session.delete(attempts=3, timeout_ms=500)
+print("done", True)
+"""
+
+
+def test_micropython_idle_loop_pass_allocates_nothing():
+    # A firmware spins the session on every pass of its loop; on a board any allocation there is
+    # garbage the collector must come back for, hundreds of times a second.
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        result = run_micropython(IDLE_SCRIPT, agent.port, timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = dict(line.split(" ", 1) for line in result.stdout.splitlines() if " " in line)
+    assert lines["idle"] == "0", result.stdout
+    assert lines["unacknowledged"] == "0 1", result.stdout
+    assert lines["done"] == "True", result.stdout

@@ -137,7 +137,9 @@ def run_until_confirm_delivery(session, timeout_ms=1000):
 
 
 def _all_delivered(session):
-    for out in session._outputs.values():
+    outputs = session._outputs
+    for stream_id in outputs:  # asked on every pass of the wait: no view object (see flush)
+        out = outputs[stream_id]
         if out.reliable and out.state.pending():
             return False
     return True

@@ -129,8 +129,9 @@ class Session(Outbound):
             if remaining <= 0:
                 return False
             wait = remaining
-            for due in self._next_heartbeat.values():
-                until = ticks_diff(due, now)
+            pending = self._next_heartbeat
+            for stream_id in pending:  # keys: a board allocates a view object for .values()
+                until = ticks_diff(pending[stream_id], now)
                 if until < wait:
                     wait = until if until > 0 else 0
             if self.link is not None and wait > self.heartbeat_ms:
@@ -150,20 +151,26 @@ class Session(Outbound):
         return data is not None
 
     def _periodic(self, now):
-        # Heartbeats that are due, then the link monitor. The snapshot of the pending streams is taken
-        # only when there are some: most passes have none, and an empty list still costs heap.
-        for stream_id, due in list(self._next_heartbeat.items()) if self._next_heartbeat else ():
+        # Heartbeats that are due, then the link monitor. Called on every pass of a firmware's loop,
+        # so it allocates nothing: the streams are walked as the outputs' keys (a board makes a heap
+        # object for a view or a snapshot of the pending ones), which also lets a stream's entry be
+        # dropped on the way.
+        pending = self._next_heartbeat
+        for stream_id in self._outputs if pending else ():
+            due = pending.get(stream_id)
+            if due is None:
+                continue
             state = self._outputs[stream_id].state
-            bounds = state.heartbeat()
-            if bounds is None:
-                del self._next_heartbeat[stream_id]
+            if not state.pending():
+                del pending[stream_id]
             elif ticks_diff(now, due) >= 0:
+                # The bounds of OutputReliableStream.heartbeat(), without the tuple it returns.
                 w = self._begin_control(_HEARTBEAT)
-                w.u16(bounds[0])
-                w.u16(bounds[1])
+                w.u16((state.last_acknowledged + 1) & 0xFFFF)
+                w.u16(state.last_sent)
                 w.u8(stream_id)
                 self._send_control()
-                self._next_heartbeat[stream_id] = ticks_add(now, self.heartbeat_ms)
+                pending[stream_id] = ticks_add(now, self.heartbeat_ms)
         if self.link is not None:
             self.link.poll(now)
 

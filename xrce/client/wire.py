@@ -132,8 +132,11 @@ class Outbound:
         out.has_content = False
 
     def flush(self):
-        # Send every stream's open message.
-        for out in self._outputs.values():
+        # Send every stream's open message. (Over the keys: on a board .values() would allocate a
+        # view on every pass of the firmware's loop.)
+        outputs = self._outputs
+        for stream_id in outputs:
+            out = outputs[stream_id]
             if out.has_content:
                 self._close_message(out)
 
