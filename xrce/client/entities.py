@@ -89,7 +89,7 @@ def _body_writer():
 
 
 def _body(w):
-    return bytes(w.buf[4:w.pos])
+    return bytes(memoryview(w.buf)[4:w.pos])  # one copy (see CdrWriter.getvalue)
 
 
 # A CREATE's body starts with the object kind and, but for a participant (domain id), ends with
@@ -337,7 +337,14 @@ def delete_entity(session, object_id, stream_id=None):
 # ------------------------------------------------------------------ the re-creation log
 
 def _forget(session, object_id):
-    # Drop an entity and everything created under it from the re-creation log.
+    # Drop an entity and everything created under it from the re-creation log. Every creation asks
+    # (REPLACE may reuse an id), and almost always about a new id: that is answered without
+    # building the lists below (an entity not in the log has no children there either).
+    for create in session._creations:
+        if create[0] == object_id:
+            break
+    else:
+        return
     gone = [object_id]
     kept = []
     for create in session._creations:
