@@ -9,7 +9,8 @@ package after the call),
 "LINK_ALLOC", what reading it ROUNDS more times allocated), and on MicroPython the heap
 ("live_setup", "peak_setup") and the time each call took ("TIME <call> <us>"; "CALL_US", "HELD_CALL_US",
 "LOAD_US": means of a participant's creation through the session and through the module held by
-the caller, and of a bare import of the module).
+the caller, and of a bare import of the module), "HELD_SAME"/"HELD_RELEASED" (hold_set_up keeps one
+module until released; None on CPython) and on MicroPython "HELD_ALLOC" (see below).
 """
 
 import sys
@@ -63,6 +64,19 @@ def _ignore(message):
 
 def _drop_entities():
     sys.modules.pop("xrce.client.entities", None)
+
+
+# What ``function()`` allocated (MicroPython: this port collects only between steps, so within one
+# the difference is all of it; CPython: 0).
+def _allocated(function):
+    if not IS_MICROPYTHON:
+        function()
+        return 0
+    import gc
+
+    before = gc.mem_alloc()
+    function()
+    return gc.mem_alloc() - before
 
 
 # The mean time of ROUNDS calls of ``function``, each after ``before()`` and in a step of its own.
@@ -124,6 +138,23 @@ def main():
         # then), both above what the script had imported.
         print("live_setup", mpheap.live - start)
         print("peak_setup", mpheap.peak - start)
+    # Held (hold_set_up): the creation code is loaded once for the calls in a row, not per call;
+    # what is sent does not change. On MicroPython "HELD_ALLOC <held> <not held>" gives what a
+    # writer's creation allocated each way.
+    session.hold_set_up()
+    yield
+    held_module = session._held
+    held = _allocated(lambda: session.create_writer(node, "/mp_held", String, reliable=False))
+    session.flush()
+    print("HELD_SAME", session._held is held_module)
+    session.hold_set_up(False)
+    print("HELD_RELEASED", session._held is None)
+    yield
+    not_held = _allocated(lambda: session.create_writer(node, "/mp_not_held", String, reliable=False))
+    session.flush()
+    if IS_MICROPYTHON:
+        print("HELD_ALLOC", held, not_held)
+    yield
     call("cancel_data", lambda: session.cancel_data(raw))
     yield
     call("delete_entity", lambda: session.delete_entity(reader))
