@@ -12,7 +12,7 @@ from xrce.message import MessageWriter
 from xrce.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 from xrce.session_payloads import Locator
 from xrce.submessages import (
-    AckNack, Create, DeliveryControl, Delete, GetInfo, ReadData, Timestamp, decode_message,
+    AckNack, Create, DeliveryControl, Delete, GetInfo, ReadData, Timestamp, decode_message, encode_message,
     write_submessage,
 )
 
@@ -157,6 +157,49 @@ def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
                 carried += message[s:e]
     assert carried == expected
     assert transport.sent[0][4] == (C.WRITE_DATA if small else C.FRAGMENT)
+
+
+class _AckingCapture(_Capture):
+    """Answers every wait for input with an ACKNACK of everything the reliable stream sent."""
+
+    def recv(self, timeout_ms):
+        sent = [m for m in self.sent if m[1] == 0x80]
+        if not sent:
+            return None
+        last = sent[-1][2] | (sent[-1][3] << 8)
+        return encode_message(0x81, 0, 0, None, [AckNack((last + 1) & 0xFFFF, 0, 0x80)])
+
+
+@pytest.mark.parametrize("in_flight", [0, 2, 3])
+def test_fragments_when_the_window_is_short_of_room(in_flight):
+    """A sample whose fragments do not all fit the reliable window waits for room between them
+    (callbacks may then write to the stream): the fragments still carry the codec's bytes, on
+    consecutive sequence numbers."""
+    from xrce.message import iter_submessages
+    from xrce.msgs.std_msgs import String
+    from xrce.submessages import WriteData
+
+    transport = _AckingCapture()
+    session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False, history=4)
+    session.connected = True
+    for i in range(in_flight):  # sent and not yet acknowledged: the window has 4 - in_flight left
+        session.write(0x15, String(data="r%d" % i))
+        session.flush()
+    rid = session.write(0x15, String(data="z" * 1500))  # four fragments
+    assert rid
+    session.flush()
+    mw = MessageWriter(2048)
+    mw.begin(0x81, 0, 0)
+    write_submessage(mw, WriteData(rid, 0x15, String(data="z" * 1500).to_bytes()))
+    mw.pad_to_4()
+    reliable = [m for m in transport.sent if m[1] == 0x80]
+    assert [m[2] | (m[3] << 8) for m in reliable] == list(range(in_flight + 4))
+    carried = b""
+    for message in reliable[in_flight:]:
+        for sub_id, flags, s, e in iter_submessages(message, 4):
+            assert sub_id == C.FRAGMENT
+            carried += message[s:e]
+    assert carried == mw.getvalue()[4:]
 
 
 
