@@ -117,17 +117,20 @@ class Agent:
         return (cpu_seconds(self.pid) - before) / seconds
 
     def main_thread_over(self, seconds):
-        """(CPU fraction, switch-ins a second) of the agent's main thread (the asyncio loop's),
-        and (CPU fraction, switch-ins a second) of the whole process, over ``seconds``: the
-        wake-ups are what the agent's CPU at a robot's rates is made of."""
+        """(CPU fraction, switch-ins a second) of the agent's main thread (the asyncio loop's), of
+        the whole process, and of Fast DDS's own threads (named dds.*), over ``seconds``: the
+        wake-ups are what the agent's CPU at a robot's rates is made of, and what is neither main
+        thread nor Fast DDS is mostly rclpy's executor thread."""
         before, start = thread_times(self.pid), time.monotonic()
         time.sleep(seconds)
         after, elapsed = thread_times(self.pid), time.monotonic() - start
-        main = [(after[self.pid][1] - before[self.pid][1]) / 1e9 / elapsed,
-                (after[self.pid][2] - before[self.pid][2]) / elapsed]
-        total = [sum(a[i] - before.get(tid, (None, 0, 0))[i] for tid, a in after.items())
-                 for i in (1, 2)]
-        return tuple(main), (total[0] / 1e9 / elapsed, total[1] / elapsed)
+
+        def share(tids):
+            return tuple(sum(after[tid][i] - before.get(tid, (None, 0, 0))[i] for tid in tids) / scale
+                         for i, scale in ((1, 1e9 * elapsed), (2, elapsed)))
+
+        return (share([self.pid]), share(list(after)),
+                share([tid for tid, values in after.items() if values[0].startswith("dds.")]))
 
     def stop(self):
         interrupt(self.proc, 20)
@@ -323,11 +326,13 @@ def robot_only(env, domain_id, runs, reference=None, tree=None):
             finally:
                 agent.stop()
             results[label].append((cpu, rss))
-            (main_cpu, main_switches), (all_cpu, all_switches) = threads
+            (main_cpu, main_switches), (all_cpu, all_switches), (dds_cpu, dds_switches) = threads
             print("run %d %s: TurtleBot3 load CPU %.2f %%, RSS %.2f MB; main thread %.2f %% at %.0f "
-                  "switch-ins/s, all threads %.2f %% at %.0f/s"
+                  "switch-ins/s, all threads %.2f %% at %.0f/s, of which Fast DDS's %.2f %% at %.0f/s "
+                  "and the rest (rclpy's executor) %.2f %% at %.0f/s"
                   % (run + 1, label, 100 * cpu, rss, 100 * main_cpu, main_switches, 100 * all_cpu,
-                     all_switches), flush=True)
+                     all_switches, 100 * dds_cpu, dds_switches, 100 * (all_cpu - main_cpu - dds_cpu),
+                     all_switches - main_switches - dds_switches), flush=True)
     here, there = results["here"], results.get("reference")
     median = lambda values: sorted(values)[len(values) // 2]  # noqa: E731
 
@@ -415,7 +420,7 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
     record("agent CPU, TurtleBot3 load", 100 * here["robot_cpu"], "% core",
            100 * base("robot_cpu", idle_floor), ref or "bare rclpy node idle", "<= 1 %",
            "simulated robot + odom/imu subscriber + reliable cmd_vel 30 Hz")
-    (main_cpu, main_wakes), (all_cpu, all_wakes) = here["robot_threads"]
+    (main_cpu, main_wakes), (all_cpu, all_wakes), _dds = here["robot_threads"]
     ref_threads = there["robot_threads"] if there is not None else None
     record("agent main thread CPU, TurtleBot3 load", 100 * main_cpu, "% core",
            100 * ref_threads[0][0] if ref_threads else None, ref or "-", "",
