@@ -271,3 +271,23 @@ def test_discovery_reads_info_as_the_general_codec_writes_it(impl_status, config
     assert read_info(message, 1, 8, len(message)) == (
         impl_status, config[1] if config else None, availability, addresses)
     assert _info_locators(message) == (addresses if config and config[1] == C.XRCE_VERSION else [])
+
+
+def test_on_demand_names_reach_their_module_without_the_entities_module(monkeypatch):
+    # Session.__getattr__ sends xrce.client.on_demand's own names straight there: a firmware's
+    # first time sync (or ping, or link_state) must not load the entity-creation module on a board.
+    from xrce.client import on_demand
+    from xrce.client import session as session_module
+
+    assert set(session_module._ON_DEMAND.split()) == set(on_demand._HERE.split()) | {"link_state"}
+    loaded = []
+    real = session_module._set_up_module
+    monkeypatch.setattr(session_module, "_set_up_module", lambda name: loaded.append(name) or real(name))
+    for name in session_module._ON_DEMAND.split() + ["create_requester"]:
+        monkeypatch.delattr(Session, name, raising=False)  # as before its first look-up
+    session = Session(_Capture(), key=b"\x01\x02\x03\x04", auto_recover=False)
+    for name in session_module._ON_DEMAND.split():
+        getattr(session, name)
+    assert loaded == []
+    session.create_requester  # a services name still goes through the entities module's router
+    assert loaded == ["entities"]

@@ -122,9 +122,14 @@ class Session(Outbound):
         # Set-up and teardown (xrce.client.lifecycle, xrce.client.entities) for one call on a
         # board; then time sync, the ping in the session, waiting for delivery, services and the
         # link state, which cost a board nothing until first used (xrce.client.on_demand).
-        if " " not in name and " %s " % name in _LIFECYCLE:
-            function = getattr(_set_up_module("lifecycle"), name)
-            return lambda *args, **kwargs: function(self, *args, **kwargs)
+        if " " not in name:
+            word = " %s " % name
+            if word in _LIFECYCLE:
+                function = getattr(_set_up_module("lifecycle"), name)
+                return lambda *args, **kwargs: function(self, *args, **kwargs)
+            if word in _ON_DEMAND:
+                from xrce.client.on_demand import session_attr
+                return session_attr(self, name)
         return (self._held or _set_up_module("entities")).session_attr(self, name)
 
     # ------------------------------------------------------------------ running
@@ -381,6 +386,10 @@ def _agent_activity(buf, flags, s, e):
 # each string of a tuple would be an object of its own). Told apart here, so that neither module
 # loads the other for a call.
 _LIFECYCLE = " create delete _reset_streams _restore "
+# xrce.client.on_demand's own, which it then sets on the class: their first look-up (a firmware's
+# first time sync, typically before any entity) goes there without loading xrce.client.entities,
+# which passes on the names it does not serve (the services') itself.
+_ON_DEMAND = " sync_time epoch_ms ping run_until_confirm_delivery link_state "
 
 
 # xrce.client.<name> (entities, lifecycle) for one call: a board drops it again, as xrce.msgs drops
