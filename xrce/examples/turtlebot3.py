@@ -209,14 +209,13 @@ class TurtleBot3:
             yield False
             return
         yield
-        # On a board the set-up code (xrce.client.entities, which also routes the session's first
-        # look-up of sync_time) is loaded once here and kept until the last entity, instead of
-        # being loaded, and left as ~5 KB of garbage, by each call.
-        session.hold_set_up()
         self.sync_clock()
         yield
         # Creating entities buffers their requests, waiting for their STATUS is the exchange: a
-        # stage each, so that neither carries the other's garbage.
+        # stage each, so that neither carries the other's garbage. On a board the creation code
+        # (xrce.client.entities) is loaded once here and kept until the last entity, instead of
+        # being loaded, and left as ~5 KB of garbage, by each call.
+        session.hold_set_up()
         node = session.create_participant(domain_id=self.domain_id, name=self.node_name)
         yield
         if not session.run_until_all_status(timeout_ms):
