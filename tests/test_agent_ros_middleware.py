@@ -15,6 +15,7 @@ from test_msgs.srv import BasicTypes
 from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
 from xrce.agent.middleware import (EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
                                    UnknownTypeError)
+from xrce.agent.observability import client_tag
 from xrce.agent.ros import RosMiddleware
 from xrce.agent.ros_domain import ENCAPSULATION_LE
 from xrce.agent.rostypes import dds_topic_to_ros, node_name_and_namespace, service_class
@@ -99,11 +100,13 @@ async def test_participants_show_as_nodes_and_close_removes_them(ros_domain, ros
     try:
         make_participant(mw, ros_domain, "robot/talker", 0x01)
         make_participant(mw, ros_domain, "", 0x11)
-        expected = {("talker", "/robot"), ("xrce_%08x_0011" % CLIENT, "/")}
+        # Named after the client's tag: the key is a credential the ROS graph must not show.
+        unnamed = ("xrce_%s_0011" % client_tag(CLIENT.to_bytes(4, "big")), "/")
+        expected = {("talker", "/robot"), unnamed}
         assert await async_wait_until(lambda: expected <= set(ros_peer.node_names()))
+        assert not any("%08x" % CLIENT in name for name, _ in ros_peer.node_names())
         mw.delete(key(0x11))
-        assert await async_wait_until(
-            lambda: ("xrce_%08x_0011" % CLIENT, "/") not in ros_peer.node_names())
+        assert await async_wait_until(lambda: unnamed not in ros_peer.node_names())
     finally:
         await mw.close()
     assert await async_wait_until(lambda: ros_peer.node_names() == [])

@@ -156,10 +156,33 @@ def _add_session_options(parser):
                             "beyond (default %(default)s)")
 
 
+def _allow_list(parse):
+    def parse_option(text):
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc))
+    return parse_option
+
+
+def _add_admission_options(parser):
+    from xrce.agent import admission
+
+    group = parser.add_argument_group("admission (XRCE has no authentication: see README)")
+    group.add_argument("--allow-keys", type=_allow_list(admission.parse_keys), metavar="KEY[,KEY...]",
+                       help="open sessions only for these client keys (hex, e.g. 0xAABBCCDD); "
+                            "others get ERR_DENIED and a (rate-limited) log line")
+    group.add_argument("--allow-from", type=_allow_list(admission.parse_networks),
+                       metavar="CIDR[,CIDR...]",
+                       help="open sessions only for clients from these addresses/networks "
+                            "(udp4/udp6/tcp4/tcp6)")
+
+
 def _add_common_options(parser):
     parser.add_argument("-v", "--verbose", type=_verbosity, default=4, metavar="LEVEL",
                         help="log level 0 (off) .. 4 (info, default) .. 5 (debug) .. 6 (trace)")
     _add_session_options(parser)
+    _add_admission_options(parser)
     parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
     parser.add_argument("-r", "--refs", metavar="FILE",
@@ -302,6 +325,9 @@ register(Subcommand("demo", "run the agent, a simulated TurtleBot3 and a ROS nod
                     _add_demo_options, run=_run_demo))
 
 
+_IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
+
+
 def build_parser():
     parser = ArgumentParser(prog=PROG, description="Micro XRCE-DDS agent (MicroXRCEAgent-compatible)")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
@@ -381,6 +407,10 @@ async def serve(args, refs):
                   max_clients=args.max_clients, max_objects_per_client=args.max_objects,
                   max_reassembly_bytes=args.max_reassembly,
                   max_output_queue_bytes=args.max_output_queue)
+    from xrce.agent.admission import AdmissionPolicy
+    agent.admission = AdmissionPolicy.from_args(args)
+    if agent.admission is not None:
+        logging.getLogger("xrce.agent.admission").info("admission: %s", agent.admission.describe())
     links = SUBCOMMANDS[args.subcommand].make_links(args, agent)
     started = []
     run_task = None
@@ -453,6 +483,9 @@ def main(argv=None):
     row = SUBCOMMANDS[args.subcommand]
     if row.run is not None:
         return row.run(args)
+    if getattr(args, "allow_from", None) and args.subcommand not in _IP_SUBCOMMANDS:
+        parser.error("--allow-from needs an IP link (udp4, udp6, tcp4, tcp6), not %s"
+                     % args.subcommand)
     try:
         refs = load_refs(args.refs) if args.refs else None
     except CliError as exc:

@@ -1,7 +1,7 @@
 """``/diagnostics``: with ``-m dds`` and ``diagnostic_msgs`` importable, a
 ``diagnostic_msgs/DiagnosticArray`` goes out once a second in every ROS domain the agent has joined
-where some node subscribes to it: one status for the agent, one per client, named after the client
-key. Its content is an ``Observer`` snapshot (xrce.agent.observability).
+where some node subscribes to it: one status for the agent, one per client, named after the
+client's tag (``observability.client_tag``: the key itself is a credential). Its content is an ``Observer`` snapshot (xrce.agent.observability).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def diagnostic_array_type():
 
 def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
     """A DiagnosticArray, one status for the agent and one per client (``xrce_agent: client
-    KEY``), as its CDR body (XCDR1 little-endian, no encapsulation header).
+    TAG``), as its CDR body (XCDR1 little-endian, no encapsulation header).
 
     Encoded here rather than through the generated Python classes: building ~20 message objects
     a second cost more CPU than a TurtleBot3's whole sensor traffic, and importing the classes

@@ -115,6 +115,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
+        self.admission = None  # who may open a session (xrce.agent.admission); None: anyone
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
         self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent
 

@@ -27,7 +27,13 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
 import time
+
+try:  # the BLAKE2 core alone: hashlib would load OpenSSL for nothing
+    from _blake2 import blake2b
+except ImportError:
+    from hashlib import blake2b
 
 from xrce import constants as C
 from xrce.agent.diagnostics import DiagnosticsPublisher, diagnostic_array_type
@@ -38,6 +44,27 @@ log = logging.getLogger("xrce.agent.observability")
 DEFAULT_SUMMARY_PERIOD_S = 5.0
 RATE_PERIOD_S = 1.0
 _TOPIC_KINDS = {C.OBJK_DATAWRITER: "to_ros", C.OBJK_DATAREADER: "from_ros"}
+
+
+# A client key is the only credential of an XRCE session: with it, anyone who can send a
+# datagram to the agent can delete or take over that session. What others can read (/diagnostics:
+# the whole ROS domain; the stats port: any local user; capture files, which travel with bug
+# reports) names a client by a tag instead: the first 4 bytes of BLAKE2b keyed with a secret drawn
+# at agent start. Keyed, because a key has only 2**32 values: a plain hash prefix is undone by
+# hashing them all, in minutes. Per run, because the secret is never stored: the same client has
+# the same tag for the agent's whole run (and its capture files), a new one after a restart. The
+# operator's log names the key with its tag when the session is created, as a lookup table.
+_TAG_SECRET = os.urandom(16)
+
+
+def client_pseudonym(key: bytes) -> bytes:
+    """4 bytes that stand for client ``key`` in what others can read (see above)."""
+    return blake2b(bytes(key), digest_size=4, key=_TAG_SECRET).digest()
+
+
+def client_tag(key: bytes) -> str:
+    """``client_pseudonym`` as 8 hex digits: how stats, /diagnostics and node names show a key."""
+    return client_pseudonym(key).hex()
 
 
 def _link_crc_errors(link) -> int:
@@ -127,7 +154,7 @@ class Observer:
         for client in list(agent.clients.values()):
             rates = self._rates.get(("client", client.key), (0.0, 0.0, 0.0, 0.0))
             clients.append({
-                "key": client.key.hex(),
+                "key": client_tag(client.key),
                 "session_id": client.session_id,
                 "link": client.link.name,
                 "endpoint": endpoint_text(client.endpoint),
@@ -168,7 +195,8 @@ class Observer:
         return {"time": time.time(), "uptime_s": round(now - self.started, 3),
                 "agent": agent.stats.as_dict(), "links": links, "clients": clients,
                 "topics": topics,
-                "recoveries": timelines.snapshot() if timelines is not None else []}
+                "recoveries": [dict(t, key=client_tag(bytes.fromhex(t["key"])))
+                               for t in timelines.snapshot()] if timelines is not None else []}
 
 
 # ------------------------------------------------------------------------------------ live view
@@ -209,13 +237,49 @@ class StatsServer:
 
 # ------------------------------------------------------------------------------------ wiring
 
+CAPTURE_MAX_BYTES = 16 * 1024 * 1024  # xrce.agent.capture: a flood fills 4 x 16 MiB at most
+CAPTURE_FILES = 4
+_MIN_CAPTURE_BYTES = 4096
+
+
+def _capture_size(text):
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid size: %r" % text)
+    if value < _MIN_CAPTURE_BYTES:
+        raise argparse.ArgumentTypeError("capture files need at least %d bytes, not %d"
+                                         % (_MIN_CAPTURE_BYTES, value))
+    return value
+
+
+def _capture_files(text):
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid number: %r" % text)
+    if value < 1:
+        raise argparse.ArgumentTypeError("must be at least 1, not %d" % value)
+    return value
+
+
 def add_agent_options(parser) -> None:
     """Options every agent transport subcommand gets."""
     parser.add_argument("--stats-port", type=int, metavar="PORT",
                         help="serve live counters as JSON on 127.0.0.1:PORT (0: any free port, "
                              "shown in the banner) for `xrce-agent stats -p PORT`")
     parser.add_argument("--capture", metavar="FILE",
-                        help="record every message in both directions, with timestamps, to FILE")
+                        help="record every message in both directions, with timestamps, to FILE "
+                             "(mode 0600; client keys replaced by their tags)")
+    parser.add_argument("--capture-max-bytes", type=_capture_size, metavar="BYTES",
+                        default=CAPTURE_MAX_BYTES,
+                        help="rotate the capture file past this size (default %(default)s)")
+    parser.add_argument("--capture-files", type=_capture_files, metavar="N", default=CAPTURE_FILES,
+                        help="capture files kept: FILE, FILE.1 .. FILE.N-1 (default %(default)s)")
     parser.add_argument("--summary-period", type=float, default=DEFAULT_SUMMARY_PERIOD_S,
                         metavar="S", help="seconds between -v 5 summaries (default 5)")
     parser.add_argument("--no-diagnostics", action="store_true",
@@ -227,7 +291,8 @@ class Observability:
     one agent according to its command-line options."""
 
     def __init__(self, agent, links, *, stats_port=None, capture=None, summary_period=None,
-                 middleware=None, diagnostics=True):
+                 middleware=None, diagnostics=True, capture_max_bytes=CAPTURE_MAX_BYTES,
+                 capture_files=CAPTURE_FILES):
         self.agent = agent
         self.observer = Observer(agent, links)
         self.stats_server = StatsServer(self.observer, stats_port) if stats_port is not None \
@@ -236,7 +301,7 @@ class Observability:
         if capture:
             from xrce.agent.capture import CaptureWriter
 
-            self.capture = CaptureWriter(capture)
+            self.capture = CaptureWriter(capture, capture_max_bytes, capture_files)
         self.summary_period = summary_period
         self.diagnostics = None
         if diagnostics and middleware is not None and hasattr(middleware, "agent_publisher"):
@@ -258,7 +323,9 @@ class Observability:
         summary = args.summary_period if log.getEffectiveLevel() <= logging.DEBUG else None
         return cls(agent, links, stats_port=getattr(args, "stats_port", None),
                    capture=getattr(args, "capture", None), summary_period=summary,
-                   middleware=middleware, diagnostics=not getattr(args, "no_diagnostics", False))
+                   middleware=middleware, diagnostics=not getattr(args, "no_diagnostics", False),
+                   capture_max_bytes=getattr(args, "capture_max_bytes", CAPTURE_MAX_BYTES),
+                   capture_files=getattr(args, "capture_files", CAPTURE_FILES))
 
     async def start(self) -> None:
         if self.capture is not None:
@@ -359,4 +426,4 @@ def run_stats(args) -> int:
 
 
 __all__ = ["Observability", "Observer", "StatsServer", "add_agent_options", "add_stats_options",
-           "endpoint_text", "run_stats"]
+           "client_pseudonym", "client_tag", "endpoint_text", "run_stats"]

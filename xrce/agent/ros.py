@@ -34,6 +34,7 @@ from xrce.agent.ros_domain import (
     in_thread,
     log,
 )
+from xrce.agent.observability import client_tag
 from xrce.agent.ros_services import RosServices
 from xrce.agent.rostypes import (
     dds_topic_to_ros,
@@ -214,7 +215,9 @@ class RosMiddleware(RosServices, Middleware):
         if joining is not None and not joining.done():
             raise TypeNotReady("ROS domain %d is being joined" % domain_id, joining)
         domain = self._domain(domain_id)
-        fallback = "xrce_%08x_%04x" % (key[0] & 0xFFFFFFFF, key[1] & 0xFFFF)
+        # The whole ROS domain reads node names: a client's tag, never its key (observability).
+        fallback = "xrce_%s_%04x" % (client_tag((key[0] & 0xFFFFFFFF).to_bytes(4, "big")),
+                                     key[1] & 0xFFFF)
         node_name, namespace = node_name_and_namespace(name or "", fallback)
 
         def make_node():

@@ -15,6 +15,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 
 from xrce import constants as C
 from xrce.agent.middleware import EntityKey, TopicSpec
+from xrce.agent.observability import client_tag
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )
@@ -213,6 +214,9 @@ class SessionTable:
             status = C.STATUS_ERR_INVALID_DATA
         elif request.version[0] != C.XRCE_VERSION_MAJOR:
             status = C.STATUS_ERR_INCOMPATIBLE
+        elif self.admission is not None and \
+                not self.admission.admits(bytes(request.client_key), link, endpoint):
+            status = C.STATUS_ERR_DENIED  # --allow-keys / --allow-from (xrce.agent.admission)
         elif not self._room_for_client(bytes(request.client_key), link, endpoint, session_id):
             status = C.STATUS_ERR_RESOURCES
         if status == C.STATUS_OK:
@@ -249,8 +253,8 @@ class SessionTable:
                                  _hard_liveliness(request.properties))
             self.clients[key] = client
             self.stats.clients_created += 1
-            log.info("client %s session 0x%02X created on %s %r (mtu %d)", key.hex(), session_id,
-                     link.name, endpoint, client.mtu)
+            log.info("client %s session 0x%02X created on %s %r (mtu %d; shown to others as %s)",
+                     key.hex(), session_id, link.name, endpoint, client.mtu, client_tag(key))
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
         self._wake_at(now + (client.hard_liveliness or self.client_dead_time))
