@@ -321,9 +321,18 @@ NOT_IN_SEARCH_PATH = 3  # exit code of main(): no interface package of that name
 
 def main(argv=None):
     """``python -m xrce.agent.interface_build PACKAGE DIR...``: build and register PACKAGE (with its
-    in-tree dependencies) from DIRs. The agent's lazy build runs this in a child interpreter
-    (xrce.agent.interfaces), so that nothing a build imports stays in the agent's memory."""
+    in-tree dependencies) from DIRs; ``--list DIR...``: print the names of the packages there.
+    The agent's lazy build runs this in a child interpreter (xrce.agent.interfaces), so that
+    nothing a build or the search imports stays in the agent's memory."""
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--list"]:  # the names of the packages in DIRs, one a line
+        try:
+            found = find_packages([d for d in argv[1:] if os.path.isdir(d)])
+        except InterfaceBuildError as exc:
+            sys.stderr.write("%s\n" % exc)
+            return 1
+        sys.stdout.write("".join("%s\n" % name for name in sorted(found)))
+        return 0
     package, dirs = argv[0], [d for d in argv[1:] if os.path.isdir(d)]
     try:
         if not dirs or package not in find_packages(dirs):

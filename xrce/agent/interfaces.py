@@ -37,30 +37,100 @@ def __getattr__(name):
 
 # ----------------------------------------------------------------------------- agent's lazy path
 
+# A client names types; a type name must never make the agent run code it would not run anyway
+# (xrce.agent.rostypes decides what may be imported). Building is for packages the interface
+# directories hold: their names are listed once per agent run by a child interpreter, each such
+# package gets one build attempt per run, and both children are killed past their timeout, so a
+# CREATE parked on them always comes back.
 _lazy_lock = threading.Lock()
-_lazy_builds = {}  # package -> concurrent.futures.Future of its build
+_lazy_builds = {}  # package -> concurrent.futures.Future of its build (one per agent run)
 _lazy_executor = None
+_search_index = None  # Future of the frozenset of package names in the interface directories
 LAZY_BUILD_TIMEOUT_S = 600.0
+SEARCH_INDEX_TIMEOUT_S = 60.0
 
 
-def start_package_build(package_name):
-    """The future of building ``package_name`` from the interface search path, started now if no
-    build of it is under way or done. Its result is True once the package is built (or was cached)
-    and importable, False when the search path has no such package; it raises InterfaceBuildError
-    when the build failed (and the next call starts a new one).
-
-    Builds run one at a time on a worker thread; concurrent requests for one package share a build.
-    """
+def _submit(function, *args):
     global _lazy_executor
     import concurrent.futures
 
+    if _lazy_executor is None:
+        _lazy_executor = concurrent.futures.ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="xrce-interfaces")
+    return _lazy_executor.submit(function, *args)
+
+
+def search_index():
+    """The future of the names of the interface packages in the search path (listed once per
+    agent run, in a child interpreter: the search parses package.xml files)."""
+    global _search_index
+    with _lazy_lock:
+        if _search_index is None:
+            _search_index = _submit(_list_in_child)
+        return _search_index
+
+
+def _list_in_child():
+    import subprocess
+
+    from xrce.agent.interface_build import search_dirs
+
+    dirs = search_dirs()
+    if not dirs:
+        return frozenset()
+    command = [sys.executable, "-m", "xrce.agent.interface_build", "--list"] + dirs
+    try:
+        completed = _run_child(command, SEARCH_INDEX_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        _log().warning("listing the interface directories took over %.0f s: no package of "
+                       "theirs will be built in this run", SEARCH_INDEX_TIMEOUT_S)
+        return frozenset()
+    if completed.returncode != 0:
+        _log().warning("cannot list the interface directories: %s",
+                       (completed.stderr or "exit code %d" % completed.returncode).strip())
+        return frozenset()
+    return frozenset(line.strip() for line in completed.stdout.splitlines() if line.strip())
+
+
+def _run_child(command, timeout_s):
+    """``subprocess.run`` of ``command`` in its own process group, which is killed whole (cmake,
+    ninja and the compilers under it too) past ``timeout_s``: subprocess.TimeoutExpired then."""
+    import signal
+    import subprocess
+
+    child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        stdout, stderr = child.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        try:
+            os.killpg(child.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        child.communicate()
+        raise
+    return subprocess.CompletedProcess(command, child.returncode, stdout, stderr)
+
+
+def _log():
+    import logging
+
+    return logging.getLogger("xrce.agent.interfaces")
+
+
+def start_package_build(package_name):
+    """The future of building ``package_name`` from the interface search path: started by the
+    first call of the agent run, shared by every later one (a build that failed or timed out is
+    not retried before the agent restarts). Its result is True once the package is built (or was
+    cached) and importable, False when the search path has no such package; it raises
+    InterfaceBuildError when the build failed.
+
+    Builds run one at a time on a worker thread.
+    """
     with _lazy_lock:
         future = _lazy_builds.get(package_name)
-        if future is None or (future.done() and future.exception() is not None):
-            if _lazy_executor is None:
-                _lazy_executor = concurrent.futures.ThreadPoolExecutor(
-                    max_workers=1, thread_name_prefix="xrce-interfaces")
-            future = _lazy_executor.submit(_build_in_child, package_name)
+        if future is None:
+            future = _submit(_build_in_child, package_name)
             _lazy_builds[package_name] = future
     return future
 
@@ -77,8 +147,11 @@ def _build_in_child(package_name):
     from xrce.agent.interface_build import NOT_IN_SEARCH_PATH, InterfaceBuildError, search_dirs
 
     command = [sys.executable, "-m", "xrce.agent.interface_build", package_name] + search_dirs()
-    completed = subprocess.run(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+    try:
+        completed = _run_child(command, LAZY_BUILD_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise InterfaceBuildError("building %s took over %.0f s (stopped)"
+                                  % (package_name, LAZY_BUILD_TIMEOUT_S)) from None
     if completed.returncode == NOT_IN_SEARCH_PATH:
         return False
     if completed.returncode != 0:

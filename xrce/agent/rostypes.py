@@ -96,44 +96,83 @@ def _split_type(dds_type: str) -> tuple[str, str, str]:
     return match.group(1), match.group(2), match.group(3)
 
 
-def _build_missing_package(package: str) -> bool:
-    """Make ``package`` importable from the interface search path (xrce.agent.interfaces).
+# -- which packages a type name may import -------------------------------------------------------
+#
+# Importing a package runs its code, and the type name comes from anyone who can send the agent a
+# datagram: "this::msg::dds_::Foo_" used to print the Zen of Python, "numpy::msg::..." to load
+# numpy (+16 MB). A package is imported only when it is an interface package of the ROS in use
+# (its ament index lists it under rosidl_interfaces) or one the agent's interface registry holds
+# a complete build of (xrce.agent.interface_registry). A package of the agent's interface
+# directories gets one build attempt per agent run (xrce.agent.interfaces); any other name is
+# refused (ERR_DDS_ERROR, logged with the type by the engine) without a child process.
 
-    False when the search path does not have it. A build that is not finished yet raises
-    TypeNotReady carrying its future: the engine retries once it is done, so a cmake run of
-    several seconds never stalls the agent's loop (other clients keep being served).
-    """
+_known_packages: dict = {}  # package -> True (an interface package of the ROS in use) / False
+
+
+def _in_ament_index(package: str) -> bool:
+    known = _known_packages.get(package)
+    if known is None:
+        import os
+
+        from xrce.agent import rosenv
+
+        known = any(os.path.isfile(os.path.join(prefix, "share", "ament_index", "resource_index",
+                                                "rosidl_interfaces", package))
+                    for prefix in rosenv.ament_prefixes())
+        if len(_known_packages) < 4096:  # a flood of made-up names must not grow this forever
+            _known_packages[package] = known
+    return known
+
+
+def _registered(package: str) -> bool:
+    import os
+
+    from xrce.agent import interface_registry
+
+    finder = interface_registry._FINDER
+    entry = finder.entries.get(package) if finder is not None else None
+    return entry is not None and os.path.exists(
+        os.path.join(entry["prefix"], interface_registry.COMPLETE_MARKER))
+
+
+def _check_package(package: str, dds_type: str) -> None:
+    """Return if ``package`` may be imported for ``dds_type``; else raise UnknownTypeError, or
+    TypeNotReady while the interface directories are listed or the package is built."""
+    if _in_ament_index(package) or _registered(package):
+        return
     from xrce.agent import interfaces
 
+    listing = interfaces.search_index()
+    if not listing.done():
+        raise TypeNotReady("looking for %s in the interface directories" % package, listing)
+    if package not in listing.result():
+        raise UnknownTypeError("type %s: %s is not installed: no interface package of the ROS in "
+                               "use (ament index) nor of the agent's interface directories has "
+                               "that name (--interfaces DIR, then %s)"
+                               % (dds_type, package, BUILD_HINT))
     future = interfaces.start_package_build(package)
     if not future.done():
-        log.info("building interface package %s for a client if the interface search path has "
-                 "it; its CREATE waits", package)
+        log.info("building interface package %s for type %s; its CREATE waits", package, dds_type)
         raise TypeNotReady("interface package %s is being built" % package, future)
     error = future.exception()
     if error is not None:
-        raise UnknownTypeError("building %s failed: %s" % (package, error)) from None
-    if future.result():
-        log.info("built interface package %s", package)
-    return future.result()
+        raise UnknownTypeError("type %s: building %s failed in this agent run (not retried "
+                               "before a restart): %s" % (dds_type, package, error)) from None
+    if not future.result():
+        raise UnknownTypeError("type %s: %s is not installed (%s)" % (dds_type, package,
+                                                                      BUILD_HINT))
+    if not _registered(package):
+        raise UnknownTypeError("type %s: %s was built but is not registered" % (dds_type, package))
 
 
 def _import_module(package: str, module_name: str):
-    """Import ``module_name`` of interface ``package``, building the package when it is missing."""
+    """Import ``module_name`` of interface ``package`` (``_check_package`` allowed it)."""
     try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name != package or not _build_missing_package(package):
-            raise UnknownTypeError("%s is not installed: %s (%s)" % (package, BUILD_HINT, exc)) from None
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as exc2:
-            raise UnknownTypeError("%s was built but does not import: %s" % (package, exc2)) from None
+        return importlib.import_module(module_name)
     except ImportError as exc:
         # ImportError of the package itself means it was never built; anything deeper is a broken
-        # install, which the same rebuild fixes.
+        # install, which a rebuild fixes.
         raise UnknownTypeError("%s is not installed: %s (%s)" % (package, BUILD_HINT, exc)) from None
-    return module
 
 
 def _import_interface(package: str, kind: str, type_name: str):
@@ -151,6 +190,7 @@ def message_class(dds_type: str):
     package, kind, type_name = _split_type(dds_type)
     if kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
+    _check_package(package, dds_type)
     return _import_interface(package, kind, type_name)
 
 
@@ -185,6 +225,7 @@ def raw_message_type(dds_type: str):
     package, kind, type_name = _split_type(dds_type)
     if kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
+    _check_package(package, dds_type)
     module = _import_module(package, "%s.%s_s__rosidl_typesupport_c" % (package, package))
     names = _typesupport_names.get(package)
     if names is None:
@@ -218,6 +259,7 @@ def service_class(request_or_reply_type: str):
             break
     if kind != "srv":
         raise UnknownTypeError("%r is not a service type" % request_or_reply_type)
+    _check_package(package, request_or_reply_type)
     return _import_interface(package, kind, type_name)
 
 
