@@ -375,12 +375,7 @@ class RosMiddleware(RosServices, Middleware):
             record.handoff.closed = True
             record.handoff.queue.clear()
         elif record.kind == "requester":
-            record.closed = True
-            for entry in record.pending.values():
-                self._forget_request(record, entry)
-            record.pending.clear()
-            for task in list(record.waiting):
-                task.cancel()
+            self._close_requester(record)
         elif record.kind == "replier":
             record.closed = True
             for _header, expiry in record.pending.values():

@@ -1,7 +1,8 @@
 """The request/reply (ROS service) half of ``RosMiddleware`` (``xrce.agent.ros``).
 
 An XRCE requester is an rclpy service client, an XRCE replier an rclpy service. A request waits
-on the loop until its reply arrives or ``request_timeout_s`` passes; a replier's incoming request
+on the loop until its reply arrives or ``request_timeout_s`` passes (held, if its server is not
+discovered yet, under one shared timer; at most MAX_PENDING_REQUESTS_PER_CLIENT per client); a replier's incoming request
 gets a sample identity of its own and waits for the XRCE client's reply just as long. Clients and
 services are made, and requests sent (``call_async``), on the domain's executor thread
 (``xrce.agent.ros_domain``); a service response goes out from the loop thread, rcl send_response
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import struct
+import time
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.service import Service
@@ -24,6 +26,7 @@ from xrce.agent.middleware import (
     RequestCallback,
     ServiceSpec,
 )
+from xrce.agent.observability import client_tag
 from xrce.agent.ros_domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
 from xrce.agent.rostypes import qos_profile, service_class, service_ros_name
 
@@ -38,19 +41,33 @@ class _TakenRequest:
         self.body = body
 
 
+# Requests held for a server that is not discovered yet are checked together: one timer for the
+# whole agent, armed only while some are held, first after SERVER_CHECK_FIRST_S, then less and less
+# often up to SERVER_CHECK_MAX_S (each check asks every such requester once, however many requests
+# it holds). It replaced a task per request waking every 10 ms: 2000 requests to a service with no
+# server took 99 % of a core for their 10 s.
+SERVER_CHECK_FIRST_S = 0.01
+SERVER_CHECK_MAX_S = 0.1
+# Requests of one XRCE client in flight (held, or sent and not answered yet); beyond, a request is
+# refused. Each holds a deserialized request and an expiry timer for request_timeout_s.
+MAX_PENDING_REQUESTS_PER_CLIENT = 256
+
+
 class _RequesterRecord:
-    __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed")
+    __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed",
+                 "client_key")
     kind = "requester"
 
     def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback):
         self.participant = participant
+        self.client_key = participant[0]  # the XRCE client's, for its pending-request quota
         self.client = None
         self.srv = srv
         self.on_reply = on_reply
         # correlation id -> [rclpy Future or None until sent, expiry TimerHandle]
         self.pending: dict[int, list] = {}
-        # tasks waiting for the service server to be discovered
-        self.waiting: set[asyncio.Task] = set()
+        # correlation id -> (entry, request) held until the service server is discovered
+        self.waiting: dict[int, tuple] = {}
         self.closed = False
 
 
@@ -108,6 +125,13 @@ class RosServices:
     ``_entities``, ``_loop`` / ``_get_loop``, ``_participant_of``, ``_on_executor``,
     ``_guid_prefix``, ``_replier_counter``, ``request_timeout_s`` and ``requests_timed_out``."""
 
+    _awaiting_server = None  # requesters holding requests: {record: None}, made on first use
+    _server_check = None  # the one TimerHandle checking them
+    _server_check_delay = SERVER_CHECK_FIRST_S
+    _pending_by_client = None  # XRCE client key -> requests in flight
+    requests_refused = 0
+    _refusal_logged = None
+
     # -- creation -----------------------------------------------------------------------------
 
     def _service_endpoint(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
@@ -164,8 +188,17 @@ class RosServices:
             return False
         loop = self._get_loop()
         previous = record.pending.pop(correlation_id, None)
-        if previous is not None:
+        if previous is not None:  # the same request id again: the new one replaces it
             self._forget_request(record, previous)
+            self._release(record)
+            record.waiting.pop(correlation_id, None)
+        if self._pending_by_client is None:
+            self._pending_by_client = {}
+        in_flight = self._pending_by_client.get(record.client_key, 0)
+        if in_flight >= MAX_PENDING_REQUESTS_PER_CLIENT:
+            self._refuse_request(record)
+            return False
+        self._pending_by_client[record.client_key] = in_flight + 1
         entry = [None, loop.call_later(self.request_timeout_s, self._expire_request, record,
                                        correlation_id)]
         record.pending[correlation_id] = entry
@@ -174,18 +207,77 @@ class RosServices:
         else:
             # A request sent before the server is discovered is lost in DDS; the XRCE client
             # cannot know that, so hold it here until the server shows up (or it expires).
-            task = loop.create_task(self._send_when_ready(record, correlation_id, entry, request))
-            record.waiting.add(task)
-            task.add_done_callback(record.waiting.discard)
+            record.waiting[correlation_id] = (entry, request)
+            self._await_server(record)
         return True
 
-    async def _send_when_ready(self, record: _RequesterRecord, correlation_id: int, entry: list,
-                               request) -> None:
-        while not record.closed and record.pending.get(correlation_id) is entry:
-            if record.client.service_is_ready():
-                self._send_request(record, correlation_id, entry, request)
-                return
-            await asyncio.sleep(0.01)
+    def _refuse_request(self, record: _RequesterRecord) -> None:
+        self.requests_refused += 1
+        now = time.monotonic()
+        if self._refusal_logged is None or now - self._refusal_logged >= 10.0:
+            self._refusal_logged = now
+            log.warning("client %s has %d service requests in flight: further ones are refused "
+                        "(%d so far)", client_tag(record.client_key.to_bytes(4, "big")),
+                        MAX_PENDING_REQUESTS_PER_CLIENT, self.requests_refused)
+
+    def _release(self, record: _RequesterRecord, count: int = 1) -> None:
+        """``count`` of ``record``'s requests are no longer in flight."""
+        counts = self._pending_by_client
+        if counts is None or not count:
+            return
+        left = counts.get(record.client_key, 0) - count
+        if left > 0:
+            counts[record.client_key] = left
+        else:
+            counts.pop(record.client_key, None)
+
+    def _await_server(self, record: _RequesterRecord) -> None:
+        if self._awaiting_server is None:
+            self._awaiting_server = {}
+        if record not in self._awaiting_server:
+            self._awaiting_server[record] = None
+            # A requester that starts waiting is checked soon, whatever the others' back-off.
+            self._server_check_delay = SERVER_CHECK_FIRST_S
+            if self._server_check is not None:
+                self._server_check.cancel()
+                self._server_check = None
+        if self._server_check is None:
+            self._server_check = self._loop.call_later(self._server_check_delay,
+                                                       self._check_servers)
+
+    def _check_servers(self) -> None:
+        """The one timer: send what each requester holds once its server is there."""
+        self._server_check = None
+        for record in list(self._awaiting_server):
+            if record.closed or not record.waiting:
+                del self._awaiting_server[record]
+                continue
+            try:
+                ready = record.client.service_is_ready()
+            except Exception:  # destroyed meanwhile
+                ready = False
+            if not ready:
+                continue
+            del self._awaiting_server[record]
+            held, record.waiting = record.waiting, {}
+            for correlation_id, (entry, request) in held.items():
+                if record.pending.get(correlation_id) is entry:
+                    self._send_request(record, correlation_id, entry, request)
+        if self._awaiting_server:
+            self._server_check_delay = min(SERVER_CHECK_MAX_S, self._server_check_delay * 2)
+            self._server_check = self._loop.call_later(self._server_check_delay,
+                                                       self._check_servers)
+
+    def _close_requester(self, record: _RequesterRecord) -> None:
+        """The requester is deleted: forget what it holds (loop side)."""
+        record.closed = True
+        for entry in record.pending.values():
+            self._forget_request(record, entry)
+        self._release(record, len(record.pending))
+        record.pending.clear()
+        record.waiting.clear()
+        if self._awaiting_server is not None:
+            self._awaiting_server.pop(record, None)
 
     def _send_request(self, record: _RequesterRecord, correlation_id: int, entry: list,
                       request) -> None:
@@ -219,6 +311,7 @@ class RosServices:
         if record.closed or record.pending.get(correlation_id) is not entry:
             return
         del record.pending[correlation_id]
+        self._release(record)
         entry[1].cancel()
         try:
             record.on_reply(correlation_id, body)
@@ -233,6 +326,8 @@ class RosServices:
     def _expire_request(self, record: _RequesterRecord, correlation_id: int) -> None:
         entry = record.pending.pop(correlation_id, None)
         if entry is not None:
+            self._release(record)
+            record.waiting.pop(correlation_id, None)
             self.requests_timed_out += 1
             log.warning("service request %d got no reply within %.1f s", correlation_id,
                         self.request_timeout_s)
