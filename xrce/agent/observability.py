@@ -348,12 +348,12 @@ class Observability:
     def _rounds_needed(self) -> bool:
         if self._always or self._diagnostics_unmatched_events:
             return True
-        for publisher in self._diagnostics_publishers:
+        for publisher in list(self._diagnostics_publishers):
             try:
                 if publisher.subscriber_count():
                     return True
-            except Exception:  # destroyed with its domain (agent shutting down): no subscriber
-                continue
+            except Exception:  # destroyed with its domain (left, or the agent shutting down)
+                self._diagnostics_publishers.remove(publisher)
         return False
 
     def _update_rounds(self) -> None:
