@@ -44,12 +44,25 @@ class DomainLease:
             except BlockingIOError:
                 os.close(fd)
                 continue
-            self.domain_id, self._fd = domain_id, fd
+            # The holder unlinks the file when it releases it (nothing is left in /tmp): a lock
+            # taken on a file that is no longer at ``path`` guards nothing, try the next domain.
+            try:
+                current = os.stat(path)
+            except FileNotFoundError:
+                current = None
+            if current is None or current.st_ino != os.fstat(fd).st_ino:
+                os.close(fd)
+                continue
+            self.domain_id, self._fd, self._path = domain_id, fd, path
             return
         raise RuntimeError("every ROS domain in %r is in use" % (DOMAIN_RANGE,))
 
     def release(self):
         if self._fd is not None:
+            try:
+                os.unlink(self._path)  # still locked: nobody can take the lock on it meanwhile
+            except FileNotFoundError:
+                pass
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None
