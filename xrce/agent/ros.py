@@ -116,6 +116,13 @@ def _default_domain_id() -> int:
         return 0
 
 
+def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
+    domain.stop(timeout_s)
+    from xrce.agent.engine import _return_free_heap
+
+    _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
+
+
 class RosMiddleware(RosServices, Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
@@ -434,7 +441,7 @@ class RosMiddleware(RosServices, Middleware):
         for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
             del self._agent_publishers[publisher_key]
         log.debug("ROS domain %d has no participant left: leaving it", domain_id)
-        stopping = threading.Thread(target=domain.stop, args=(self.entity_timeout_s,),
+        stopping = threading.Thread(target=_leave_domain, args=(domain, self.entity_timeout_s),
                                     name="xrce-leave-domain-%d" % domain_id, daemon=True)
         stopping.start()
         self._leaving = [thread for thread in self._leaving if thread.is_alive()] + [stopping]
