@@ -384,6 +384,25 @@ def test_allow_from_refuses_other_addresses():
             session.close()
 
 
+def test_allow_from_reads_every_kind_of_endpoint():
+    from xrce.agent.admission import AdmissionPolicy, parse_keys, parse_networks
+
+    class TcpPeer:  # what xrce.agent.tcp_links hands the engine: the connection, with its peer
+        def __init__(self, peer):
+            self.peer = peer
+
+    policy = AdmissionPolicy(parse_keys("0xAABBCCDD, 11223344"), parse_networks("10.1.0.0/16,fd00::/8"))
+    key = bytes.fromhex("aabbccdd")
+    assert policy.admits(key, None, ("10.1.2.3", 5000))
+    assert policy.admits(bytes.fromhex("11223344"), None, ("::ffff:10.1.9.9", 5000, 0, 0))  # udp6
+    assert policy.admits(key, None, ("fd00::1%eth0", 5000, 0, 2))
+    assert policy.admits(key, None, TcpPeer(("10.1.0.1", 40000)))
+    assert not policy.admits(key, None, ("10.2.0.1", 5000))
+    assert not policy.admits(bytes.fromhex("aabbccde"), None, ("10.1.2.3", 5000))
+    assert not policy.admits(key, None, "/dev/ttyUSB0")  # no address: not on the list
+    assert policy.refused == 3
+
+
 @pytest.mark.parametrize("args", [["udp4", "-p", "0", "--allow-keys", "0xNOTHEX"],
                                   ["udp4", "-p", "0", "--allow-keys", "0"],
                                   ["udp4", "-p", "0", "--allow-from", "10.0.0.300/8"],
