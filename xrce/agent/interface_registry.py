@@ -98,6 +98,12 @@ def _finder():
     return _FINDER
 
 
+def is_registered(package):
+    """True if ``package`` has a complete build registered (in this process's finder)."""
+    entry = _FINDER.entries.get(package) if _FINDER is not None else None
+    return entry is not None and os.path.exists(os.path.join(entry["prefix"], COMPLETE_MARKER))
+
+
 def activate_registry(registry_path):
     """Called from the ``.pth`` hook: make every package in ``registry_path`` importable."""
     try:

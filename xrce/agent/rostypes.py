@@ -125,14 +125,9 @@ def _in_ament_index(package: str) -> bool:
 
 
 def _registered(package: str) -> bool:
-    import os
+    from xrce.agent.interface_registry import is_registered
 
-    from xrce.agent import interface_registry
-
-    finder = interface_registry._FINDER
-    entry = finder.entries.get(package) if finder is not None else None
-    return entry is not None and os.path.exists(
-        os.path.join(entry["prefix"], interface_registry.COMPLETE_MARKER))
+    return is_registered(package)
 
 
 def _check_package(package: str, dds_type: str) -> None:
