@@ -169,7 +169,8 @@ def _add_admission_options(parser):
     from xrce.agent import admission
 
     group = parser.add_argument_group("admission (XRCE has no authentication: see README)")
-    group.add_argument("--allow-keys", type=_allow_list(admission.parse_keys), metavar="KEY[,KEY...]",
+    group.add_argument("--allow-keys", type=_allow_list(admission.parse_keys),
+                       metavar="KEY[,KEY...]",
                        help="open sessions only for these client keys (hex, e.g. 0xAABBCCDD); "
                             "others get ERR_DENIED and a (rate-limited) log line")
     group.add_argument("--allow-from", type=_allow_list(admission.parse_networks),

@@ -2,11 +2,11 @@
 
 An XRCE requester is an rclpy service client, an XRCE replier an rclpy service. A request waits
 on the loop until its reply arrives or ``request_timeout_s`` passes (held, if its server is not
-discovered yet, under one shared timer; at most MAX_PENDING_REQUESTS_PER_CLIENT per client); a replier's incoming request
-gets a sample identity of its own and waits for the XRCE client's reply just as long. Clients and
-services are made, and requests sent (``call_async``), on the domain's executor thread
-(``xrce.agent.ros_domain``); a service response goes out from the loop thread, rcl send_response
-being thread-safe.
+discovered yet, under one shared timer; at most MAX_PENDING_REQUESTS_PER_CLIENT per client); a
+replier's incoming request gets a sample identity of its own and waits for the XRCE client's reply
+just as long. Clients and services are made, and requests sent (``call_async``), on the domain's
+executor thread (``xrce.agent.ros_domain``); a service response goes out from the loop thread, rcl
+send_response being thread-safe.
 """
 
 from __future__ import annotations
