@@ -144,6 +144,32 @@ def test_no_client_key_in_diagnostics_stats_node_names_or_capture(tmp_path, ros_
     assert header_keys == {created[0x01]}
 
 
+def test_recovery_timelines_in_the_stats_name_the_tag():
+    with AgentProcess("udp4", "-m", "ced", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        session = Session(UdpTransport("127.0.0.1", agent.port), key=KEYED, session_id=0x01,
+                          history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=0, name="comeback")
+            writer = session.create_writer(node, "/comeback", String, reliable=False)
+            assert session.run_until_all_status(3000), session.last_statuses
+            assert session.create(attempts=5, timeout_ms=1000)  # a board reset: same key again
+            session.write(writer, String(data="back"), stream_id=session.best_effort)
+            session.flush()
+            assert wait_until(lambda: fetch_stats(port)["recoveries"], 10)
+            snapshot = fetch_stats(port)
+            tag = snapshot["clients"][0]["key"]
+            assert [t["key"] for t in snapshot["recoveries"]] == [tag]
+            for text in key_texts(KEYED):
+                assert text not in json.dumps(snapshot)
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    assert re.search(r"client %08x recovery timeline" % KEYED, "".join(agent.output))
+
+
 # ------------------------------------------------------------------------------ type names
 
 def test_type_names_import_nothing_and_spawn_no_child_per_name(tmp_path, ros_domain):  # noqa: F811
