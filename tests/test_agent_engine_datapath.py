@@ -53,9 +53,39 @@ def test_read_data_delivery_control(ced_agent):
     assert data_of(listener.take()) == []
     listener.read(0x80, DeliveryControl())
     assert data_of(listener.take()) == [b"\x07", b"\x08"]
-    listener.read(0, DeliveryControl(0, 0, 0, 0))  # uxr_buffer_cancel_data
-    talker.write(b"\x09")
-    assert data_of(listener.take()) == []
+
+
+def test_cancel_read_data_is_answered_as_eprosima_answers_it(ced_agent):
+    """uxr_buffer_cancel_data (stream none, all limits 0), which rmw_microxrcedds sends and waits
+    on before deleting a reader: eProsima's reader sends a sample that is there or arrives within
+    its first 100 ms read, on stream none under the cancel's request id, and then every later one
+    (max_samples 0 is never reached again); a first read finding nothing ends it."""
+    agent, link = ced_agent
+    clock = agent.clock
+    talker, listener = talker_and_listener(agent, link)
+
+    def answered():
+        return [(h.stream_id, p.request_id, p.data) for h, ps in listener.take() for p in ps
+                if p.ID == C.DATA]
+
+    talker.write(b"queued")
+    cancel = listener.read(0, DeliveryControl(0, 0, 0, 0))
+    assert answered() == [(0, cancel, b"queued")]  # at once
+    clock.now += 5
+    agent.tick()
+    talker.write(b"later")
+    assert answered() == [(0, cancel, b"later")]  # and on, past the first read's 100 ms
+    cancel = listener.read(0, DeliveryControl(0, 0, 0, 0))
+    clock.now += 0.05
+    talker.write(b"within")
+    assert answered() == [(0, cancel, b"within")]
+    cancel = listener.read(0, DeliveryControl(0, 0, 0, 0))
+    clock.now += 0.15
+    agent.tick()
+    talker.write(b"too late")
+    assert answered() == []  # the first read found nothing: that READ_DATA is over
+    listener.read(0x80, DeliveryControl(max_samples=1))
+    assert data_of(listener.take()) == [b"too late"]
 
 
 def test_read_data_elapsed_time_and_rate(ced_agent):

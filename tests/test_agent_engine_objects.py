@@ -1,14 +1,15 @@
 """Agent engine: objects (XRCE-WIRE.md §4, §5): CREATE with REUSE/REPLACE, the stream a STATUS
-goes back on, DELETE and its cascade, XML and reference representations, and a CREATE that waits
-for its type to be built."""
+goes back on, DELETE of an object and its own children, REUSE by meaning (decoded binary, parsed XML
+and references), XML and reference representations, and a CREATE that waits for its type to be
+built."""
 
 from engine_peer import BIN, REF, REPLACE, REUSE, XML, Clock, Link, Peer, data_of
 from xrce import constants as C
 from xrce.agent.ced import CedMiddleware
 from xrce.agent.engine import Agent
 from xrce.agent.xmlrep import refs_from_profiles
-from xrce.objects import ParticipantBin, PubSubBin, TopicBin
-from xrce.submessages import Create, Delete, WriteData
+from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.submessages import Create, Delete, WriteData, encode_message
 
 
 def test_create_reuse_replace_table(ced_agent):
@@ -76,6 +77,111 @@ def test_delete_cascades_to_children(ced_agent):
     assert peer.statuses() == [(0x80, 0x70, C.STATUS_OK)]
     mw = agent.middleware
     assert not (mw.participants or mw.topics or mw.groups or mw.writers or mw.readers)
+
+
+def test_delete_topic_leaves_the_writers_and_readers_that_use_it(ced_agent):
+    """rmw_microxrcedds' publisher and subscription fini: DELETE TOPIC, then DELETE DATAWRITER and
+    DELETE PUBLISHER in one message. eProsima answers every one OK; the writer and reader keep
+    working until they are deleted themselves."""
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    peer.build_pubsub()
+    peer.send(0x80, Delete(0x70, 0x0012))
+    assert peer.statuses() == [(0x80, 0x70, C.STATUS_OK)]
+    objects = agent.clients[peer.key].objects
+    assert 0x0012 not in objects and {0x0015, 0x0016} <= set(objects)
+    peer.read(0x01)
+    peer.write(b"still delivered")
+    assert data_of(peer.take()) == [b"still delivered"]
+    peer.send(0x80, Delete(0x71, 0x0015), Delete(0x72, 0x0013))
+    assert peer.statuses() == [(0x80, 0x71, C.STATUS_OK), (0x80, 0x72, C.STATUS_OK)]
+    peer.send(0x80, Delete(0x73, 0x0016), Delete(0x74, 0x0014), Delete(0x75, 0x0011))
+    assert [s[2] for s in peer.statuses()] == [C.STATUS_OK] * 3
+    mw = agent.middleware
+    assert not (mw.participants or mw.topics or mw.groups or mw.writers or mw.readers)
+
+
+def _create_with_padding(peer, request_id, object_id, kind, blob_object, tail, pad_at, pad):
+    """A binary CREATE (REUSE|REPLACE) whose blob carries ``pad`` in the alignment byte at
+    ``pad_at``, as rmw_microxrcedds leaves it uninitialised."""
+    blob = blob_object.to_blob()
+    assert blob[pad_at] == 0
+    message = encode_message(peer.session_id, 0x80, peer.seqs.get(0x80, 0), peer.header_key,
+                             [Create(request_id, object_id, kind, BIN, blob_object, tail,
+                                     REUSE | REPLACE)])
+    patched = blob[:pad_at] + bytes([pad]) + blob[pad_at + 1:]
+    assert message.count(blob) == 1
+    peer.seqs[0x80] = peer.seqs.get(0x80, 0) + 1
+    peer.raw(message.replace(blob, patched))
+    return [s[2] for s in peer.statuses() if s[1] == request_id]
+
+
+def test_reuse_compares_decoded_binary_not_bytes(ced_agent):
+    agent, link = ced_agent
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    peer.build_pubsub()
+    writer = agent.middleware.writers[(agent.clients[peer.key].key_int, 0x0015)]
+    qos = EndpointQos(C.QOS_KEEP_LAST | C.QOS_RELIABLE, 10)
+    # The byte before the history depth aligns it: 0x1d in one boot, 0x0a in the next.
+    for pad in (0x1D, 0x0A):
+        assert _create_with_padding(peer, 0x90 + pad, 0x0015, C.OBJK_DATAWRITER,
+                                    DataWriterBin(0x0012, qos), 0x0013, 7, pad) == \
+            [C.STATUS_OK_MATCHED]
+    assert agent.middleware.writers[(agent.clients[peer.key].key_int, 0x0015)] is writer
+    # A field that is present (even equal to a default) or different is another representation.
+    for changed in (DataWriterBin(0x0012, qos, ownership_strength=0),
+                    DataWriterBin(0x0012, EndpointQos(C.QOS_KEEP_LAST | C.QOS_RELIABLE, 11)),
+                    DataWriterBin(0x0012, EndpointQos(C.QOS_KEEP_LAST, 10))):
+        assert peer.create(0x0015, C.OBJK_DATAWRITER, BIN, changed, 0x0013, flags=REUSE) == \
+            C.STATUS_ERR_MISMATCH
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, BIN, DataWriterBin(0x0012, qos), 0x0013,
+                       flags=REUSE) == C.STATUS_OK_MATCHED
+
+
+def test_reuse_compares_xml_and_references_by_meaning(ced_agent):
+    agent, link = ced_agent
+    agent.refs = refs_from_profiles("""<dds><profiles>
+      <participant profile_name="node"><rtps><name>n</name></rtps></participant>
+      <topic profile_name="chatter"><name>rt/chatter</name><dataType>T</dataType></topic>
+      <data_writer profile_name="writer"><topic><name>rt/chatter</name></topic>
+        <qos><reliability><kind>BEST_EFFORT</kind></reliability></qos></data_writer>
+    </profiles></dds>""")
+    peer = Peer(agent, link, ("h", 1))
+    peer.connect()
+    participant = "<dds><participant><rtps><name>n</name></rtps></participant></dds>"
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, XML, participant, 0) == C.STATUS_OK
+    spaced = "<dds>\n  <participant>\n    <rtps><name> n </name></rtps>\n  </participant>\n</dds>"
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, XML, spaced, 0, flags=REUSE) == \
+        C.STATUS_OK_MATCHED
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, REF, "node", 0, flags=REUSE) == \
+        C.STATUS_OK_MATCHED  # the profile describes the same participant
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, XML, participant.replace(">n<", ">m<"), 0,
+                       flags=REUSE) == C.STATUS_ERR_MISMATCH
+    assert peer.create(0x0011, C.OBJK_PARTICIPANT, XML, "<dds><participant", 0,
+                       flags=REUSE) == C.STATUS_ERR_MISMATCH  # does not parse: matches nothing
+    assert peer.create(0x0012, C.OBJK_TOPIC, REF, "chatter", 0x0011) == C.STATUS_OK
+    assert peer.create(0x0012, C.OBJK_TOPIC, XML, "<dds><topic><dataType>T</dataType>"
+                       "<name>rt/chatter</name></topic></dds>", 0x0011, flags=REUSE) == \
+        C.STATUS_OK_MATCHED
+    assert peer.create(0x0012, C.OBJK_TOPIC, XML, "<dds><topic><dataType>U</dataType>"
+                       "<name>rt/chatter</name></topic></dds>", 0x0011, flags=REUSE) == \
+        C.STATUS_ERR_MISMATCH
+    # Groups always match, as eProsima's do.
+    assert peer.create(0x0013, C.OBJK_PUBLISHER, XML, "", 0x0011) == C.STATUS_OK
+    assert peer.create(0x0013, C.OBJK_PUBLISHER, XML, "<dds><publisher/></dds>", 0x0011,
+                       flags=REUSE) == C.STATUS_OK_MATCHED
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, REF, "writer", 0x0013) == C.STATUS_OK
+    same_writer = ("<dds><data_writer><qos><reliability><kind>BEST_EFFORT</kind></reliability>"
+                   "</qos><topic><name>rt/chatter</name></topic></data_writer></dds>")
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, XML, same_writer, 0x0013, flags=REUSE) == \
+        C.STATUS_OK_MATCHED
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, XML, same_writer.replace("BEST_EFFORT",
+                       "RELIABLE"), 0x0013, flags=REUSE) == C.STATUS_ERR_MISMATCH
+    agent.refs.pop("writer")
+    assert peer.create(0x0015, C.OBJK_DATAWRITER, REF, "writer", 0x0013, flags=REUSE) == \
+        C.STATUS_ERR_MISMATCH  # the profile is gone
 
 
 def test_xml_and_reference_representations(ced_agent, monkeypatch):

@@ -31,6 +31,9 @@ from xrce.submessages import Data, Fragment, ReadData, encode_message
 
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
+# How long a READ_DATA with max_samples 0 waits for its first sample: eProsima's reader thread's
+# longest single read (see DataPath._read_data).
+ZERO_SAMPLES_FIRST_READ_S = 0.1
 
 
 class DataPath:
@@ -208,17 +211,24 @@ class DataPath:
             deadline = None
             rate = 0
         else:
-            if request.stream_id == C.STREAM_NONE and delivery.max_samples == 0 and \
-                    delivery.max_elapsed_time == 0 and delivery.max_bytes_per_second == 0 and \
-                    delivery.min_pace_period == 0:
-                return  # uxr_buffer_cancel_data
             remaining = None if delivery.max_samples == C.MAX_SAMPLES_UNLIMITED else delivery.max_samples
             deadline = now + delivery.max_elapsed_time if delivery.max_elapsed_time else None
             rate = delivery.max_bytes_per_second
-        if remaining == 0:
-            return
+        zero = remaining == 0
+        if zero:
+            # max_samples 0 (uxr_buffer_cancel_data: stream none, all limits 0) as eProsima's
+            # agent reads it: its reader checks, after each read of at most 100 ms, whether the
+            # count of samples sent equals max_samples. The first read finding no sample ends it;
+            # one that finds a sample sends it and the count never equals 0 again. So a queued
+            # sample, or one arriving within 100 ms, answers the request at once (a DATA with its
+            # request id, on stream none for a cancel), and reading goes on until the reader is
+            # read again or deleted. rmw_microxrcedds waits up to 1 s for that answer before it
+            # deletes a reader or replier.
+            remaining = None
+            if deadline is None or deadline > now + ZERO_SAMPLES_FIRST_READ_S:
+                deadline = now + ZERO_SAMPLES_FIRST_READ_S
         reader.active = ReadRequest(request.request_id, request.stream_id, remaining, deadline, rate,
-                                    now)
+                                    now, deadline_until_first=zero and not delivery.max_elapsed_time)
         if deadline is not None:
             self._wake_at(deadline)
         if self.timelines.pending:
@@ -255,6 +265,9 @@ class DataPath:
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
+            if active.deadline_until_first:
+                active.deadline_until_first = False
+                active.deadline = None
             if active.remaining is not None:
                 active.remaining -= 1
                 if active.remaining <= 0:

@@ -13,6 +13,7 @@ import os
 from typing import Optional
 
 from xrce import constants as C, names as wire_names
+from xrce.agent import reuse
 from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
@@ -68,14 +69,13 @@ class ObjectRegistry:
         if kind not in _CREATABLE:
             raise DecodeError("CREATE of object kind %d" % kind)
         object_id = with_kind(request.object_id, kind)
-        signature = (request.fmt, bytes(request.representation_bytes()), request.tail_id)
         existing = client.objects.get(object_id)
         if existing is not None:
             if not request.reuse and not request.replace:
                 self._status(client, request, C.STATUS_ERR_ALREADY_EXISTS, stream_id)
                 return
             if request.reuse:
-                if existing.signature == signature:
+                if reuse.matches(kind, existing.signature, request, self.refs):
                     self._status(client, request, C.STATUS_OK_MATCHED, stream_id)
                     return
                 if not request.replace:
@@ -92,7 +92,7 @@ class ObjectRegistry:
         if parent is not None and parent not in client.objects:
             self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
             return
-        entry = ObjectEntry(object_id, kind, parent, signature)
+        entry = ObjectEntry(object_id, kind, parent, reuse.representation_of(request))
         try:
             status = self._build(client, request, entry)
         except TypeNotReady as pending:
@@ -219,12 +219,16 @@ class ObjectRegistry:
         self._status(client, request, C.STATUS_OK, stream_id)
 
     def _delete_object(self, client: ClientProxy, object_id: int) -> None:
-        """Delete an object after everything that depends on it (children, a topic's users)."""
-        dependents = [oid for oid, e in client.objects.items()
-                      if oid != object_id and (e.parent == object_id or e.topic == object_id)]
-        for dependent in dependents:
-            if dependent in client.objects:
-                self._delete_object(client, dependent)
+        """Delete an object after its own children (a participant's topics and groups, a group's
+        writers or readers). Not the writers and readers that use a topic: eProsima's agent
+        leaves them, and rmw_microxrcedds deletes a publisher's TOPIC before its DATAWRITER (a
+        cascade answered that DELETE DATAWRITER with ERR_UNKNOWN_REFERENCE, and rcl_publisher_fini
+        failed). A writer keeps its middleware entity until it is deleted itself."""
+        children = [oid for oid, e in client.objects.items()
+                    if oid != object_id and e.parent == object_id]
+        for child in children:
+            if child in client.objects:
+                self._delete_object(client, child)
         entry = client.objects.pop(object_id, None)
         if entry is None:
             return

@@ -88,14 +88,17 @@ class AgentStats:
 class ReadRequest:
     """An active READ_DATA: where to deliver and when to stop."""
 
-    __slots__ = ("request_id", "stream_id", "remaining", "deadline", "rate", "tokens", "refilled")
+    __slots__ = ("request_id", "stream_id", "remaining", "deadline", "rate", "tokens", "refilled",
+                 "deadline_until_first")
 
     def __init__(self, request_id: int, stream_id: int, remaining: Optional[int],
-                 deadline: Optional[float], rate: int, now: float):
+                 deadline: Optional[float], rate: int, now: float,
+                 deadline_until_first: bool = False):
         self.request_id = request_id
         self.stream_id = stream_id
         self.remaining = remaining  # None = unlimited
         self.deadline = deadline
+        self.deadline_until_first = deadline_until_first  # the first sample lifts the deadline
         self.rate = rate  # bytes per second, 0 = unlimited
         self.tokens = float(rate)
         self.refilled = now
@@ -114,7 +117,7 @@ class ObjectEntry:
     object_id: int
     kind: int
     parent: Optional[int]
-    signature: Tuple[int, bytes, int]  # (format, representation bytes, tail) for REUSE
+    signature: Tuple[int, Any, int]  # (format, decoded representation, tail): xrce.agent.reuse
     topic: Optional[int] = None  # the topic object a writer/reader uses
     topic_spec: Optional[TopicSpec] = None
     reader: Optional[ReaderState] = None

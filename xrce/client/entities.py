@@ -314,7 +314,8 @@ def read_data(session, reader_id, data_stream_id=None, max_samples=_MAX_SAMPLES_
 
 
 def cancel_data(session, reader_id, stream_id=None):
-    # Stop the agent's delivery for this reader (READ_DATA on stream 0, all limits 0).
+    # uxr_buffer_cancel_data: READ_DATA on stream 0, all limits 0. eProsima's agent (and ours)
+    # answer it with the reader's next samples on stream 0 until it is read again or deleted.
     rid = session.next_request_id()
     session._buffer(stream_id, _READ_DATA, _FLAG_LITTLE_ENDIAN, rid, reader_id,
                     read_data_body(_STREAM_NONE, (0, 0, 0, 0)))
