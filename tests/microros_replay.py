@@ -1,0 +1,420 @@
+"""Replaying real micro-ROS traffic (tests/golden/microros/, see its README) against a live agent.
+
+``Capture`` reads one capture: the firmware's messages (c2a) and what eProsima's agent answered
+(a2c), the latter boiled down to meaning: per boot and request id the STATUS (object id, status
+code), the request ids that got a DATA, the INFO/TIMESTAMP_REPLY/STATUS_AGENT answers.
+
+``Replayer`` sends the firmware's side to an agent through a ``Channel`` (a UDP socket per boot, or
+a serial pseudo-terminal) and answers as the firmware's client library does:
+
+- its reliable output is flow-controlled and retransmitted by the agent's ACKNACKs (the firmware
+  waited for eProsima's; an agent that holds a message back, e.g. while a type builds, gets it
+  again);
+- its ACKNACKs for the agent's reliable stream are rewritten to acknowledge what this agent sent,
+  and a HEARTBEAT from the agent is answered with one (the only bytes rewritten, as the README
+  says);
+- it waits where the firmware waited: for the STATUS of each CREATE/DELETE before the next
+  message (rmw_microxrcedds creates and deletes synchronously), for the answer to a session-less
+  message, and for the DATA answering a cancel READ_DATA (up to the firmware's 1 s, or longer).
+
+What our agent answered is collected the same way as eProsima's, so a test compares the two.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import socket
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+from xrce import constants as C
+from xrce.errors import DecodeError
+from xrce.submessages import AckNack, decode_message, encode_message
+
+CAPTURES = Path(__file__).resolve().parent / "golden" / "microros"
+FIRMWARE_STREAM = 0x80  # the firmware's reliable output and the agent's reliable output to it
+WINDOW = 8  # reliable messages the replay keeps in flight (the C client's history is 16)
+
+
+def _submessages(data: bytes, start: int):
+    """(id, flags, payload bytes) of each submessage, without decoding (FRAGMENT pieces included)."""
+    offset = start
+    while offset + 4 <= len(data):
+        sub_id, flags = data[offset], data[offset + 1]
+        length = data[offset + 2] | (data[offset + 3] << 8)
+        yield sub_id, flags, data[offset + 4:offset + 4 + length]
+        offset = (offset + 4 + length + 3) & ~3
+
+
+class Answers:
+    """What an agent said, by meaning (the README's "compare by meaning, not bytes")."""
+
+    def __init__(self):
+        self.statuses = {}  # (boot, request id) -> (object id, status)
+        self.data = defaultdict(int)  # (boot, request id) -> DATA count
+        self.status_agent = []  # (boot, status) per STATUS_AGENT
+        self.infos = defaultdict(int)  # boot -> INFO count
+        self.timestamp_replies = defaultdict(int)
+        self.last_reliable = {}  # boot -> highest sequence number on the agent's stream 0x80
+        self.acked = {}  # boot -> first sequence number of ours the agent has not acknowledged
+        self.heartbeats = defaultdict(int)
+
+    def note(self, boot: int, message: bytes) -> list:
+        """Record one message from the agent; the HEARTBEATs in it (to answer)."""
+        session, stream_id = message[0], message[1]
+        seq = message[2] | (message[3] << 8)
+        if stream_id == FIRMWARE_STREAM:
+            if seq > self.last_reliable.get(boot, -1):
+                self.last_reliable[boot] = seq
+        heartbeats = []
+        start = 4 if session >= 0x80 else 8
+        for sub_id, _flags, body in _submessages(message, start):
+            if sub_id == C.STATUS and len(body) >= 6:
+                self.statuses[(boot, (body[0] << 8) | body[1])] = ((body[2] << 8) | body[3], body[4])
+            elif sub_id == C.DATA and len(body) >= 4:
+                self.data[(boot, (body[0] << 8) | body[1])] += 1
+            elif sub_id == C.STATUS_AGENT and body:
+                self.status_agent.append((boot, body[0]))
+            elif sub_id == C.INFO:
+                self.infos[boot] += 1
+            elif sub_id == C.TIMESTAMP_REPLY:
+                self.timestamp_replies[boot] += 1
+            elif sub_id == C.ACKNACK and len(body) >= 5 and body[4] == FIRMWARE_STREAM:
+                first = body[0] | (body[1] << 8)
+                self.acked[boot] = max(self.acked.get(boot, 0), first)
+            elif sub_id == C.HEARTBEAT and len(body) >= 5 and body[4] == FIRMWARE_STREAM:
+                self.heartbeats[boot] += 1
+                heartbeats.append(body)
+        return heartbeats
+
+
+class Capture:
+    """One capture file: the firmware's messages by boot, and eProsima's answers."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.records = [json.loads(line) for line in (CAPTURES / (name + ".jsonl")).open()]
+        self.steps = []  # (boot, bytes) of every c2a message
+        self.times = []  # when each was sent, seconds into the recording
+        self.eprosima = Answers()
+        boot = 0
+        for record in self.records:
+            data = bytes.fromhex(record["hex"])
+            if record["dir"] == "c2a":
+                if data[0] == 0x80 and len(data) > 4 and data[4] == C.CREATE_CLIENT and \
+                        any(step[0] == boot and step[1][4] == C.CREATE_CLIENT
+                            for step in self.steps if step[1][0] == 0x80):
+                    boot += 1  # the firmware came back (new UDP source port)
+                self.steps.append((boot, data))
+                self.times.append(record["t"])
+            else:
+                self.eprosima.note(boot, data)
+        self.boots = boot + 1
+
+    def requests(self, kinds=(C.CREATE, C.DELETE)):
+        """(boot, request id, submessage id) of every CREATE/DELETE (or ``kinds``) the firmware sent."""
+        found = []
+        for boot, data in self.steps:
+            if data[0] < 0x80 or data[0] == 0x80:
+                continue
+            for sub_id, _flags, body in _submessages(data, 4):
+                if sub_id in kinds and len(body) >= 2:
+                    found.append((boot, (body[0] << 8) | body[1], sub_id))
+        return found
+
+    def cancel_reads(self):
+        """(boot, request id, reader id) of every READ_DATA with max_samples 0 on stream none."""
+        found = []
+        for boot, data in self.steps:
+            if data[0] <= 0x80:
+                continue
+            for sub_id, _flags, body in _submessages(data, 4):
+                if sub_id == C.READ_DATA and len(body) >= 12 and body[4] == 0 and body[7] == 1 \
+                        and body[8:10] == b"\x00\x00":
+                    found.append((boot, (body[0] << 8) | body[1], (body[2] << 8) | body[3]))
+        return found
+
+
+class UdpChannel:
+    """One UDP socket per boot (a reset firmware comes back from a new source port)."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1"):
+        self.address = (host, port)
+        self.sockets = {}
+
+    def socket(self, boot: int) -> socket.socket:
+        sock = self.sockets.get(boot)
+        if sock is None:
+            sock = self.sockets[boot] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+        return sock
+
+    def send(self, boot: int, data: bytes) -> None:
+        self.socket(boot).sendto(data, self.address)
+
+    def receive(self, timeout: float):
+        """[(boot, message)] that arrived within ``timeout``."""
+        if not self.sockets:
+            time.sleep(timeout)
+            return []
+        by_fd = {sock.fileno(): boot for boot, sock in self.sockets.items()}
+        ready, _, _ = select.select(list(self.sockets.values()), [], [], timeout)
+        got = []
+        for sock in ready:
+            try:
+                while True:
+                    data, _ = sock.recvfrom(65536, socket.MSG_DONTWAIT)
+                    got.append((by_fd[sock.fileno()], data))
+            except BlockingIOError:
+                pass
+        return got
+
+    def close(self) -> None:
+        for sock in self.sockets.values():
+            sock.close()
+        self.sockets.clear()
+
+
+class SerialChannel:
+    """The agent's serial line (HDLC-like framing, xrce.transports.framing), one boot at a time."""
+
+    def __init__(self, fd: int, local_address: int = 1, agent_address: int = 0):
+        from xrce.transports.framing import FrameDecoder, encode_frame
+
+        self.fd = fd
+        self._frame = lambda data: encode_frame(data, local_address, agent_address)
+        self._decoder = FrameDecoder(local_address)
+        self.boot = 0  # one line: what arrives answers the boot that sent last
+
+    def send(self, boot: int, data: bytes) -> None:
+        self.boot = boot
+        payload = self._frame(data)
+        while payload:
+            written = os.write(self.fd, payload)
+            payload = payload[written:]
+
+    def receive(self, timeout: float):
+        ready, _, _ = select.select([self.fd], [], [], timeout)
+        if not ready:
+            return []
+        try:
+            chunk = os.read(self.fd, 65536)
+        except BlockingIOError:
+            return []
+        return [(self.boot, payload) for _src, _dst, payload in self._decoder.feed(chunk)]
+
+    def close(self) -> None:
+        pass
+
+
+class Replayer:
+    """Send a capture's firmware side to an agent and collect what it answers (module docstring)."""
+
+    def __init__(self, capture: Capture, channel, status_timeout: float = 30.0,
+                 cancel_timeout: float = 3.0):
+        self.capture = capture
+        self.channel = channel
+        self.answers = Answers()
+        self.status_timeout = status_timeout
+        self.cancel_timeout = cancel_timeout
+        self.unacked = {}  # (boot, seq) -> message, our reliable messages in flight
+        self.sent_at = {}  # (boot, request id) -> monotonic time of the message that carried it
+        self.answered_at = {}  # (boot, request id) -> monotonic time its answer arrived
+        self.lock = threading.Lock()
+
+    # -- receiving ---------------------------------------------------------------------------
+
+    def pump(self, timeout: float = 0.0) -> None:
+        for boot, message in self.channel.receive(timeout):
+            now = time.monotonic()
+            if not message:
+                continue
+            before = set(self.answers.statuses) | set(self.answers.data)
+            try:
+                decode_message(message)  # the agent must send well-formed messages
+            except DecodeError as exc:
+                raise AssertionError("malformed message from the agent: %s (%s)"
+                                     % (message.hex(), exc))
+            heartbeats = self.answers.note(boot, message)
+            for key in (set(self.answers.statuses) | set(self.answers.data)) - before:
+                self.answered_at.setdefault(key, now)
+            for _heartbeat in heartbeats:
+                self._acknack(boot)
+            acked = self.answers.acked.get(boot, 0)
+            for key in [k for k in self.unacked if k[0] == boot and k[1] < acked]:
+                del self.unacked[key]
+
+    def _acknack(self, boot: int) -> None:
+        """Acknowledge everything the agent has sent on its reliable stream (first unacked next)."""
+        last = self.answers.last_reliable.get(boot, -1)
+        self.channel.send(boot, encode_message(0x81, 0, 0, None,
+                                               [AckNack((last + 1) & 0xFFFF, 0, FIRMWARE_STREAM)]))
+
+    def wait(self, predicate, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        resend_at = time.monotonic() + 0.2
+        while not predicate():
+            now = time.monotonic()
+            if now >= deadline:
+                return False
+            if now >= resend_at:  # what the firmware's client does for unacknowledged messages
+                for (boot, _seq), message in sorted(self.unacked.items()):
+                    self.channel.send(boot, message)
+                resend_at = now + 0.2
+            self.pump(min(0.02, max(0.0, deadline - now)))
+        return True
+
+    # -- sending -----------------------------------------------------------------------------
+
+    def _send(self, boot: int, data: bytes) -> None:
+        session, stream_id = data[0], data[1]
+        seq = data[2] | (data[3] << 8)
+        if session > 0x80 and stream_id == FIRMWARE_STREAM:
+            # The firmware's history: never more than WINDOW of its messages unacknowledged.
+            if not self.wait(lambda: seq < self.answers.acked.get(boot, 0) + WINDOW,
+                             self.status_timeout):
+                raise AssertionError("%s: the agent acknowledged nothing up to %d within %.0f s"
+                                     % (self.capture.name, seq - WINDOW, self.status_timeout))
+            self.unacked[(boot, seq)] = data
+        self.channel.send(boot, data)
+
+    def run(self, until_step: int | None = None, speed: float = 0.0, longest_gap: float = 0.5,
+            on_step=None) -> Answers:
+        """Send the firmware's messages up to ``until_step``. ``speed`` > 0 keeps the recording's
+        pace (1 = real time; gaps over ``longest_gap`` shortened to it), so that the ROS side's
+        data and service calls meet the readers and repliers as they did; 0 goes as fast as the
+        agent answers."""
+        steps = self.capture.steps if until_step is None else self.capture.steps[:until_step]
+        cancels = {(boot, rid) for boot, rid, _ in self.capture.cancel_reads()}
+        started = time.monotonic()
+        offset = 0.0
+        for index, (boot, data) in enumerate(steps):
+            if on_step is not None:
+                on_step(index, boot, data)
+            if speed and index:
+                gap = self.capture.times[index] - self.capture.times[index - 1]
+                offset += min(gap, longest_gap) / speed
+                due = started + offset
+                if due > time.monotonic():
+                    self.wait(lambda: time.monotonic() >= due, due - time.monotonic() + 1)
+            self.pump()
+            session = data[0]
+            if session > 0x80 and data[1] == 0 and len(data) > 4 and data[4] == C.ACKNACK:
+                self._acknack(boot)  # rewritten: what this agent sent, not what eProsima did
+                continue
+            waits = []
+            if session > 0x80:
+                for sub_id, _flags, body in _submessages(data, 4):
+                    if len(body) < 2:
+                        continue
+                    rid = (body[0] << 8) | body[1]
+                    if sub_id in (C.CREATE, C.DELETE):
+                        waits.append(("status", rid))
+                    elif sub_id == C.READ_DATA and (boot, rid) in cancels:
+                        waits.append(("cancel", rid))
+                    self.sent_at.setdefault((boot, rid), time.monotonic())
+            before = (len(self.answers.status_agent), self.answers.infos[boot],
+                      self.answers.timestamp_replies[boot])
+            self._send(boot, data)
+            if session == 0x80 or (session > 0x80 and len(data) > 4 and
+                                   data[4] in (C.GET_INFO, C.TIMESTAMP)):
+                # Session-less requests and pings: the firmware waits for the answer.
+                self.wait(lambda: (len(self.answers.status_agent), self.answers.infos[boot],
+                                   self.answers.timestamp_replies[boot]) != before, 5.0)
+            for what, rid in waits:
+                if what == "status":
+                    if not self.wait(lambda: (boot, rid) in self.answers.statuses,
+                                     self.status_timeout):
+                        raise AssertionError("%s: no STATUS for request 0x%04X within %.0f s"
+                                             % (self.capture.name, rid, self.status_timeout))
+                else:
+                    self.wait(lambda: self.answers.data.get((boot, rid)), self.cancel_timeout)
+        self.wait(lambda: not self.unacked, 5.0)
+        self.pump(0.05)
+        return self.answers
+
+
+class RosSideFeeder:
+    """What the rclpy peers did while the captures were recorded, for an agent without ROS
+    (``-m ced``): a second XRCE client, on its own ``channel`` (``UdpChannel``/``SerialChannel``),
+    that publishes ``/cmd_vel`` (geometry_msgs/Twist) at 30 Hz and, with ``service=True``, calls
+    ``/add_two_ints`` three times a second. Creates on stream none, writes best effort."""
+
+    TWIST = "geometry_msgs::msg::dds_::Twist_"
+    ADD_TWO_INTS = "example_interfaces::srv::dds_::AddTwoInts_"
+
+    def __init__(self, channel, service: bool = False, period: float = 1 / 30):
+        from xrce.objects import (
+            DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, RequesterBin, TopicBin,
+        )
+        from xrce.submessages import Create, CreateClient
+
+        self.channel = channel
+        self.period = period
+        self.service = service
+        self.written = 0
+        self._stop = threading.Event()
+        self._seq = 0
+        self._send(0x80, CreateClient(b"\x0f\xee\xde\xd0", 0x81, 512))
+        self._expect(C.STATUS_AGENT)
+        creates = [
+            Create(1, 0x0011, C.OBJK_PARTICIPANT, C.REPRESENTATION_IN_BINARY,
+                   ParticipantBin("ros_side"), 0),
+            Create(2, 0x0012, C.OBJK_TOPIC, C.REPRESENTATION_IN_BINARY,
+                   TopicBin("rt/cmd_vel", self.TWIST), 0x0011),
+            Create(3, 0x0013, C.OBJK_PUBLISHER, C.REPRESENTATION_IN_BINARY, PubSubBin(), 0x0011),
+            Create(4, 0x0015, C.OBJK_DATAWRITER, C.REPRESENTATION_IN_BINARY,
+                   DataWriterBin(0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 10)),
+                   0x0013),
+        ]
+        if service:
+            creates.append(Create(5, 0x0017, C.OBJK_REQUESTER, C.REPRESENTATION_IN_BINARY,
+                                  RequesterBin("add_two_ints", self.ADD_TWO_INTS + "Request_",
+                                               self.ADD_TWO_INTS + "Response_"), 0x0011))
+        for create in creates:
+            self._send(0x81, create)
+            status = self._expect(C.STATUS)
+            if status.status != C.STATUS_OK:
+                raise RuntimeError("feeder: CREATE 0x%04X answered %d" % (create.object_id,
+                                                                          status.status))
+        self._thread = threading.Thread(target=self._run, name="ros-side-feeder", daemon=True)
+        self._thread.start()
+
+    def _send(self, session: int, payload, stream_id: int = 0) -> None:
+        seq = 0
+        if stream_id:
+            seq, self._seq = self._seq, (self._seq + 1) & 0xFFFF
+        self.channel.send(0, encode_message(session, stream_id, seq, None, [payload]))
+
+    def _expect(self, sub_id: int, timeout: float = 10.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for _boot, data in self.channel.receive(0.1):
+                for payload in decode_message(data)[1]:
+                    if payload.ID == sub_id:
+                        return payload
+        raise RuntimeError("feeder: no answer %d from the agent" % sub_id)
+
+    def _run(self) -> None:
+        import struct
+
+        from xrce.submessages import WriteData
+
+        count = 0
+        while not self._stop.wait(self.period):
+            count += 1
+            twist = struct.pack("<6d", 0.1 * count, 0, 0, 0, 0, 0.01 * count)
+            self._send(0x81, WriteData(count & 0xFFFF, 0x0015, twist), stream_id=0x01)
+            if self.service and count % 10 == 0:
+                self._send(0x81, WriteData(count & 0xFFFF, 0x0017, struct.pack("<qq", count, 2)),
+                           stream_id=0x01)
+            self.written = count
+            self.channel.receive(0)  # drain what the agent sends this client (nothing it needs)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
