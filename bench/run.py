@@ -4,9 +4,11 @@
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
 "baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-cost, serial, sessions, footprint, restart. ``cost`` (bench/agent_cost.py) is what the agent costs the
+cost, serial, sessions, footprint, restart, creation. ``cost`` (bench/agent_cost.py) is what the agent costs the
 robot's computer: CPU per message at fixed offered rates, idle CPU, the TurtleBot3 load, memory,
 ping; ``--reference DIR`` measures another source tree's agent beside it in the same run.
+``creation`` (bench/entity_creation.py): a micro-ROS firmware's entity creation (node + 4
+entities, a replier, the first topic of a type) beside eProsima's agent answering the same CREATEs.
 ``restart`` (bench/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
 ``ros`` and ``latency`` live in bench/ros_bridge.py; serial, sessions and footprint here. Figures
 and their table: bench/figures.py; child processes and the UDP echo baseline: bench/harness.py.
@@ -164,7 +166,7 @@ def footprint():
 # ----------------------------------------------------------------------------------- main
 
 
-GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart")
+GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart", "creation")
 
 
 def main(argv=None):
@@ -203,6 +205,10 @@ def main(argv=None):
         if "restart" in groups:  # bench/restart_gap.py: agent SIGKILL + restart, board reset
             import restart_gap
             restart_gap.report(record, env, runs=3 if quick else 5)
+        if "creation" in groups:  # bench/entity_creation.py: micro-ROS set-up vs eProsima's
+            import entity_creation
+            entity_creation.build_interfaces()
+            entity_creation.report(record, env, runs=3 if quick else 7)
     finally:
         lease.release()
     print_table()

@@ -406,3 +406,42 @@ def test_bridging_common_types_imports_no_python_message_machinery(ros_domain): 
         if not done.stdout.startswith("built "):
             break
     assert done.stdout.strip().splitlines()[-1:] in ([], [""]), done.stdout
+
+
+# A replier's first creation: the service type's support imports service_msgs (introspection
+# events the agent never enables), whose ServiceEventInfo imports numpy at its top: 150-340 ms of
+# the CREATE and 11 MB (bench/entity_creation.py). numpy now loads only if such an event is built.
+_REPLIER_SCRIPT = r"""
+import asyncio, sys
+from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
+from xrce.agent.ros import RosMiddleware
+
+async def main():
+    mw = RosMiddleware()
+    await mw.start()
+    try:
+        mw.create_participant((1, 1), int(sys.argv[1]), "replier_footprint")
+        # A package whose services have no numeric arrays (test_msgs' import numpy themselves).
+        spec = ServiceSpec("footprint_service", "lifecycle_msgs::srv::dds_::GetState_Request_",
+                           "lifecycle_msgs::srv::dds_::GetState_Response_")
+        mw.create_replier((1, 0x18), (1, 1), spec, EndpointQosSpec(), lambda *args: None)
+        mw.create_requester((1, 0x27), (1, 1), spec, EndpointQosSpec(), lambda *args: None)
+        print("numpy after creation:", "numpy" in sys.modules)
+        from service_msgs.msg import ServiceEventInfo
+        print("event gid:", [int(v) for v in ServiceEventInfo().client_gid], "numpy" in sys.modules)
+    finally:
+        await mw.close()
+
+asyncio.run(main())
+"""
+
+
+def test_a_replier_imports_numpy_only_for_an_introspection_event(ros_domain):  # noqa: F811
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _REPLIER_SCRIPT, str(ros_domain)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.splitlines()[-2:] == ["numpy after creation: False",
+                                             "event gid: %s True" % ([0] * 16)], done.stdout

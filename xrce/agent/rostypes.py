@@ -11,6 +11,8 @@ from __future__ import annotations
 import importlib
 import logging
 import re
+import sys
+import types
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.validate_full_topic_name import validate_full_topic_name
@@ -245,8 +247,41 @@ def raw_message_type(dds_type: str):
     return handle
 
 
+class _NumpyOnFirstUse(types.ModuleType):
+    """What ``service_msgs.msg`` gets for ``numpy`` (see ``_import_service_event_info``)."""
+
+    def __getattr__(self, name):
+        import numpy  # the real one: this stand-in is in sys.modules only while it is bound
+
+        return getattr(numpy, name)
+
+
+def _import_service_event_info() -> None:
+    """Import ``service_msgs.msg`` with ``numpy`` bound to a stand-in that imports it on first use.
+
+    Every generated service class's ``__import_type_support__`` (rclpy calls it for the first
+    service or client of a type) imports ``service_msgs.msg.ServiceEventInfo``, for the service
+    introspection events the agent never enables, and that module imports numpy at its top for
+    one array field its instances would use. numpy took 150-340 ms of a replier's creation on the
+    2-core dev machine (bench/entity_creation.py) and 11 MB. The stand-in is only that module's:
+    anything else importing numpy gets the real one, and so does that module if it ever builds an
+    instance."""
+    if "service_msgs.msg" in sys.modules or "numpy" in sys.modules:
+        return
+    stand_in = _NumpyOnFirstUse("numpy")
+    sys.modules["numpy"] = stand_in
+    try:
+        import service_msgs.msg  # noqa: F401
+    except ImportError:
+        pass  # a ROS without service introspection (before Jazzy): nothing to defer
+    finally:
+        if sys.modules.get("numpy") is stand_in:
+            del sys.modules["numpy"]
+
+
 def service_class(request_or_reply_type: str):
     """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ``pkg.srv.X``."""
+    _import_service_event_info()
     package, kind, type_name = _split_type(request_or_reply_type)
     for suffix in ("_Request", "_Response"):
         if type_name.endswith(suffix):

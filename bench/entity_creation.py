@@ -1,0 +1,144 @@
+"""Entity creation time as micro-ROS firmware sees it: the set-up of tests/golden/microros/main.jsonl
+(rclc + rmw_microxrcedds: node, /sensor_state topic + publisher + writer, /cmd_vel topic + subscriber
++ reader, /add_two_ints replier, /big_string topic + publisher + writer; binary, REUSE|REPLACE, each
+CREATE waiting for its STATUS) replayed against ``xrce-agent -m dds`` over UDP, each run on a fresh
+agent (the first topic of each type is first for it). Beside each figure, eProsima's
+MicroXRCEAgent 2.4.3 answering the same CREATEs, from the capture's timestamps.
+
+    .venv/bin/python bench/entity_creation.py [--runs N]
+
+Figures: node + 4 entities (participant CREATE sent -> STATUS of the 5th CREATE, the /cmd_vel
+topic), the replier, the first TOPIC of a type (SensorState, Twist; median of both), and the
+whole set-up. Needs turtlebot3_msgs and example_interfaces (tests/interfaces), built here first
+(a cache hit after the first time).
+"""
+
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+sys.path.insert(0, str(REPO / "tests"))
+
+from agent_process import AgentProcess  # noqa: E402
+from figures import record  # noqa: E402
+from microros_replay import Capture, Replayer, UdpChannel  # noqa: E402
+from xrce import constants as C  # noqa: E402
+
+INTERFACES = REPO / "tests" / "interfaces"
+PARTICIPANT, FIFTH, REPLIER = 0x000A, 0x000E, 0x0012
+FIRST_TOPICS = (0x000B, 0x000E)  # SensorState, Twist
+
+
+def _set_up(capture):
+    """(steps up to the first sample, request ids of the set-up's CREATEs)."""
+    for index, (_boot, data) in enumerate(capture.steps):
+        if data[0] > 0x80 and len(data) > 4 and data[4] in (C.WRITE_DATA, C.FRAGMENT):
+            return index, [rid for _b, rid, sub in capture.requests() if sub == C.CREATE]
+    raise RuntimeError("no data in the capture")
+
+
+def _eprosima(capture):
+    """Seconds from each CREATE's message to its STATUS, as recorded against eProsima's agent."""
+    sent, answered = {}, {}
+    for record_ in capture.records:
+        data = bytes.fromhex(record_["hex"])
+        if data[0] <= 0x80:
+            continue
+        offset = 4
+        while offset + 4 <= len(data):
+            sub_id, length = data[offset], data[offset + 2] | (data[offset + 3] << 8)
+            body = data[offset + 4:offset + 4 + length]
+            rid = (body[0] << 8) | body[1] if len(body) >= 2 else None
+            if record_["dir"] == "c2a" and sub_id == C.CREATE:
+                sent.setdefault(rid, record_["t"])
+            elif record_["dir"] == "a2c" and sub_id == C.STATUS:
+                answered.setdefault(rid, record_["t"])
+            offset = (offset + 4 + length + 3) & ~3
+    return sent, answered
+
+
+def figures_of(sent, answered):
+    return {
+        "node + 4 entities": answered[FIFTH] - sent[PARTICIPANT],
+        "replier": answered[REPLIER] - sent[REPLIER],
+        "first topic of a type": statistics.median(answered[t] - sent[t] for t in FIRST_TOPICS),
+        "participant (node)": answered[PARTICIPANT] - sent[PARTICIPANT],
+    }
+
+
+def measure(env, runs):
+    capture = Capture("main")
+    until, creates = _set_up(capture)
+    runs_figures = []
+    whole = []
+    for _ in range(runs):
+        with AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces", str(INTERFACES),
+                          env=env) as agent:
+            channel = UdpChannel(agent.port)
+            try:
+                replay = Replayer(capture, channel)
+                answers = replay.run(until_step=until)
+            finally:
+                channel.close()
+        bad = {hex(rid): answers.statuses.get((0, rid)) for rid in creates
+               if answers.statuses.get((0, rid), (0, None))[1] != C.STATUS_OK}
+        if bad:
+            raise RuntimeError("set-up CREATEs not answered OK: %r" % bad)
+        sent = {rid: t for (_b, rid), t in replay.sent_at.items()}
+        answered = {rid: t for (_b, rid), t in replay.answered_at.items()}
+        runs_figures.append(figures_of(sent, answered))
+        whole.append(answered[creates[-1]] - sent[creates[0]])
+    return runs_figures, whole, figures_of(*_eprosima(capture)), capture, creates
+
+
+def report(record_, env, runs=5):
+    runs_figures, whole, eprosima, capture, creates = measure(env, runs)
+    sent, answered = _eprosima(capture)
+    for name, baseline in eprosima.items():
+        values = [figures[name] * 1000 for figures in runs_figures]
+        record_("entity creation: %s (median of %d fresh agents)" % (name, runs),
+                statistics.median(values), "ms", baseline * 1000,
+                "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)",
+                "<= 2x eProsima" if name != "participant (node)" else "",
+                "runs: %s" % ", ".join("%.1f" % v for v in values))
+    record_("entity creation: the firmware's whole set-up, %d CREATEs (median)" % len(creates),
+            statistics.median(whole) * 1000, "ms",
+            (answered[creates[-1]] - sent[creates[0]]) * 1000,
+            "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)", "",
+            "runs: %s" % ", ".join("%.1f" % (v * 1000) for v in whole))
+
+
+def build_interfaces():
+    for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped with xrce
+        subprocess.run([sys.executable, "-m", "xrce.agent", "build-interfaces", *args], cwd=REPO,
+                       check=True, stdout=subprocess.DEVNULL)
+
+
+def main(argv=None):
+    import argparse
+
+    from ros_helpers import DomainLease
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args(argv)
+    build_interfaces()
+    lease = DomainLease()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    try:
+        report(record, env, args.runs)
+    finally:
+        lease.release()
+    from figures import print_table
+    print_table()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
