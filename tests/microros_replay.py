@@ -215,8 +215,11 @@ class Replayer:
     """Send a capture's firmware side to an agent and collect what it answers (module docstring)."""
 
     def __init__(self, capture: Capture, channel, status_timeout: float = 30.0,
-                 cancel_timeout: float = 3.0):
+                 cancel_timeout: float = 3.0, domain_id: int | None = None):
         self.capture = capture
+        # A ROS test's leased domain for the firmware's participant (it asks for domain 0): the
+        # one rewrite besides the README's, so that the test's ROS graph stays its own.
+        self.domain_id = domain_id
         self.channel = channel
         self.answers = Answers()
         self.status_timeout = status_timeout
@@ -270,7 +273,23 @@ class Replayer:
 
     # -- sending -----------------------------------------------------------------------------
 
+    def _in_domain(self, data: bytes) -> bytes:
+        """``data`` with each CREATE participant's domain id (its last two bytes) set to ours."""
+        if self.domain_id is None or data[0] <= 0x80:
+            return data
+        out = bytearray(data)
+        offset = 4
+        while offset + 4 <= len(out):
+            sub_id, flags = out[offset], out[offset + 1]
+            length = out[offset + 2] | (out[offset + 3] << 8)
+            if sub_id == C.CREATE and length >= 8 and out[offset + 8] == C.OBJK_PARTICIPANT:
+                end = offset + 4 + length
+                out[end - 2:end] = self.domain_id.to_bytes(2, "little" if flags & 1 else "big")
+            offset = (offset + 4 + length + 3) & ~3
+        return bytes(out)
+
     def _send(self, boot: int, data: bytes) -> None:
+        data = self._in_domain(data)
         session, stream_id = data[0], data[1]
         seq = data[2] | (data[3] << 8)
         if session > 0x80 and stream_id == FIRMWARE_STREAM:
@@ -283,19 +302,20 @@ class Replayer:
         self.channel.send(boot, data)
 
     def run(self, until_step: int | None = None, speed: float = 0.0, longest_gap: float = 0.5,
-            on_step=None) -> Answers:
-        """Send the firmware's messages up to ``until_step``. ``speed`` > 0 keeps the recording's
-        pace (1 = real time; gaps over ``longest_gap`` shortened to it), so that the ROS side's
-        data and service calls meet the readers and repliers as they did; 0 goes as fast as the
-        agent answers."""
-        steps = self.capture.steps if until_step is None else self.capture.steps[:until_step]
+            on_step=None, start_step: int = 0) -> Answers:
+        """Send the firmware's messages from ``start_step`` up to ``until_step``. ``speed`` > 0
+        keeps the recording's pace (1 = real time; gaps over ``longest_gap`` shortened to it), so
+        that the ROS side's data and service calls meet the readers and repliers as they did; 0
+        goes as fast as the agent answers. ``on_step(index, boot, data)`` runs before each."""
+        end = len(self.capture.steps) if until_step is None else until_step
         cancels = {(boot, rid) for boot, rid, _ in self.capture.cancel_reads()}
         started = time.monotonic()
         offset = 0.0
-        for index, (boot, data) in enumerate(steps):
+        for index in range(start_step, end):
+            boot, data = self.capture.steps[index]
             if on_step is not None:
                 on_step(index, boot, data)
-            if speed and index:
+            if speed and index > start_step:
                 gap = self.capture.times[index] - self.capture.times[index - 1]
                 offset += min(gap, longest_gap) / speed
                 due = started + offset

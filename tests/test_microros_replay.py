@@ -7,18 +7,22 @@ each request of theirs, a DATA for every READ_DATA eProsima answered with one, a
 which every request is answered OK.
 
 Without ROS (``-m ced``) a second XRCE client plays the rclpy peers of the recording (``/cmd_vel``
-at 30 Hz, ``/add_two_ints`` calls). The same firmware sequence also goes over a serial line (a real
-pty pair, ``multiserial``), as boards without networking run it.
+at 30 Hz, ``/add_two_ints`` calls); with ROS (``-m dds``) rclpy peers do, as they did. The same
+firmware sequence also goes over a serial line (a real pty pair, ``multiserial``), as boards
+without networking run it.
 """
 
 import os
 import termios
+import threading
 import tty
+from pathlib import Path
 
 import pytest
 
 from agent_process import AgentProcess
 from microros_replay import Capture, Replayer, RosSideFeeder, SerialChannel, UdpChannel
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
 
 CAPTURES = ("main", "big", "teardown", "restart")
@@ -111,3 +115,106 @@ def test_rmw_call_sequence_over_serial(name, pty_pairs):
         creates = [(boot, rid) for boot, rid, sub_id in capture.requests() if sub_id == C.CREATE
                    and boot == 1]
         assert all(ours.statuses[key][1] == C.STATUS_OK_MATCHED for key in creates)
+
+
+# ------------------------------------------------------------------------- with ROS (-m dds)
+
+INTERFACES = Path(__file__).resolve().parent / "interfaces"
+
+
+def _ros_types():
+    """(SensorState, Twist, AddTwoInts) rclpy classes, built first (a cache hit after the first
+    time): turtlebot3_msgs ships with xrce, example_interfaces with the tests."""
+    from xrce.agent import interfaces
+
+    interfaces.build(names=["turtlebot3_msgs"])
+    interfaces.build([str(INTERFACES)], names=["example_interfaces"])
+    from example_interfaces.srv import AddTwoInts
+    from geometry_msgs.msg import Twist
+    from turtlebot3_msgs.msg import SensorState
+
+    return SensorState, Twist, AddTwoInts
+
+
+class RosSide:
+    """The rclpy peers of the recording: a best-effort /sensor_state subscriber, a reliable
+    /cmd_vel publisher at 30 Hz and an /add_two_ints client calling four times a second."""
+
+    def __init__(self, ros_peer):
+        from rclpy.qos import qos_profile_sensor_data
+
+        sensor_state, twist, add_two_ints = _ros_types()
+        node = self.node = ros_peer.node
+        self.sensor_states = []
+        node.create_subscription(sensor_state, "/sensor_state", self.sensor_states.append,
+                                 qos_profile_sensor_data)
+        self.cmd_vel = node.create_publisher(twist, "/cmd_vel", 10)
+        self.twist = twist
+        self.client = node.create_client(add_two_ints, "/add_two_ints")
+        self.request = add_two_ints.Request(a=2, b=3)
+        self.calls = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ros-side", daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        count = 0
+        while not self._stop.wait(1 / 30):
+            count += 1
+            self.cmd_vel.publish(self.twist())
+            if count % 8 == 0 and self.client.service_is_ready():
+                self.client.call_async(self.request)
+                self.calls += 1
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(2)
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("name", ("main", "teardown"))
+def test_capture_replayed_into_ros_gets_eprosimas_answers(name, ros_peer, ros_domain):  # noqa: F811
+    """-m dds: the firmware's entities in ROS, the recording's rclpy peers talking to them. In
+    the teardown, the /sensor_state publisher outlives its deleted TOPIC object until its
+    DATAWRITER is deleted, as in eProsima's agent (there a DDS DataWriter keeps its topic)."""
+    capture = Capture(name)
+    ros_side = RosSide(ros_peer)
+    checked = []
+
+    def on_step(index, boot, data):
+        # Before the message deleting the /sensor_state writer (0x0005): its topic is gone.
+        if data[0] > 0x80 and len(data) >= 12 and data[4] == C.DELETE and data[10:12] == b"\x00\x05":
+            deleted_topic = any(replay.answers.statuses.get((b, rid)) == (0x0002, C.STATUS_OK)
+                                for b, rid, sub in capture.requests()
+                                if sub == C.DELETE and b == boot)
+            checked.append((deleted_topic, ros_side.node.count_publishers("/sensor_state")))
+
+    with AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces", str(INTERFACES)) as agent:
+        channel = UdpChannel(agent.port)
+        try:
+            replay = Replayer(capture, channel, domain_id=ros_domain)
+            # Until ROS has discovered the firmware's entities, the data of the recording's first
+            # seconds would go nowhere: wait for them before the data phase, as the peers of the
+            # recording were up before the firmware.
+            first_sample = next(i for i, (_b, data) in enumerate(capture.steps)
+                                if data[0] > 0x80 and data[4] == C.WRITE_DATA)
+            replay.run(until_step=first_sample)
+            node = ros_side.node
+            assert wait_until(lambda: node.count_publishers("/sensor_state") >= 1
+                              and node.count_subscribers("/cmd_vel") >= 1
+                              and ros_side.client.service_is_ready(), 15), \
+                (node.count_publishers("/sensor_state"), node.count_subscribers("/cmd_vel"),
+                 ros_side.client.service_is_ready(), replay.answers.statuses)
+            ours = replay.run(start_step=first_sample, speed=1.0, on_step=on_step)
+        finally:
+            channel.close()
+            ros_side.close()
+        gone = wait_until(lambda: ros_side.node.count_publishers("/sensor_state") == 0, 10)
+    check_answers(capture, ours)
+    check_teardown(capture, ours)
+    assert len(ros_side.sensor_states) >= 10, len(ros_side.sensor_states)
+    if name == "main":
+        assert ros_side.calls >= 5
+    else:
+        assert checked == [(True, 1)], checked
+        assert gone
