@@ -445,3 +445,67 @@ def test_a_replier_imports_numpy_only_for_an_introspection_event(ros_domain):  #
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.splitlines()[-2:] == ["numpy after creation: False",
                                              "event gid: %s True" % ([0] * 16)], done.stdout
+
+
+async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domain):  # noqa: F811
+    """With park_creation (the CLI's agent), a CREATE whose rclpy entity is being made parks its
+    client instead of the loop: another client is answered meanwhile; a creation the executor does
+    not finish within entity_timeout_s is answered ERR_DDS_ERROR, and the entity it makes later
+    is destroyed."""
+    from engine_peer import BIN, Link, Peer
+    from xrce import constants as C
+    from xrce.agent.engine import Agent
+    from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.submessages import Create, GetInfo
+
+    mw = RosMiddleware(park_creation=True, entity_timeout_s=1.0)
+    agent = Agent(mw)
+    await agent.start()
+    link = Link()
+    creating = Peer(agent, link, ("h", 1))
+    other = Peer(agent, link, ("h", 2), key=b"\x01\x02\x03\x04")
+    try:
+        assert creating.connect()[1] == C.STATUS_OK and other.connect()[1] == C.STATUS_OK
+        answers = {}
+
+        def create(object_id, kind, representation, tail):
+            request = creating.next_request()
+            creating.send(0x80, Create(request, object_id, kind, BIN, representation, tail))
+            return request
+
+        async def status_of(request, timeout_s=10.0):
+            def seen():
+                answers.update({rid: status for _, rid, status in creating.statuses()})
+                return request in answers
+            assert await async_wait_until(seen, timeout_s)
+            return answers[request]
+
+        assert await status_of(create(0x0011, C.OBJK_PARTICIPANT, ParticipantBin("parks"),
+                                      ros_domain)) == C.STATUS_OK
+        assert await status_of(create(0x0012, C.OBJK_TOPIC, TopicBin(
+            "rt/parked", "std_msgs::msg::dds_::String_"), 0x0011)) == C.STATUS_OK
+        assert await status_of(create(0x0013, C.OBJK_PUBLISHER, PubSubBin(), 0x0011)) == 0
+        domain = mw._domains[ros_domain]
+        gate = threading.Event()
+        domain.post(lambda: gate.wait(10))  # the executor is busy until the gate opens
+        writer = DataWriterBin(0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 1))
+        request = create(0x0015, C.OBJK_DATAWRITER, writer, 0x0013)
+        await asyncio.sleep(0.1)
+        assert request not in answers and not creating.statuses()  # parked
+        other.send(0, GetInfo(0x77))
+        assert [p.ID for _, ps in other.take() for p in ps] == [C.INFO]  # answered meanwhile
+        gate.set()
+        assert await status_of(request) == C.STATUS_OK
+        node = mw._entities[(agent.clients[creating.key].key_int, 0x0011)].node
+        assert [p.topic_name for p in list(node.publishers)] == ["/parked"]
+
+        gate.clear()
+        domain.post(lambda: gate.wait(10))
+        request = create(0x0025, C.OBJK_DATAWRITER, writer, 0x0013)
+        assert await status_of(request, 5.0) == C.STATUS_ERR_DDS_ERROR  # after 1 s
+        gate.set()  # the executor makes the writer now: nobody takes it, it is destroyed
+        assert await async_wait_until(lambda: len(list(node.publishers)) == 2, 5.0)
+        assert await async_wait_until(lambda: len(list(node.publishers)) == 1, 5.0)
+        assert not mw._creating
+    finally:
+        await agent.close()

@@ -380,7 +380,7 @@ def make_middleware(name):
         from xrce.agent.ced import CedMiddleware
         return CedMiddleware()
     from xrce.agent.ros import RosMiddleware
-    return RosMiddleware()
+    return RosMiddleware(park_creation=True)
 
 
 def configure_logging(verbosity):

@@ -10,6 +10,7 @@ data.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import os
 import threading
 import time
@@ -93,6 +94,25 @@ class _ReaderRecord:
         self.handoff = handoff
 
 
+class _Creation:
+    """An entity being created on an executor thread (``RosMiddleware._create_on_executor``)."""
+
+    __slots__ = ("job", "context", "domain", "parked", "taken")
+
+    def __init__(self, job, context, domain):
+        self.job = job  # the executor job's future
+        self.context = context
+        self.domain = domain  # a domain with an entity being created in it stays joined
+        self.parked = concurrent.futures.Future()  # done when the job is, or at the timeout
+        self.taken = False
+
+    def settle(self) -> None:
+        try:
+            self.parked.set_result(None)
+        except concurrent.futures.InvalidStateError:
+            pass  # settled already (the job and the timeout raced)
+
+
 class AgentPublisher:
     """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
 
@@ -130,7 +150,10 @@ class RosMiddleware(RosServices, Middleware):
 
     def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
-                 idle_wait_s: float = IDLE_WAIT_S):
+                 idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False):
+        """``park_creation``: an entity's creation on the executor thread does not hold up the
+        loop (see ``_create_on_executor``); for the engine, which parks the creating client.
+        Without it, ``create_*`` wait for the executor (direct callers, tests)."""
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (self.executor_kind,))
@@ -154,6 +177,10 @@ class RosMiddleware(RosServices, Middleware):
         self._domain_listeners: list = []  # called with each domain id joined (loop thread)
         self._home_domain = _default_domain_id()  # joined at start, kept (_leave_if_unused)
         self._leaving: list = []  # threads stopping domains whose last participant went
+        self.park_creation = park_creation
+        # key -> _Creation: entities being created on an executor thread while their client is
+        # parked, taken by the CREATE when the engine retries it.
+        self._creating: dict[EntityKey, _Creation] = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -210,6 +237,64 @@ class RosMiddleware(RosServices, Middleware):
         except Exception as exc:
             raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
 
+    def _create_on_executor(self, key: EntityKey, participant: _ParticipantRecord, job, undo,
+                            context=None):
+        """``(job's result, context)``, ``job`` creating ``key``'s rclpy entity on the domain's
+        executor thread. With ``park_creation`` the loop does not wait for it: the first call
+        submits ``job`` and raises TypeNotReady, the engine parks this client (and only it) and
+        retries the CREATE when the job is done or ``entity_timeout_s`` has passed; the retry
+        gets the result and the ``context`` the first call gave (an entity's record that the job's
+        callbacks hold). A result nobody takes within ``entity_timeout_s`` after the job ended
+        (the client went away meanwhile) is undone with ``undo(result)`` on the executor."""
+        if not self.park_creation:
+            return self._on_executor(participant, job), context
+        creation = self._creating.pop(key, None)
+        if creation is not None:
+            if not creation.job.done():  # the timeout: what the job makes later is undone
+                raise MiddlewareError("ROS executor of domain %d did not answer within %.1f s"
+                                      % (participant.domain.domain_id, self.entity_timeout_s))
+            creation.taken = True
+            try:
+                return creation.job.result(), creation.context
+            except MiddlewareError:
+                raise
+            except Exception as exc:
+                raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
+        loop = self._get_loop()
+        try:
+            submitted = participant.domain.submit(job)
+        except MiddlewareError:
+            raise
+        creation = self._creating[key] = _Creation(submitted, context, participant.domain)
+        timer = loop.call_later(self.entity_timeout_s, creation.settle)
+
+        def ended(_future) -> None:  # executor thread
+            creation.settle()
+            try:
+                loop.call_soon_threadsafe(timer.cancel)
+                loop.call_soon_threadsafe(loop.call_later, self.entity_timeout_s,
+                                          self._undo_untaken, key, creation, participant, undo)
+            except RuntimeError:  # the loop has closed: the agent is gone
+                pass
+
+        submitted.add_done_callback(ended)
+        raise TypeNotReady("%r is being created on the ROS executor" % (key,), creation.parked)
+
+    def _undo_untaken(self, key: EntityKey, creation: "_Creation", participant, undo) -> None:
+        if creation.taken:
+            return
+        if self._creating.get(key) is creation:
+            del self._creating[key]
+        if creation.job.cancelled() or creation.job.exception() is not None:
+            return
+        result = creation.job.result()
+        log.debug("entity %r was created for a client that never took it: destroyed", key)
+        try:
+            participant.domain.post(lambda: undo(result))
+        except MiddlewareError:
+            pass  # the domain has stopped: its nodes went with it
+        self._leave_if_unused(participant.domain)
+
     def _add(self, key: EntityKey, record) -> None:
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
@@ -236,8 +321,14 @@ class RosMiddleware(RosServices, Middleware):
             domain.nodes.add(node)
             return node
 
+        def destroy_node(node):
+            domain.executor.remove_node(node)
+            domain.nodes.discard(node)
+            node.destroy_node()
+
         try:
-            node = domain.call(make_node, self.entity_timeout_s)
+            node, _ = self._create_on_executor(key, _ParticipantRecord(domain, None), make_node,
+                                               destroy_node)
         except MiddlewareError:
             raise
         except Exception as exc:
@@ -267,8 +358,8 @@ class RosMiddleware(RosServices, Middleware):
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos)
         node = participant.node
-        ros_publisher = self._on_executor(participant, lambda: node.create_publisher(
-            topic_record.msg_class, topic_record.ros_name, profile))
+        ros_publisher, _ = self._create_on_executor(key, participant, lambda: node.create_publisher(
+            topic_record.msg_class, topic_record.ros_name, profile), node.destroy_publisher)
         self._entities[key] = _WriterRecord(owner, ros_publisher)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
@@ -278,11 +369,14 @@ class RosMiddleware(RosServices, Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos)
-        record = _ReaderRecord(owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth,
-                                                    self.engine_lock))
+        creation = self._creating.get(key)
+        record = creation.context if creation is not None else _ReaderRecord(
+            owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
         node = participant.node
-        record.subscription = self._on_executor(participant, lambda: node.create_subscription(
-            topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile, raw=True))
+        record.subscription, _ = self._create_on_executor(
+            key, participant, lambda: node.create_subscription(
+                topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile,
+                raw=True), node.destroy_subscription, record)
         self._entities[key] = record
 
     # -- data ---------------------------------------------------------------------------------
@@ -437,7 +531,8 @@ class RosMiddleware(RosServices, Middleware):
         if self._closed or domain_id == self._home_domain or \
                 self._domains.get(domain_id) is not domain:
             return
-        if any(r.kind == "participant" and r.domain is domain for r in self._entities.values()):
+        if any(r.kind == "participant" and r.domain is domain for r in self._entities.values()) \
+                or any(c.domain is domain for c in self._creating.values()):
             return
         del self._domains[domain_id]
         for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:

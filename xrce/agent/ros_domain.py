@@ -245,13 +245,18 @@ class DomainRuntime:
         self._jobs.put((None, job))
         self._wake()
 
-    def call(self, job, timeout_s: float):
-        """Run ``job`` on the executor thread and return its result (or raise its exception)."""
+    def submit(self, job) -> concurrent.futures.Future:
+        """Run ``job`` on the executor thread; the future of its result."""
         if not self.thread.is_alive():
             raise MiddlewareError("ROS executor of domain %d is not running" % self.domain_id)
         result: concurrent.futures.Future = concurrent.futures.Future()
         self._jobs.put((result, job))
         self._wake()
+        return result
+
+    def call(self, job, timeout_s: float):
+        """Run ``job`` on the executor thread and return its result (or raise its exception)."""
+        result = self.submit(job)
         try:
             return result.result(timeout_s)
         except concurrent.futures.TimeoutError:

@@ -122,7 +122,8 @@ class _ReplierRecord:
 
 class RosServices:
     """Requesters and repliers of ``RosMiddleware``, which mixes this class in: the methods use its
-    ``_entities``, ``_loop`` / ``_get_loop``, ``_participant_of``, ``_on_executor``,
+    ``_entities``, ``_loop`` / ``_get_loop``, ``_participant_of``, ``_create_on_executor``,
+    ``_creating``,
     ``_guid_prefix``, ``_replier_counter``, ``request_timeout_s`` and ``requests_timed_out``."""
 
     _awaiting_server = None  # requesters holding requests: {record: None}, made on first use
@@ -149,21 +150,28 @@ class RosServices:
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
             key, participant, service, qos)
         self._get_loop()
-        record = _RequesterRecord(owner, srv, on_reply)
+        creation = self._creating.get(key)
+        record = creation.context if creation is not None else \
+            _RequesterRecord(owner, srv, on_reply)
         node = participant_record.node
-        record.client = self._on_executor(participant_record, lambda: node.create_client(
-            srv, service_name, qos_profile=profile))
+        record.client, _ = self._create_on_executor(key, participant_record, lambda: node.create_client(
+            srv, service_name, qos_profile=profile), node.destroy_client, record)
         self._entities[key] = record
 
     def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                        qos: EndpointQosSpec, on_request: RequestCallback) -> None:
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
             key, participant, service, qos)
-        self._replier_counter += 1
-        # entityKey: 3 bytes of a per-agent replier counter; entityKind 0x02 = user writer with key
-        # (the reply writer a DDS replier would own).
-        prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] + b"\x02"
-        record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self)
+        creation = self._creating.get(key)
+        if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
+            record = creation.context
+        else:
+            self._replier_counter += 1
+            # entityKey: 3 bytes of a per-agent replier counter; entityKind 0x02 = user writer
+            # with key (the reply writer a DDS replier would own).
+            prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] \
+                + b"\x02"
+            record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self)
         node = participant_record.node
 
         def make_service():
@@ -171,7 +179,8 @@ class RosServices:
             ros_service.send_response = record.capture
             return ros_service
 
-        record.service = self._on_executor(participant_record, make_service)
+        record.service, _ = self._create_on_executor(key, participant_record, make_service,
+                                                     node.destroy_service, record)
         self._entities[key] = record
 
     # -- data ---------------------------------------------------------------------------------
