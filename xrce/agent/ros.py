@@ -10,7 +10,6 @@ data.
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import os
 import threading
 import time
@@ -37,6 +36,7 @@ from xrce.agent.ros_domain import (
     log,
 )
 from xrce.agent.observability import client_tag
+from xrce.agent.ros_creation import ParkedCreation
 from xrce.agent.ros_services import RosServices
 from xrce.agent.rostypes import (
     dds_topic_to_ros,
@@ -94,25 +94,6 @@ class _ReaderRecord:
         self.handoff = handoff
 
 
-class _Creation:
-    """An entity being created on an executor thread (``RosMiddleware._create_on_executor``)."""
-
-    __slots__ = ("job", "context", "domain", "parked", "taken")
-
-    def __init__(self, job, context, domain):
-        self.job = job  # the executor job's future
-        self.context = context
-        self.domain = domain  # a domain with an entity being created in it stays joined
-        self.parked = concurrent.futures.Future()  # done when the job is, or at the timeout
-        self.taken = False
-
-    def settle(self) -> None:
-        try:
-            self.parked.set_result(None)
-        except concurrent.futures.InvalidStateError:
-            pass  # settled already (the job and the timeout raced)
-
-
 class AgentPublisher:
     """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
 
@@ -143,7 +124,7 @@ def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
     _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
 
 
-class RosMiddleware(RosServices, Middleware):
+class RosMiddleware(RosServices, ParkedCreation, Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
     name = "dds"
@@ -152,7 +133,7 @@ class RosMiddleware(RosServices, Middleware):
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
                  idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False):
         """``park_creation``: an entity's creation on the executor thread does not hold up the
-        loop (see ``_create_on_executor``); for the engine, which parks the creating client.
+        loop (``xrce.agent.ros_creation``); for the engine, which parks the creating client.
         Without it, ``create_*`` wait for the executor (direct callers, tests)."""
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
@@ -178,9 +159,9 @@ class RosMiddleware(RosServices, Middleware):
         self._home_domain = _default_domain_id()  # joined at start, kept (_leave_if_unused)
         self._leaving: list = []  # threads stopping domains whose last participant went
         self.park_creation = park_creation
-        # key -> _Creation: entities being created on an executor thread while their client is
-        # parked, taken by the CREATE when the engine retries it.
-        self._creating: dict[EntityKey, _Creation] = {}
+        # key -> Creation: entities being created on an executor thread while their client is
+        # parked, taken by the CREATE when the engine retries it (xrce.agent.ros_creation).
+        self._creating: dict = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -236,64 +217,6 @@ class RosMiddleware(RosServices, Middleware):
             raise
         except Exception as exc:
             raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
-
-    def _create_on_executor(self, key: EntityKey, participant: _ParticipantRecord, job, undo,
-                            context=None):
-        """``(job's result, context)``, ``job`` creating ``key``'s rclpy entity on the domain's
-        executor thread. With ``park_creation`` the loop does not wait for it: the first call
-        submits ``job`` and raises TypeNotReady, the engine parks this client (and only it) and
-        retries the CREATE when the job is done or ``entity_timeout_s`` has passed; the retry
-        gets the result and the ``context`` the first call gave (an entity's record that the job's
-        callbacks hold). A result nobody takes within ``entity_timeout_s`` after the job ended
-        (the client went away meanwhile) is undone with ``undo(result)`` on the executor."""
-        if not self.park_creation:
-            return self._on_executor(participant, job), context
-        creation = self._creating.pop(key, None)
-        if creation is not None:
-            if not creation.job.done():  # the timeout: what the job makes later is undone
-                raise MiddlewareError("ROS executor of domain %d did not answer within %.1f s"
-                                      % (participant.domain.domain_id, self.entity_timeout_s))
-            creation.taken = True
-            try:
-                return creation.job.result(), creation.context
-            except MiddlewareError:
-                raise
-            except Exception as exc:
-                raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
-        loop = self._get_loop()
-        try:
-            submitted = participant.domain.submit(job)
-        except MiddlewareError:
-            raise
-        creation = self._creating[key] = _Creation(submitted, context, participant.domain)
-        timer = loop.call_later(self.entity_timeout_s, creation.settle)
-
-        def ended(_future) -> None:  # executor thread
-            creation.settle()
-            try:
-                loop.call_soon_threadsafe(timer.cancel)
-                loop.call_soon_threadsafe(loop.call_later, self.entity_timeout_s,
-                                          self._undo_untaken, key, creation, participant, undo)
-            except RuntimeError:  # the loop has closed: the agent is gone
-                pass
-
-        submitted.add_done_callback(ended)
-        raise TypeNotReady("%r is being created on the ROS executor" % (key,), creation.parked)
-
-    def _undo_untaken(self, key: EntityKey, creation: "_Creation", participant, undo) -> None:
-        if creation.taken:
-            return
-        if self._creating.get(key) is creation:
-            del self._creating[key]
-        if creation.job.cancelled() or creation.job.exception() is not None:
-            return
-        result = creation.job.result()
-        log.debug("entity %r was created for a client that never took it: destroyed", key)
-        try:
-            participant.domain.post(lambda: undo(result))
-        except MiddlewareError:
-            pass  # the domain has stopped: its nodes went with it
-        self._leave_if_unused(participant.domain)
 
     def _add(self, key: EntityKey, record) -> None:
         if key in self._entities:

@@ -1,0 +1,97 @@
+"""Entity creation on a ROS domain's executor thread without holding up the loop (``-m dds``).
+
+Every rclpy node, publisher, subscription, client and service is made on its domain's executor
+thread (``xrce.agent.ros_domain``). The loop used to wait for each (up to ``entity_timeout_s``),
+and every other client with it. With ``park_creation`` (the CLI's agent) a ``create_*`` submits
+the job and raises ``TypeNotReady``: the engine parks only the creating client's processing and
+retries its CREATE when the job is done or timed out, and the retry takes the job's result.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+
+from xrce.agent.middleware import EntityKey, MiddlewareError, TypeNotReady
+from xrce.agent.ros_domain import log
+
+
+class Creation:
+    """An entity being created on an executor thread (``ParkedCreation._create_on_executor``)."""
+
+    __slots__ = ("job", "context", "domain", "parked", "taken")
+
+    def __init__(self, job, context, domain):
+        self.job = job  # the executor job's future
+        self.context = context
+        self.domain = domain  # a domain with an entity being created in it stays joined
+        self.parked = concurrent.futures.Future()  # done when the job is, or at the timeout
+        self.taken = False
+
+    def settle(self) -> None:
+        try:
+            self.parked.set_result(None)
+        except concurrent.futures.InvalidStateError:
+            pass  # settled already (the job and the timeout raced)
+
+
+class ParkedCreation:
+    """Mixin of ``RosMiddleware``: uses its ``park_creation``, ``_creating``,
+    ``entity_timeout_s``, ``_on_executor``, ``_get_loop`` and ``_leave_if_unused``."""
+
+    def _create_on_executor(self, key: EntityKey, participant, job, undo,
+                            context=None):
+        """``(job's result, context)``, ``job`` creating ``key``'s rclpy entity on the domain's
+        executor thread. With ``park_creation`` the loop does not wait for it: the first call
+        submits ``job`` and raises TypeNotReady, the engine parks this client (and only it) and
+        retries the CREATE when the job is done or ``entity_timeout_s`` has passed; the retry
+        gets the result and the ``context`` the first call gave (an entity's record that the job's
+        callbacks hold). A result nobody takes within ``entity_timeout_s`` after the job ended
+        (the client went away meanwhile) is undone with ``undo(result)`` on the executor."""
+        if not self.park_creation:
+            return self._on_executor(participant, job), context
+        creation = self._creating.pop(key, None)
+        if creation is not None:
+            if not creation.job.done():  # the timeout: what the job makes later is undone
+                raise MiddlewareError("ROS executor of domain %d did not answer within %.1f s"
+                                      % (participant.domain.domain_id, self.entity_timeout_s))
+            creation.taken = True
+            try:
+                return creation.job.result(), creation.context
+            except MiddlewareError:
+                raise
+            except Exception as exc:
+                raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
+        loop = self._get_loop()
+        try:
+            submitted = participant.domain.submit(job)
+        except MiddlewareError:
+            raise
+        creation = self._creating[key] = Creation(submitted, context, participant.domain)
+        timer = loop.call_later(self.entity_timeout_s, creation.settle)
+
+        def ended(_future) -> None:  # executor thread
+            creation.settle()
+            try:
+                loop.call_soon_threadsafe(timer.cancel)
+                loop.call_soon_threadsafe(loop.call_later, self.entity_timeout_s,
+                                          self._undo_untaken, key, creation, participant, undo)
+            except RuntimeError:  # the loop has closed: the agent is gone
+                pass
+
+        submitted.add_done_callback(ended)
+        raise TypeNotReady("%r is being created on the ROS executor" % (key,), creation.parked)
+
+    def _undo_untaken(self, key: EntityKey, creation: Creation, participant, undo) -> None:
+        if creation.taken:
+            return
+        if self._creating.get(key) is creation:
+            del self._creating[key]
+        if creation.job.cancelled() or creation.job.exception() is not None:
+            return
+        result = creation.job.result()
+        log.debug("entity %r was created for a client that never took it: destroyed", key)
+        try:
+            participant.domain.post(lambda: undo(result))
+        except MiddlewareError:
+            pass  # the domain has stopped: its nodes went with it
+        self._leave_if_unused(participant.domain)
