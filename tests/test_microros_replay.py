@@ -172,16 +172,26 @@ class RosSide:
 
 
 @pytest.mark.timeout(180)
-@pytest.mark.parametrize("name", ("main", "teardown"))
+@pytest.mark.parametrize("name", ("main", "teardown", "restart"))
 def test_capture_replayed_into_ros_gets_eprosimas_answers(name, ros_peer, ros_domain):  # noqa: F811
     """-m dds: the firmware's entities in ROS, the recording's rclpy peers talking to them. In
     the teardown, the /sensor_state publisher outlives its deleted TOPIC object until its
-    DATAWRITER is deleted, as in eProsima's agent (there a DDS DataWriter keeps its topic)."""
+    DATAWRITER is deleted, as in eProsima's agent (there a DDS DataWriter keeps its topic); after
+    the board reset, the firmware's writers are the same DDS writers."""
     capture = Capture(name)
     ros_side = RosSide(ros_peer)
     checked = []
+    publishers = []
+    teardown = len(capture.steps)
+    if name == "restart":  # the second boot's
+        teardown = min(i for i, (b, data) in enumerate(capture.steps)
+                       if b == 1 and data[0] > 0x80 and len(data) > 4 and data[4] == C.DELETE)
 
     def on_step(index, boot, data):
+        if index < teardown and index % 20 == 0:
+            # Before and after the board reset: the same DDS writer (its GID), not a new one.
+            publishers.append(tuple(bytes(info.endpoint_gid) for info in
+                                    ros_side.node.get_publishers_info_by_topic("/big_string")))
         # Before the message deleting the /sensor_state writer (0x0005): its topic is gone.
         if data[0] > 0x80 and len(data) >= 12 and data[4] == C.DELETE and data[10:12] == b"\x00\x05":
             deleted_topic = any(replay.answers.statuses.get((b, rid)) == (0x0002, C.STATUS_OK)
@@ -215,6 +225,11 @@ def test_capture_replayed_into_ros_gets_eprosimas_answers(name, ros_peer, ros_do
     assert len(ros_side.sensor_states) >= 10, len(ros_side.sensor_states)
     if name == "main":
         assert ros_side.calls >= 5
-    else:
+    elif name == "teardown":
         assert checked == [(True, 1)], checked
         assert gone
+    else:
+        # REUSE matched the reliable writer whose CREATE differs in a padding byte: no second
+        # DDS writer (before, a new one with a new GID replaced it).
+        seen = set(publishers)
+        assert len(publishers) >= 10 and len(seen) == 1 and len(seen.pop()) == 1, publishers
