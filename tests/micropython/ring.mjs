@@ -93,6 +93,18 @@ export class DatagramRing {
     }
   }
 
+  // Blocks until a datagram is there (true) or timeoutMs elapses (false), taking nothing.
+  waitReadable(timeoutMs) {
+    const deadline = performance.now() + timeoutMs;
+    for (;;) {
+      const seq = Atomics.load(this.header, SEQ);
+      if (Atomics.load(this.header, READ) !== Atomics.load(this.header, WRITE)) return true;
+      const left = deadline - performance.now();
+      if (left <= 0) return false;
+      Atomics.wait(this.header, SEQ, seq, left);
+    }
+  }
+
   stats() {
     return { received: Atomics.load(this.header, RECEIVED), dropped: Atomics.load(this.header, DROPPED) };
   }

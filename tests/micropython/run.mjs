@@ -202,6 +202,16 @@ function makeNodeUdp(reply, bytesBridge, memory) {
       rings.set(handle, new DatagramRing(buffer));
       return handle;
     }),
+    // A TCP connection read the same way as a stream-mode socket (recv_into with stream=true);
+    // the end of the stream reads as a 0-byte datagram.
+    open_tcp: guarded((host, port) => {
+      if (typeof host !== "string" || !Number.isInteger(port)) throw new TypeError("open_tcp(host: str, port: int)");
+      const handle = nextHandle++;
+      const buffer = DatagramRing.allocate();
+      reply.request("openTcp", { handle, host, port, ring: buffer });
+      rings.set(handle, new DatagramRing(buffer));
+      return handle;
+    }),
     send: guarded((handle, data) => {
       ringOf(handle);
       // Copied so that the worker owns a stable buffer (a view may alias the wasm heap).
@@ -262,6 +272,13 @@ function makeNodeUdp(reply, bytesBridge, memory) {
       for (let i = 0; i < count; i++) memory.setValue(address + i, datagram[i], "i8");
       if (stream && count < datagram.byteLength) unread.set(handle, datagram.slice(count));
       return count;
+    }),
+    // 1 once something can be read (a datagram, or the tail a stream read left), else 0 after
+    // timeout_ms; takes nothing. The harness socket's poll ioctl waits with it.
+    readable: guarded((handle, timeoutMs) => {
+      const ring = ringOf(handle);
+      if (unread.has(handle)) return 1;
+      return ring.waitReadable(Math.max(0, timeoutMs || 0)) ? 1 : 0;
     }),
     close: guarded((handle) => {
       unread.delete(handle);

@@ -60,9 +60,35 @@ function open({ id, handle, host, port, ring }) {
   });
 }
 
+// A TCP connection for the harness' SOCK_STREAM sockets: its bytes go into the ring as they come
+// (run.mjs reads them as one stream), and the end of the stream as an empty datagram.
+function openTcp({ id, handle, host, port, ring }) {
+  const datagrams = new DatagramRing(ring);
+  let settled = false;
+  const socket = net.connect({ host, port });
+  socket.setNoDelay(true);
+  socket.on("connect", () => {
+    settled = true;
+    sockets.set(handle, socket);
+    answer(id, handle);
+  });
+  socket.on("data", (chunk) => datagrams.push(chunk));
+  socket.on("end", () => datagrams.push(new Uint8Array(0)));
+  socket.on("error", (error) => {
+    if (!settled) {
+      settled = true;
+      answer(id, 0, error);
+    }
+  });
+}
+
 function send({ id, handle, payload }) {
   const socket = sockets.get(handle);
   if (!socket) return answer(id, 0, new Error(`no open socket with handle ${handle}`));
+  if (socket instanceof net.Socket) {
+    socket.write(payload, (error) => answer(id, error ? 0 : payload.length, error));
+    return;
+  }
   socket.send(payload, (error) => answer(id, error ? 0 : payload.length, error));
 }
 
@@ -70,6 +96,11 @@ function close({ id, handle }) {
   const socket = sockets.get(handle);
   if (!socket) return answer(id, 0);
   sockets.delete(handle);
+  if (socket instanceof net.Socket) {
+    socket.destroy();
+    answer(id, 1);
+    return;
+  }
   socket.close(() => answer(id, 1));
 }
 
@@ -79,7 +110,7 @@ function localPort({ id, handle }) {
   answer(id, socket.address().port);
 }
 
-const operations = { open, send, close, localPort };
+const operations = { open, openTcp, send, close, localPort };
 
 parentPort.on("message", (request) => {
   try {

@@ -75,6 +75,25 @@ else:
 CRC_FUNCTIONS = {"arc": crc16_arc, "ccitt": crc16_x25}
 
 
+def crc_of_prefix(crc, buf, length):
+    # ``crc(buf[:length])`` without the slice, which a board makes as a heap object: the table loop
+    # for the two named CRCs (whichever implementation ``crc`` is), a slice for any other function.
+    global _X25_TABLE
+    if crc is crc16_arc or crc is crc16_arc_table:
+        table = _ARC_TABLE
+        value = flip = 0
+    elif crc is crc16_x25 or crc is crc16_x25_table:
+        table = _X25_TABLE
+        if table is None:
+            table = _X25_TABLE = _make_reflected_table(0x8408)
+        value = flip = 0xFFFF
+    else:
+        return crc(memoryview(buf)[:length])
+    for i in range(length):
+        value = (value >> 8) ^ table[(value ^ buf[i]) & 0xFF]
+    return value ^ flip
+
+
 def get_crc(name_or_function="arc"):
     # The CRC function for a name in CRC_FUNCTIONS ("arc", "ccitt"), or a callable passed through.
     if callable(name_or_function):

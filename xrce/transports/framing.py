@@ -12,7 +12,7 @@
 # TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
 
 from xrce import EncodeError, const
-from xrce.transports.crc import crc16_arc
+from xrce.transports.crc import crc16_arc, crc_of_prefix
 
 FLAG = const(0x7E)
 ESCAPE = const(0x7D)
@@ -73,6 +73,13 @@ class FrameDecoder:
     # every dropped or abandoned frame. ``frames`` counts frames returned.
     #
     # Memory is one preallocated ``max_payload`` buffer plus the returned payloads, whatever is fed.
+    #
+    # ``scan(buf, start, end)`` is the same decoder without the allocations (for a board, where
+    # ``feed``'s bytes copy, list, tuples and payloads are heap objects at message rate): it reads
+    # ``buf[start:end]`` byte by byte up to the end of the first complete frame and returns the index
+    # after what it used. ``frame_length`` is then that frame's payload length (-1: none completed),
+    # the payload is ``buffer[:frame_length]`` (valid until the next call) and ``frame_src`` /
+    # ``frame_dst`` its addresses. Both share the state and counters: a stream may mix them.
 
     __slots__ = (
         "local_addr",
@@ -83,6 +90,10 @@ class FrameDecoder:
         "resyncs",
         "dropped_bytes",
         "wrong_address",
+        "buffer",
+        "frame_length",
+        "frame_src",
+        "frame_dst",
         "_crc",
         "_view",
         "_state",
@@ -101,7 +112,10 @@ class FrameDecoder:
         self.local_addr = local_addr
         self.max_payload = max_payload
         self._crc = crc
-        self._view = memoryview(bytearray(max_payload))
+        self.buffer = bytearray(max_payload)
+        self._view = memoryview(self.buffer)
+        self.frame_length = -1
+        self.frame_src = self.frame_dst = 0
         self.frames = 0
         self.crc_errors = 0
         self.oversize = 0
@@ -246,6 +260,92 @@ class FrameDecoder:
         return frames
 
 
+    def scan(self, buf, start, end):
+        # See the class comment. Every value here is a small int: nothing is allocated.
+        buffer = self.buffer
+        state = self._state
+        escaped = self._escaped
+        raw = self._raw
+        length = self._length
+        filled = self._filled
+        self.frame_length = -1
+        i = start
+        while i < end:
+            byte = buf[i]
+            i += 1
+            if state == _HUNT:
+                if byte == FLAG:
+                    state = _SRC
+                    escaped = False
+                    raw = 1
+                else:
+                    self.dropped_bytes += 1
+                continue
+            if byte == FLAG:
+                self.resyncs += 1
+                self.dropped_bytes += raw
+                raw = 1
+                state = _SRC
+                escaped = False
+                continue
+            raw += 1
+            if escaped:
+                byte ^= ESCAPE_XOR
+                escaped = False
+            elif byte == ESCAPE:
+                escaped = True
+                continue
+            if state == _PAYLOAD:
+                buffer[filled] = byte
+                filled += 1
+                if filled == length:
+                    state = _CRC_LO
+            elif state == _SRC:
+                self._src = byte
+                state = _DST
+            elif state == _DST:
+                self._dst = byte
+                state = _LEN_LO
+            elif state == _LEN_LO:
+                length = byte
+                state = _LEN_HI
+            elif state == _LEN_HI:
+                length |= byte << 8
+                if length > self.max_payload:
+                    self.oversize += 1
+                    self.dropped_bytes += raw
+                    raw = 0
+                    state = _HUNT
+                else:
+                    filled = 0
+                    state = _PAYLOAD if length else _CRC_LO
+            elif state == _CRC_LO:
+                self._crc_rx = byte
+                state = _CRC_HI
+            else:  # _CRC_HI: the frame is complete
+                state = _HUNT
+                if crc_of_prefix(self._crc, buffer, length) != self._crc_rx | (byte << 8):
+                    self.crc_errors += 1
+                    self.dropped_bytes += raw
+                elif self.local_addr is not None and self._dst != self.local_addr:
+                    self.wrong_address += 1
+                    self.dropped_bytes += raw
+                else:
+                    self.frames += 1
+                    self.frame_length = length
+                    self.frame_src = self._src
+                    self.frame_dst = self._dst
+                    raw = 0
+                    break
+                raw = 0
+        self._state = state
+        self._escaped = escaped
+        self._raw = raw
+        self._length = length
+        self._filled = filled
+        return i
+
+
 def encode_length_prefixed(msg):
     # ``msg`` preceded by its 2-byte little-endian length (the TCP mapping).
     length = len(msg)
@@ -273,6 +373,7 @@ class LengthPrefixDecoder:
         "oversize",
         "broken",
         "dropped_bytes",
+        "buffer",
         "_view",
         "_header_lo",
         "_header_filled",
@@ -284,7 +385,8 @@ class LengthPrefixDecoder:
         if not 0 < max_len <= 0xFFFF:
             raise ValueError("max_len must be 1..65535")
         self.max_len = max_len
-        self._view = memoryview(bytearray(max_len))
+        self.buffer = bytearray(max_len)  # a board's TcpTransport reads whole messages straight into it
+        self._view = memoryview(self.buffer)
         self.messages = 0
         self.zero_length = 0
         self.oversize = 0

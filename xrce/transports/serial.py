@@ -7,7 +7,7 @@
 from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 from xrce.transports.crc import get_crc
-from xrce.transports.framing import FrameDecoder, encode_frame
+from xrce.transports.framing import ESCAPE, ESCAPE_XOR, FLAG, FrameDecoder, encode_frame
 
 try:
     import serial as _pyserial  # pyserial
@@ -24,6 +24,8 @@ _SerialError = _pyserial.SerialException if _pyserial is not None else OSError
 DEFAULT_MTU = 512
 # Read size per syscall; frames are at most 2 * (mtu + 6) + 1 bytes escaped, most far smaller.
 _CHUNK = 256
+# A board writes a frame through a buffer this size, escaping as it goes (see _send_uart).
+_OUT_CHUNK = 64
 
 
 class SerialTransport:
@@ -34,6 +36,12 @@ class SerialTransport:
     # (``wrong_source``) are dropped, as the C client does. ``send(msg) -> bool``;
     # ``recv(timeout_ms)`` -> bytes of one message or None after the timeout. Counters: ``sent``,
     # ``received``, ``send_errors``, ``wrong_source`` and the framing counters in ``decoder``.
+    #
+    # ``recv_frame(timeout_ms)`` -> the length of the message now in ``decoder.buffer`` (valid until
+    # the next receive), or -1 after the timeout: the receive a board makes without allocating
+    # (UART.readinto into a preallocated chunk, FrameDecoder.scan). On MicroPython ``recv`` is
+    # ``recv_frame`` plus the copy it returns, and ``send`` writes the frame through a 64-byte
+    # buffer, escaping as it goes, with UART.write(buf, off, n): neither allocates.
 
     __slots__ = (
         "device",
@@ -53,6 +61,9 @@ class SerialTransport:
         "_buf",
         "_view",
         "_poller",
+        "_out",
+        "_chunk_pos",
+        "_chunk_end",
     )
 
     def __init__(self, device, baudrate=115200, local_addr=1, remote_addr=0, crc="arc", mtu=DEFAULT_MTU):
@@ -72,6 +83,8 @@ class SerialTransport:
         self._pending = []
         self._buf = bytearray(_CHUNK)
         self._view = memoryview(self._buf)
+        self._out = bytearray(_OUT_CHUNK) if IS_MICROPYTHON else None
+        self._chunk_pos = self._chunk_end = 0  # what recv_frame has not scanned yet of _buf
         self._poller = None
         self.open()
 
@@ -79,12 +92,14 @@ class SerialTransport:
         if self._port is not None or self._uart is not None:
             return
         if IS_MICROPYTHON:
-            import machine
-
             if isinstance(self.device, int):
+                import machine
+
                 self._uart = machine.UART(self.device, self.baudrate)
             else:
                 self._uart = self.device  # a UART the caller configured (pins, buffers)
+            self.decoder.reset()
+            self._chunk_pos = self._chunk_end = 0
             return
         if _pyserial is None:
             raise TransportError("pyserial is required for the serial transport on CPython")
@@ -103,6 +118,7 @@ class SerialTransport:
                 self._poller = None  # e.g. Windows: fall back to pyserial's own timeout
         self.decoder.reset()
         self._pending = []
+        self._chunk_pos = self._chunk_end = 0
 
     def close(self):
         if self._port is not None:
@@ -116,6 +132,16 @@ class SerialTransport:
     def send(self, msg):
         if len(msg) > self.mtu:
             raise EncodeError("message of %d bytes exceeds the serial MTU %d" % (len(msg), self.mtu))
+        if self._uart is not None:
+            try:
+                written = self._send_uart(msg)
+            except OSError:
+                written = False
+            if not written:
+                self.send_errors += 1
+                return False
+            self.sent += 1
+            return True
         frame = encode_frame(msg, self.local_addr, self.remote_addr, self._crc)
         try:
             if self._port is not None:
@@ -135,6 +161,53 @@ class SerialTransport:
         self.sent += 1
         return True
 
+    def _send_uart(self, msg):
+        # encode_frame's bytes, written through _out as they are escaped: no frame object.
+        out = self._out
+        room = _OUT_CHUNK - 1  # an escaped byte takes two
+        length = len(msg)
+        check = self._crc(msg)
+        out[0] = FLAG
+        n = 1
+        last = length + 5
+        for k in range(last + 1):
+            if k >= 4 and k < last - 1:
+                byte = msg[k - 4]
+            elif k == 0:
+                byte = self.local_addr
+            elif k == 1:
+                byte = self.remote_addr
+            elif k == 2:
+                byte = length & 0xFF
+            elif k == 3:
+                byte = length >> 8
+            elif k == last - 1:
+                byte = check & 0xFF
+            else:
+                byte = check >> 8
+            if byte == FLAG or byte == ESCAPE:
+                out[n] = ESCAPE
+                n += 1
+                byte ^= ESCAPE_XOR
+            out[n] = byte
+            n += 1
+            if n >= room or k == last:
+                if not self._write_out(n):
+                    return False
+                n = 0
+        return True
+
+    def _write_out(self, count):
+        uart = self._uart
+        position = 0
+        while position < count:
+            written = uart.write(self._out, position, count - position)
+            if written:
+                position += written
+            else:
+                sleep_ms(1)  # TX buffer full
+        return True
+
     def _write_uart(self, frame):
         view = memoryview(frame)
         position = 0
@@ -147,45 +220,69 @@ class SerialTransport:
         return position
 
     def _read_available(self, wait_ms):
-        # Up to _CHUNK bytes read within wait_ms (possibly none), as a memoryview.
+        # Up to _CHUNK bytes read into _buf within wait_ms (possibly none): their count.
         if self._uart is not None:
             uart = self._uart
             available = uart.any()
             if not available:
                 if wait_ms > 0:
                     sleep_ms(1)
-                return None
+                return 0
             # Never ask for more than is buffered: UART reads may otherwise wait for its timeout.
             count = uart.readinto(self._buf, available if available < _CHUNK else _CHUNK)
-            return self._view[:count] if count else None
+            return count or 0
         port = self._port
         if port is None:
             raise TransportError("serial transport is closed")
         if self._poller is not None:
             if not self._poller.poll(wait_ms if wait_ms > 0 else 0):
-                return None
+                return 0
         elif not port.in_waiting:
             port.timeout = wait_ms / 1000 if wait_ms > 0 else 0
             data = port.read(1)
             port.timeout = 0
             if not data:
-                return None
+                return 0
             self._buf[0] = data[0]
-            count = 1 + port.readinto(self._view[1:])
-            return self._view[:count]
-        count = port.readinto(self._buf)
-        return self._view[:count] if count else None
+            return 1 + port.readinto(self._view[1:])
+        return port.readinto(self._buf) or 0
+
+    def recv_frame(self, timeout_ms):
+        decoder = self.decoder
+        buf = self._buf
+        deadline = ticks_add(ticks_ms(), timeout_ms)
+        remaining = timeout_ms
+        while True:
+            pos = self._chunk_pos
+            end = self._chunk_end
+            while pos < end:
+                pos = decoder.scan(buf, pos, end)
+                if decoder.frame_length >= 0:
+                    if decoder.frame_src == self.remote_addr:
+                        self._chunk_pos = pos
+                        self.received += 1
+                        return decoder.frame_length
+                    self.wrong_source += 1
+            self._chunk_pos = 0
+            self._chunk_end = self._read_available(remaining)
+            if not self._chunk_end:
+                remaining = ticks_diff(deadline, ticks_ms())
+                if remaining <= 0:
+                    return -1
 
     def recv(self, timeout_ms):
+        if IS_MICROPYTHON:
+            length = self.recv_frame(timeout_ms)
+            return None if length < 0 else bytes(memoryview(self.decoder.buffer)[:length])
         if self._pending:
             self.received += 1
             return self._pending.pop(0)
         deadline = ticks_add(ticks_ms(), timeout_ms)
         remaining = timeout_ms
         while True:
-            chunk = self._read_available(remaining)
-            if chunk is not None:
-                for src, _dst, payload in self.decoder.feed(chunk):
+            count = self._read_available(remaining)
+            if count:
+                for src, _dst, payload in self.decoder.feed(self._view[:count]):
                     if src != self.remote_addr:
                         self.wrong_source += 1
                     else:

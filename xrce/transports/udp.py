@@ -44,6 +44,7 @@ class UdpTransport:
         "_sock",
         "_buf",
         "_view",
+        "_poller",
     )
 
     def __init__(self, host, port, mtu=DEFAULT_MTU, family=0):
@@ -59,9 +60,18 @@ class UdpTransport:
         self.recv_errors = 0
         self._sock = None
         # One spare byte so that a datagram longer than the MTU is seen (and dropped) rather than
-        # silently truncated into something that might parse. MicroPython's sockets have no
-        # recv_into: there recv(mtu + 1) does the same and a board keeps no buffer for it.
-        self._buf = self._view = None
+        # silently truncated into something that might parse.
+        #
+        # MicroPython's sockets have no recv_into, and their readinto (py/stream.c, every port:
+        # unix, the lwIP ports, esp32) reads until the buffer is full: on a UDP socket it runs
+        # datagrams together and waits a timeout for the next. So a board receives with
+        # recv(mtu + 1), which allocates per datagram: a block of mtu + 1 bytes (the unix port
+        # frees it on return, lwIP shrinks it to the datagram) and the bytes it returns (the
+        # datagram, 16 bytes of object). It does so only once poll says a datagram is there
+        # (select.poll().ipoll, which allocates nothing): a recv that times out would leave the
+        # mtu + 1 block and an OSError behind, on every pass of a firmware's idle loop; and the
+        # socket stays non-blocking, so no float timeout is made per call either.
+        self._buf = self._view = self._poller = None
         if not IS_MICROPYTHON:
             self._buf = bytearray(mtu + 1)
             self._view = memoryview(self._buf)
@@ -85,6 +95,17 @@ class UdpTransport:
         except OSError as error:
             raise TransportError("cannot open UDP to %s:%s: %s" % (self.host, self.port, error))
         self._sock = sock
+        self._poller = None
+        if IS_MICROPYTHON:
+            try:
+                import select
+
+                poller = select.poll()
+                poller.register(sock, select.POLLIN)
+                sock.settimeout(0)
+                self._poller = poller
+            except (ImportError, AttributeError, OSError, TypeError, ValueError):
+                pass  # a port without poll: recv waits in the socket (settimeout) as before
 
     def close(self):
         if self._sock is not None:
@@ -115,8 +136,17 @@ class UdpTransport:
             raise TransportError("UDP transport is closed")
         deadline = ticks_add(ticks_ms(), timeout_ms)
         remaining = timeout_ms
+        poller = self._poller
         while True:
-            sock.settimeout(remaining / 1000 if remaining > 0 else 0)
+            if poller is not None:
+                ready = False
+                for _ in poller.ipoll(remaining if remaining > 0 else 0):
+                    ready = True
+                    break
+                if not ready:
+                    return None
+            else:
+                sock.settimeout(remaining / 1000 if remaining > 0 else 0)
             try:
                 if IS_MICROPYTHON:
                     data = sock.recv(self.mtu + 1)
