@@ -33,7 +33,7 @@ _FIRST_OUTPUT_BUFFER = const(64)
 
 def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4, mtu=None,
          best_effort_streams=1, reliable_streams=1, heartbeat_ms=100, max_reassembly=None,
-         on_topic=None, auto_recover=True, liveliness_ms=500, on_link_state=None):
+         on_topic=None, auto_recover=True, liveliness_ms=500, on_link_state=None, largest_sample=0):
     if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
         _error("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
     session.transport = transport
@@ -69,6 +69,8 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
         sid = _BUILTIN_RELIABLE + i
         outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
         inputs[sid] = InputReliableStream(sid, history)
+    if largest_sample:
+        size_output_buffers(session, largest_sample)
     session.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
     session.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
@@ -105,6 +107,23 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session.dropped_messages = 0
     session.stale_timestamps = 0
     session.dropped_writes = 0
+
+
+def size_output_buffers(session, largest_sample):
+    # Give every output stream, now, the buffer a sample of ``largest_sample`` serialized bytes
+    # needs, so that the first such sample does not grow it in the firmware's loop (growing means a
+    # new block of twice the size in one piece while the old one is still live: on a board, the
+    # TurtleBot3's first /odom asked for 1024 bytes mid-run). A reliable stream writes a sample
+    # whole before it cuts it into fragments, so its buffer takes the whole sample in a message of
+    # its own (as after a flush: rmw and the TurtleBot3 flush after every write); a best-effort
+    # stream never builds more than one message. A buffer never shrinks, and one that is too small
+    # still grows as before. Call it at set-up (or pass Session(..., largest_sample=N)).
+    whole = (session.header_size + 8 + largest_sample + 3) & ~3  # subheader, request and object ids
+    for stream_id in session._outputs:
+        out = session._outputs[stream_id]
+        size = whole if out.reliable or whole < session.max_message else session.max_message
+        if len(out.buf) < size:
+            out.buf = bytearray(size)
 
 
 def _error(message):
