@@ -174,6 +174,8 @@ package(
         "transports/serial.py",
         "transports/tcp.py",
         "transports/udp.py",
+        "examples/__init__.py",
+        "examples/turtlebot3.py",
     ),
     base_path=".",
 )

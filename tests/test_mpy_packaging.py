@@ -54,7 +54,8 @@ def test_mip_package_json_is_in_sync():
     hint = "regenerate with: python -m xrce.tools.mpy mip-json"
     assert committed.read_text(encoding="utf-8") == mpy.render_mip_package_json(), hint
     package = json.loads(committed.read_text(encoding="utf-8"))
-    assert [target for target, _ in package["urls"]] == mpy.client_files()
+    assert [target for target, _ in package["urls"]] == mpy.shipped_files()
+    assert "xrce/examples/turtlebot3.py" in mpy.shipped_files()  # the firmware ships with the client
     assert all(target == url for target, url in package["urls"])  # relative URLs: same layout
     import xrce
 
@@ -77,7 +78,7 @@ def test_freeze_manifest_is_in_sync():
 
     exec(compile(manifest.read_text(), str(manifest), "exec"),
          {"package": package, "metadata": lambda **kw: metadata.update(kw)})
-    assert frozen == mpy.client_files()
+    assert frozen == mpy.shipped_files()
     assert all((manifest.parent / path).is_file() for path in frozen)
     assert set(metadata) <= {"description", "version", "license", "author"}
 
@@ -102,7 +103,8 @@ def mpy_build(tmp_path_factory):
 
 def test_build_mpy_compiles_every_client_file(mpy_build, capsys):
     outdir, written = mpy_build
-    files = mpy.client_files()
+    files = mpy.shipped_files()
+    assert "xrce/examples/turtlebot3.py" in files and "xrce/examples/turtlebot3_cli.py" not in files
     assert sorted(p.relative_to(outdir).as_posix() for p in written) == sorted(f[:-3] + ".mpy" for f in files)
     for path in written:
         header = path.read_bytes()[:4]
