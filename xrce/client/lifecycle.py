@@ -70,7 +70,7 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
         outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
         inputs[sid] = InputReliableStream(sid, history)
     if largest_sample:
-        size_output_buffers(session, largest_sample)
+        session.size_output_buffers(largest_sample)
     session.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
     session.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
@@ -107,23 +107,6 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session.dropped_messages = 0
     session.stale_timestamps = 0
     session.dropped_writes = 0
-
-
-def size_output_buffers(session, largest_sample):
-    # Give every output stream, now, the buffer a sample of ``largest_sample`` serialized bytes
-    # needs, so that the first such sample does not grow it in the firmware's loop (growing means a
-    # new block of twice the size in one piece while the old one is still live: on a board, the
-    # TurtleBot3's first /odom asked for 1024 bytes mid-run). A reliable stream writes a sample
-    # whole before it cuts it into fragments, so its buffer takes the whole sample in a message of
-    # its own (as after a flush: rmw and the TurtleBot3 flush after every write); a best-effort
-    # stream never builds more than one message. A buffer never shrinks, and one that is too small
-    # still grows as before. Call it at set-up (or pass Session(..., largest_sample=N)).
-    whole = (session.header_size + 8 + largest_sample + 3) & ~3  # subheader, request and object ids
-    for stream_id in session._outputs:
-        out = session._outputs[stream_id]
-        size = whole if out.reliable or whole < session.max_message else session.max_message
-        if len(out.buf) < size:
-            out.buf = bytearray(size)
 
 
 def _error(message):

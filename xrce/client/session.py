@@ -72,7 +72,7 @@ class Session(Outbound):
         # reliable_streams=1, heartbeat_ms=100, max_reassembly=None, on_topic=None,
         # auto_recover=True, liveliness_ms=500, on_link_state=None, largest_sample=0):
         # xrce.client.lifecycle.init, which CPython binds here. ``largest_sample`` (serialized
-        # bytes) sizes the output buffers at once: see lifecycle.size_output_buffers.
+        # bytes) sizes the output buffers at once: see wire.Outbound.size_output_buffers.
         _set_up_module("lifecycle").init(self, *args, **kwargs)
 
     # ------------------------------------------------------------------ session lifecycle
@@ -386,7 +386,7 @@ def _agent_activity(buf, flags, s, e):
 # The session attributes xrce.client.lifecycle serves (a string looked up as " name ": on a board
 # each string of a tuple would be an object of its own). Told apart here, so that neither module
 # loads the other for a call.
-_LIFECYCLE = " create delete _reset_streams _restore size_output_buffers "
+_LIFECYCLE = " create delete _reset_streams _restore "
 # xrce.client.on_demand's own, which it then sets on the class: their first look-up (a firmware's
 # first time sync, typically before any entity) goes there without loading xrce.client.entities,
 # which passes on the names it does not serve (the services') itself.

@@ -140,6 +140,24 @@ class Outbound:
             if out.has_content:
                 self._close_message(out)
 
+    def size_output_buffers(self, largest_sample):
+        # Give every output stream, now, the buffer a sample of ``largest_sample`` serialized bytes
+        # needs, so that the first such sample does not grow it in the firmware's loop (growing
+        # takes a block twice the size in one piece while the old one is live: on a board, the
+        # TurtleBot3's first /odom asked for 1024 bytes mid-run). A reliable stream writes a sample
+        # whole before cutting it into fragments, so its buffer takes the whole sample in a message
+        # of its own (as after a flush: rmw and the TurtleBot3 flush after every write); a
+        # best-effort stream never builds more than a message. A buffer never shrinks, and one too
+        # small still grows. Here, not in a set-up module: a firmware calls it at the end of
+        # set-up, when loading a module's code may no longer find room.
+        whole = (self.header_size + 8 + largest_sample + 3) & ~3  # subheader, request and object ids
+        outputs = self._outputs
+        for stream_id in outputs:
+            out = outputs[stream_id]
+            size = whole if out.reliable or whole < self.max_message else self.max_message
+            if len(out.buf) < size:
+                out.buf = bytearray(size)
+
     def _begin_control(self, sub_id, session_id=None, key=None):
         # Start a stream-0 message with one submessage; returns the writer for its payload.
         mw = self._control

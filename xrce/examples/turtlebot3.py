@@ -59,6 +59,9 @@ _MAX_WAIT_MS = const(5)  # the loop's longest sleep: bounds fail-safe and schedu
 _MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishing on time
 
 _NS_PER_S = const(1000000000)
+_STATUS_OK = const(0x00)  # the XRCE STATUS values (xrce.constants)
+_STATUS_OK_MATCHED = const(0x01)
+_STATUS_NONE = const(0xFF)  # not answered yet
 
 
 def _clamp(value, limit):
@@ -200,8 +203,15 @@ class TurtleBot3:
         # A type's first encode builds its plan, which the message runtime then keeps: built here,
         # one type per stage, the loop's first passes neither wait for it nor carry what building
         # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap.
+        # The largest (/odom, 0.7 KB: fragmented) sizes the session's output buffers at the end of
+        # set-up, so that its first publication does not grow the reliable stream's buffer mid-run
+        # (on a board a 1 KB block in one piece, when the loop's heap is the most fragmented). At
+        # the end: the entities' creations, set-up's largest steps, do not carry them too.
+        largest = 0
         for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
-            sample.to_bytes()
+            size = len(sample.to_bytes())
+            if size > largest:
+                largest = size
             yield
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
@@ -218,7 +228,7 @@ class TurtleBot3:
         session.hold_set_up()
         node = session.create_participant(domain_id=self.domain_id, name=self.node_name)
         yield
-        if not session.run_until_all_status(timeout_ms):
+        if not (yield from self._statuses(timeout_ms)):
             self.log("turtlebot3: node not created: %r" % (session.last_statuses,))
             session.hold_set_up(False)
             yield False
@@ -230,7 +240,7 @@ class TurtleBot3:
         session.create_reader(node, "/cmd_vel", Twist, self._on_cmd_vel,
                               reliable=self.cmd_vel_reliable, depth=10)
         yield
-        if not session.run_until_all_status(timeout_ms):
+        if not (yield from self._statuses(timeout_ms)):
             self.log("turtlebot3: /cmd_vel subscription failed: %r" % (session.last_statuses,))
             self.failed_topics.append("cmd_vel")
         yield
@@ -240,6 +250,8 @@ class TurtleBot3:
         yield from self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
         yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
         session.hold_set_up(False)
+        yield
+        session.size_output_buffers(largest)
         now = ticks_ms()
         self._last_motion_ms = now
         self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))
@@ -251,12 +263,41 @@ class TurtleBot3:
                                                     ticks_add(now, index * _PHASE_STEP_MS))))
         yield True
 
+    def _statuses(self, timeout_ms):
+        # ``session.run_until_all_status(timeout_ms)`` as stages of ``setup_stages``, one message
+        # taken in per stage, as ``step_stages`` takes them: whatever arrives meanwhile (commands
+        # on /cmd_vel once subscribed, acknowledgements, heartbeats) then leaves its garbage in a
+        # stage of its own, for a board's collector or the harness's, instead of all of it in one
+        # (on a board each datagram received is also a new block, xrce/transports/udp.py).
+        # Its value (``yield from``): True if every request was answered OK.
+        session = self.session
+        start = ticks_ms()
+        ok = True
+        while True:
+            if session.run_until_all_status(0):
+                return ok
+            pending = False
+            statuses = session.last_statuses
+            for rid in statuses:  # a status answered now is collected: note the ones that failed
+                if statuses[rid] == _STATUS_NONE:
+                    pending = True
+                elif statuses[rid] != _STATUS_OK and statuses[rid] != _STATUS_OK_MATCHED:
+                    ok = False
+            if not pending:
+                return ok
+            remaining = timeout_ms - ticks_diff(ticks_ms(), start)
+            if remaining <= 0:
+                return False
+            # Never longer than the heartbeat period: the session's waits send heartbeats on time.
+            session.spin_once(remaining if remaining < session.heartbeat_ms else session.heartbeat_ms)
+            yield
+
     def _add_writer(self, node, topic, ros_name, msg_class, reliable, timeout_ms):
-        # Two stages of ``setup_stages``: the creation, then the exchange.
+        # Stages of ``setup_stages``: the creation, then the exchange.
         session = self.session
         writer = session.create_writer(node, ros_name, msg_class, reliable=reliable, depth=10)
         yield
-        if session.run_until_all_status(timeout_ms):
+        if (yield from self._statuses(timeout_ms)):
             stream = session.reliable if reliable else session.best_effort
             self._writers[topic] = (writer, stream)
             self.published[topic] = 0
