@@ -1,6 +1,8 @@
 """Run under MicroPython by tests/test_turtlebot3_heap.py with run.mjs --stepped, i.e. with a real
-heap cap: the unmodified xrce/examples/turtlebot3.py over a custom transport bridged to Node's UDP
-socket, against a real xrce-agent.
+heap cap: the unmodified xrce/examples/turtlebot3.py over the real xrce.transports.udp.UdpTransport,
+against a real xrce-agent. Its ``socket`` is tests/micropython/socket.py, which allocates what a
+port's does: ``recv(n)`` a new n-byte buffer and a new bytes per datagram, so a board's per-datagram
+receive block is in the figures.
 
 argv: agent_port run_seconds settle_seconds client_key_hex
 The harness collects garbage between the steps of main() and fails the run with a MemoryError as
@@ -19,9 +21,9 @@ from xrce import ticks_diff, ticks_ms
 # The example's modules, one per step: the harness can collect only between steps, while a board's
 # collector also runs in the middle of an import. (xrce.client.fragments: the session loads it on the
 # first /odom, which does not fit one message; xrce.client.on_demand on the first time sync.)
-MODULES = ("nodeudp_transport", "xrce.cdr", "xrce.message", "xrce.streams", "xrce.client.wire",
+MODULES = ("socket", "xrce.cdr", "xrce.message", "xrce.streams", "xrce.client.wire",
            "xrce.client.session", "xrce.client.ping", "xrce.client.recovery", "xrce.client.fragments",
-           "xrce.client.on_demand", "xrce.transports.custom", "xrce.msgs")
+           "xrce.client.on_demand", "xrce.transports", "xrce.transports.udp", "xrce.msgs")
 TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),
          ("xrce.msgs.turtlebot3_msgs", "SensorState"), ("xrce.msgs.sensor_msgs", "Imu"),
          ("xrce.msgs.sensor_msgs", "BatteryState"), ("xrce.msgs.nav_msgs", "Odometry"),
@@ -41,22 +43,26 @@ def main():
     for package, type_name in TYPES:
         getattr(__import__(package, None, None, (type_name,)), type_name)
         yield
-    from nodeudp_transport import make_callbacks
     from xrce.examples.turtlebot3 import TurtleBot3
-    from xrce.transports.custom import CustomTransport
+    from xrce.transports.udp import UdpTransport
     yield
     print("baseline", baseline)  # the interpreter's and the harness's own heap, under the cap too
     print("imported", mpheap.live - baseline)
-    transport = CustomTransport(*make_callbacks("127.0.0.1", port), framing=False)
+    transport = UdpTransport("127.0.0.1", port)
     # Time sync every second instead of 10 s, so the periodic path runs often during the run.
     robot = TurtleBot3(transport, cmd_vel_reliable=True, key=key, time_sync_period_ms=1000)
     print("connect", robot.connect(timeout_ms=500, attempts=20) is not None)
     yield
     # One stage of the setup per step: the harness collects the garbage of each exchange.
     ok = False
+    stage = top_stage = top = 0
     for ok in robot.setup_stages():
         yield
+        stage += 1
+        if mpheap.high > top:  # the stage that just ended
+            top, top_stage = mpheap.high, stage
     print("setup", ok)
+    print("peak_setup_stage", top_stage)  # its number in setup_stages(), from 1
     print("after_setup", mpheap.live - baseline)
     print("peak_setup", mpheap.peak)  # absolute, as the --heap cap
     start = ticks_ms()
@@ -99,6 +105,10 @@ def main():
     for topic in ("sensor_state", "imu", "odom", "tf", "battery_state"):
         print("published_" + topic, robot.published.get(topic, 0))
     print("dropped_writes", robot.session.dropped_writes)
+    print("udp_received", transport.received)
+    print("udp_sent", transport.sent)
+    print("output_buffers", ",".join("%02x:%d" % (sid, len(robot.session._outputs[sid].buf))
+                                      for sid in sorted(robot.session._outputs)))
     print("failed_topics", ",".join(robot.failed_topics) or "-")
     print("x", robot.x)
     robot.shutdown()
