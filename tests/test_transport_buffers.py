@@ -28,7 +28,8 @@ def _scan_all(decoder, data, cuts):
         while pos < end:
             pos = decoder.scan(buf, pos, end)
             if decoder.frame_length >= 0:
-                frames.append((decoder.frame_src, decoder.frame_dst, bytes(decoder.buffer[: decoder.frame_length])))
+                payload = bytes(decoder.buffer[: decoder.frame_length])
+                frames.append((decoder.frame_src, decoder.frame_dst, payload))
         start = end
     return frames
 
@@ -83,7 +84,8 @@ def test_serial_recv_frame_leaves_each_message_in_the_decoders_buffer():
     transport = SerialTransport(os.ttyname(slave))
     try:
         messages = [b"\x7e\x7d" + bytes(range(40)), b"second", bytes(200)]
-        os.write(master, b"noise" + encode_frame(b"from 3", 3, 1) + b"".join(encode_frame(m, 0, 1) for m in messages))
+        frames = b"".join(encode_frame(m, 0, 1) for m in messages)
+        os.write(master, b"noise" + encode_frame(b"from 3", 3, 1) + frames)
         for message in messages:
             length = transport.recv_frame(1000)
             assert bytes(transport.decoder.buffer[:length]) == message

@@ -205,7 +205,9 @@ function makeNodeUdp(reply, bytesBridge, memory) {
     // A TCP connection read the same way as a stream-mode socket (recv_into with stream=true);
     // the end of the stream reads as a 0-byte datagram.
     open_tcp: guarded((host, port) => {
-      if (typeof host !== "string" || !Number.isInteger(port)) throw new TypeError("open_tcp(host: str, port: int)");
+      if (typeof host !== "string" || !Number.isInteger(port)) {
+        throw new TypeError("open_tcp(host: str, port: int)");
+      }
       const handle = nextHandle++;
       const buffer = DatagramRing.allocate();
       reply.request("openTcp", { handle, host, port, ring: buffer });

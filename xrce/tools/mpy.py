@@ -7,8 +7,9 @@
 Install on a board with ``mpremote mip install github:OWNER/REPO`` (reads package.json), copy the
 ``build-mpy`` output to the board's ``/lib``, or freeze by adding ``include("PATH/manifest.py")``
 to the board's manifest. Every route carries the client and the board examples (xrce/examples:
-``from xrce.examples.turtlebot3 import TurtleBot3``), which cost a board nothing until imported. The client file set is computed from the tree, so the generated files
-must be regenerated when client modules are added (tests/test_mpy_packaging.py checks this).
+``from xrce.examples.turtlebot3 import TurtleBot3``), which cost a board nothing until imported.
+The file set is computed from the tree, so the generated files must be regenerated when client
+modules are added (tests/test_mpy_packaging.py checks this).
 """
 
 import json
@@ -89,7 +90,7 @@ def _mpy_cross_command():
 
 
 def build_mpy(outdir, root=REPO_ROOT, files=None):
-    """Compile every shipped file (client and examples) to OUTDIR/<same path>.mpy; returns the written paths."""
+    """Compile every shipped file (client, examples) to OUTDIR/<same path>.mpy; returns the paths."""
     compiler = _mpy_cross_command()
     root = Path(root)
     outdir = Path(outdir)
