@@ -13,6 +13,10 @@ _CREATE_CLIENT = const(0)
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 _SUBHEADER_SIZE = const(4)
 
+# WRITE_DATA and DATA: a sample longer than 64 KiB is written with length 0, "to the end of the
+# message", as the eProsima C client does; such a message only ever travels in FRAGMENTs.
+_OPEN_ENDED = (7, 9)
+
 _HEADER_SIZE_NO_KEY = const(4)
 _HEADER_SIZE_WITH_KEY = const(8)
 
@@ -103,7 +107,9 @@ class MessageWriter(cdr.CdrWriter):
         if length is None:
             length = self.pos - self._sub_start - _SUBHEADER_SIZE
         if length > 0xFFFF:
-            raise EncodeError("submessage payload longer than 65535 bytes")
+            if self.buf[self._sub_start] not in _OPEN_ENDED:
+                raise EncodeError("submessage payload longer than 65535 bytes")
+            length = 0  # a sample running to the end of the message, sent in FRAGMENTs (§8)
         struct.pack_into("<H", self.buf, self._sub_start + 2, length)
         self._sub_start = -1
 

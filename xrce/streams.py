@@ -80,7 +80,7 @@ class OutputReliableStream:
 
     if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
         __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
-                     "retransmissions", "suppressed")
+                     "retransmissions", "suppressed", "stored_bytes")
 
     def __init__(self, stream_id, history):
         _check_history(history)
@@ -95,6 +95,7 @@ class OutputReliableStream:
     def reset(self):
         self.last_sent = _SEQ_INITIAL
         self.last_acknowledged = _SEQ_INITIAL
+        self.stored_bytes = 0  # bytes of the messages kept for retransmission (an agent's budget)
         for i in range(self.history):
             self.slots[i] = None
             self.resent_at[i] = None
@@ -118,6 +119,7 @@ class OutputReliableStream:
         self.slots[seq & (self.history - 1)] = message
         self.resent_at[seq & (self.history - 1)] = None
         self.last_sent = seq
+        self.stored_bytes += len(message)
 
     def pending(self):
         return self.last_sent != self.last_acknowledged
@@ -139,7 +141,10 @@ class OutputReliableStream:
         if not seq_less(seq_add(self.last_sent, 1), first_unacked):
             while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
                 self.last_acknowledged = seq_add(self.last_acknowledged, 1)
-                self.slots[self.last_acknowledged & (self.history - 1)] = None
+                slot = self.last_acknowledged & (self.history - 1)
+                if self.slots[slot] is not None:
+                    self.stored_bytes -= len(self.slots[slot])
+                self.slots[slot] = None
         resend = []
         if nack_bitmap:
             for i in range(_NACK_BITS):
@@ -163,7 +168,8 @@ class InputReliableStream:
     # Accepts ``last_handled < seq <= last_handled + window``; hands messages out in order.
 
     if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
-        __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates")
+        __slots__ = ("stream_id", "window", "last_handled", "last_announced", "stored", "duplicates",
+                     "stored_bytes")
 
     def __init__(self, stream_id, window):
         _check_history(window)
@@ -177,6 +183,7 @@ class InputReliableStream:
         self.last_handled = _SEQ_INITIAL
         self.last_announced = _SEQ_INITIAL
         self.stored.clear()
+        self.stored_bytes = 0  # bytes of the out-of-order messages held (an agent's budget)
 
     def receive(self, seq, message):
         # Messages now deliverable in order (possibly none); duplicates and out-of-window dropped.
@@ -190,6 +197,7 @@ class InputReliableStream:
                 self.duplicates += 1
             else:
                 self.stored[seq] = bytes(message)
+                self.stored_bytes += len(message)
             return ()
         self.last_handled = seq
         out = [message]
@@ -203,6 +211,7 @@ class InputReliableStream:
             message = stored.pop(nxt, None)
             if message is None:
                 break
+            self.stored_bytes -= len(message)
             self.last_handled = nxt
             out.append(message)
 
@@ -216,7 +225,7 @@ class InputReliableStream:
             skip_to = seq_add(first_unacked, -1)
             for seq in list(self.stored):
                 if not seq_less(skip_to, seq):
-                    del self.stored[seq]
+                    self.stored_bytes -= len(self.stored.pop(seq))
             self.last_handled = skip_to
             self._pop_consecutive(out)
         return out

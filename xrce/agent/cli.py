@@ -154,6 +154,15 @@ def _add_session_options(parser):
                        default=engine.MAX_OUTPUT_QUEUE_BYTES,
                        help="sample bytes queued towards one client; the oldest are dropped "
                             "beyond (default %(default)s)")
+    group.add_argument("--max-client-memory", type=_positive, metavar="BYTES",
+                       default=engine.MAX_CLIENT_BYTES,
+                       help="bytes one client's buffers may hold (out-of-order input, reassembly, "
+                            "parked messages, output queues and windows); beyond, its reliable "
+                            "input waits unacknowledged and its output is dropped "
+                            "(default %(default)s)")
+    group.add_argument("--max-memory", type=_positive, metavar="BYTES",
+                       default=engine.MAX_TOTAL_BYTES,
+                       help="the same, all clients together (default %(default)s)")
 
 
 def _allow_list(parse):
@@ -407,7 +416,8 @@ async def serve(args, refs):
                   client_expire_time=args.client_expire_time / 1000.0,
                   max_clients=args.max_clients, max_objects_per_client=args.max_objects,
                   max_reassembly_bytes=args.max_reassembly,
-                  max_output_queue_bytes=args.max_output_queue)
+                  max_output_queue_bytes=args.max_output_queue,
+                  max_client_bytes=args.max_client_memory, max_total_bytes=args.max_memory)
     from xrce.agent.admission import AdmissionPolicy
     agent.admission = AdmissionPolicy.from_args(args)
     if agent.admission is not None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections import deque
 from typing import Hashable, Optional
 
 from xrce import constants as C
@@ -27,7 +28,7 @@ from xrce.agent.session import (
 )
 from xrce.message import header_size
 from xrce.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
-from xrce.submessages import Data, Fragment, ReadData, encode_message
+from xrce.submessages import Fragment, Heartbeat, ReadData, encode_message
 
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
@@ -168,15 +169,17 @@ class DataPath:
         if entry is None or entry.reader is None:
             return
         queue = entry.reader.queue
-        if queue.maxlen is not None and len(queue) == queue.maxlen:
-            self.stats.samples_overwritten += 1
-            client.queued_bytes -= len(queue[0])  # append() below pushes it out
-        if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+        size = len(payload)
+        # The reader's own bound pushes its oldest sample out when the new one is appended.
+        pushed_out = len(queue[0]) if queue.maxlen is not None and len(queue) == queue.maxlen else 0
+        if client.queued_bytes - pushed_out + size > self.max_output_queue_bytes:
             dropped = 0
-            while queue and client.queued_bytes + len(payload) > self.max_output_queue_bytes:
-                client.queued_bytes -= len(queue.popleft())
+            while queue and client.queued_bytes + size > self.max_output_queue_bytes:
+                self._unqueue(client, queue.popleft())
                 dropped += 1
-            if client.queued_bytes + len(payload) > self.max_output_queue_bytes:
+            pushed_out = len(queue[0]) if queue.maxlen is not None and len(queue) == queue.maxlen \
+                else 0
+            if client.queued_bytes - pushed_out + size > self.max_output_queue_bytes:
                 dropped += 1  # other readers hold the space: the new sample is the one to go
                 self.stats.quota_output_dropped += dropped
                 self._quota_warning(client, "output", "output queue quota (%d bytes) full, "
@@ -187,13 +190,27 @@ class DataPath:
             self._quota_warning(client, "output", "output queue quota (%d bytes) full, %d oldest "
                                 "samples of 0x%04X dropped", self.max_output_queue_bytes, dropped,
                                 object_id)
+        if size > pushed_out and self._over_budget(client, size - pushed_out):
+            self.stats.quota_output_dropped += 1
+            self._quota_warning(client, "budget", "memory budget (%d bytes per client, %d in all) "
+                                "spent: sample for 0x%04X dropped", self.max_client_bytes,
+                                self.max_total_bytes, object_id)
+            return
+        if pushed_out:
+            self.stats.samples_overwritten += 1
+            self._unqueue(client, queue[0])  # append() below pushes it out
         queue.append(payload)
-        client.queued_bytes += len(payload)
+        client.queued_bytes += size
+        self.queued_total += size
         try:
             self._pump(client, entry)
         except Exception:
             self.stats.handler_errors += 1
             log.debug("delivering to reader 0x%04X failed", object_id, exc_info=True)
+
+    def _unqueue(self, client: ClientProxy, sample: bytes) -> None:
+        client.queued_bytes -= len(sample)
+        self.queued_total -= len(sample)
 
     def _read_data(self, client: ClientProxy, request: ReadData) -> None:
         entry = client.objects.get(request.object_id)
@@ -261,7 +278,7 @@ class DataPath:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
                 break
-            client.queued_bytes -= len(reader.queue.popleft())
+            self._unqueue(client, reader.queue.popleft())
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
@@ -277,21 +294,33 @@ class DataPath:
                   end: int) -> bool:
         if not is_reliable(stream_id):
             return False  # the agent only reassembles on reliable streams
+        if isinstance(data, Reassembled):
+            # A FRAGMENT inside a reassembled message: no peer writes that, and following it
+            # would recurse once per level (2000 levels in one datagram reached RecursionError).
+            self.stats.nested_fragments += 1
+            self._quota_warning(client, "nested", "nested FRAGMENT on stream 0x%02X dropped",
+                                stream_id)
+            return False
         self.stats.fragments_in += 1
         buffer = client.reassembly.get(stream_id)
         if buffer is None:
             buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
+            self._charge(client, len(buffer))
         limit = self.max_reassembly_bytes or MAX_REASSEMBLY
         if len(buffer) + (end - start) > limit:
             del client.reassembly[stream_id]
+            self._charge(client, -len(buffer))
             self.stats.reassembly_overflows += 1
             self._quota_warning(client, "reassembly", "reassembly on stream 0x%02X exceeds the "
                                 "%d-byte quota, message abandoned", stream_id, limit)
             return False
         buffer += data[start:end]
+        self._charge(client, end - start)
         if flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
-            message = bytes(buffer)
+            self._charge(client, -len(buffer))
+            message = Reassembled(buffer)
+            del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
         return True
 
@@ -345,12 +374,22 @@ class DataPath:
         stream = client.out_reliable.get(stream_id)
         if stream is None:
             stream = client.out_reliable[stream_id] = OutputReliableStream(stream_id, STREAM_WINDOW)
+        pending = client.out_pending.get(stream_id)
+        if pending:
+            # A long message is still going out in fragments, which must stay consecutive: a
+            # reader's DATA waits in its queue; a reply (STATUS, …) waits behind the fragments.
+            if payload is None:
+                return False
+            pending.append(message)
+            self._charge(client, len(message))
+            return True
         if len(message) <= client.mtu:
             seq = stream.next_seq()
             if seq is None:
                 return False
             message = _with_seq(message, seq)
             stream.commit(seq, message)
+            self._charge(client, len(message))
             self._send_client(client, message)
             self._heartbeat_soon()
             return True
@@ -358,29 +397,58 @@ class DataPath:
 
     def _send_fragmented(self, client: ClientProxy, stream: OutputReliableStream,
                          message: bytes) -> bool:
+        """Cut ``message`` into FRAGMENTs, as many as it takes: those the window has room for go
+        now, the rest as ACKNACKs free room (``_send_pending``). Other output of the stream
+        waits behind them; a reader's later samples wait in its queue meanwhile."""
         head = header_size(message[0])
-        inner = message[head:]
+        inner = memoryview(message)[head:]
         chunk = client.mtu - head - 4
         count = (len(inner) + chunk - 1) // chunk
-        if count > stream.history:
-            self.stats.oversize_dropped += 1
-            log.warning("client %s: %d-byte message needs %d fragments, more than the window",
-                        client.key.hex(), len(message), count)
-            return True
-        if stream.history - stream.in_flight() < count:
-            return False
+        fragments = deque()
         for index in range(count):
             last = index == count - 1
             flags = C.FLAG_LITTLE_ENDIAN | (C.FLAG_LAST_FRAGMENT if last else 0)
-            seq = stream.next_seq()
-            fragment = encode_message(client.session_id, stream.stream_id, seq, client.header_key,
-                                      [Fragment(inner[index * chunk:(index + 1) * chunk], flags)])
-            stream.commit(seq, fragment)
-            self.stats.fragments_out += 1
-            self._send_client(client, fragment)
-        self._heartbeat_soon()
+            fragments.append(encode_message(client.session_id, stream.stream_id, 0,
+                                            client.header_key,
+                                            [Fragment(inner[index * chunk:(index + 1) * chunk],
+                                                      flags)]))
+        self.stats.fragments_out += count
+        client.out_pending[stream.stream_id] = fragments
+        self._charge(client, sum(len(f) for f in fragments))
+        self._send_pending(client, stream)
         return True
 
+    def _send_pending(self, client: ClientProxy, stream: OutputReliableStream) -> None:
+        """Send what waits for the window of ``stream`` while it has room."""
+        pending = client.out_pending.get(stream.stream_id)
+        if not pending:
+            return
+        sent = False
+        while pending:
+            seq = stream.next_seq()
+            if seq is None:
+                break
+            message = _with_seq(pending.popleft(), seq)
+            stream.commit(seq, message)  # its bytes move from the queue to the window
+            self._send_client(client, message)
+            sent = True
+        if not pending:
+            del client.out_pending[stream.stream_id]
+        elif sent:
+            # The window is full with more to come: ask for the ACKNACK that frees it now,
+            # rather than a heartbeat period later (a 256 KiB sample is ~530 fragments).
+            span = stream.heartbeat()
+            self.stats.heartbeats_out += 1
+            self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
+        if sent:
+            self._heartbeat_soon()
+
+
+
+class Reassembled(bytes):
+    """A message put together from FRAGMENTs: it may not hold FRAGMENTs itself."""
+
+    __slots__ = ()
 
 
 def _with_seq(message: bytes, seq: int) -> bytes:
@@ -397,10 +465,9 @@ def data_message(client: ClientProxy, stream_id: int, request_id: int, object_id
     ``encode_message(session, stream_id, 0, key, [Data(request_id, object_id, sample)])`` gives
     (a test holds them equal), assembled directly because the generic encoder's objects and CDR
     writer were most of the cost of delivering a sample to a client."""
-    if len(sample) > _MAX_SHORT_SAMPLE:
-        return encode_message(client.session_id, stream_id, 0, client.header_key,
-                              [Data(request_id, object_id, sample)])
-    length = 4 + len(sample)
+    # Longer than a submessage length can say: 0, "to the end of the message", as the C client
+    # writes such a WRITE_DATA. It only ever travels in FRAGMENTs, alone in its message.
+    length = 4 + len(sample) if len(sample) <= _MAX_SHORT_SAMPLE else 0
     head = bytes((client.session_id, stream_id, 0, 0, C.DATA, _DATA_FLAGS, length & 0xFF,
                   length >> 8, request_id >> 8, request_id & 0xFF, object_id >> 8,
                   object_id & 0xFF))

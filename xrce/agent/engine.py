@@ -39,19 +39,20 @@ from xrce.agent.liveliness import NEVER, Liveliness
 from xrce.agent.middleware import Middleware
 from xrce.agent.registry import ObjectRegistry, Parked
 from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
-    CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
-    MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, STREAM_WINDOW, TRACE, AgentStats, ClientProxy, Link,
-    SessionTable,
+    CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
+    MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
+    ClientProxy, Link, SessionTable,
 )
 from xrce.agent.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
-from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable
+from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_add, seq_sub
 from xrce.submessages import TimestampReply, decode_payload, encode_message, sample_ids, Status
 
 log = logging.getLogger("xrce.agent")
 
-# Messages a parked client may queue while its type builds; more are dropped and counted.
+# Messages a parked client may queue while its type builds. Beyond, its reliable streams stop
+# advancing (the client retransmits: nothing acknowledged is lost); best-effort ones are dropped.
 MAX_PARKED_MESSAGES = 512
 
 _HANDLED = frozenset((C.CREATE, C.DELETE, C.READ_DATA, C.ACKNACK, C.HEARTBEAT, C.GET_INFO,
@@ -82,6 +83,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                  max_reassembly_bytes: Optional[int] = None,
                  max_output_queue_bytes: int = MAX_OUTPUT_QUEUE_BYTES,
                  max_clients: int = MAX_CLIENTS,
+                 max_client_bytes: int = MAX_CLIENT_BYTES,
+                 max_total_bytes: int = MAX_TOTAL_BYTES,
                  loop: Optional[asyncio.AbstractEventLoop] = None):
         """``client_dead_time`` (s): silence after which a client gets no more HEARTBEATs;
         ``client_expire_time`` (s, counted from its last message, 0 = never): silence after which
@@ -96,6 +99,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self.max_reassembly_bytes = max_reassembly_bytes
         self.max_output_queue_bytes = max_output_queue_bytes
         self.max_clients = max_clients
+        self.max_client_bytes = max_client_bytes
+        self.max_total_bytes = max_total_bytes
+        self.buffered_total = 0  # the clients' ClientProxy.buffered, summed
+        self.queued_total = 0  # the clients' ClientProxy.queued_bytes, summed
         self.loop = loop
         self.stats = AgentStats()
         self.clock: Callable[[], float] = time.monotonic  # tests may substitute a fake clock
@@ -112,6 +119,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self._info_cache: Dict[tuple, bytes] = {}  # see SessionTable._info_message
         self._acks_due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
+        # A CREATE was handled in this turn of the loop: the client's next submessage waits for
+        # the next turn (see _process_message).
+        self._yield_due = False
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
@@ -126,6 +136,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         data = bytes(data)
         stats = self.stats
         with self.lock:
+            self._yield_due = False
             stats.messages_in += 1
             stats.bytes_in += len(data)
             if self.tap is not None:
@@ -157,21 +168,36 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self._resume_parked_locked()
 
     def _resume_parked_locked(self) -> None:
-        while self._resumable:
+        # Only the clients waiting now: one that parks again (the next CREATE of a storm) waits
+        # for a later turn of the loop, after the other clients' datagrams.
+        for _ in range(len(self._resumable)):
             client = self._resumable.popleft()
             pending, client.parked = client.parked, None
             if not client.alive or pending is None:
                 continue
-            while pending:
-                data, start, stream_id = pending.pop(0)
+            self._charge(client, -sum(len(entry[0]) for entry in pending))
+            self._yield_due = False
+            for index, (data, start, stream_id) in enumerate(pending):
                 try:
                     self._process_message(client, data, start, stream_id)
                 except Exception:
                     self.stats.handler_errors += 1
                     log.debug("resumed message of client %s failed", client.key.hex(), exc_info=True)
-                if client.parked is not None:  # parked again by another type being built
-                    client.parked.extend(pending)
+                if client.parked is not None:  # parked again by another CREATE
+                    rest = pending[index + 1:]
+                    client.parked.extend(rest)
+                    self._charge(client, sum(len(entry[0]) for entry in rest))
                     break
+
+    # ------------------------------------------------------------------ memory budget --
+
+    def _charge(self, client: ClientProxy, delta: int) -> None:
+        client.buffered += delta
+        self.buffered_total += delta
+
+    def _over_budget(self, client: ClientProxy, extra: int) -> bool:
+        return client.buffered + client.queued_bytes + extra > self.max_client_bytes or \
+            self.buffered_total + self.queued_total + extra > self.max_total_bytes
 
     def tick(self) -> None:
         """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
@@ -285,15 +311,38 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         stream = client.in_reliable.get(stream_id)
         if stream is None:
             stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
+        if self._hold_back(client, stream, seq, data):
+            # Not accepted, so not acknowledged: the client sends it again, and nothing the
+            # agent acknowledged is ever dropped.
+            self.stats.budget_refused += 1
+            if client.alive:
+                self._acknack_soon(client, stream)
+            return
         duplicates = stream.duplicates
+        stored = stream.stored_bytes
         try:
             for message in stream.receive(seq, data):
                 self._process_reliable_message(client, stream_id, message)
         finally:
+            self._charge(client, stream.stored_bytes - stored)
             self.stats.duplicates += stream.duplicates - duplicates
             client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
                 self._acknack_soon(client, stream)
+
+    def _hold_back(self, client: ClientProxy, stream: InputReliableStream, seq: int,
+                   data: bytes) -> bool:
+        """True if the message, new and in the window, would have to wait in a buffer (out of
+        order, behind a parked CREATE, or a fragment) that the client's budget has no room for,
+        or its parked client already holds MAX_PARKED_MESSAGES."""
+        distance = seq_sub(seq, stream.last_handled)
+        if distance == 0 or distance > stream.window or seq in stream.stored:
+            return False  # a duplicate or out of the window: receive() counts and drops it
+        if distance == 1 and client.parked is None and not _is_fragment(data):
+            return False  # handled at once, kept nowhere
+        if client.parked is not None and len(client.parked) >= MAX_PARKED_MESSAGES:
+            return True
+        return self._over_budget(client, len(data))
 
     def _acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
         """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
@@ -319,6 +368,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                         log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
 
     def _process_reliable_message(self, client: ClientProxy, stream_id: int, message: bytes) -> None:
+        """One message of a batch the stream handed out: whatever goes wrong with it, the ones
+        behind it (already taken from the stream and acknowledged) are still processed."""
         size = header_size(message[0])
         try:
             self._process_message(client, message, size, stream_id)
@@ -326,6 +377,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self.stats.decode_errors += 1
             client.decode_errors += 1
             log.debug("malformed reliable message from client %s: %s", client.key.hex(), message.hex())
+        except Exception:
+            self.stats.handler_errors += 1
+            log.debug("reliable message of client %s failed", client.key.hex(), exc_info=True)
 
     def _receive_sessionless(self, link: Link, endpoint: Hashable, data: bytes, header) -> None:
         for sub_id, flags, start, end in iter_submessages(data, header.size):
@@ -342,8 +396,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             return  # only the first submessage of a session-less message counts
 
     def _receive_unknown_client(self, link: Link, endpoint: Hashable, data: bytes, header) -> None:
+        """A message for a session the agent does not know: only its first submessage counts
+        (as eProsima), and only two kinds get an answer, one at most per datagram: UDP sources
+        are spoofable, and answering each of a datagram's submessages made the agent a
+        reflector (5000 replies, 2-4x the bytes, for one 60 KB datagram)."""
         self.timelines.unknown_traffic(link, endpoint, header)
-        answered = False
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             if sub_id == C.DELETE:
                 payload = decode_payload(sub_id, flags, data, start, end)
@@ -351,46 +408,71 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     self._send_raw(link, endpoint, encode_message(
                         header.session_id, header.stream_id, header.seq, header.key,
                         [Status(payload.request_id, payload.object_id)]))
-                    answered = True
+                    return
             elif sub_id == C.GET_INFO:
                 payload = decode_payload(sub_id, flags, data, start, end)
                 self._reply_info(link, endpoint, header, payload, 0)
-                answered = True
-        if not answered:
-            self.stats.dropped += 1
+                return
+            break
+        self.stats.dropped += 1
 
     def _process_message(self, client: ClientProxy, data: bytes, start: int, stream_id: int) -> None:
         """Submessages in order; the first failing one stops the rest of the message."""
         if client.parked is not None and stream_id != C.STREAM_NONE:
-            if len(client.parked) >= MAX_PARKED_MESSAGES:
-                self.stats.dropped += 1
+            if not is_reliable(stream_id) and (len(client.parked) >= MAX_PARKED_MESSAGES or
+                                               self._over_budget(client, len(data))):
+                self.stats.dropped += 1  # best effort; reliable ones were held back before
             else:
                 client.parked.append((data, start, stream_id))
+                self._charge(client, len(data))
             return
         try:
             for sub_id, flags, sub_start, sub_end in iter_submessages(data, start):
                 if not client.alive:
+                    return
+                if self._yield_due and stream_id != C.STREAM_NONE:
+                    # Creating an entity can take milliseconds: after one, the loop serves the
+                    # other clients' datagrams before this client's next submessage.
+                    self._park(client, data, sub_start - 4, stream_id)
+                    self._resumable.append(client)
+                    self.loop.call_soon(self._resume_parked)
                     return
                 try:
                     handled = self._handle_submessage(client, stream_id, data, sub_id, flags,
                                                       sub_start, sub_end)
                 except Parked as parked:
                     # Resume at this CREATE's submessage header once the build is done.
-                    client.parked = [(data, sub_start - 4, stream_id)]
+                    self._park(client, data, sub_start - 4, stream_id)
                     parked.future.add_done_callback(lambda _, c=client: self._build_finished(c))
                     return
                 if not handled:
                     return
+                if sub_id == C.CREATE and self.loop is not None and \
+                        threading.get_ident() == self._loop_thread:
+                    self._yield_due = True
         except DecodeError as exc:
             self.stats.decode_errors += 1
             client.decode_errors += 1
             log.debug("client %s: malformed submessage (%s) in %s", client.key.hex(), exc, data.hex())
+
+    def _park(self, client: ClientProxy, data: bytes, start: int, stream_id: int) -> None:
+        if client.parked is None:
+            client.parked = []
+        client.parked.insert(0, (data, start, stream_id))  # before anything queued meanwhile
+        self._charge(client, len(data))
 
     def _handle_submessage(self, client: ClientProxy, stream_id: int, data: bytes, sub_id: int,
                            flags: int, start: int, end: int) -> bool:
         if sub_id == C.WRITE_DATA:
             if flags & C.FLAG_FORMAT_MASK != C.FORMAT_DATA:
                 return False
+            if start == end:
+                # Length 0: the sample runs to the end of the message, as the C client writes a
+                # sample longer than 64 KiB (in FRAGMENTs); eProsima's agent reads it so too.
+                end = len(data)
+                request_id, object_id = sample_ids(data, start, end)
+                self._write_data(client, request_id, object_id, data[start + 4:end])
+                return False  # nothing follows it
             request_id, object_id = sample_ids(data, start, end)
             return self._write_data(client, request_id, object_id, data[start + 4:end])
         if sub_id == C.FRAGMENT:
@@ -398,10 +480,13 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         if sub_id not in _HANDLED:
             return False  # CREATE_CLIENT in session, STATUS, INFO, DATA, … stop the message
         payload = decode_payload(sub_id, flags, data, start, end)
-        if sub_id == C.CREATE:
-            self._create(client, payload, stream_id)
-        elif sub_id == C.DELETE:
-            self._delete(client, payload, stream_id)
+        if sub_id == C.CREATE or sub_id == C.DELETE:
+            queued = client.queued_bytes  # a REPLACE or DELETE of a reader drops its queue
+            if sub_id == C.CREATE:
+                self._create(client, payload, stream_id)
+            else:
+                self._delete(client, payload, stream_id)
+            self.queued_total -= queued - client.queued_bytes
         elif sub_id == C.READ_DATA:
             self._read_data(client, payload)
         elif sub_id == C.ACKNACK:
@@ -416,7 +501,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             client.timestamp_skew_ns = receive_ns - payload.ns()
             self._send_stream0(client, TimestampReply(time.time_ns(), receive_ns, payload.ns()))
         elif sub_id == C.RESET:
-            client.reset_streams()
+            self._reset_streams(client)
         return True
 
     # ------------------------------------------------------------------ logging --
@@ -430,6 +515,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         log.log(TRACE, "%s %s %r session 0x%02X stream 0x%02X seq %d: %s | %s", direction, link.name,
                 endpoint, data[0], data[1], data[2] | (data[3] << 8), " ".join(names), data.hex())
 
+
+
+def _is_fragment(message: bytes) -> bool:
+    head = header_size(message[0])
+    return len(message) > head and message[head] == C.FRAGMENT
 
 
 __all__ = ["Agent", "AgentStats", "ClientProxy", "Link", "TRACE"]

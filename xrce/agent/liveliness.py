@@ -78,11 +78,15 @@ class Liveliness:
             client.heartbeat_sent_at = None
         now_ms = int(now * 1000)
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
-        for message in stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms,
-                                         holdoff_ms):
+        stored = stream.stored_bytes
+        resend = stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms, holdoff_ms)
+        self._charge(client, stream.stored_bytes - stored)
+        for message in resend:
             self.stats.retransmissions += 1
             client.retransmissions += 1
             self._send_client(client, message)
+        if client.out_pending:
+            self._send_pending(client, stream)
         if client.blocked_readers and stream.has_room():
             self._unblock(client)
 
@@ -101,10 +105,23 @@ class Liveliness:
         stream = client.in_reliable.get(stream_id)
         if stream is None:
             stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
-        for message in stream.on_heartbeat(heartbeat.first_unacked, heartbeat.last_unacked):
-            self._process_reliable_message(client, stream_id, message)
+        stored = stream.stored_bytes
+        try:
+            for message in stream.on_heartbeat(heartbeat.first_unacked, heartbeat.last_unacked):
+                self._process_reliable_message(client, stream_id, message)
+        finally:
+            self._charge(client, stream.stored_bytes - stored)
         if client.alive:
             self._send_acknack(client, stream)
+
+    def _drop_out_of_order(self, client: ClientProxy) -> None:
+        """Give back what a silent client's streams hold out of order: not acknowledged (the
+        ACKNACK names them missing again), so nothing it sent is lost by it."""
+        for stream in client.in_reliable.values():
+            if stream.stored:
+                self._charge(client, -stream.stored_bytes)
+                stream.stored.clear()
+                stream.stored_bytes = 0
 
     def _send_acknack(self, client: ClientProxy, stream: InputReliableStream) -> None:
         first, bitmap = stream.acknack()
@@ -122,6 +139,16 @@ class Liveliness:
                 self.stats.clients_dead += 1
                 log.info("client %s silent for %d ms: dead (no more HEARTBEATs)", client.key.hex(),
                          int(silent * 1000))
+                self._drop_out_of_order(client)
+            if not client.objects and not client.hard_liveliness:
+                # Nothing to keep for it: a session that never created anything (a flood's, or
+                # a board that went away before its first CREATE) gives its memory back. A board
+                # that comes back finds no session and creates it again, as after a restart.
+                self.stats.clients_expired += 1
+                log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
+                         int(silent * 1000))
+                self._delete_client(client)
+                return NEVER
             if not client.hard_liveliness and self.client_expire_time:
                 if silent >= self.client_expire_time:
                     self.stats.clients_expired += 1

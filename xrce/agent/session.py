@@ -27,10 +27,18 @@ log = logging.getLogger("xrce.agent")
 
 STREAM_WINDOW = 16  # RELIABLE_STREAM_DEPTH of the eProsima agent, both directions
 # Per-client quotas (defaults; ``Agent`` takes each as a constructor argument, the CLI as a flag).
-MAX_REASSEMBLY = 256 * 1024  # a fragmented message larger than this is abandoned
+# A fragmented message larger than this is abandoned: room for a 1 MiB sample (camera frames,
+# point clouds) and its headers.
+MAX_REASSEMBLY = 1024 * 1024 + 1024
 MAX_OBJECTS_PER_CLIENT = 4096  # beyond this CREATE answers ERR_RESOURCES
 MAX_OUTPUT_QUEUE_BYTES = 1024 * 1024  # samples waiting for one client; the oldest go first
-MAX_CLIENTS = 1024  # CREATE_CLIENT of a new key beyond this evicts a dead client or is refused
+MAX_CLIENTS = 1024  # CREATE_CLIENT of a new key beyond this evicts a dead or idle client
+# Memory budget: every buffer a client can fill (out-of-order input, reassembly, parked messages,
+# reader queues, reliable output windows and fragments waiting for them) counts against its own
+# budget and against the agent's total. Past either, buffered input is refused unacknowledged
+# (the client retransmits later) and output for that client is dropped; the agent goes on.
+MAX_CLIENT_BYTES = 8 * 1024 * 1024
+MAX_TOTAL_BYTES = 64 * 1024 * 1024
 QUOTA_LOG_INTERVAL = 1.0  # seconds between repeated quota log lines for one client and quota
 # eProsima's UAGENT_CONFIG_CLIENT_DEAD_TIME; eProsima never destroys a silent client's entities
 # unless it asked for hard liveliness (uxr_hl), hence expiry off by default.
@@ -80,6 +88,9 @@ class AgentStats:
     endpoints_closed: int = 0  # TCP connections / serial ports that went away under a session
     quota_objects: int = 0  # CREATE refused with ERR_RESOURCES
     quota_output_dropped: int = 0  # samples dropped because a client's output queue was full
+    budget_refused: int = 0  # reliable input left unacknowledged: the memory budget was spent
+    clients_evicted: int = 0  # idle sessions (no objects) deleted to admit a new client
+    nested_fragments: int = 0  # reassembled messages holding FRAGMENTs again: dropped
 
     def as_dict(self) -> Dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -144,6 +155,8 @@ class ClientProxy:
         self.probes = 0
         self.dead = False  # silent for the dead time: no HEARTBEATs until it speaks again
         self.queued_bytes = 0  # sample bytes waiting in this client's reader queues
+        # Bytes of this client's other buffers (see MAX_CLIENT_BYTES); Agent._charge keeps it.
+        self.buffered = 0
         self.quota_logged: Dict[str, float] = {}
         self.objects: Dict[int, ObjectEntry] = {}
         self.in_best_effort: Dict[int, InputBestEffortStream] = {}
@@ -151,6 +164,9 @@ class ClientProxy:
         self.out_best_effort: Dict[int, OutputBestEffortStream] = {}
         self.out_reliable: Dict[int, OutputReliableStream] = {}
         self.reassembly: Dict[int, bytearray] = {}
+        # Reliable output not yet sent, per stream: fragments of a sample longer than the window
+        # has room for, sent as ACKNACKs free room (xrce.agent.datapath._send_pending).
+        self.out_pending: Dict[int, Deque[bytes]] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored
         # While a CREATE waits for its type to be built: the messages to process afterwards, in
@@ -184,7 +200,15 @@ class ClientProxy:
         self.out_best_effort.clear()
         self.out_reliable.clear()
         self.reassembly.clear()
+        self.out_pending.clear()
         self.blocked_readers.clear()
+
+    def stream_bytes(self) -> int:
+        """Bytes held by its streams (what ``reset_streams`` frees)."""
+        return sum(s.stored_bytes for s in self.in_reliable.values()) + \
+            sum(s.stored_bytes for s in self.out_reliable.values()) + \
+            sum(len(b) for b in self.reassembly.values()) + \
+            sum(len(m) for q in self.out_pending.values() for m in q)
 
 
 
@@ -240,7 +264,7 @@ class SessionTable:
         client = self.clients.get(key)
         restarted = client is not None and client.session_id == session_id
         if restarted:
-            client.reset_streams()  # session restart: objects survive for REUSE
+            self._reset_streams(client)  # session restart: objects survive for REUSE
             self._unbind(client)
             client.link, client.endpoint, client.last_seen, client.probes = link, endpoint, now, 0
             client.dead = False
@@ -264,25 +288,39 @@ class SessionTable:
         self.timelines.established(client, restarted)
 
     def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
-        """True if a session for ``key`` fits under max_clients, evicting the longest-silent dead
-        client if that is what it takes (a hostile or buggy peer must not grow the table forever)."""
+        """True if a session for ``key`` fits under max_clients, evicting what it takes: the
+        longest-silent dead client first, else the least recently heard session that never
+        created an object. A flood of CREATE_CLIENTs with new keys (spoofable, from anywhere)
+        only ever evicts its own kind, so it cannot lock out a board that goes on to create its
+        entities; sessions holding entities are refused only when every slot holds one."""
         if key in self.clients or len(self.clients) < self.max_clients:
             return True
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK and self.endpoints.get((link, endpoint)) \
                 in self.clients:
             return True  # re-binding this endpoint deletes its current client first
         now = self.clock()
-        silent = [c for c in self.clients.values()
-                  if now - c.last_seen >= (c.hard_liveliness or self.client_dead_time)]
-        if silent:
-            victim = min(silent, key=lambda c: c.last_seen)
-            log.warning("%d clients: evicting dead client %s to admit %s", len(self.clients),
-                        victim.key.hex(), key.hex())
+        dead = idle = None
+        for c in self.clients.values():
+            if now - c.last_seen >= (c.hard_liveliness or self.client_dead_time):
+                if dead is None or c.last_seen < dead.last_seen:
+                    dead = c
+            elif not c.objects and (idle is None or c.last_seen < idle.last_seen):
+                idle = c
+        victim = dead or idle
+        if victim is not None:
+            self.stats.clients_evicted += 1
+            if victim is dead:
+                log.warning("%d clients: evicting dead client %s to admit %s", len(self.clients),
+                            victim.key.hex(), key.hex())
+            elif self.stats.clients_evicted & 0x3FF == 1:  # a flood: one line per 1024
+                log.warning("%d clients: evicting client %s (no objects, silent %.1f s) to admit "
+                            "%s; %d evicted so far", len(self.clients), victim.key.hex(),
+                            now - victim.last_seen, key.hex(), self.stats.clients_evicted)
             self._delete_client(victim)
             return True
         self.stats.clients_refused += 1
-        log.warning("%d clients, none dead: refusing client %s (max_clients)", len(self.clients),
-                    key.hex())
+        log.warning("%d clients, none dead or idle: refusing client %s (max_clients)",
+                    len(self.clients), key.hex())
         return False
 
     def _quota_warning(self, client: ClientProxy, quota: str, message: str, *args) -> None:
@@ -296,7 +334,12 @@ class SessionTable:
         if self.endpoints.get((client.link, client.endpoint)) == client.key:
             del self.endpoints[(client.link, client.endpoint)]
 
+    def _reset_streams(self, client: ClientProxy) -> None:
+        self._charge(client, -client.stream_bytes())
+        client.reset_streams()
+
     def _delete_client(self, client: ClientProxy) -> None:
+        self.queued_total -= client.queued_bytes  # its reader queues go with its objects
         if client.fast is not None:  # before any of its publishers is destroyed
             client.fast.drop(client)
         for object_id in [oid for oid, e in client.objects.items() if e.parent is None]:
@@ -305,6 +348,10 @@ class SessionTable:
         for object_id in list(client.objects):
             self._delete_object(client, object_id)
         client.alive = False
+        # Everything it held is garbage now: give its bytes back to the agent's budget.
+        self._charge(client, -client.buffered)
+        client.queued_bytes = 0
+        client.parked = None
         self._unbind(client)
         if self.clients.get(client.key) is client:
             del self.clients[client.key]

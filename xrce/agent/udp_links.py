@@ -13,7 +13,8 @@ import struct
 from xrce import constants as C
 from xrce.agent.links import MAX_MESSAGE_SIZE, Link, log
 from xrce.errors import DecodeError, EncodeError
-from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
+from xrce.message import decode_header, iter_submessages
+from xrce.submessages import GetInfo, Info, Locator, decode_payload, encode_message
 
 # Asked of the kernel for UDP sockets so bursts from many clients survive a busy loop iteration;
 # Linux silently caps it at net.core.rmem_max / wmem_max.
@@ -199,20 +200,22 @@ class DiscoveryServer(Link):
         self.stats.bytes_in += len(data)
         self.stats.messages_in += 1
         try:
-            header, payloads = decode_message(data)
+            header = decode_header(data)
+            first = next(iter_submessages(data, header.size), None)
+            payloads = [decode_payload(first[0], first[1], data, first[2], first[3])] \
+                if first is not None and first[0] == C.GET_INFO else []
         except (DecodeError, EncodeError, ValueError, IndexError) as exc:
             self.stats.drops += 1
             log.debug("discovery: malformed datagram from %r: %s", addr, exc)
             return
-        requests = [p for p in payloads if isinstance(p, GetInfo)]
-        if not requests:
+        # The first submessage only, one reply at most (as eProsima): anyone can aim a spoofed
+        # datagram of thousands of GET_INFOs here, and each used to get its own INFO.
+        if not payloads or not isinstance(payloads[0], GetInfo):
             self.stats.drops += 1
             return
-        locators = self.info_locators()
-        for request in requests:
-            info = Info(request.request_id, request.object_id, locators=locators)
-            reply = encode_message(header.session_id, 0, 0, header.key, [info])
-            self.send(addr, reply)
+        request = payloads[0]
+        info = Info(request.request_id, request.object_id, locators=self.info_locators())
+        self.send(addr, encode_message(header.session_id, 0, 0, header.key, [info]))
 
     def send(self, endpoint, data):
         return _send_datagram(self, self._sock, endpoint, data)

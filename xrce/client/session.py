@@ -285,6 +285,9 @@ class Session(Outbound):
         # would cost a board heap for its code object; anything else is ignored.
         for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
             if sub_id == _DATA:
+                if s == e:  # length 0: a sample > 64 KiB, to the end of the reassembled message
+                    self._on_data(buf, flags, s, end)
+                    return
                 self._on_data(buf, flags, s, e)
             elif sub_id == _ACKNACK or sub_id == _HEARTBEAT:
                 if e - s < 5:
