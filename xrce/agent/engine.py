@@ -312,11 +312,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         if stream is None:
             stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
         if self._hold_back(client, stream, seq, data):
-            # Not accepted, so not acknowledged: the client sends it again, and nothing the
-            # agent acknowledged is ever dropped.
+            # Not accepted, so not acknowledged: the client sends it again after its next
+            # HEARTBEAT, and nothing the agent acknowledged is ever dropped. No ACKNACK now: one
+            # per refused message would make the client resend its window at once, in a loop.
             self.stats.budget_refused += 1
-            if client.alive:
-                self._acknack_soon(client, stream)
             return
         duplicates = stream.duplicates
         stored = stream.stored_bytes
