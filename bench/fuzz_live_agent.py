@@ -54,16 +54,26 @@ def golden_corpus():
     return sorted(datagrams), frames
 
 
+# Keys the structured attacks use: their sessions exist (a CREATE_CLIENT now and then), so the
+# stream, fragment and parking paths behind them are reached, not only the unknown-client one.
+_ATTACK_KEYS = (b"\xa1\x00\x00\x01", b"\xa1\x00\x00\x02", b"\xa1\x00\x00\x03")
+# A type no interface package provides: with -m dds its CREATE waits for a build (a parked client).
+_UNKNOWN_TYPE = "xrcefuzz_msgs::msg::dds_::Thing_"
+
+
 class Mutator:
     def __init__(self, corpus, seed):
         self.corpus = corpus
         self.rng = random.Random(seed)
+        self.chains = {}  # (key, stream) -> next sequence number of a FRAGMENT chain
 
     def next(self):
         rng = self.rng
         roll = rng.random()
         if roll < 0.25:
             return rng.randbytes(rng.randint(0, 600))
+        if roll < 0.35:
+            return self.structured()
         data = bytearray(rng.choice(self.corpus))
         for _ in range(rng.randint(1, 4)):
             kind = rng.randint(0, 5)
@@ -84,6 +94,52 @@ class Mutator:
                 index = rng.randrange(len(data) - 1)
                 data[index:index + 2] = rng.choice((b"\xff\xff", b"\x00\x00", b"\x00\x80"))
         return bytes(data)
+
+
+    def structured(self):
+        """Well-formed hostile messages of an established session: nested FRAGMENTs, FRAGMENT
+        chains longer than the window, a client parked on a type build with reliable samples
+        behind it, out-of-order reliable messages."""
+        from xrce import constants as C
+        from xrce.objects import ParticipantBin, TopicBin
+        from xrce.submessages import Create, CreateClient, Fragment, WriteData, encode_message
+
+        rng = self.rng
+        key = rng.choice(_ATTACK_KEYS)
+        session = 0x01 + _ATTACK_KEYS.index(key)
+        kind = rng.randint(0, 5)
+        if kind == 0:
+            return encode_message(0, 0, 0, key, [CreateClient(key, session, 512)])
+        stream = rng.choice((0x80, 0x81, 0x80 + rng.randrange(128)))
+        if kind == 1:  # FRAGMENT (last) in FRAGMENT (last) in ... up to thousands deep
+            inner = bytes((C.WRITE_DATA, 1, 6, 0, 0, 1, 0, 0x15, 1, 2))
+            for _ in range(rng.randint(2, 3000)):
+                inner = bytes((C.FRAGMENT, 3, len(inner) & 0xFF, len(inner) >> 8)) + inner
+                if len(inner) > 60000:
+                    break
+            return encode_message(session, stream, self._next(key, stream), key, [])[:8] + inner
+        if kind == 2:  # the next link of a chain that runs far past the window
+            seq = self._next(key, stream)
+            flags = 1 | (2 if rng.random() < 0.01 else 0)
+            return encode_message(session, stream, seq, key,
+                                  [Fragment(rng.randbytes(rng.randint(1, 480)), flags)])
+        if kind == 3:  # a participant and a topic whose type must be built: the client parks
+            self.chains[(key, 0x80)] = 0
+            return encode_message(session, 0x80, self._next(key, 0x80), key, [
+                Create(1, 0x0011, C.OBJK_PARTICIPANT, C.REPRESENTATION_IN_BINARY,
+                       ParticipantBin("fuzz"), 0, 3),
+                Create(2, 0x0012, C.OBJK_TOPIC, C.REPRESENTATION_IN_BINARY,
+                       TopicBin("rt/fuzz_parked", _UNKNOWN_TYPE), 0x0011, 3)])
+        if kind == 4:  # reliable samples behind it (or behind nothing), in order
+            return encode_message(session, 0x80, self._next(key, 0x80), key,
+                                  [WriteData(3, 0x0015, rng.randbytes(rng.randint(4, 400)))])
+        return encode_message(session, stream, rng.randint(1, 40), key,  # out of order
+                              [WriteData(4, 0x0015, rng.randbytes(rng.randint(4, 1400)))])
+
+    def _next(self, key, stream):
+        seq = self.chains.get((key, stream), 0)
+        self.chains[(key, stream)] = (seq + 1) & 0xFFFF
+        return seq
 
 
 def rss_kib(pid):
@@ -208,7 +264,7 @@ def _open_fuzz_pty():
 
 
 def run(count=20000, middleware="ced", sockets=8, seed=1, max_seconds=300.0, serial=False,
-        domain_id=0, publish_every=100):
+        domain_id=0, publish_every=100, agent_args=()):
     datagrams, frames = golden_corpus()
     mutator = Mutator(frames if serial else datagrams, seed)
     relays = []
@@ -217,10 +273,10 @@ def run(count=20000, middleware="ced", sockets=8, seed=1, max_seconds=300.0, ser
         relays = [SerialRelay(), SerialRelay()]  # a clean line for each good session
         fuzz_master, fuzz_path = _open_fuzz_pty()
         devices = [relay.agent_path for relay in relays] + [fuzz_path]
-        agent_args = ["multiserial", "--devs", " ".join(devices)]
+        link_args = ["multiserial", "--devs", " ".join(devices)]
     else:
-        agent_args = ["udp4"]
-    agent = AgentProcess(*agent_args, "-m", middleware, "-v", "2").__enter__()
+        link_args = ["udp4"]
+    agent = AgentProcess(*link_args, "-m", middleware, "-v", "2", *agent_args).__enter__()
     fuzz_sockets = []
     good = None
     result = {"middleware": middleware, "link": "serial" if serial else "udp"}

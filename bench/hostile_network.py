@@ -14,7 +14,8 @@ the previous commit, for a same-run baseline) and prints one JSON line:
   streams per key, fresh keys every second) for ``--flood-seconds``: agent RSS before, at its peak,
   and after the attacker's sessions expired;
 - ``storm``: another client's session-less ping round trips (p50/p99/max) while one client creates
-  a participant, a topic, a publisher and 97 data writers as fast as its window allows.
+  a participant, a publisher and 49 topics with a data writer each (100 CREATEs) as fast as the
+  agent's STATUS window allows, ``rounds`` times.
 
 ``tests/test_hostile_network.py`` runs the same functions at suite size (a 20 s memory flood).
 """
@@ -237,9 +238,11 @@ def _pinger(port, stop, rtts):
         sock.close()
 
 
-def storm(agent_args=("-m", "ced"), creates=100, domain_id=0, repo=None, rounds=1):
+def storm(agent_args=("-m", "ced"), creates=100, domain_id=None, repo=None, rounds=1):
     """Another client's ping round trips while one client creates ``creates`` entities."""
     rtts, baseline = [], []
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
     with AgentProcess("udp4", *agent_args, "-v", "2", cwd=repo or REPO) as agent:
         StatsReader(agent)
         stop = threading.Event()
@@ -262,12 +265,19 @@ def storm(agent_args=("-m", "ced"), creates=100, domain_id=0, repo=None, rounds=
                 base = 0x100 * (round_ + 1)
                 node = creator.create_participant(domain_id=domain_id, name="storm%d" % round_,
                                                   object_id=base + 1)
-                topic = creator.create_topic(node, "rt/storm%d" % round_,
-                                             "std_msgs::msg::dds_::String_")
                 publisher = creator.create_publisher(node)
-                for _ in range(creates - 3):
-                    creator.create_datawriter(publisher, topic)
-                ok = creator.run_until_all_status(60000)
+                ok = True
+                for index in range(creates - 2):
+                    if index % 2 == 0:  # a topic of its own for each writer: a new ROS publisher
+                        topic = creator.create_topic(node, "rt/storm%d_%d" % (round_, index),
+                                                     "std_msgs::msg::dds_::String_")
+                    else:
+                        creator.create_datawriter(publisher, topic)
+                    if index % 12 == 11:
+                        # As fast as the agent's STATUS window allows: 16 replies unacknowledged
+                        # at most, and a STATUS that finds it full is lost (as with eProsima).
+                        ok = creator.run_until_all_status(20000) and ok
+                ok = creator.run_until_all_status(20000) and ok
                 storm_s.append(time.monotonic() - started)
                 stop.set()
                 pinger.join()

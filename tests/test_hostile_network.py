@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from engine_peer import BIN, Clock, Link, Peer
+from ros_helpers import ros_domain  # noqa: F401
 from xrce import constants as C
 from xrce.agent.ced import CedMiddleware
 from xrce.agent.engine import MAX_PARKED_MESSAGES, Agent
@@ -62,13 +63,16 @@ def test_memory_budget_holds_under_a_mixed_flood_and_strangers_expire():
     assert result["rss_after_kib"] - result["rss_before_kib"] < 24 * MIB // 1024, result
 
 
-def test_another_clients_ping_during_a_create_storm():
-    result = hostile_network.storm(creates=100)
+def test_another_clients_ping_during_a_create_storm(ros_domain):  # noqa: F811
+    # -m dds: each CREATE is a ROS entity. Before: the storm ran under the engine lock in one go
+    # (issue 26 measured p99 40 ms); now each CREATE gives the loop a turn.
+    result = hostile_network.storm(agent_args=("-m", "dds"), creates=100, domain_id=ros_domain,
+                                   rounds=2)
     print(result)
     assert result["all_ok"], result
-    # A generous bound for a loaded 2-core box; bench/hostile_network.py --rows storm reports
-    # p50/p99 beside the idle figures (and -m dds, where each CREATE is a ROS entity).
-    assert result["ping_ms_p99"] < 100, result
+    # A generous bound for a loaded 2-core box; bench/hostile_network.py --rows storm prints
+    # p50/p99/max beside the idle figures for a same-run comparison.
+    assert result["ping_ms_p99"] < 50, result
 
 
 # ------------------------------------------------------------------------------ in process
