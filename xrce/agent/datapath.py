@@ -190,7 +190,10 @@ class DataPath:
             self._quota_warning(client, "output", "output queue quota (%d bytes) full, %d oldest "
                                 "samples of 0x%04X dropped", self.max_output_queue_bytes, dropped,
                                 object_id)
-        if size > pushed_out and self._over_budget(client, size - pushed_out):
+        grows = size - pushed_out  # the budget test inlined: this runs for every sample out
+        if grows > 0 and (client.buffered + client.queued_bytes + grows > self.max_client_bytes
+                          or self.buffered_total + self.queued_total + grows >
+                          self.max_total_bytes):
             self.stats.quota_output_dropped += 1
             self._quota_warning(client, "budget", "memory budget (%d bytes per client, %d in all) "
                                 "spent: sample for 0x%04X dropped", self.max_client_bytes,
@@ -278,7 +281,9 @@ class DataPath:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
                 break
-            self._unqueue(client, reader.queue.popleft())
+            size = len(reader.queue.popleft())
+            client.queued_bytes -= size
+            self.queued_total -= size
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
