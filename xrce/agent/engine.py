@@ -192,8 +192,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     # ------------------------------------------------------------------ memory budget --
 
     def _charge(self, client: ClientProxy, delta: int) -> None:
-        client.buffered += delta
-        self.buffered_total += delta
+        if client.alive:  # a deleted client gave all its bytes back at once
+            client.buffered += delta
+            self.buffered_total += delta
 
     def _over_budget(self, client: ClientProxy, extra: int) -> bool:
         return client.buffered + client.queued_bytes + extra > self.max_client_bytes or \

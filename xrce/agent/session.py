@@ -347,9 +347,10 @@ class SessionTable:
                 self._delete_object(client, object_id)
         for object_id in list(client.objects):
             self._delete_object(client, object_id)
-        client.alive = False
-        # Everything it held is garbage now: give its bytes back to the agent's budget.
+        # Everything it held is garbage now: give its bytes back to the agent's budget (and
+        # count nothing more for it: see Agent._charge).
         self._charge(client, -client.buffered)
+        client.alive = False
         client.queued_bytes = 0
         client.parked = None
         self._unbind(client)
