@@ -60,7 +60,8 @@ def test_memory_budget_holds_under_a_mixed_flood_and_strangers_expire():
     assert result["rss_peak_kib"] - result["rss_before_kib"] < (budget + 24 * MIB) // 1024, result
     assert result["budget_refused"] > 0, result  # the budget was what bounded it
     assert result["clients_after"] == 0 and result["expired"] >= 1, result
-    assert result["rss_after_kib"] - result["rss_before_kib"] < 24 * MIB // 1024, result
+    # Back to baseline: the expired sessions' bytes and the heap pages behind them given back.
+    assert result["rss_after_kib"] - result["rss_before_kib"] < 8 * MIB // 1024, result
 
 
 def test_another_clients_ping_during_a_create_storm(ros_domain):  # noqa: F811

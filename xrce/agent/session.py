@@ -39,6 +39,7 @@ MAX_CLIENTS = 1024  # CREATE_CLIENT of a new key beyond this evicts a dead or id
 # (the client retransmits later) and output for that client is dropped; the agent goes on.
 MAX_CLIENT_BYTES = 8 * 1024 * 1024
 MAX_TOTAL_BYTES = 64 * 1024 * 1024
+TRIM_AFTER_BYTES = 256 * 1024  # a client deleted holding more: free heap pages go back (malloc_trim)
 QUOTA_LOG_INTERVAL = 1.0  # seconds between repeated quota log lines for one client and quota
 # eProsima's UAGENT_CONFIG_CLIENT_DEAD_TIME; eProsima never destroys a silent client's entities
 # unless it asked for hard liveliness (uxr_hl), hence expiry off by default.
@@ -348,7 +349,10 @@ class SessionTable:
         for object_id in list(client.objects):
             self._delete_object(client, object_id)
         # Everything it held is garbage now: give its bytes back to the agent's budget (and
-        # count nothing more for it: see Agent._charge).
+        # count nothing more for it: see Agent._charge), and the heap's free pages to the
+        # system at the next tick if that was much (a flood's sessions expiring).
+        if client.buffered + client.queued_bytes > TRIM_AFTER_BYTES:
+            self._trim_due = True
         self._charge(client, -client.buffered)
         client.alive = False
         client.queued_bytes = 0
