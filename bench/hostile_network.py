@@ -13,9 +13,9 @@ the previous commit, for a same-run baseline) and prints one JSON line:
 - ``memory``: a mixed flood (out-of-order reliable messages and unfinished FRAGMENT chains on 128
   streams per key, fresh keys every second) for ``--flood-seconds``: agent RSS before, at its peak,
   and after the attacker's sessions expired;
-- ``storm``: another client's session-less ping round trips (p50/p99/max) while one client creates
-  a participant, a publisher and 49 topics with a data writer each (100 CREATEs) as fast as the
-  agent's STATUS window allows, ``rounds`` times.
+- ``storm``: another client's session-less ping round trips (p50/p99/max), taken only while one
+  client creates ten participants, each with a topic, a publisher and seven data writers (100
+  CREATEs), as fast as the agent's STATUS window allows, ``rounds`` times.
 
 ``tests/test_hostile_network.py`` runs the same functions at suite size (a 20 s memory flood).
 """
@@ -233,7 +233,7 @@ def _pinger(port, stop, rtts):
                 rtts.append((time.perf_counter() - sent) * 1000)
             except socket.timeout:
                 rtts.append(1000.0)
-            time.sleep(0.002)
+            time.sleep(0.001)
     finally:
         sock.close()
 
@@ -260,17 +260,20 @@ def storm(agent_args=("-m", "ced"), creates=100, domain_id=None, repo=None, roun
                 pinger = threading.Thread(target=_pinger, args=(agent.port, stop, rtts),
                                           daemon=True)
                 pinger.start()
-                time.sleep(0.1)
                 started = time.monotonic()
-                base = 0x100 * (round_ + 1)
-                node = creator.create_participant(domain_id=domain_id, name="storm%d" % round_,
-                                                  object_id=base + 1)
-                publisher = creator.create_publisher(node)
                 ok = True
-                for index in range(creates - 2):
-                    if index % 2 == 0:  # a topic of its own for each writer: a new ROS publisher
+                # Ten nodes, each with a topic of its own, a publisher and seven writers: what a
+                # board's set-up looks like, ten times over (each node is a ROS node with -m dds).
+                for index in range(creates):
+                    step = index % 10
+                    if step == 0:
+                        node = creator.create_participant(domain_id=domain_id,
+                                                          name="storm%d_%d" % (round_, index))
+                    elif step == 1:
                         topic = creator.create_topic(node, "rt/storm%d_%d" % (round_, index),
                                                      "std_msgs::msg::dds_::String_")
+                    elif step == 2:
+                        publisher = creator.create_publisher(node)
                     else:
                         creator.create_datawriter(publisher, topic)
                     if index % 12 == 11:
