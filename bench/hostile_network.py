@@ -48,6 +48,14 @@ from xrce.transports.udp import UdpTransport  # noqa: E402
 LOCAL = "127.0.0.1"
 
 
+def _tree(repo):
+    """AgentProcess arguments running the agent of checkout ``repo`` (None: this one). Its path
+    goes first on PYTHONPATH: the venv's editable install would otherwise win over the cwd."""
+    if repo is None:
+        return {"cwd": REPO}
+    return {"cwd": repo, "env": {"PYTHONPATH": str(repo)}}
+
+
 def _socket(timeout=0.2):
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
@@ -79,7 +87,7 @@ def _create_client(key: bytes) -> bytes:
 def lockout(agent_args=("-m", "ced"), flood=1100, repo=None):
     """Robot admitted after a CREATE_CLIENT flood? Its CREATE_CLIENT and CREATE statuses."""
     rng = random.Random(26)
-    with AgentProcess("udp4", *agent_args, "-v", "2", cwd=repo or REPO) as agent:
+    with AgentProcess("udp4", *agent_args, "-v", "2", **_tree(repo)) as agent:
         StatsReader(agent)  # drains its output
         sock = _socket(0.001)
         started = time.monotonic()
@@ -128,7 +136,7 @@ def amplification(agent_args=("-m", "ced"), repo=None):
     discovery = _free_udp_port()
     result = {"row": "amplification"}
     with AgentProcess("udp4", *agent_args, "-v", "2", "-d", str(discovery),
-                      cwd=repo or REPO) as agent:
+                      **_tree(repo)) as agent:
         StatsReader(agent)
         cases = {
             "get_info": (agent.port, _unknown_datagram([GetInfo(i & 0xFFFF) for i in range(5000)])),
@@ -176,7 +184,7 @@ def memory(agent_args=("-m", "ced"), seconds=20.0, dead_time_ms=2000, max_memory
     extra = ["--client-dead-time", str(dead_time_ms)]
     if max_memory is not None:
         extra += ["--max-memory", str(max_memory)]
-    with AgentProcess("udp4", *agent_args, "-v", "2", *extra, cwd=repo or REPO) as agent:
+    with AgentProcess("udp4", *agent_args, "-v", "2", *extra, **_tree(repo)) as agent:
         stats = StatsReader(agent)
         time.sleep(0.5)
         before = rss_kib(agent.proc.pid)
@@ -243,7 +251,7 @@ def storm(agent_args=("-m", "ced"), creates=100, domain_id=None, repo=None, roun
     rtts, baseline = [], []
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID", "0"))
-    with AgentProcess("udp4", *agent_args, "-v", "2", cwd=repo or REPO) as agent:
+    with AgentProcess("udp4", *agent_args, "-v", "2", **_tree(repo)) as agent:
         StatsReader(agent)
         stop = threading.Event()
         pinger = threading.Thread(target=_pinger, args=(agent.port, stop, baseline), daemon=True)
