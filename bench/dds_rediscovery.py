@@ -1,6 +1,7 @@
 """How long a restarted ROS participant takes to find one that stayed up, without any agent.
 
     unshare -n sh -c 'ip link set lo up && .venv/bin/python bench/dds_rediscovery.py [--runs 8]'
+        [--new-profile XML] [--old-profile XML]
 
 Issue 12 asks for an agent-restart gap of at most 3.5 s; bench/restart_gap.py shows that about half
 of the restarts lose up to 3 s after the agent is already serving its client. This script removes
@@ -22,10 +23,22 @@ What we read from this (Fast DDS 2.14 in the Jazzy wheels): the participant send
 announcement before its receive paths are attached (``RTPSParticipantImpl::enable`` enables the
 builtin protocols, then registers the receivers), so an answer fast enough to arrive in between
 is dropped, and the subscriber never answers again because it already knows the participant.
-Nothing in the restarted participant's XML profile moves that first announcement: Fast DDS 2.14
-has no flow controller for builtin writers in XML, initial announcements only add later copies
-(which the subscriber ignores), and with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps
-replaces the profile's transports with its own (shared memory + UDPv4 to 32 local ports).
+Initial announcements only add later copies (which the subscriber ignores), and with
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps replaces the profile's transports with its
+own (shared memory + UDPv4 to 32 local ports). What does move the first announcement is a
+participant-level ``throughputController`` in the restarted participant's profile: Fast DDS 2.14
+then creates the builtin writers asynchronous, so the announcement leaves from the sender thread
+after the receivers are attached (bytesPerPeriod 0: the unlimited asynchronous controller, no
+periodic wake-up; a limited one with a 1 ms period cost the idle agent 2 % of a core, and with
+one of a 1 s period bench/discovery.py's order (a) saw its first sample only after 2.5-2.7 s in
+2 of 25 trials, 0 of 50 with the unlimited one). xrce-agent's profile
+(xrce/agent/fastdds_profile.xml) does this; ``--new-profile`` gives the restarted publisher a
+profiles file, ``--old-profile`` the subscriber that stays up. Eight restarts each (issue 22, in
+a network namespace of its own): defaults 5 of 8 waited for the periodic announcement (first
+sample after 0.1-3.0 s); the restarted publisher with the agent's profile 0 of 8 (0.00-0.06 s:
+the agent restarted next to running ROS nodes); the subscriber with the agent's profile 3 of 8
+still lost the answer, but its periodic announcement comes every 0.5 s (first sample within
+0.80 s: a ROS node started next to a running agent).
 The first announcement itself takes a while: under LOCALHOST, rmw_fastrtps gives the UDP
 transport 32 initial peer ports (``maxInitialPeersRange``) and the participant sends to them one
 after another, 0.4-3 ms in all here, and a subscriber with a low participant id answers its copy
@@ -170,13 +183,18 @@ def classify(packets, subscriber, launched):
         known - first, "sent, not acted on" if answered else "not seen") + timing
 
 
-def measure(env, runs=8, downtime=1.0, log=print, with_capture=True):
+def measure(env, runs=8, downtime=1.0, log=print, with_capture=True, old_profile=None,
+            new_profile=None):
+    """``old_profile`` / ``new_profile``: a Fast DDS profiles file for the subscriber that stays
+    up / the publisher that restarts (None: Fast DDS's and rmw_fastrtps's defaults)."""
+    old_env, new_env = (dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=profile) if profile else env
+                        for profile in (old_profile, new_profile))
     try:
         capture = RtpsCapture() if with_capture else None
     except (PermissionError, OSError) as error:
         capture = None
         log("no packet capture (%s): timings only" % error)
-    subscriber = subprocess.Popen([PYTHON, __file__, "--subscriber"], env=env, cwd=REPO,
+    subscriber = subprocess.Popen([PYTHON, __file__, "--subscriber"], env=old_env, cwd=REPO,
                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     arrivals = []
     assert subscriber.stdout.readline().strip() == "ready"
@@ -185,7 +203,7 @@ def measure(env, runs=8, downtime=1.0, log=print, with_capture=True):
 
     def start_publisher():
         launched = time.monotonic()
-        process = subprocess.Popen([PYTHON, __file__, "--publisher"], env=env, cwd=REPO,
+        process = subprocess.Popen([PYTHON, __file__, "--publisher"], env=new_env, cwd=REPO,
                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         return process, launched, float(process.stdout.readline())
 
@@ -231,12 +249,17 @@ def main(argv=None):
     parser.add_argument("--range", default="LOCALHOST", choices=("LOCALHOST", "SUBNET"),
                         help="ROS_AUTOMATIC_DISCOVERY_RANGE (SUBNET needs multicast on lo)")
     parser.add_argument("--no-capture", action="store_true", help="timings only")
+    parser.add_argument("--old-profile", metavar="XML",
+                        help="Fast DDS profiles file of the subscriber that stays up")
+    parser.add_argument("--new-profile", metavar="XML",
+                        help="Fast DDS profiles file of the publisher that restarts")
     args = parser.parse_args(argv)
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE=args.range)
     try:
-        delays, ways = measure(env, args.runs, args.downtime, with_capture=not args.no_capture)
+        delays, ways = measure(env, args.runs, args.downtime, with_capture=not args.no_capture,
+                               old_profile=args.old_profile, new_profile=args.new_profile)
     finally:
         lease.release()
     finite = [d for d in delays if d == d]

@@ -65,7 +65,7 @@ def ros_subscriber_main(topic):
     from rclpy.node import Node
     from std_msgs.msg import String
 
-    rclpy.init(args=[])
+    rclpy.init(args=["--ros-args", "--disable-external-lib-logs"])  # no log file in ~/.ros
     node = Node("discovery_listener", start_parameter_services=False, enable_rosout=False)
     out = sys.stdout
     node.create_subscription(String, topic, lambda _m: out.write("%.6f\n" % time.monotonic())
@@ -85,7 +85,7 @@ def ros_publisher_main(topic):
     from rclpy.node import Node
     from std_msgs.msg import String
 
-    rclpy.init(args=[])
+    rclpy.init(args=["--ros-args", "--disable-external-lib-logs"])  # no log file in ~/.ros
     node = Node("discovery_talker", start_parameter_services=False, enable_rosout=False)
     publisher = node.create_publisher(String, topic, 10)
     print("ready %.6f" % time.monotonic(), flush=True)
@@ -478,7 +478,8 @@ def main(argv=None):
             results = idle_cost(env, lease.domain_id, args.idle_cost)
         finally:
             lease.release()
-        for label, name in (("now", "agent's profile"), ("before", "without its discovery settings")):
+        for label, name in (("now", "agent's profile"),
+                            ("before", "without its discovery settings")):
             rows = results[label]
             print("%-32s agent %.3f %%  rclpy node %.3f %%  lo %.1f datagrams/s  %.0f B/s  "
                   "(medians of %d)" % ((name,) + tuple(statistics.median(r[i] for r in rows)

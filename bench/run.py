@@ -4,12 +4,15 @@
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
 "baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-cost, serial, sessions, footprint, restart, creation. ``cost`` (bench/agent_cost.py) is what the agent costs the
-robot's computer: CPU per message at fixed offered rates, idle CPU, the TurtleBot3 load, memory,
-ping; ``--reference DIR`` measures another source tree's agent beside it in the same run.
+cost, serial, sessions, footprint, restart, creation, discovery. ``cost`` (bench/agent_cost.py) is
+what the agent costs the robot's computer: CPU per message at fixed offered rates, idle CPU, the
+TurtleBot3 load, memory, ping; ``--reference DIR`` measures another source tree's agent beside it
+in the same run.
 ``creation`` (bench/entity_creation.py): a micro-ROS firmware's entity creation (node + 4
 entities, a replier, the first topic of a type) beside eProsima's agent answering the same CREATEs.
 ``restart`` (bench/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
+``discovery`` (bench/discovery.py): first sample after either side appears, per start order, 20
+trials each (5 with ``--quick``), with the agent-restart gap beside them.
 ``ros`` and ``latency`` live in bench/ros_bridge.py; serial, sessions and footprint here. Figures
 and their table: bench/figures.py; child processes and the UDP echo baseline: bench/harness.py.
 
@@ -166,7 +169,8 @@ def footprint():
 # ----------------------------------------------------------------------------------- main
 
 
-GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart", "creation")
+GROUPS = ("ros", "latency", "cost", "serial", "sessions", "footprint", "restart", "creation",
+          "discovery")
 
 
 def main(argv=None):
@@ -209,6 +213,9 @@ def main(argv=None):
             import entity_creation
             entity_creation.build_interfaces()
             entity_creation.report(record, env, runs=3 if quick else 7)
+        if "discovery" in groups:  # bench/discovery.py: first sample per start order (issue 22)
+            import discovery
+            discovery.report(record, env, lease.domain_id, quick)
     finally:
         lease.release()
     print_table()
