@@ -14,15 +14,17 @@ depends on the start order:
 
 - a ROS node started while the agent is up loses the agent's answer, and learns of the agent only
   at the agent's next periodic announcement. The profile makes that period 0.5 s instead of 3 s
-  (``leaseAnnouncement``): first sample within 0.4-0.7 s where it took up to 3 s;
+  (``leaseAnnouncement``): first sample within 1 s where it took up to 3 s;
 - the agent started while ROS nodes are up loses their answers, and would wait for their periodic
   announcements (3 s, theirs to choose). The profile makes the agent's builtin writers
   asynchronous (a ``throughputController`` with 0 bytes per period: Fast DDS's unlimited
   asynchronous flow controller, no periodic wake-up), so the first announcement leaves from the
   sender thread after the receivers are attached; the answers arrive and are kept (0 of 8
-  restarted participants waited, against 5 of 8 with the defaults). The agent's topic writers
-  stay synchronous: rmw_fastrtps creates them so and Fast DDS leaves synchronous writers out of
-  a participant's throughput controller.
+  restarted participants waited, against 5 of 8 with the defaults; the sender thread can still
+  beat the receivers now and then: 3 of 110 agent starts next to a busy rclpy publisher waited,
+  bench/discovery.py order d-b). The agent's topic writers stay synchronous: rmw_fastrtps
+  creates them so and Fast DDS leaves synchronous writers out of a participant's throughput
+  controller.
 
 Cost (idle agent next to one rclpy node, medians of 3, ``bench/discovery.py --idle-cost``): the
 agent 0.05 -> 0.13 % of a core, the rclpy node unchanged (0.04-0.05 %), loopback 21 -> 67
