@@ -199,6 +199,20 @@ def test_tcp_bad_length_prefix_breaks_the_transport(tcp_listener):
         agent_side.close()
 
 
+def test_tcp_send_refused_before_any_byte_is_counted_and_leaves_it_open(tcp_listener):
+    transport, agent_side = connect_tcp(tcp_listener)
+    try:
+        # Linger 0: closing resets the connection, so the client's next send fails at its first byte.
+        agent_side.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+        agent_side.close()
+        assert select.select([transport._sock], [], [], 2)[0], "the reset never arrived"
+        assert transport.send(ACKNACK) is False
+        assert transport.send_errors == 1 and transport.sent == 0
+        assert transport._sock is not None  # nothing of the message went out: the framing holds
+    finally:
+        transport.close()
+
+
 def test_tcp_agent_closing_is_reported(tcp_listener):
     transport, agent_side = connect_tcp(tcp_listener)
     try:

@@ -79,7 +79,8 @@ class FrameDecoder:
     # ``buf[start:end]`` byte by byte up to the end of the first complete frame and returns the index
     # after what it used. ``frame_length`` is then that frame's payload length (-1: none completed),
     # the payload is ``buffer[:frame_length]`` (valid until the next call) and ``frame_src`` /
-    # ``frame_dst`` its addresses. Both share the state and counters: a stream may mix them.
+    # ``frame_dst`` its addresses. Both run one state machine (``_decode``) on one state and one set
+    # of counters: a stream may mix them.
 
     __slots__ = (
         "local_addr",
@@ -148,8 +149,24 @@ class FrameDecoder:
             # bytes.find is the fast path below; MicroPython's bytearray and memoryview lack find.
             data = bytes(data)
         frames = []
-        size = len(data)
-        chunk = memoryview(data)
+        self._decode(data, 0, len(data), frames)
+        return frames
+
+    def scan(self, buf, start, end):
+        # See the class comment.
+        return self._decode(buf, start, end, None)
+
+    def _decode(self, buf, start, end, frames):
+        # The frame grammar, counters and CRC check for both ``feed`` and ``scan``. With a list in
+        # ``frames`` (``buf`` is bytes) it decodes to ``end``, appending ``(src, dst, payload)`` per
+        # frame, and finds flags and copies runs of plain payload bytes with bytes.find and slices (C
+        # speed on CPython, where the agent reads 64 KiB at a time). With None it stops after the
+        # first frame and goes byte by byte: every value is then a small int and nothing is allocated
+        # (a board's slices and bound memoryviews are heap objects). Returns the index after what it
+        # used.
+        runs = frames is not None
+        chunk = memoryview(buf) if runs else None  # its slices are views: no copy of the run
+        buffer = self.buffer
         view = self._view
         state = self._state
         escaped = self._escaped
@@ -159,28 +176,36 @@ class FrameDecoder:
         length = self._length
         filled = self._filled
         crc_rx = self._crc_rx
-        i = 0
-        while i < size:
+        self.frame_length = -1
+        i = start
+        while i < end:
             if state == _HUNT:
-                start = data.find(_FLAG_BYTES, i)
-                if start < 0:
-                    self.dropped_bytes += size - i
+                if runs:
+                    flag = buf.find(_FLAG_BYTES, i, end)
+                    if flag < 0:
+                        flag = end
+                else:
+                    flag = i
+                    while flag < end and buf[flag] != FLAG:
+                        flag += 1
+                self.dropped_bytes += flag - i
+                if flag == end:
+                    i = end
                     break
-                self.dropped_bytes += start - i
-                i = start + 1
+                i = flag + 1
                 state = _SRC
                 escaped = False
                 raw = 1
                 continue
-            if state == _PAYLOAD and not escaped:
+            if state == _PAYLOAD and runs and not escaped:
                 # Copy the run of plain payload bytes up to the next flag/escape in one slice.
                 stop = i + length - filled
-                if stop > size:
-                    stop = size
-                special = data.find(_FLAG_BYTES, i, stop)
+                if stop > end:
+                    stop = end
+                special = buf.find(_FLAG_BYTES, i, stop)
                 if special >= 0:
                     stop = special
-                special = data.find(_ESCAPE_BYTES, i, stop)
+                special = buf.find(_ESCAPE_BYTES, i, stop)
                 if special >= 0:
                     stop = special
                 if stop > i:
@@ -192,7 +217,7 @@ class FrameDecoder:
                     if filled == length:
                         state = _CRC_LO
                     continue
-            byte = data[i]
+            byte = buf[i]
             i += 1
             if byte == FLAG:
                 self.resyncs += 1
@@ -209,7 +234,7 @@ class FrameDecoder:
                 escaped = True
                 continue
             if state == _PAYLOAD:
-                view[filled] = byte
+                buffer[filled] = byte
                 filled += 1
                 if filled == length:
                     state = _CRC_LO
@@ -237,8 +262,12 @@ class FrameDecoder:
                 state = _CRC_HI
             else:  # _CRC_HI: the frame is complete
                 crc_rx |= byte << 8
-                payload = view[:length]
-                if self._crc(payload) != crc_rx:
+                state = _HUNT
+                if runs:
+                    check = self._crc(view[:length])  # crcmod's C loop on CPython
+                else:
+                    check = crc_of_prefix(self._crc, buffer, length)
+                if check != crc_rx:
                     self.crc_errors += 1
                     self.dropped_bytes += raw
                 elif self.local_addr is not None and dst != self.local_addr:
@@ -246,9 +275,15 @@ class FrameDecoder:
                     self.dropped_bytes += raw
                 else:
                     self.frames += 1
-                    frames.append((src, dst, bytes(payload)))
+                    if runs:
+                        frames.append((src, dst, bytes(view[:length])))
+                    else:
+                        self.frame_length = length
+                        self.frame_src = src
+                        self.frame_dst = dst
+                        raw = 0
+                        break
                 raw = 0
-                state = _HUNT
         self._state = state
         self._escaped = escaped
         self._raw = raw
@@ -257,92 +292,6 @@ class FrameDecoder:
         self._length = length
         self._filled = filled
         self._crc_rx = crc_rx
-        return frames
-
-
-    def scan(self, buf, start, end):
-        # See the class comment. Every value here is a small int: nothing is allocated.
-        buffer = self.buffer
-        state = self._state
-        escaped = self._escaped
-        raw = self._raw
-        length = self._length
-        filled = self._filled
-        self.frame_length = -1
-        i = start
-        while i < end:
-            byte = buf[i]
-            i += 1
-            if state == _HUNT:
-                if byte == FLAG:
-                    state = _SRC
-                    escaped = False
-                    raw = 1
-                else:
-                    self.dropped_bytes += 1
-                continue
-            if byte == FLAG:
-                self.resyncs += 1
-                self.dropped_bytes += raw
-                raw = 1
-                state = _SRC
-                escaped = False
-                continue
-            raw += 1
-            if escaped:
-                byte ^= ESCAPE_XOR
-                escaped = False
-            elif byte == ESCAPE:
-                escaped = True
-                continue
-            if state == _PAYLOAD:
-                buffer[filled] = byte
-                filled += 1
-                if filled == length:
-                    state = _CRC_LO
-            elif state == _SRC:
-                self._src = byte
-                state = _DST
-            elif state == _DST:
-                self._dst = byte
-                state = _LEN_LO
-            elif state == _LEN_LO:
-                length = byte
-                state = _LEN_HI
-            elif state == _LEN_HI:
-                length |= byte << 8
-                if length > self.max_payload:
-                    self.oversize += 1
-                    self.dropped_bytes += raw
-                    raw = 0
-                    state = _HUNT
-                else:
-                    filled = 0
-                    state = _PAYLOAD if length else _CRC_LO
-            elif state == _CRC_LO:
-                self._crc_rx = byte
-                state = _CRC_HI
-            else:  # _CRC_HI: the frame is complete
-                state = _HUNT
-                if crc_of_prefix(self._crc, buffer, length) != self._crc_rx | (byte << 8):
-                    self.crc_errors += 1
-                    self.dropped_bytes += raw
-                elif self.local_addr is not None and self._dst != self.local_addr:
-                    self.wrong_address += 1
-                    self.dropped_bytes += raw
-                else:
-                    self.frames += 1
-                    self.frame_length = length
-                    self.frame_src = self._src
-                    self.frame_dst = self._dst
-                    raw = 0
-                    break
-                raw = 0
-        self._state = state
-        self._escaped = escaped
-        self._raw = raw
-        self._length = length
-        self._filled = filled
         return i
 
 
@@ -397,6 +346,18 @@ class LengthPrefixDecoder:
         self._length = 0  # 0 while reading the length prefix
         self._filled = 0
 
+    def accepts_length(self, length):
+        # True for a length prefix of 1..max_len. Otherwise counts it (``zero_length``/``oversize``),
+        # marks the stream broken and returns False. A board's TcpTransport reads prefixes itself.
+        if 0 < length <= self.max_len:
+            return True
+        if length == 0:
+            self.zero_length += 1
+        else:
+            self.oversize += 1
+        self.broken = True
+        return False
+
     def feed(self, data):
         messages = []
         size = len(data)
@@ -422,12 +383,7 @@ class LengthPrefixDecoder:
                     length = self._header_lo | (chunk[i] << 8)
                     self._header_filled = 0
                     i += 1
-                if length == 0 or length > self.max_len:
-                    if length == 0:
-                        self.zero_length += 1
-                    else:
-                        self.oversize += 1
-                    self.broken = True
+                if not self.accepts_length(length):
                     self.dropped_bytes += size - i + 2
                     length = 0
                     break

@@ -125,6 +125,14 @@ class TcpTransport:
         self.close()
         raise TransportError(reason)
 
+    def _send_failed(self, position, reason, detail=None):
+        # Counts a failed send. Nothing of the message on the wire yet: False, the caller may try
+        # again. Part of it sent: the peer's framing is lost, so the connection closes (raises).
+        self.send_errors += 1
+        if position == 0:
+            return False
+        self._fail(reason if detail is None else reason % (detail,))
+
     def send(self, msg):
         if len(msg) > self.mtu:
             raise EncodeError("message of %d bytes exceeds the TCP MTU %d" % (len(msg), self.mtu))
@@ -140,11 +148,7 @@ class TcpTransport:
             try:
                 written = sock.send(data[position:])
             except OSError as error:
-                self.send_errors += 1
-                if position == 0:
-                    return False
-                # Part of a length-prefixed message is on the wire: the peer's framing is lost.
-                self._fail("TCP send failed mid-message: %s" % (error,))
+                return self._send_failed(position, "TCP send failed mid-message: %s", error)
             if not written:
                 self.send_errors += 1
                 self._fail("TCP connection closed while sending")
@@ -169,20 +173,11 @@ class TcpTransport:
                 written = sock.write(out, position, total - position)
             except OSError as error:
                 if not is_timeout_error(error):
-                    written = -1
-                else:
-                    written = None
-                if written is not None:
-                    self.send_errors += 1
-                    if position == 0:
-                        return False
-                    self._fail("TCP send failed mid-message: %s" % (error,))
+                    return self._send_failed(position, "TCP send failed mid-message: %s", error)
+                written = None
             if written is None:  # non-blocking socket, send buffer full
                 if ticks_diff(deadline, ticks_ms()) <= 0:
-                    self.send_errors += 1
-                    if position == 0:
-                        return False
-                    self._fail("TCP send timed out mid-message")
+                    return self._send_failed(position, "TCP send timed out mid-message")
                 sleep_ms(1)
                 continue
             if not written:
@@ -240,12 +235,7 @@ class TcpTransport:
                 if got is not None:
                     self._filled = 0
                     length = self._prefix[0] | (self._prefix[1] << 8)
-                    if length == 0 or length > decoder.max_len:
-                        if length == 0:
-                            decoder.zero_length += 1
-                        else:
-                            decoder.oversize += 1
-                        decoder.broken = True
+                    if not decoder.accepts_length(length):
                         self._fail("TCP stream lost sync (bad length prefix)")
                     self._length = length
             if length:
