@@ -182,16 +182,18 @@ class FrameDecoder:
             if state == _HUNT:
                 if runs:
                     flag = buf.find(_FLAG_BYTES, i, end)
-                    if flag < 0:
-                        flag = end
                 else:
                     flag = i
                     while flag < end and buf[flag] != FLAG:
                         flag += 1
-                self.dropped_bytes += flag - i
-                if flag == end:
+                    if flag == end:
+                        flag = -1
+                if flag < 0:
+                    self.dropped_bytes += end - i
                     i = end
                     break
+                if flag > i:  # back-to-back frames: nothing to count
+                    self.dropped_bytes += flag - i
                 i = flag + 1
                 state = _SRC
                 escaped = False
