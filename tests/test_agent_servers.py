@@ -263,21 +263,6 @@ class PtyPeer:
         return got
 
 
-@pytest.fixture
-def pty_pair():
-    opened = []
-
-    def make():
-        master, slave = os.openpty()
-        tty.setraw(master, termios.TCSANOW)
-        opened.extend((master, slave))
-        return master, os.ttyname(slave)
-
-    yield make
-    for fd in opened:
-        os.close(fd)
-
-
 async def test_serial_delivers_frames_and_drops_bad_crc(pty_pair):
     master, slave_path = pty_pair()
     engine = EchoEngine()

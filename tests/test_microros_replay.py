@@ -12,10 +12,7 @@ firmware sequence also goes over a serial line (a real pty pair, ``multiserial``
 without networking run it.
 """
 
-import os
-import termios
 import threading
-import tty
 from pathlib import Path
 
 import pytest
@@ -75,29 +72,14 @@ def test_capture_replayed_over_udp_gets_eprosimas_answers(name):
             assert replay.answered_at[(boot, rid)] - replay.sent_at[(boot, rid)] < 1.0
 
 
-@pytest.fixture
-def pty_pairs():
-    opened = []
-
-    def make():
-        master, slave = os.openpty()
-        tty.setraw(master, termios.TCSANOW)
-        opened.extend((master, slave))
-        return master, os.ttyname(slave)
-
-    yield make
-    for fd in opened:
-        os.close(fd)
-
-
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("name", ("teardown", "restart"))
-def test_rmw_call_sequence_over_serial(name, pty_pairs):
+def test_rmw_call_sequence_over_serial(name, pty_pair):
     """The firmware's calls as rmw_microxrcedds makes them (CREATE with REUSE|REPLACE; a board
     reset with the same key, every entity REUSEd and answered OK_MATCHED; the TOPIC-first teardown
     with cancel READ_DATA), over a serial line of a real pty pair."""
     capture = Capture(name)
-    (firmware_fd, firmware_tty), (ros_side_fd, ros_side_tty) = pty_pairs(), pty_pairs()
+    (firmware_fd, firmware_tty), (ros_side_fd, ros_side_tty) = pty_pair(), pty_pair()
     with AgentProcess("multiserial", "--devs", "%s %s" % (firmware_tty, ros_side_tty),
                       "-m", "ced", "-v", "0"):
         feeder = RosSideFeeder(SerialChannel(ros_side_fd), service=True)
