@@ -97,3 +97,24 @@ def test_timed_work_is_scheduled_when_due_and_nothing_runs_when_idle():
             await task
         await agent.close()
     asyncio.run(asyncio.wait_for(scenario(), 5))
+
+
+def test_a_receive_only_client_past_the_dead_time_is_not_called_dead(ced_agent, caplog):
+    """A best-effort subscriber says nothing while its samples arrive: past the dead time the
+    agent still pauses HEARTBEATs for it (eProsima's semantics), but the log says that it still
+    reads, not "dead"; a client with no READ_DATA in force is reported dead as before."""
+    agent, link = ced_agent
+    talker, listener = talker_and_listener(agent, link, reliable=False)
+    listener.read(0x01, DeliveryControl())
+    caplog.set_level("INFO", logger="xrce.agent")
+    agent.clock.now += agent.client_dead_time + 1
+    talker.write(b"still flowing", stream_id=0x01)  # the talker speaks; the listener only reads
+    agent.tick()
+    assert data_of(listener.take()) == [b"still flowing"]
+    listener_key = listener.key.hex()
+    lines = [r.getMessage() for r in caplog.records if listener_key in r.getMessage()]
+    assert len(lines) == 1 and "still reads" in lines[0] and "dead" not in lines[0], lines
+    agent.clock.now += agent.client_dead_time + 1
+    agent.tick()
+    talker_lines = [r.getMessage() for r in caplog.records if talker.key.hex() in r.getMessage()]
+    assert any("dead (no more HEARTBEATs" in line for line in talker_lines), talker_lines

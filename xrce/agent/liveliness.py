@@ -137,8 +137,17 @@ class Liveliness:
             if not client.dead:
                 client.dead = True
                 self.stats.clients_dead += 1
-                log.info("client %s silent for %d ms: dead (no more HEARTBEATs)", client.key.hex(),
-                         int(silent * 1000))
+                if _still_reading(client):
+                    # A receive-only client (a best-effort subscriber) has nothing to say while its
+                    # data arrives: eProsima's dead time applies all the same, but "dead" would
+                    # alarm someone watching samples reach it.
+                    log.info("client %s has sent nothing for %d ms but still reads: its samples "
+                             "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
+                             int(silent * 1000))
+                else:
+                    log.info("client %s silent for %d ms: dead (no more HEARTBEATs; its entities "
+                             "are kept, any message revives it)", client.key.hex(),
+                             int(silent * 1000))
                 self._drop_out_of_order(client)
             if not client.objects and not client.hard_liveliness:
                 # Nothing to keep for it: a session that never created anything (a flood's, or
@@ -192,3 +201,9 @@ class Liveliness:
                     elif active.deadline < due:
                         due = active.deadline
         return due
+
+
+def _still_reading(client) -> bool:
+    """True while a READ_DATA of the client is in force: the agent may be sending it samples."""
+    return any(entry.reader is not None and entry.reader.active is not None
+               for entry in client.objects.values())
