@@ -13,6 +13,10 @@ A malformed datagram or frame, or an exception raised by the receiver, is logged
 drop; nothing raises into the event loop. The byte framers themselves live in
 ``xrce.transports.framing`` (shared with the client).
 
+A link that hears only what it cannot decode (frames failing their CRC at the wrong baud rate,
+datagrams that are not XRCE) says so once at the default verbosity, rate-limited
+(``UndecodableHint``): otherwise a wrong setting looks exactly like a board that is not there.
+
 If the receiver has an ``endpoint_closed(link, endpoint)`` method, it is called when a TCP
 connection or a serial port goes away, so the engine can forget the sessions mapped to it.
 """
@@ -20,6 +24,7 @@ connection or a serial port goes away, so the engine can forget the sessions map
 from __future__ import annotations
 
 import logging
+import time
 
 # Every link module logs here, under the name these links have always logged under, so that
 # existing log filters keep matching.
@@ -56,6 +61,38 @@ class LinkStats:
         return "LinkStats(%s)" % ", ".join("%s=%d" % item for item in self.as_dict().items())
 
 
+class UndecodableHint:
+    """One WARNING when ``THRESHOLD`` undecodable messages or frames arrive in a row with nothing
+    decodable between them, then at most one every ``PERIOD_S`` while it goes on. Anything
+    decodable starts the count again."""
+
+    THRESHOLD = 10
+    PERIOD_S = 60.0
+
+    __slots__ = ("link", "in_a_row", "next_allowed")
+
+    def __init__(self, link):
+        self.link = link
+        self.in_a_row = 0
+        self.next_allowed = 0.0
+
+    def bad(self, count=1, where=None):
+        self.in_a_row += count
+        if self.in_a_row < self.THRESHOLD:
+            return
+        now = time.monotonic()
+        if now < self.next_allowed:
+            return
+        self.next_allowed = now + self.PERIOD_S
+        link = self.link
+        log.warning("%s: %d %s in a row%s and nothing decodable: %s (said at most once a minute)",
+                    link.name, self.in_a_row, link.undecodable_what,
+                    " from %s" % (where,) if where is not None else "", link.undecodable_advice())
+
+    def good(self):
+        self.in_a_row = 0
+
+
 class Link:
     """Common part of every server: counters and the guarded hand-off to the receiver."""
 
@@ -64,22 +101,41 @@ class Link:
     # middleware's thread without waking the loop); asyncio transports are loop-only.
     sends_from_any_thread = False
 
+    undecodable_what = "messages that are not XRCE"
+
     def __init__(self, receiver):
         self.receiver = receiver
         self.stats = LinkStats()
+        self.undecodable = UndecodableHint(self)
+        # The engine counts what it cannot decode; a receiver without counters gives no hint.
+        self._receiver_stats = getattr(receiver, "stats", None)
+        if not hasattr(self._receiver_stats, "decode_errors"):
+            self._receiver_stats = None
 
     def describe(self):
         """A short human description for the start-up banner, valid once started."""
         return self.name
 
+    def undecodable_advice(self):
+        """What to check when only undecodable input arrives (UndecodableHint)."""
+        return ("is something other than an XRCE client (micro-ROS, xrce) sending to this %s, "
+                "or a client of another protocol version?" % self.describe())
+
     def _deliver(self, endpoint, message):
         self.stats.messages_in += 1
+        counters = self._receiver_stats
+        errors_before = counters.decode_errors if counters is not None else 0
         try:
             self.receiver.receive(self, endpoint, message)
         except Exception:  # one bad message must not take the loop (and every other client) down
             self.stats.drops += 1
             log.exception("%s: receiver failed on a %d-byte message from %r",
                           self.name, len(message), endpoint)
+        if counters is not None:
+            if counters.decode_errors != errors_before:
+                self.undecodable.bad(where=endpoint)
+            elif self.undecodable.in_a_row:
+                self.undecodable.good()
 
     def _endpoint_closed(self, endpoint):
         hook = getattr(self.receiver, "endpoint_closed", None)
@@ -98,4 +154,4 @@ class Link:
 
 
 
-__all__ = ["LinkStats", "Link", "MAX_MESSAGE_SIZE", "MAX_PENDING_OUTPUT"]
+__all__ = ["LinkStats", "Link", "UndecodableHint", "MAX_MESSAGE_SIZE", "MAX_PENDING_OUTPUT"]

@@ -48,6 +48,13 @@ class SerialFramedLink(Link):
     """
 
     name = "serial"
+    undecodable_what = "frames with a bad CRC or framing"
+
+    def undecodable_advice(self):
+        baudrate = getattr(self, "baudrate", None)
+        return ("the board must use the same baud rate%s and CRC (--crc %s; eProsima and micro-ROS "
+                "use arc), and send XRCE serial framing" % (
+                    " (-b %d)" % baudrate if baudrate else "", self.crc_name))
 
     def __init__(self, receiver, *, crc="arc"):
         super().__init__(receiver)
@@ -81,7 +88,10 @@ class SerialFramedLink(Link):
         self.stats.bytes_in += len(data)
         before = port.dropped_frames()
         frames = port.decoder.feed(data)
-        self.stats.drops += port.dropped_frames() - before
+        dropped = port.dropped_frames() - before
+        self.stats.drops += dropped
+        if dropped and not frames:
+            self.undecodable.bad(dropped, where=port.name)
         for src, _dst, payload in frames:
             endpoint = (port.name, src)
             port.remotes.add(src)
@@ -165,7 +175,10 @@ class SerialServer(SerialFramedLink):
     opened. Hot-plug: when a device fails (EIO or end of file after a USB unplug) its sessions are
     forgotten (``endpoint_closed``) and the same path or glob is tried again every
     ``reopen_interval`` seconds until it opens; the port keeps its name (the path or glob as given),
-    so endpoints stay the same across a re-plug. Every device must open at start.
+    so endpoints stay the same across a re-plug. A device that is not there yet at start (no such
+    path, no glob match: the board is not plugged in) is waited for the same way, as eProsima's
+    agent does, with one line saying so; a device that is there but cannot be opened (permissions,
+    not a serial port) is an error at start.
     """
 
     def __init__(self, receiver, devices, *, baudrate=DEFAULT_BAUDRATE, crc="arc",
@@ -184,6 +197,12 @@ class SerialServer(SerialFramedLink):
 
     async def start(self):
         for device in self.devices:
+            if _absent(device):
+                log.warning("%s: %s is not there yet; waiting for it (checked every %.1f s)",
+                            self.name, device, self.reopen_interval)
+                self._reopen_tasks[device] = asyncio.ensure_future(
+                    self._reopen(device, reported=True, verb="appeared"))
+                continue
             try:
                 self._open(device)
             except OSError:
@@ -211,8 +230,7 @@ class SerialServer(SerialFramedLink):
                         self.reopen_interval)
             self._reopen_tasks[port.name] = asyncio.ensure_future(self._reopen(port.name))
 
-    async def _reopen(self, device):
-        reported = False
+    async def _reopen(self, device, reported=False, verb="is back"):
         try:
             while not self._closing:
                 await asyncio.sleep(self.reopen_interval)
@@ -223,8 +241,9 @@ class SerialServer(SerialFramedLink):
                         reported = True
                         log.info("%s: %s not back yet (%s)", self.name, device, exc)
                     continue
-                self.reopens += 1
-                log.warning("%s: %s is back (%s), serving it again", self.name, device, path)
+                if verb == "is back":
+                    self.reopens += 1
+                log.warning("%s: %s %s (%s), serving it", self.name, device, verb, path)
                 return
         finally:
             self._reopen_tasks.pop(device, None)
@@ -238,6 +257,14 @@ class SerialServer(SerialFramedLink):
             task.cancel()
         self._reopen_tasks.clear()
         await super().close()
+
+
+def _absent(device):
+    """True when nothing is at ``device`` yet (a board not plugged in), as opposed to something
+    there that cannot be opened."""
+    if glob.has_magic(device):
+        return not glob.glob(device)
+    return not os.path.lexists(device) or not os.path.exists(device)
 
 
 def _resolve_device(device):
