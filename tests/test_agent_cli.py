@@ -17,6 +17,7 @@ import pytest
 from xrce import constants as C
 from xrce.agent.cli import load_refs
 from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
+from xrce.transports.crc import get_crc
 from xrce.transports.framing import (
     FrameDecoder,
     LengthPrefixDecoder,
@@ -153,6 +154,18 @@ def ipv6_loopback():
     (["multiserial", "-b", "fast", "--devs", "a b"], "-b/--baudrate"),
     (["udp4", "-p", "8888", "-m", "zenoh"], "-m/--middleware"),
     (["udp4", "-p", "8888", "-r", "/nonexistent/refs.xml"], "refs"),
+    # issue 23: each names the flag and what to do, before anything starts
+    (["udp4", "-p", "0", "-m", "ced", "--capture", "/nonexistent/dir/f"], "--capture"),
+    (["udp4", "-p", "0", "-m", "ced", "--capture", "/"], "--capture"),
+    (["udp4", "-p", "0", "-m", "ced", "--interfaces", "/nonexistent"], "--interfaces"),
+    (["udp4", "-p", "0", "-m", "ced", "--interfaces", "/etc/passwd"], "--interfaces"),
+    (["udp4", "-p", "0", "-m", "ced", "--stats-port", "70000"], "--stats-port"),
+    (["demo", "--duration", "-1"], "--duration"),
+    (["demo", "--duration", "soon"], "--duration"),
+    (["demo", "--domain", "300"], "--domain"),
+    (["demo", "--domain", "1", "--lan"], "--lan"),
+    (["stats", "-p", "70000"], "-p/--port"),
+    (["stats", "-p", "1", "-i", "0"], "--interval"),
 ])
 def test_bad_arguments_give_one_line_and_exit_2(args, mentions):
     code, out, err = run_cli(*args)
@@ -161,6 +174,31 @@ def test_bad_arguments_give_one_line_and_exit_2(args, mentions):
     lines = err.splitlines()
     assert len(lines) == 1, err
     assert lines[0].startswith("xrce-agent: error: ") and mentions in lines[0]
+    assert "Traceback" not in err
+
+
+def test_demo_reports_a_bad_ros_domain_id_in_one_line():
+    env = dict(_env(), ROS_DOMAIN_ID="abc")
+    done = subprocess.run([sys.executable, "-m", "xrce.agent", "demo", "--lan"], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=START_TIMEOUT)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.splitlines() == [
+        "xrce-agent demo: error: ROS_DOMAIN_ID=abc is not a domain id (unset it, or pass --domain N)"]
+
+
+def test_help_shows_defaults_and_what_each_option_is_for():
+    def help_text(*args):
+        code, out, err = run_cli(*args, "-h")
+        assert code == 0 and err == ""
+        return " ".join(out.split())  # argparse wraps at the terminal width
+
+    assert "-b BAUD, --baudrate BAUD line speed" in help_text("serial")
+    assert "(default 115200, as eProsima)" in help_text("multiserial")
+    stats = help_text("stats")
+    assert "--host HOST where that agent runs (default 127.0.0.1" in stats
+    assert "--json print one raw JSON snapshot and exit" in stats
+    demo = help_text("demo")
+    assert "a private domain on this machine only" in demo and "--lan" in demo
 
 
 def test_help_lists_every_subcommand():
@@ -235,19 +273,95 @@ def test_pseudoterminal_prints_its_slave_and_links_dev(agent, tmp_path):
     assert not os.path.lexists(link)
 
 
-def test_a_port_in_use_is_one_line_and_exit_1():
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
+@pytest.mark.parametrize("transport, kind", [("tcp4", socket.SOCK_STREAM), ("udp4", socket.SOCK_DGRAM)])
+def test_a_port_in_use_is_one_line_naming_it_and_exit_1(transport, kind):
+    with socket.socket(socket.AF_INET, kind) as busy:
         busy.bind(("0.0.0.0", 0))
+        if kind == socket.SOCK_STREAM:
+            busy.listen()
+        port = busy.getsockname()[1]
+        code, out, err = run_cli(transport, "-p", str(port), "-m", "ced", "-v", "0")
+    assert code == 1 and out == ""
+    assert err.splitlines() == ["xrce-agent: error: cannot open %s port %d (-p): Address already in "
+                                "use (another agent there? choose another -p)" % (transport, port)]
+
+
+def test_a_stats_port_in_use_names_the_flag():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
+        busy.bind(("127.0.0.1", 0))
         busy.listen()
-        code, out, err = run_cli("tcp4", "-p", str(busy.getsockname()[1]), "-m", "ced", "-v", "0")
+        port = busy.getsockname()[1]
+        code, out, err = run_cli("udp4", "-p", "0", "-m", "ced", "-v", "0", "--stats-port", str(port))
     assert code == 1 and out == ""
-    assert len(err.splitlines()) == 1 and err.startswith("xrce-agent: error: ")
+    assert err.splitlines() == ["xrce-agent: error: cannot open stats port %d (--stats-port): "
+                                "Address already in use" % port]
 
 
-def test_serial_device_missing_is_one_line_and_exit_1(tmp_path):
-    code, out, err = run_cli("serial", "-D", str(tmp_path / "ttyNOPE"), "-m", "ced", "-v", "0")
+def test_a_serial_device_that_exists_but_is_no_tty_is_one_line_and_exit_1(tmp_path):
+    not_a_tty = tmp_path / "ttyFILE"
+    not_a_tty.write_bytes(b"")
+    code, out, err = run_cli("serial", "-D", str(not_a_tty), "-m", "ced", "-v", "0")
     assert code == 1 and out == ""
-    assert len(err.splitlines()) == 1 and "ttyNOPE" in err
+    assert len(err.splitlines()) == 1 and "ttyFILE" in err
+
+
+def test_serial_waits_for_a_device_that_is_not_there_yet_saying_so_once(agent, tmp_path):
+    """As eProsima's agent: ``serial --dev`` before the board is plugged in starts and waits; the
+    device is served as soon as it appears (here a symlink to a pty, made after the start)."""
+    later = tmp_path / "ttyLATER"
+    process = agent("serial", "-D", str(later), "-m", "ced")
+    assert process.banner.startswith("xrce-agent: serial agent on %s" % later)
+    time.sleep(1.0)  # several re-open attempts: still one line
+    waiting = [l for l in process.stderr_text().splitlines() if "ttyLATER" in l]
+    assert len(waiting) == 1 and "not there yet; waiting for it" in waiting[0], waiting
+    master, slave = os.openpty()
+    try:
+        tty.setraw(master, termios.TCSANOW)
+        os.symlink(os.ttyname(slave), later)
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        while "appeared" not in process.stderr_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "appeared" in process.stderr_text(), process.stderr_text()
+        _framed_conversation(master).run_section_13()
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert process.stop() == 0
+
+
+def test_undecodable_datagrams_give_one_hint_at_the_default_verbosity(agent):
+    process = agent("udp4", "-p", "0", "-m", "ced")  # -v 4, the default
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as junk:
+        for i in range(50):
+            junk.sendto(b"not XRCE at all %d" % i, ("127.0.0.1", process.port()))
+        probe = encode_message(0x80, 0, 0, None, [GetInfo(0xAA, C.OBJECTID_AGENT, 1)])
+        junk.settimeout(REPLY_TIMEOUT)
+        junk.sendto(probe, ("127.0.0.1", process.port()))
+        junk.recv(65536)  # answered: every junk datagram before it was read
+    assert process.stop() == 0
+    hints = [l for l in process.stderr_text().splitlines() if "nothing decodable" in l]
+    assert len(hints) == 1, process.stderr_text()
+    assert "WARNING" in hints[0] and "not XRCE" in hints[0] and "port %d" % process.port() in hints[0]
+
+
+def test_frames_with_the_wrong_crc_give_one_hint_naming_baud_rate_and_crc(agent):
+    process = agent("pseudoterminal", "-m", "ced")  # CRC-16/ARC, the default
+    slave_path = re.search(r"pseudoterminal at (/dev/\S+)", process.banner).group(1)
+    fd = os.open(slave_path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd, termios.TCSANOW)
+        request = encode_message(0x80, 0, 0, None, [GetInfo(0xAA, C.OBJECTID_AGENT, 1)])
+        for _ in range(20):  # a client framing with X.25 instead
+            os.write(fd, encode_frame(request, 1, 0, crc=get_crc("ccitt")))
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        while "nothing decodable" not in process.stderr_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        os.close(fd)
+    assert process.stop() == 0
+    hints = [l for l in process.stderr_text().splitlines() if "nothing decodable" in l]
+    assert len(hints) == 1, process.stderr_text()
+    assert "bad CRC" in hints[0] and "--crc arc" in hints[0]
 
 
 # ------------------------------------------------------------------ end to end (XRCE-WIRE.md §13)
@@ -472,3 +586,31 @@ def test_verbosity_6_traces_every_message_and_0_is_silent(agent, verbosity, trac
         assert "TRACE" in log_text and "CREATE_CLIENT" in log_text and "STATUS_AGENT" in log_text
     else:
         assert log_text == ""
+
+
+# ------------------------------------------------------------------ xrce-agent stats (issue 23)
+
+def test_stats_json_is_one_snapshot_and_a_closed_reader_ends_it_quietly(agent):
+    import json
+
+    process = agent("udp4", "-p", "0", "-m", "ced", "--stats-port", "0")
+    stats_port = int(re.search(r"stats on 127\.0\.0\.1:(\d+)", process.banner).group(1))
+    code, out, err = run_cli("stats", "-p", str(stats_port), "--json")
+    assert code == 0 and err == ""
+    snapshot = json.loads(out)  # one document, then exit: no loop
+    assert snapshot["links"][0]["name"] == "udp4"
+    # `xrce-agent stats | head -n 1`: the reader goes away while the view keeps refreshing.
+    view = subprocess.Popen([sys.executable, "-m", "xrce.agent", "stats", "-p", str(stats_port),
+                             "-i", "0.05"], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    try:
+        assert view.stdout.readline().startswith(b"xrce-agent up ")
+        view.stdout.close()
+        assert view.wait(EXIT_TIMEOUT) == 0
+        assert view.stderr.read() == b""  # no BrokenPipeError traceback
+    finally:
+        if view.poll() is None:
+            view.kill()
+            view.wait()
+        view.stderr.close()
+    assert process.stop() == 0

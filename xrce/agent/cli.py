@@ -11,14 +11,16 @@ either returns the links to serve (``make_links``) or runs on its own (``run``),
 ``build-interfaces`` or ``stats`` can be registered without touching the agent start-up.
 
 Once every link is open, one banner line goes to stdout (flushed) — tests wait for it. Errors in the
-arguments give one ``xrce-agent: error: ...`` line on stderr and exit code 2; a port that cannot be
-opened gives one line and exit code 1; SIGINT/SIGTERM close the agent cleanly and exit 0.
+arguments (a path that cannot be used included) give one ``xrce-agent: error: ...`` line on stderr
+naming the flag, and exit code 2; a port that cannot be opened gives one line naming it and exit
+code 1; SIGINT/SIGTERM close the agent cleanly and exit 0 (as eProsima's agent).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import logging
 import os
 import signal
@@ -83,6 +85,16 @@ def _port(text):
         raise argparse.ArgumentTypeError("invalid port: %r" % text)
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError("port %d is not in 0..65535" % value)
+    return value
+
+
+def _seconds(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid number of seconds: %r" % text)
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError("must be 0 or more seconds, not %s" % text)
     return value
 
 
@@ -223,16 +235,24 @@ def _add_crc_option(parser):
                         help="frame checksum: CRC-16/ARC (default, as eProsima) or CRC-16/X.25")
 
 
+def _add_baudrate_option(parser):
+    parser.add_argument("-b", "--baudrate", type=_baudrate, default=links.DEFAULT_BAUDRATE,
+                        metavar="BAUD", help="line speed; the board must use the same "
+                                             "(default %(default)s, as eProsima)")
+
+
 def _add_serial_options(parser):
-    parser.add_argument("-D", "--dev", required=True, metavar="DEVICE", help="serial device")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=links.DEFAULT_BAUDRATE)
+    parser.add_argument("-D", "--dev", required=True, metavar="DEVICE",
+                        help="serial device or glob (waited for until it appears; reopened when "
+                             "it comes back after vanishing)")
+    _add_baudrate_option(parser)
     _add_crc_option(parser)
 
 
 def _add_multiserial_options(parser):
     parser.add_argument("--devs", required=True, metavar='"DEV1 DEV2 ..."',
                         help="space-separated serial devices")
-    parser.add_argument("-b", "--baudrate", type=_baudrate, default=links.DEFAULT_BAUDRATE)
+    _add_baudrate_option(parser)
     _add_crc_option(parser)
 
 
@@ -282,8 +302,25 @@ def _pty_links(args, agent):
 def _add_demo_options(parser):
     parser.add_argument("--serial", action="store_true",
                         help="robot on the agent's pseudoterminal at 115200 baud (default UDP)")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
-                        help="stop after S seconds (default: until Ctrl-C)")
+    parser.add_argument("--duration", type=_seconds, default=0.0, metavar="S",
+                        help="stop after S seconds (default 0: until Ctrl-C)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--domain", type=_domain_id, metavar="N",
+                       help="publish in ROS domain N with the usual discovery range, so other "
+                            "machines see it (default: a private domain on this machine only)")
+    where.add_argument("--lan", action="store_true",
+                       help="publish in $ROS_DOMAIN_ID (else 0) with the usual discovery range, so "
+                            "a robot on the LAN in that domain would obey its /cmd_vel")
+
+
+def _domain_id(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid domain id: %r" % text)
+    if not 0 <= value <= 232:  # the largest id whose RTPS ports still fit in 16 bits
+        raise argparse.ArgumentTypeError("domain id %d is not in 0..232" % value)
+    return value
 
 
 def _run_demo(args):
@@ -383,6 +420,31 @@ def load_refs(path):
     return refs
 
 
+def check_paths(args):
+    """Paths named on the command line, checked before anything starts, so a typo is one line
+    naming the flag (exit 2) rather than an errno once the agent is half up, or silence."""
+    for directory in getattr(args, "interfaces", ()):
+        if not os.path.isdir(directory):
+            what = "does not exist" if not os.path.exists(directory) else "is not a directory"
+            raise CliError("argument --interfaces: %s %s (give a directory holding interface "
+                           "packages, each with its package.xml)" % (directory, what))
+    capture = getattr(args, "capture", None)
+    if capture:
+        parent = os.path.dirname(os.path.abspath(capture))
+        if os.path.isdir(capture):
+            raise CliError("argument --capture: %s is a directory (give a file name)" % capture)
+        if not os.path.isdir(parent):
+            raise CliError("argument --capture: directory %s does not exist (create it or "
+                           "write the capture elsewhere)" % parent)
+        if not os.access(parent, os.W_OK) or (os.path.exists(capture)
+                                              and not os.access(capture, os.W_OK)):
+            raise CliError("argument --capture: %s is not writable (write the capture "
+                           "elsewhere)" % capture)
+    stats_port = getattr(args, "stats_port", None)
+    if stats_port is not None and not 0 <= stats_port <= 65535:
+        raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
+
+
 def make_middleware(name):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
@@ -443,7 +505,7 @@ async def serve(args, refs):
             observe = observability.Observability.from_args(args, agent, started, middleware)
             await observe.start()
         except OSError as exc:
-            sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+            sys.stderr.write("%s: error: %s\n" % (PROG, _open_error(args, links, started, exc)))
             sys.stderr.flush()
             return 1
         banner = "; ".join(link.describe() for link in started)
@@ -477,6 +539,28 @@ async def serve(args, refs):
             loop.remove_signal_handler(signum)
 
 
+def _open_error(args, links, started, exc):
+    """What could not be opened, by flag and port: the errno alone does not say which."""
+    # asyncio's servers wrap the errno in their own sentence; the errno's own words are enough.
+    reason = os.strerror(exc.errno) if exc.errno else (exc.strerror or str(exc))
+    if getattr(exc, "filename", None):  # a file, not a socket
+        return "cannot open %s: %s" % (exc.filename, reason)
+    pending = [link for link in links if link not in started]
+    if pending:
+        link = pending[0]
+        port = getattr(link, "requested_port", None)
+        if port is not None:
+            hint = " (another agent there? choose another -p)" if exc.errno == errno.EADDRINUSE else ""
+            return "cannot open %s port %d (-p): %s%s" % (link.name, port, reason, hint)
+        return "cannot open %s: %s" % (link.describe(), reason)
+    if getattr(args, "discovery", None) is not None and not any(
+            isinstance(link, udp_links.DiscoveryServer) for link in started):
+        return "cannot open discovery port %d (-d): %s" % (args.discovery, reason)
+    if getattr(args, "stats_port", None) is not None:
+        return "cannot open stats port %d (--stats-port): %s" % (args.stats_port, reason)
+    return reason
+
+
 def _print_stats(agent, links):
     """SIGUSR1: one ``xrce-agent: stats {json}`` line on stdout with the engine's and every link's
     counters, for scripts and tests watching a running agent."""
@@ -498,6 +582,7 @@ def main(argv=None):
         parser.error("--allow-from needs an IP link (udp4, udp6, tcp4, tcp6), not %s"
                      % args.subcommand)
     try:
+        check_paths(args)
         refs = load_refs(args.refs) if args.refs else None
     except CliError as exc:
         parser.error(str(exc))

@@ -412,11 +412,14 @@ class Observability:
 def add_stats_options(parser) -> None:
     parser.add_argument("-p", "--port", type=int, required=True,
                         help="the agent's --stats-port")
-    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="where that agent runs (default 127.0.0.1; the stats port listens "
+                             "on loopback only, so another host needs a tunnel)")
     parser.add_argument("-i", "--interval", type=float, default=1.0, metavar="S",
                         help="seconds between refreshes (default 1)")
     parser.add_argument("--once", action="store_true", help="print one table and exit")
-    parser.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
+    parser.add_argument("--json", action="store_true",
+                        help="print one raw JSON snapshot and exit (for scripts)")
 
 
 def run_stats(args) -> int:

@@ -108,23 +108,44 @@ def fetch_stats(port: int, host: str = "127.0.0.1", timeout_s: float = 2.0) -> d
 
 
 def run_stats(args) -> int:
-    """``xrce-agent stats``: poll a running agent and redraw its tables until Ctrl-C."""
-    clear = "\x1b[H\x1b[2J" if sys.stdout.isatty() and not args.once else ""
+    """``xrce-agent stats``: poll a running agent and redraw its tables until Ctrl-C (exit 130);
+    ``--once`` and ``--json`` print one snapshot and exit 0. A reader that goes away (``| head``)
+    ends it quietly."""
+    import os
+
+    if not 0 < args.port <= 65535:
+        sys.stderr.write("xrce-agent: error: argument -p/--port: port %d is not in 1..65535\n"
+                         % args.port)
+        return 2
+    if not args.interval > 0:
+        sys.stderr.write("xrce-agent: error: argument -i/--interval: must be more than 0 s\n")
+        return 2
+    once = args.once or args.json
+    clear = "\x1b[H\x1b[2J" if sys.stdout.isatty() and not once else ""
     try:
         while True:
             try:
                 snapshot = fetch_stats(args.port, args.host)
             except (OSError, ValueError) as exc:
-                sys.stderr.write("xrce-agent: error: cannot read stats from %s:%d: %s\n"
-                                 % (args.host, args.port, exc))
+                sys.stderr.write("xrce-agent: error: cannot read stats from %s:%d: %s (is an "
+                                 "agent running with --stats-port %d?)\n"
+                                 % (args.host, args.port, getattr(exc, "strerror", None) or exc,
+                                    args.port))
                 return 1
             text = json.dumps(snapshot) if args.json else format_snapshot(snapshot)
             sys.stdout.write(clear + text + "\n")
             sys.stdout.flush()
-            if args.once:
+            if once:
                 return 0
             time.sleep(args.interval)
     except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        # Nobody reads any more; point stdout at /dev/null so the interpreter's own flush at
+        # exit does not report the same broken pipe again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
         return 0
 
 
