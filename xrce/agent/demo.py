@@ -1,13 +1,19 @@
-"""``xrce-agent demo [--serial]``: agent + simulated TurtleBot3 + a ROS 2 node, in one command.
+"""``xrce-agent demo [--serial] [--domain N | --lan]``: agent + simulated TurtleBot3 + a ROS 2 node,
+in one command.
 
 The agent (``-m dds``) and the robot (``python -m xrce.examples.turtlebot3``, over UDP or, with
 ``--serial``, over the agent's pseudoterminal at 115200 baud) run as child processes in their own
-process group, so a terminal Ctrl-C reaches only the demo, which then stops the robot first (it
-deletes its session) and the agent second. This process is the ROS side: it prints what arrives on
-``/sensor_state`` and ``/odom`` once a second and drives a square on ``/cmd_vel``. It uses the
-user's ROS_DOMAIN_ID (default 0), so ``ros2 topic echo /odom`` works alongside. Its options
-(``--serial``, ``--duration``) are declared in ``xrce.agent.cli``, which imports this module only
-when the demo runs.
+sessions, so a terminal's Ctrl-C or hang-up reaches only the demo, which then stops the robot first
+(it deletes its session) and the agent second, and exits only when both are gone (130 after Ctrl-C,
+129 after SIGHUP, 143 after SIGTERM). This process is the ROS side: it prints what arrives on
+``/sensor_state`` and ``/odom`` once a second and drives a closed square on ``/cmd_vel``.
+
+The demo publishes ``/cmd_vel``, which a real robot obeys: by default everything runs in a ROS
+domain of its own (the first free one of ``PRIVATE_DOMAINS``, held through an abstract socket
+name, so no lock file is left anywhere) with localhost-only discovery, and the banner says how to
+watch it from another shell. ``--domain N`` or ``--lan`` (the user's ``ROS_DOMAIN_ID``) publish
+with the usual discovery range, after a warning line. Its options are declared in
+``xrce.agent.cli``, which imports this module only when the demo runs.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import os
 import re
 import selectors
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -24,26 +31,84 @@ import time
 
 PROG = "xrce-agent demo"
 SIDE_M = 0.5
-LINEAR_SPEED = 0.15
+LINEAR_SPEED = 0.15  # nominal; the legs are fitted to whole command periods (_Square)
 ANGULAR_SPEED = 0.6
 COMMAND_PERIOD_S = 0.1  # 10 Hz: well inside the robot's 0.5 s fail-safe
 PRINT_PERIOD_S = 1.0
 START_TIMEOUT_S = 60.0
+BUILD_PROGRESS_PERIOD_S = 5.0
+PRIVATE_DOMAINS = range(150, 170)  # clear of the test suite's leases (24, 40..99)
+EXIT_CODES = {signal.SIGINT: 130, signal.SIGHUP: 129, signal.SIGTERM: 143}
 
 
 def _say(text):
-    sys.stdout.write(text + "\n")
-    sys.stdout.flush()
+    """A line on stdout; a terminal that went away (SIGHUP) must not stop the clean-up."""
+    try:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+    except (OSError, ValueError):
+        pass
 
 
-def _wait_banner(proc, timeout_s):
-    """The agent's banner line (port or pseudoterminal path), or None if it ended first."""
+class UsageError(Exception):
+    """A setting the demo cannot run with: one line, exit code 2."""
+
+
+def _private_domain():
+    """(domain id, the socket that holds it): the first domain of PRIVATE_DOMAINS no other demo on
+    this machine holds. An abstract-namespace socket name is the lock: the kernel drops it with
+    the process, however it ends, and it leaves no file behind."""
+    for domain in PRIVATE_DOMAINS:
+        holder = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            holder.bind("\0xrce-agent-demo-domain-%d" % domain)
+        except OSError:
+            holder.close()
+            continue
+        return domain, holder
+    raise UsageError("every private demo domain %d..%d is taken by another demo; pass --domain N"
+                     % (PRIVATE_DOMAINS[0], PRIVATE_DOMAINS[-1]))
+
+
+def _user_domain():
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return 0
+    try:
+        return int(text)
+    except ValueError:
+        raise UsageError("ROS_DOMAIN_ID=%s is not a domain id (unset it, or pass --domain N)"
+                         % text) from None
+
+
+def choose_network(args):
+    """(domain, localhost only, holder socket or None, environment for the children)."""
+    env = dict(os.environ)
+    env.pop("PYTHONSTARTUP", None)
+    if args.domain is None and not args.lan:
+        domain, holder = _private_domain()
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        env.pop("ROS_STATIC_PEERS", None)
+        env.pop("ROS_LOCALHOST_ONLY", None)  # Jazzy's deprecated switch; the range above decides
+        env["ROS_DOMAIN_ID"] = str(domain)
+        return domain, True, holder, env
+    domain = args.domain if args.domain is not None else _user_domain()
+    env["ROS_DOMAIN_ID"] = str(domain)
+    return domain, False, None, env
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _wait_banner(proc, timeout_s, stop, seen):
+    """The agent's banner line (port or pseudoterminal path), or None if it ended first or the
+    demo was stopped. Every other line it printed meanwhile is kept in ``seen``."""
     selector = selectors.DefaultSelector()
     selector.register(proc.stdout, selectors.EVENT_READ)
     deadline = time.monotonic() + timeout_s
     try:
-        while time.monotonic() < deadline:
-            if not selector.select(timeout=0.5):
+        while time.monotonic() < deadline and not stop.is_set():
+            if not selector.select(timeout=0.2):
                 if proc.poll() is not None:
                     return None
                 continue
@@ -52,13 +117,27 @@ def _wait_banner(proc, timeout_s):
                 return None
             if line.startswith("xrce-agent:") and ("on port" in line or "pseudoterminal at" in line):
                 return line.strip()
+            seen.append(_ANSI.sub("", line).strip())
     finally:
         selector.close()
     return None
 
 
+def _agent_failure(proc, seen):
+    """What the agent said before it ended: its own error lines, or the last lines it printed."""
+    try:
+        rest, _ = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        rest = ""
+    lines = [l for l in seen + [_ANSI.sub("", l).strip() for l in (rest or "").splitlines()] if l]
+    errors = [l for l in lines if l.startswith("xrce-agent: error:")]
+    shown = errors or lines[-3:]
+    return shown, proc.returncode
+
+
 def _forward_output(proc, prefix):
-    """Relay a child's output lines to ours (a thread per child: the pipes must never fill)."""
+    """Relay a child's output lines to ours (a thread per child: the pipes must never fill, even
+    after our terminal went away, or the child would block in a write and never stop)."""
     def pump():
         for line in proc.stdout:
             _say(prefix + line.rstrip("\n"))
@@ -80,49 +159,85 @@ def stop_child(proc, timeout_s=10.0):
         proc.wait()
 
 
-def _ensure_interfaces():
+def _ensure_interfaces(stop):
     """Build turtlebot3_msgs and tf2_msgs (a cache hit after the first run) unless the ROS in use
-    has them already (apt's ros-jazzy-tf2-msgs, ...); False if not possible."""
+    has them already (apt's ros-jazzy-tf2-msgs, ...); False if not possible. The first build takes
+    ~25 s: a line says so after the first second (a cache hit is done by then), and another every
+    few seconds until it is done."""
     import importlib.machinery
 
+    missing = [name for name in ("tf2_msgs", "turtlebot3_msgs")
+               if importlib.machinery.PathFinder.find_spec(name) is None]
+    done = threading.Event()
+    started = time.monotonic()
+    if missing:
+        def progress():
+            if done.wait(1.0):  # a cache hit: nothing to say
+                return
+            _say("%s: building %s for rclpy (first run only, ~25 s; then cached)"
+                 % (PROG, " and ".join(missing)))
+            while not done.wait(BUILD_PROGRESS_PERIOD_S):
+                _say("%s: still building (%.0f s)..." % (PROG, time.monotonic() - started))
+        threading.Thread(target=progress, daemon=True).start()
     try:
-        from xrce.agent import interfaces
-        missing = [name for name in ("tf2_msgs", "turtlebot3_msgs")
-                   if importlib.machinery.PathFinder.find_spec(name) is None]
         if missing:
-            interfaces.build(names=missing)
+            from xrce.agent import interfaces
+
+            def report(result):
+                if not result.cached:
+                    _say("%s: built %s in %.1f s" % (PROG, result.name, result.seconds))
+            interfaces.build(names=missing, report=report)
         from turtlebot3_msgs.msg import SensorState  # noqa: F401
         return True
     except Exception as exc:  # the demo still shows /odom without them
-        _say("%s: turtlebot3_msgs unavailable (%s); /sensor_state will not be shown" % (PROG, exc))
+        if stop.is_set():  # Ctrl-C reached the build's cmake too: not worth a report
+            return False
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        _say("%s: turtlebot3_msgs unavailable (%s); /sensor_state will not be shown" % (PROG, reason))
         return False
+    finally:
+        done.set()
 
 
 def _yaw(q):
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
+def _fitted(amount, nominal_speed, period_s):
+    """(speed, commands) covering ``amount`` in a whole number of command periods, so that a leg
+    ends exactly on the command grid and the square closes (0.5 m at 0.15 m/s is 3.33 s: on a 0.1 s
+    grid the legs ran 3.4 s, and each corner turned ~2.8 degrees too far)."""
+    commands = max(1, round(amount / nominal_speed / period_s))
+    return amount / (commands * period_s), commands
+
+
 class _Square:
-    """Forward SIDE_M, turn 90°, four times, again and again: open-loop timing on /cmd_vel."""
+    """Forward SIDE_M, turn 90 degrees, four times, again and again: open loop on /cmd_vel, one
+    command per COMMAND_PERIOD_S, each leg a whole number of commands."""
 
-    def __init__(self):
-        self.legs = ((LINEAR_SPEED, 0.0, SIDE_M / LINEAR_SPEED),
-                     (0.0, ANGULAR_SPEED, (math.pi / 2) / ANGULAR_SPEED))
-        self.index = 0
-        self.leg_started = time.monotonic()
+    def __init__(self, period_s=COMMAND_PERIOD_S):
+        linear, forward = _fitted(SIDE_M, LINEAR_SPEED, period_s)
+        angular, turn = _fitted(math.pi / 2, ANGULAR_SPEED, period_s)
+        self.legs = ((linear, 0.0, forward), (0.0, angular, turn))
+        self.sent = 0  # commands so far
 
-    def command(self, now):
-        linear, angular, seconds = self.legs[self.index % 2]
-        if now - self.leg_started >= seconds:
-            self.index += 1
-            self.leg_started = now
-            linear, angular, _ = self.legs[self.index % 2]
-        return linear, angular
+    def next_command(self):
+        """(linear m/s, angular rad/s) of the next command period."""
+        forward, turn = self.legs[0][2], self.legs[1][2]
+        position = self.sent % (forward + turn)
+        self.sent += 1
+        leg = self.legs[0] if position < forward else self.legs[1]
+        return leg[0], leg[1]
 
 
 def run(args):
     from xrce.agent import rosenv
 
+    try:
+        domain, localhost_only, holder, env = choose_network(args)
+    except UsageError as exc:
+        sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+        return 2
     try:
         line, warning = rosenv.describe()
     except rosenv.RosUnavailable as exc:
@@ -131,20 +246,42 @@ def run(args):
     _say("%s: %s" % (PROG, line))
     if warning:
         _say("%s: warning: %s" % (PROG, warning))
+    if not localhost_only:
+        _say("%s: warning: publishing /cmd_vel in ROS domain %d to the whole network: a robot "
+             "in that domain will move (leave out --domain/--lan to stay on this machine)"
+             % (PROG, domain))
+    # This process's own node joins the same domain with the same discovery range.
+    os.environ.update({k: v for k, v in env.items() if k.startswith("ROS_")})
+    for name in ("ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY"):
+        if name not in env:
+            os.environ.pop(name, None)
     stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    have_sensor_state = _ensure_interfaces()
-    domain = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    stopped_by = []
+
+    def on_signal(signum, frame):
+        stopped_by.append(signum)
+        stop.set()
+    previous = {s: signal.signal(s, on_signal) for s in EXIT_CODES}
     agent = robot = None
     try:
+        have_sensor_state = _ensure_interfaces(stop)
+        if stop.is_set():
+            return EXIT_CODES[stopped_by[0]]
         link = ["pseudoterminal"] if args.serial else ["udp4", "-p", "0"]
         agent = subprocess.Popen([sys.executable, "-m", "xrce.agent", *link, "-m", "dds", "-v", "3"],
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                 start_new_session=True)
-        banner = _wait_banner(agent, START_TIMEOUT_S)
-        if banner is None or stop.is_set():
-            _say("%s: the agent did not start" % PROG)
-            return 0 if stop.is_set() else 1
+                                 start_new_session=True, env=env)
+        seen = []
+        banner = _wait_banner(agent, START_TIMEOUT_S, stop, seen)
+        if stop.is_set():
+            return EXIT_CODES[stopped_by[0]]
+        if banner is None:
+            stop_child(agent)
+            shown, code = _agent_failure(agent, seen)
+            _say("%s: the agent did not start (exit %s)%s" % (PROG, code, ":" if shown else ""))
+            for text in shown:
+                _say("[agent] " + text)
+            return 1
         _say(banner)
         _forward_output(agent, "[agent] ")
         if args.serial:
@@ -155,15 +292,23 @@ def run(args):
         robot = subprocess.Popen([sys.executable, "-m", "xrce.examples.turtlebot3", *robot_link,
                                   "--domain", str(domain)],
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                 start_new_session=True)
+                                 start_new_session=True, env=env)
         _forward_output(robot, "[robot] ")
+        if localhost_only:
+            _say("%s: watch it from another shell on this machine: ROS_DOMAIN_ID=%d "
+                 "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ros2 topic echo /odom" % (PROG, domain))
+        else:
+            _say("%s: watch it from another shell: ROS_DOMAIN_ID=%d ros2 topic echo /odom"
+                 % (PROG, domain))
         _ros_side(domain, have_sensor_state, stop, args.duration)
-        return 0
+        return EXIT_CODES[stopped_by[0]] if stopped_by else 0
     finally:
         stop_child(robot)
         stop_child(agent)
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        if holder is not None:
+            holder.close()
         _say("%s: stopped" % PROG)
 
 
@@ -206,10 +351,12 @@ def _ros_side(domain, have_sensor_state, stop, duration_s):
             now = time.monotonic()
             if duration_s and now - started >= duration_s:
                 break
-            if now >= next_command:
+            if now >= next_command and square.sent == 0 and not cmd_vel.get_subscription_count():
+                next_command += COMMAND_PERIOD_S  # the robot would miss the first leg's start
+            elif now >= next_command:
                 next_command += COMMAND_PERIOD_S
                 twist = Twist()
-                twist.linear.x, twist.angular.z = square.command(now)
+                twist.linear.x, twist.angular.z = square.next_command()
                 cmd_vel.publish(twist)
             if now >= next_print:
                 next_print += PRINT_PERIOD_S

@@ -9,9 +9,13 @@ from xrce.examples.turtlebot3 import TurtleBot3, _Periodic
 
 
 def status_line(robot):
-    return ("turtlebot3: x=%.3f y=%.3f yaw=%.3f v=%.3f w=%.3f commands=%d failsafe_trips=%d "
-            "published=%r" % (robot.x, robot.y, robot.yaw, robot.linear, robot.angular,
-                              robot.commands_received, robot.failsafe_trips, robot.published))
+    import math
+
+    published = ", ".join("%s %d" % (topic, count) for topic, count in sorted(robot.published.items()))
+    return ("turtlebot3: at x=%+.3f m y=%+.3f m yaw=%+.1f deg, moving %.2f m/s %+.2f rad/s; "
+            "%d cmd_vel received, fail-safe stopped it %d times; published %s"
+            % (robot.x, robot.y, math.degrees(robot.yaw), robot.linear, robot.angular,
+               robot.commands_received, robot.failsafe_trips, published or "nothing"))
 
 
 def _make_transport(args):
@@ -32,10 +36,11 @@ def main(argv=None):
     sub = parser.add_subparsers(dest="transport", required=True)
     udp = sub.add_parser("udp4", help="reach the agent over UDP/IPv4")
     udp.add_argument("--agent", default="127.0.0.1", help="agent address (default 127.0.0.1)")
-    udp.add_argument("-p", "--port", type=int, default=8888)
+    udp.add_argument("-p", "--port", type=int, default=8888, help="agent port (default 8888)")
     serial = sub.add_parser("serial", help="reach the agent over a serial line")
-    serial.add_argument("--dev", "-D", required=True)
-    serial.add_argument("-b", "--baudrate", type=int, default=115200)
+    serial.add_argument("--dev", "-D", required=True, help="serial device")
+    serial.add_argument("-b", "--baudrate", type=int, default=115200,
+                        help="line speed (default 115200)")
     for child in (udp, serial):
         child.add_argument("--domain", type=int, default=None,
                            help="ROS domain of the node (default: $ROS_DOMAIN_ID or 0)")
@@ -47,7 +52,13 @@ def main(argv=None):
                            help="agent pings before giving up (0: forever)")
     args = parser.parse_args(argv)
     import os
-    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    domain = args.domain
+    if domain is None:
+        try:
+            domain = int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+        except ValueError:
+            parser.error("ROS_DOMAIN_ID=%s is not a number (unset it or pass --domain N)"
+                         % os.environ["ROS_DOMAIN_ID"])
 
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
@@ -61,8 +72,9 @@ def main(argv=None):
             return 1
         if not robot.setup():
             return 1
-        log("turtlebot3: running (node %s, domain %d, failed topics %r)"
-            % (robot.node_name, domain, robot.failed_topics))
+        failed = ", ".join(robot.failed_topics) if robot.failed_topics else "none"
+        log("turtlebot3: running (node %s, domain %d; topics the agent refused: %s)"
+            % (robot.node_name, domain, failed))
         status = None
         if args.status_period > 0:
             status = _Periodic(int(args.status_period * 1000), ticks_ms())
