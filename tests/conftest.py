@@ -1,6 +1,6 @@
 """Fixtures shared by several test modules, defined here once: pytest builds a session-scoped one
 once per run (an import into two modules would make two), and a test module gets the engine
-fixture without importing it."""
+fixture without importing it. The run leaves nothing in ~/.ros or /dev/shm (tests/hygiene.py)."""
 
 import os
 import termios
@@ -9,7 +9,24 @@ import tty
 import pytest
 
 from engine_peer import ced_agent  # noqa: F401
+from hygiene import PrivateRosLogDir, remove_dead_fastdds_segments, shm_names
 from install_env import sourced_ros, wheel_venv, xrce_wheels  # noqa: F401
+
+_run = {}
+
+
+def pytest_configure(config):
+    # Before any test imports rclpy and starts a context: rcl reads ROS_LOG_DIR at its first init.
+    _run["ros_log"] = PrivateRosLogDir()
+    _run["shm_before"] = shm_names()
+
+
+def pytest_unconfigure(config):
+    ros_log = _run.pop("ros_log", None)
+    if ros_log is not None:
+        ros_log.close()
+    if "shm_before" in _run:
+        remove_dead_fastdds_segments(_run.pop("shm_before"))
 
 
 @pytest.fixture
