@@ -1,0 +1,164 @@
+"""``xrce-agent demo`` (issue 23): it cannot drive a robot on the user's network by default, it
+ends with no child left behind however the terminal ends it, and its square closes.
+
+The demo runs as a real process (agent, simulated TurtleBot3 and its ROS node), with the test's
+own rclpy participants listening where a robot would."""
+
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from ros_helpers import RosPeer, ros_domain, ros_peer, wait_until  # noqa: F401
+
+REPO = Path(__file__).resolve().parent.parent
+START_TIMEOUT = 240.0  # the first run builds turtlebot3_msgs (~25 s idle, more beside a CPU hog)
+EXIT_TIMEOUT = 60.0
+
+
+class Demo:
+    def __init__(self, *args, env=None):
+        self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", "demo", *args], cwd=REPO,
+                                     env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})),
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.lines = []
+        self._changed = threading.Condition()
+        self._reader = threading.Thread(target=self._collect, daemon=True)
+        self._reader.start()
+
+    def _collect(self):
+        for line in self.proc.stdout:
+            with self._changed:
+                self.lines.append(line.rstrip("\n"))
+                self._changed.notify_all()
+
+    def wait_line(self, pattern, timeout=START_TIMEOUT):
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while True:
+                for line in self.lines:
+                    match = re.search(pattern, line)
+                    if match:
+                        return match
+                left = deadline - time.monotonic()
+                if left <= 0 or (self.proc.poll() is not None and not self._reader.is_alive()):
+                    raise AssertionError("no line matching %r in:\n%s" % (pattern, "\n".join(self.lines)))
+                self._changed.wait(min(left, 0.2))
+
+    def children(self):
+        """PIDs of the demo's direct children (the agent and the robot)."""
+        found = []
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            try:
+                with open("/proc/%s/status" % entry) as status:
+                    fields = dict(line.split(":\t", 1) for line in status if ":\t" in line)
+            except OSError:
+                continue
+            if int(fields.get("PPid", "0").strip()) == self.proc.pid:
+                found.append(int(entry))
+        return found
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(EXIT_TIMEOUT)
+        self._reader.join(EXIT_TIMEOUT)
+        self.proc.stdout.close()
+
+
+def _alive(pid):
+    try:
+        with open("/proc/%d/status" % pid) as status:
+            return "State:\tZ" not in status.read()
+    except OSError:
+        return False
+
+
+def test_the_demo_drives_its_own_domain_only_and_nothing_reaches_the_users(ros_peer, ros_domain):  # noqa: F811
+    """A node in the user's ROS_DOMAIN_ID (where the demo published before) gets no /cmd_vel and
+    no /odom from a default demo; a node in the demo's private domain, named by its banner, does
+    (so the silence is isolation, not a demo that never ran)."""
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+
+    users_cmd_vel, users_odom = [], []
+    ros_peer.node.create_subscription(Twist, "/cmd_vel", users_cmd_vel.append, 10)
+    ros_peer.node.create_subscription(Odometry, "/odom", users_odom.append, 10)
+    demo = Demo(env={"ROS_DOMAIN_ID": str(ros_domain)})
+    private_peer = None
+    try:
+        watch = demo.wait_line(r"ROS_DOMAIN_ID=(\d+) ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ros2 topic echo /odom")
+        private = int(watch.group(1))
+        assert private != ros_domain
+        assert not any("warning: publishing /cmd_vel" in line for line in demo.lines)
+        private_peer = RosPeer(private, node_name="xrce_test_watcher")
+        demo_cmd_vel = []
+        private_peer.node.create_subscription(Twist, "/cmd_vel", demo_cmd_vel.append, 10)
+        assert wait_until(lambda: len(demo_cmd_vel) >= 20, 60.0), demo.lines
+        demo.wait_line(r"^odom: #\d+ x=")  # the robot runs and its odometry reaches the demo
+        demo.proc.send_signal(signal.SIGINT)
+        assert demo.proc.wait(EXIT_TIMEOUT) == 130
+    finally:
+        if private_peer is not None:
+            private_peer.close()
+        demo.close()
+    assert users_cmd_vel == [] and users_odom == []
+    assert demo.lines[-1] == "xrce-agent demo: stopped"
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGHUP, 129), (signal.SIGTERM, 143)])
+def test_a_closed_terminal_stops_the_demo_with_no_child_left(ros_domain, signum, code):  # noqa: F811
+    demo = Demo("--duration", "0")
+    try:
+        demo.wait_line(r"driving a 0\.5 m square")
+        children = demo.children()
+        assert len(children) == 2, children  # the agent and the robot
+        demo.proc.send_signal(signum)
+        assert demo.proc.wait(EXIT_TIMEOUT) == code
+        time.sleep(2.0)
+        assert [pid for pid in children if _alive(pid)] == []
+    finally:
+        demo.close()
+    assert demo.lines[-1] == "xrce-agent demo: stopped"
+    assert not any("Traceback" in line for line in demo.lines), demo.lines
+
+
+def test_the_square_closes_each_leg_a_whole_number_of_command_periods():
+    from xrce.agent import demo
+
+    square = demo._Square()
+    forward, turn = square.legs[0][2], square.legs[1][2]
+    distance = heading = 0.0
+    for _ in range(4 * (forward + turn)):  # one lap: four sides, four corners
+        linear, angular = square.next_command()
+        distance += linear * demo.COMMAND_PERIOD_S
+        heading += angular * demo.COMMAND_PERIOD_S
+    assert distance == pytest.approx(4 * demo.SIDE_M, abs=1e-9)
+    assert heading == pytest.approx(2 * math.pi, abs=1e-9)
+    # each side and corner on its own: the command after a leg is already the next leg's
+    firsts = [square.next_command() for _ in range(forward + 1)]
+    assert firsts[-1][0] == 0.0 and firsts[-1][1] > 0
+    assert math.isclose(sum(c[0] for c in firsts) * demo.COMMAND_PERIOD_S, demo.SIDE_M)
+
+
+def test_the_demos_own_agent_error_is_passed_through(ros_domain):  # noqa: F811
+    """--lan with an out-of-range ROS_DOMAIN_ID: the agent refuses to start, and the demo shows
+    why (Fast DDS's own words) instead of only "the agent did not start"."""
+    done = subprocess.run([sys.executable, "-m", "xrce.agent", "demo", "--lan"], cwd=REPO,
+                          env=dict(os.environ, ROS_DOMAIN_ID="300"), capture_output=True, text=True,
+                          timeout=START_TIMEOUT)
+    assert done.returncode == 1, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert any(l.startswith("xrce-agent demo: warning: publishing /cmd_vel in ROS domain 300") for l in lines)
+    failed = lines.index(next(l for l in lines if l.startswith("xrce-agent demo: the agent did not start")))
+    assert any("domainId is over 232" in l for l in lines[failed + 1:]), lines
+    assert "Traceback" not in done.stdout + done.stderr
