@@ -327,9 +327,23 @@ async def test_multiserial_keeps_ports_apart(pty_pair):
 
 
 async def test_serial_open_failure_is_an_oserror(tmp_path):
-    server = serial_links.SerialServer(EchoEngine(), str(tmp_path / "no-such-tty"))
-    with pytest.raises(OSError, match="no-such-tty"):
+    not_a_tty = tmp_path / "not-a-tty"
+    not_a_tty.write_bytes(b"")
+    server = serial_links.SerialServer(EchoEngine(), str(not_a_tty))
+    with pytest.raises(OSError, match="not-a-tty"):
         await server.start()
+
+
+async def test_a_serial_device_not_there_yet_is_waited_for(tmp_path):
+    """As eProsima's agent: no device at start is not an error; it is tried until it appears."""
+    server = serial_links.SerialServer(EchoEngine(), str(tmp_path / "no-such-tty"), reopen_interval=0.05)
+    await server.start()
+    try:
+        await asyncio.sleep(0.2)
+        assert server.ports == {} and list(server._reopen_tasks) == [str(tmp_path / "no-such-tty")]
+    finally:
+        await server.close()
+    assert server._reopen_tasks == {}
 
 
 async def test_pseudoterminal_serves_its_slave_and_manages_the_symlink(tmp_path):

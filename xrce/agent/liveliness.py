@@ -145,8 +145,8 @@ class Liveliness:
                              "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
                              int(silent * 1000))
                 else:
-                    log.info("client %s silent for %d ms: dead (no more HEARTBEATs; its entities "
-                             "are kept, any message revives it)", client.key.hex(),
+                    log.info("client %s silent for %d ms: dead (no more HEARTBEATs); its "
+                             "entities are kept, any message revives it", client.key.hex(),
                              int(silent * 1000))
                 self._drop_out_of_order(client)
             if not client.objects and not client.hard_liveliness:
