@@ -31,8 +31,13 @@ def main(argv=None):
     import signal
     import sys
 
-    parser = argparse.ArgumentParser(prog="python -m xrce.examples.turtlebot3",
-                                     description="simulated TurtleBot3 burger firmware")
+    class OneLineErrors(argparse.ArgumentParser):
+        def error(self, message):  # one line and exit 2, as xrce-agent and xrce-client
+            sys.stderr.write("turtlebot3: error: %s\n" % message)
+            raise SystemExit(2)
+
+    parser = OneLineErrors(prog="python -m xrce.examples.turtlebot3",
+                           description="simulated TurtleBot3 burger firmware")
     sub = parser.add_subparsers(dest="transport", required=True)
     udp = sub.add_parser("udp4", help="reach the agent over UDP/IPv4")
     udp.add_argument("--agent", default="127.0.0.1", help="agent address (default 127.0.0.1)")
