@@ -54,8 +54,13 @@ for run in 1 2; do
     "$PYTHON" -m pytest "${ARGS[@]}" > "/tmp/xrce-loaded-run$run.log" 2>&1
     code=$?
     echo "loaded_suite: run $run exit $code in $(( $(date +%s) - started )) s: $(tail -n 1 /tmp/xrce-loaded-run$run.log)"
-    [ $code -eq 0 ] || { FAILED=1; grep -E "^(FAILED|ERROR) " "/tmp/xrce-loaded-run$run.log" | sed 's/^/loaded_suite:   /'; }
-    rm -f "/tmp/xrce-loaded-run$run.log"
+    if [ $code -eq 0 ]; then
+        rm -f "/tmp/xrce-loaded-run$run.log"
+    else
+        FAILED=1
+        grep -E "^(FAILED|ERROR) " "/tmp/xrce-loaded-run$run.log" | sed 's/^/loaded_suite:   /'
+        echo "loaded_suite:   whole output kept in /tmp/xrce-loaded-run$run.log"
+    fi
 done
 stop_hog
 sleep 2  # children of the last test exit and unlink what they own

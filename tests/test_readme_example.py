@@ -190,14 +190,19 @@ def test_every_readme_shell_line_runs_as_written(namespace):
     assert len(lines) >= 15, lines
     ran, not_run = [], []
     agent = None  # the README's first agent line, kept running for the xrce-client section
-    background = []  # a line ending in "&" runs in one shell with the lines after it, as typed
+    background = []  # lines ending in "&": started, then awaited after the next line
     try:
         for section, line in lines:
+            if section.startswith("`xrce-client`") and agent is None:
+                agent = _start_server(namespace, ".venv/bin/xrce-agent udp4 -p 8888", r"agent on port 8888")
             if re.search(r"&\s*(#.*)?$", line):
-                background.append(line)
+                # As a person types it: the next line comes once this one has said something
+                # (sub's "subscribed to ..."), not within the same millisecond.
+                command = re.sub(r"&\s*(#.*)?$", "", line)
+                assert command.startswith(".venv/bin/"), "README line without the venv's path: %r" % line
+                process, output = _start_server(namespace, command, r".")
+                background.append((line, process, output))
                 continue
-            if background:
-                line, background = "\n".join(background + [line]), []
             reason = next((why for key, why in NOT_RUN if key in line), None)
             if reason is not None:
                 not_run.append((line, reason))
@@ -206,10 +211,7 @@ def test_every_readme_shell_line_runs_as_written(namespace):
                 # The venv this test runs in is that install; what it installed must be there.
                 assert (VENV_BIN / "xrce-agent").exists() and (VENV_BIN / "xrce-client").exists()
                 line = line[len(INSTALL_PREFIX):]
-            assert all(part.startswith(".venv/bin/") for part in line.splitlines()), \
-                "README line without the venv's path: %r" % line
-            if section.startswith("`xrce-client`") and agent is None:
-                agent = _start_server(namespace, ".venv/bin/xrce-agent udp4 -p 8888", r"agent on port 8888")
+            assert line.startswith(".venv/bin/"), "README line without the venv's path: %r" % line
             server = next((s for s in SERVERS if line.startswith(s[0])), None)
             if server is not None and "xrce-client" not in line:
                 process, output = _start_server(namespace, line, server[1])
@@ -220,6 +222,12 @@ def test_every_readme_shell_line_runs_as_written(namespace):
                 assert process.returncode == 0, "%r exited %s:\n%s" % (line, process.returncode, out)
                 assert "Traceback" not in out, out
             ran.append(line)
+            for started_line, process, output in background:
+                rest, _ = process.communicate(timeout=LINE_TIMEOUT_S)
+                out = "".join(output) + rest
+                assert process.returncode == 0, "%r exited %s:\n%s" % (started_line, process.returncode, out)
+                ran.append(started_line)
+            background = []
     finally:
         if agent is not None:
             _stop_server(agent[0], agent[1], 0)
