@@ -119,14 +119,34 @@ class Namespace:
         raise RuntimeError("no network namespace: %s" % self.holder.stderr.read())
 
     def popen(self, line, **kwargs):
+        # A session of its own: whatever the line starts can be killed with it (_kill).
         return subprocess.Popen(["nsenter", "--net=/proc/%d/ns/net" % self.holder.pid, "bash", "-c", line],
                                 cwd=README.parent, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True, **kwargs)
+                                text=True, start_new_session=True, **kwargs)
 
     def close(self):
         self.holder.kill()
         self.holder.wait()
         self.holder.stderr.close()
+
+
+def _kill(process):
+    """End ``process`` and everything it started (its session), whatever state the test is in."""
+    try:
+        os.killpg(process.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    process.communicate()
+
+
+def _finish(process, line):
+    """The output of a line that must end by itself; killed (with its children) if it hangs."""
+    try:
+        out, _ = process.communicate(timeout=LINE_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        _kill(process)
+        raise AssertionError("%r did not end within %d s" % (line, LINE_TIMEOUT_S))
+    return out
 
 
 def _start_server(namespace, line, banner):
@@ -151,14 +171,17 @@ def _start_server(namespace, line, banner):
                 break
     finally:
         selector.close()
-    process.kill()
-    rest, _ = process.communicate()
-    raise AssertionError("%r did not start:\n%s%s" % (line, "".join(output), rest))
+    _kill(process)
+    raise AssertionError("%r did not start:\n%s" % (line, "".join(output)))
 
 
 def _stop_server(process, output, expected):
     process.send_signal(signal.SIGINT)
-    rest, _ = process.communicate(timeout=60)
+    try:
+        rest, _ = process.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        _kill(process)
+        raise
     text = "".join(output) + rest
     assert process.returncode == expected, text
     assert "Traceback" not in text, text
@@ -218,17 +241,18 @@ def test_every_readme_shell_line_runs_as_written(namespace):
                 _stop_server(process, output, server[2])
             else:
                 process = namespace.popen(line)
-                out, _ = process.communicate(timeout=LINE_TIMEOUT_S)
+                out = _finish(process, line)
                 assert process.returncode == 0, "%r exited %s:\n%s" % (line, process.returncode, out)
                 assert "Traceback" not in out, out
             ran.append(line)
-            for started_line, process, output in background:
-                rest, _ = process.communicate(timeout=LINE_TIMEOUT_S)
-                out = "".join(output) + rest
+            while background:
+                started_line, process, output = background.pop(0)
+                out = "".join(output) + _finish(process, started_line)
                 assert process.returncode == 0, "%r exited %s:\n%s" % (started_line, process.returncode, out)
                 ran.append(started_line)
-            background = []
     finally:
+        for _, process, _ in background:
+            _kill(process)
         if agent is not None:
             _stop_server(agent[0], agent[1], 0)
     print("ran %d README lines; not run: %s" % (len(ran), not_run))
@@ -242,13 +266,13 @@ def test_readme_cpython_example_runs_and_says_why_without_an_agent(namespace, tm
     script = tmp_path / "talker.py"
     script.write_text(re.search(r"```python\n(.*?)```", section, re.S).group(1))
     alone = namespace.popen(".venv/bin/python %s" % script)
-    out, _ = alone.communicate(timeout=LINE_TIMEOUT_S)
+    out = _finish(alone, "the CPython example")
     assert alone.returncode == 1 and out.strip().splitlines() == [
         "no agent at 127.0.0.1:8888: start .venv/bin/xrce-agent udp4 -p 8888"], out
     agent = _start_server(namespace, ".venv/bin/xrce-agent udp4 -p 8888", r"agent on port 8888")
     try:
         with_agent = namespace.popen(".venv/bin/python %s" % script)
-        out, _ = with_agent.communicate(timeout=LINE_TIMEOUT_S)
+        out = _finish(with_agent, "the CPython example")
         assert with_agent.returncode == 0 and out == "", out
     finally:
         _stop_server(agent[0], agent[1], 0)
