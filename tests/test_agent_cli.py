@@ -116,21 +116,6 @@ def agent(tmp_path):
         process.cleanup()
 
 
-@pytest.fixture
-def pty_pair():
-    opened = []
-
-    def make():
-        master, slave = os.openpty()
-        tty.setraw(master, termios.TCSANOW)
-        opened.extend((master, slave))
-        return master, os.ttyname(slave)
-
-    yield make
-    for fd in opened:
-        os.close(fd)
-
-
 def ipv6_loopback():
     try:
         with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as probe:
