@@ -241,7 +241,7 @@ def test_hostile_datagrams_are_left_to_python_or_published(ros_peer):  # noqa: F
     assert fastpath.resolve_rcl()
     receiver = fastpath.Receiver(-1)  # no socket: handle() runs read()'s check on one datagram
     try:
-        handle = receiver.add_client(0x01, KEY, None)
+        handle = receiver.add_client(0x01, KEY, ADDRESS)
         receiver.add_stream(handle, 0x01, 0xFFFF)
         receiver.add_writer(handle, 0x0015, publisher.handle.pointer)
         rng = random.Random(9)
@@ -277,7 +277,7 @@ def test_registration_sequence_numbers_and_removal(ros_peer):  # noqa: F811
     assert fastpath.resolve_rcl()
     receiver = fastpath.Receiver(-1)
     try:
-        handle = receiver.add_client(0x01, KEY, None)
+        handle = receiver.add_client(0x01, KEY, ADDRESS)
         receiver.add_stream(handle, 0x01, 0xFFFF)
         receiver.add_writer(handle, 0x0015, publisher.handle.pointer)
         assert not receiver.handle(keyed_datagram(0, object_id=0x0025), ADDRESS)  # unknown writer
@@ -287,6 +287,9 @@ def test_registration_sequence_numbers_and_removal(ros_peer):  # noqa: F811
         # Python handles seq 0 and 1 itself, against the number kept here.
         assert receiver.stream_accept(handle, 0x01, 0) and receiver.stream_accept(handle, 0x01, 1)
         assert not receiver.stream_accept(handle, 0x01, 1)
+        # The key from another source (a stranger outside --allow-from who knows it): Python's.
+        assert not receiver.handle(keyed_datagram(2), ("127.0.0.2", 40000))
+        assert not receiver.handle(keyed_datagram(2), ("127.0.0.1", 40001))
         assert receiver.handle(keyed_datagram(2), ADDRESS)
         assert receiver.handle(keyed_datagram(2), ADDRESS)  # taken, as a repeat: dropped
         assert receiver.handle(keyed_datagram(1), ADDRESS)  # older: dropped

@@ -80,7 +80,11 @@ typedef struct Client {
     int enabled;  /* Python clears it while the client needs its attention (dead, parked, ...) */
     uint8_t session_id;
     uint8_t key[4];                /* sessions with the key in the header (id < 0x80) */
-    struct sockaddr_storage addr;  /* sessions without: identified by the source address */
+    /* Sessions without a key are identified by the source address. Those with one are taken
+     * here only from it too, the address Python admitted the session on: any other source (a
+     * board's second socket, or a stranger outside --allow-from who knows the key) goes to
+     * Python, which decides; this path never enforces or bypasses a policy. */
+    struct sockaddr_storage addr;
     socklen_t addr_len;
     Stream *streams;
     Writer *writers;
@@ -134,9 +138,8 @@ static int same_address(const struct sockaddr_storage *a, const struct sockaddr_
 
 static Client *find_client(Receiver *self, const uint8_t *data, const struct sockaddr_storage *from) {
     for (Client *c = self->clients; c; c = c->next) {
-        if (c->session_id != data[0]) continue;
-        if (data[0] < 0x80 ? memcmp(c->key, data + 4, 4) == 0 : same_address(&c->addr, from))
-            return c;
+        if (c->session_id != data[0] || !same_address(&c->addr, from)) continue;
+        if (data[0] >= 0x80 || memcmp(c->key, data + 4, 4) == 0) return c;
     }
     return NULL;
 }
@@ -344,7 +347,7 @@ static PyObject *Receiver_add_client(Receiver *self, PyObject *args) {
     c->session_id = (uint8_t)session_id;
     memcpy(c->key, key.buf, key.len < 4 ? key.len : 4);
     PyBuffer_Release(&key);
-    if (session_id >= 0x80 && parse_address(address, &c->addr, &c->addr_len) < 0) {
+    if (parse_address(address, &c->addr, &c->addr_len) < 0) {
         free(c);
         return NULL;
     }

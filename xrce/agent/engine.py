@@ -34,6 +34,7 @@ from collections import deque
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
 
 from xrce import constants as C, names as wire_names
+from xrce.agent.admission import RefusalLog
 from xrce.agent.datapath import DataPath
 from xrce.agent.liveliness import NEVER, Liveliness
 from xrce.agent.middleware import Middleware
@@ -128,6 +129,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
         self.admission = None  # who may open a session (xrce.agent.admission); None: anyone
+        # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
+        # must not fill the operator's log (see ObjectRegistry._create).
+        self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self.clock())
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
         self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent
 
@@ -141,6 +145,11 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self._yield_due = False
             stats.messages_in += 1
             stats.bytes_in += len(data)
+            if self.admission is not None and not self.admission.admits_datagram(link, endpoint,
+                                                                                  data):
+                stats.sources_refused += 1  # outside --allow-from: no session is looked up
+                stats.dropped += 1
+                return
             if self.tap is not None:
                 self.tap("in", link, endpoint, data)
             try:
@@ -274,6 +283,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         with self.lock:
             for client in list(self.clients.values()):
                 self._delete_client(client)
+            # The counts of refusals not logged since their last line
+            self.create_failures.flush()
+            if self.admission is not None:
+                self.admission.flush()
         self._cancel_timer()  # deleting clients may have scheduled replies' HEARTBEATs
         await self.middleware.close()
 

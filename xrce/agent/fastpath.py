@@ -7,8 +7,9 @@ order to the link's usual ``_deliver``. Same thread, same wake-ups as the Python
 ``XRCE_FASTPATH=0`` (or a missing extension, or another middleware) leaves the pure Python path.
 
 What is fast is decided here, one piece at a time, when the Python path has just handled a
-best-effort sample (``DataPath._fast_write`` calls ``offer``): the client (by key, or by source
-address for sessions without a key in the header), the stream (its sequence number moves into C;
+best-effort sample (``DataPath._fast_write`` calls ``offer``): the client (by its source address
+and, for sessions with a key in the header, that key: a datagram from anywhere else is Python's to
+judge, e.g. against --allow-from), the stream (its sequence number moves into C;
 Python's stream object becomes a ``CompiledStream`` asking C) and the writer (its rcl publisher,
 which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline

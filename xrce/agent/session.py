@@ -92,6 +92,7 @@ class AgentStats:
     budget_refused: int = 0  # reliable input left unacknowledged: the memory budget was spent
     clients_evicted: int = 0  # idle sessions (no objects) deleted to admit a new client
     nested_fragments: int = 0  # reassembled messages holding FRAGMENTs again: dropped
+    sources_refused: int = 0  # datagrams from outside --allow-from, dropped before any lookup
 
     def as_dict(self) -> Dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
