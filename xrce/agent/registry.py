@@ -48,7 +48,8 @@ class Parked(Exception):
 class ObjectRegistry:
     """Mixin of ``Agent``: CREATE/DELETE of XRCE objects and their middleware entities.
 
-    Uses the agent's ``middleware``, ``refs``, ``stats`` and ``max_objects_per_client``;
+    Uses the agent's ``middleware``, ``refs``, ``stats``, ``max_objects_per_client`` and
+    ``create_failures`` (a rate-limited log: xrce.agent.admission.RefusalLog);
     ``_send_on_stream``/``_send_raw`` and the sample callbacks (data path) and ``_quota_warning``
     (sessions).
     """
@@ -98,8 +99,9 @@ class ObjectRegistry:
         except TypeNotReady as pending:
             raise Parked(pending.future)
         except (MiddlewareError, XmlRepresentationError) as exc:
-            log.warning("client %s: creating %s 0x%04X failed: %s", client.key.hex(),
-                        wire_names.OBJECT_KIND_NAMES.get(kind), object_id, exc)
+            self.create_failures.warning("client %s: creating %s 0x%04X failed: %s",
+                                         client.key.hex(), wire_names.OBJECT_KIND_NAMES.get(kind),
+                                         object_id, exc)
             status = C.STATUS_ERR_DDS_ERROR
         if status == C.STATUS_OK:
             client.objects[object_id] = entry
