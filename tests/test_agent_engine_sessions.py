@@ -80,6 +80,38 @@ def test_keyed_session(ced_agent):
         (0x01, b"\xaa\xbb\xcc\xdd", C.STATUS), (0x01, b"\xaa\xbb\xcc\xdd", C.ACKNACK)]
 
 
+def test_keyed_session_from_outside_allow_from_is_dropped_before_lookup(ced_agent, caplog):
+    """With --allow-from, a keyed client is still found by key from any allowed source (as
+    eProsima's agent finds it), but a datagram from outside the list never reaches it: a
+    stranger's WRITE_DATA and DELETEs naming its key are counted and dropped, logged sparingly."""
+    from xrce.agent.admission import AdmissionPolicy, parse_networks
+    agent, link = ced_agent
+    agent.admission = AdmissionPolicy(networks=parse_networks("10.0.0.0/24"))
+    board = Peer(agent, link, ("10.0.0.5", 2019), key=b"\xaa\xbb\xcc\xdd", session_id=0x01)
+    assert board.connect()[1] == C.STATUS_OK
+    board.build_pubsub()
+    stranger = Peer(agent, link, ("10.9.9.9", 2019), key=board.key, session_id=0x01)
+    heard = agent.clients[board.key].messages_in
+    with caplog.at_level("WARNING", logger="xrce.agent.admission"):
+        for _ in range(20):
+            stranger.send(0x01, WriteData(0x60, 0x0015, b"\x05\x00\x00\x00evil"), seq=0x100)
+            stranger.send(0, Delete(0x61, 0x0015))
+            stranger.send(0, Delete(0x62, C.OBJECTID_CLIENT))
+    assert stranger.take() == [] and board.take() == []
+    assert agent.stats.sources_refused == 60 and agent.stats.samples_in == 0
+    client = agent.clients[board.key]
+    assert 0x0015 in client.objects and client.messages_in == heard
+    drops = [r for r in caplog.records if "not in --allow-from" in r.getMessage()]
+    assert 1 <= len(drops) <= 5 and "session 0x01 from test 10.9.9.9:2019" in drops[0].getMessage()
+    # Another allowed address with the key is the board's (a second socket, NAT): accepted.
+    board.endpoint = ("10.0.0.6", 3000)
+    board.send(0, Delete(0x63, 0x0016))
+    assert 0x0016 not in client.objects and agent.stats.sources_refused == 60
+    # A CREATE_CLIENT from outside still gets its ERR_DENIED.
+    assert Peer(agent, link, ("10.9.9.9", 1), key=b"\x01\x02\x03\x04").connect()[1] == \
+        C.STATUS_ERR_DENIED
+
+
 def test_unknown_client_only_delete_and_get_info_answered(ced_agent):
     agent, link = ced_agent
     stranger = Peer(agent, link, ("h", 7))
