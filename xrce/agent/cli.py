@@ -28,6 +28,7 @@ import socket
 import sys
 
 from xrce.agent import interfaces, links, observability, udp_links
+from xrce.tools.cli_types import domain_id
 
 PROG = "xrce-agent"
 TRACE = 5  # -v 6: every message decoded, logged by the engine on logger "xrce.agent"
@@ -305,22 +306,12 @@ def _add_demo_options(parser):
     parser.add_argument("--duration", type=_seconds, default=0.0, metavar="S",
                         help="stop after S seconds (default 0: until Ctrl-C)")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--domain", type=_domain_id, metavar="N",
+    where.add_argument("--domain", type=domain_id, metavar="N",
                        help="publish in ROS domain N with the usual discovery range, so other "
                             "machines see it (default: a private domain on this machine only)")
     where.add_argument("--lan", action="store_true",
                        help="publish in $ROS_DOMAIN_ID (else 0) with the usual discovery range, so "
                             "a robot on the LAN in that domain would obey its /cmd_vel")
-
-
-def _domain_id(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid domain id: %r" % text)
-    if not 0 <= value <= 232:  # the largest id whose RTPS ports still fit in 16 bits
-        raise argparse.ArgumentTypeError("domain id %d is not in 0..232" % value)
-    return value
 
 
 def _run_demo(args):

@@ -10,6 +10,8 @@ import os
 import socket
 import sys
 
+from xrce.tools.cli_types import domain_id
+
 PROG = "xrce-client"
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -87,16 +89,6 @@ def _rate(text):
     return value
 
 
-def _domain(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("invalid domain id: %r" % text)
-    if not 0 <= value <= 232:  # the largest id whose RTPS ports still fit in 16 bits
-        raise argparse.ArgumentTypeError("domain id %d is not in 0..232" % value)
-    return value
-
-
 def default_domain(environ=None):
     """ROS_DOMAIN_ID as every ROS tool reads it (unset or empty: 0); a bad value is a usage error
     naming the variable, not a silent 0."""
@@ -104,7 +96,7 @@ def default_domain(environ=None):
     if not text:
         return 0
     try:
-        return _domain(text)
+        return domain_id(text)
     except argparse.ArgumentTypeError as error:
         raise UsageError("ROS_DOMAIN_ID: %s (unset it or use 0..232)" % error)
 
@@ -142,7 +134,7 @@ def _add_entity_arguments(parser, count_help):
                         help="ROS message type, e.g. std_msgs/msg/String")
     parser.add_argument("--node", default="xrce_client",
                         help="participant (ROS node) name (default xrce_client)")
-    parser.add_argument("--domain", type=_domain, metavar="N",
+    parser.add_argument("--domain", type=domain_id, metavar="N",
                         help="ROS domain id (default $ROS_DOMAIN_ID, else 0)")
     parser.add_argument("--key", type=_client_key, help="client key, 8 hex digits (default random)")
     parser.add_argument("--count", type=_count, metavar="N", help=count_help)
