@@ -3,6 +3,8 @@ once per run (an import into two modules would make two), and a test module gets
 fixture without importing it. The run leaves nothing in ~/.ros or /dev/shm (tests/hygiene.py)."""
 
 import os
+import shutil
+import tempfile
 import termios
 import tty
 
@@ -15,9 +17,15 @@ from install_env import sourced_ros, wheel_venv, xrce_wheels  # noqa: F401
 _run = {}
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_configure(config):
     # Before any test imports rclpy and starts a context: rcl reads ROS_LOG_DIR at its first init.
     _run["ros_log"] = PrivateRosLogDir()
+    if not config.option.basetemp:
+        # tmp_path under a base of this run's own, removed at its end. Not pytest's numbered
+        # /tmp/pytest-of-USER/pytest-N: its "remove when done" (retention "none") takes no lock, so
+        # any other pytest run ending meanwhile on the machine deleted this run's tmp_path trees.
+        config.option.basetemp = _run["basetemp"] = tempfile.mkdtemp(prefix="xrce-tests-")
     _run["shm_before"] = shm_names()
 
 
@@ -27,6 +35,9 @@ def pytest_unconfigure(config):
         ros_log.close()
     if "shm_before" in _run:
         remove_dead_fastdds_segments(_run.pop("shm_before"))
+    basetemp = _run.pop("basetemp", None)
+    if basetemp is not None and not os.environ.get("XRCE_KEEP_TMP"):
+        shutil.rmtree(basetemp, ignore_errors=True)
 
 
 @pytest.fixture
