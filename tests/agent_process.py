@@ -74,3 +74,18 @@ class AgentProcess:
 
     def __exit__(self, *exc):
         self.stop()
+
+
+def child_pids(pid: int) -> list:
+    """PIDs whose parent is ``pid`` (read from /proc: no psutil in the test venv)."""
+    children = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open("/proc/%s/stat" % entry) as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                children.append(int(entry))
+    return children

@@ -20,7 +20,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from test_msgs.srv import BasicTypes
 
-from agent_process import REPO, AgentProcess
+from agent_process import REPO, AgentProcess, child_pids
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
 from xrce.agent.capture import decode_capture, read_capture
@@ -200,7 +200,7 @@ def test_type_names_import_nothing_and_spawn_no_child_per_name(tmp_path, ros_dom
 
             def watch_children():
                 while not stop.is_set():
-                    children.extend(_children_of(agent.proc.pid))
+                    children.extend(child_pids(agent.proc.pid))
                     time.sleep(0.002)
 
             watcher = threading.Thread(target=watch_children)
@@ -229,19 +229,7 @@ def test_type_names_import_nothing_and_spawn_no_child_per_name(tmp_path, ros_dom
                          log), log
 
 
-def _children_of(pid: int) -> list:
-    found = []
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open("/proc/%s/stat" % entry) as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(entry))
-    return found
+
 
 
 # ------------------------------------------------------------------------------ services

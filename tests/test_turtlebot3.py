@@ -25,7 +25,7 @@ from nav_msgs.msg import Odometry as RosOdometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu as RosImu
 
-from agent_process import AgentProcess
+from agent_process import AgentProcess, child_pids
 from mp_harness import run_micropython
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce.examples.turtlebot3 import ENCODER_TICKS_PER_REV, TurtleBot3
@@ -288,20 +288,6 @@ def test_robot_under_micropython_over_udp(ros_peer, ros_domain):  # noqa: F811
     if types is not None:
         check_rate_and_stamps(sensor_state, start_ns, stopped_ns, 10, stamp_error_ns)
         assert sensor_state.samples[-1][1].left_encoder > 0
-
-
-def child_pids(pid):
-    children = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open("/proc/%s/stat" % entry) as f:
-                    fields = f.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                children.append(int(entry))
-    return children
 
 
 def pid_alive(pid):
