@@ -28,7 +28,6 @@ a bare rclpy process idle, a Python UDP echo for ping.
 import argparse
 import os
 import re
-import selectors
 import socket
 import subprocess
 import sys
@@ -36,7 +35,7 @@ import threading
 import time
 from pathlib import Path
 
-from procs import interrupt  # noqa: E402  (bench/ is the script's directory)
+from procs import interrupt, read_until  # noqa: E402  (bench/ is the script's directory)
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -90,20 +89,8 @@ class Agent:
         self.proc = subprocess.Popen([PYTHON, "-c", bootstrap, "udp4", "-p", "0", *args],
                                      cwd=tree, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)
-        selector = selectors.DefaultSelector()
-        selector.register(self.proc.stdout, selectors.EVENT_READ)
-        deadline = time.monotonic() + 60
-        self.port = None
-        while time.monotonic() < deadline and self.port is None:
-            if not selector.select(timeout=0.5):
-                if self.proc.poll() is not None:
-                    break
-                continue
-            line = self.proc.stdout.readline()
-            found = re.search(r"on port (\d+)", line)
-            if found:
-                self.port = int(found.group(1))
-        selector.close()
+        line, _output = read_until(self.proc, lambda text: re.search(r"on port (\d+)", text), 60)
+        self.port = int(re.search(r"on port (\d+)", line).group(1)) if line else None
         if self.port is None:
             self.stop()
             raise RuntimeError("agent in %s did not start" % tree)

@@ -2,14 +2,20 @@
 
 import os
 import re
-import selectors
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+
+from procs import read_until  # noqa: E402
+
+
+def _is_banner(line):
+    return line.startswith("xrce-agent:") and ("agent on port" in line or "pseudoterminal at" in line
+                                               or "serial" in line)
 
 
 class AgentProcess:
@@ -33,29 +39,15 @@ class AgentProcess:
         self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *self.args], cwd=self.cwd,
                                      env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True)
-        selector = selectors.DefaultSelector()
-        selector.register(self.proc.stdout, selectors.EVENT_READ)
-        deadline = time.monotonic() + self.start_timeout
-        try:
-            while time.monotonic() < deadline:
-                if not selector.select(timeout=0.5):
-                    if self.proc.poll() is not None:
-                        break
-                    continue
-                line = self.proc.stdout.readline()
-                if not line:
-                    break
-                self.output.append(line)
-                if line.startswith("xrce-agent:") and ("agent on port" in line or "pseudoterminal at" in line
-                                                       or "serial" in line):
-                    self.banner = line.strip()
-                    port = re.search(r"on port (\d+)", line)
-                    self.port = int(port.group(1)) if port else None
-                    device = re.search(r"pseudoterminal at ([^\s;]+)", line)
-                    self.device = device.group(1) if device else None
-                    return self
-        finally:
-            selector.close()
+        line, output = read_until(self.proc, _is_banner, self.start_timeout)
+        self.output.append(output)
+        if line is not None:
+            self.banner = line.strip()
+            port = re.search(r"on port (\d+)", line)
+            self.port = int(port.group(1)) if port else None
+            device = re.search(r"pseudoterminal at ([^\s;]+)", line)
+            self.device = device.group(1) if device else None
+            return self
         self.stop()
         raise RuntimeError("agent did not start: %s" % "".join(self.output))
 

@@ -11,6 +11,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from agent_process import AgentProcess
+from procs import read_until
 from mp_harness import run_micropython
 from ros_helpers import ros_domain, ros_peer  # noqa: F401
 
@@ -66,7 +67,6 @@ import os  # noqa: E402
 import shutil  # noqa: E402
 import signal  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 
 import pytest  # noqa: E402
 
@@ -152,27 +152,11 @@ def _finish(process, line):
 def _start_server(namespace, line, banner):
     """``line`` (exec'd, so signals reach it) until its output shows ``banner``."""
     process = namespace.popen("exec " + line)
-    output = []
-    deadline = time.monotonic() + SERVER_START_S
-    import selectors
-
-    selector = selectors.DefaultSelector()
-    selector.register(process.stdout, selectors.EVENT_READ)
-    try:
-        while time.monotonic() < deadline:
-            if selector.select(0.2):
-                text = process.stdout.readline()
-                if not text:
-                    break
-                output.append(text)
-                if re.search(banner, text):
-                    return process, output
-            elif process.poll() is not None:
-                break
-    finally:
-        selector.close()
+    found, output = read_until(process, lambda text: re.search(banner, text), SERVER_START_S)
+    if found is not None:
+        return process, [output]
     _kill(process)
-    raise AssertionError("%r did not start:\n%s" % (line, "".join(output)))
+    raise AssertionError("%r did not start:\n%s" % (line, output))
 
 
 def _stop_server(process, output, expected):
