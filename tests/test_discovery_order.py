@@ -9,13 +9,25 @@ discovery answer used to cost up to one Fast DDS announcement period (3 s):
   sent its first announcement before its receivers were attached and lost the subscriber's answer;
   the agent's profile makes the builtin writers asynchronous, so that announcement leaves after.
 
-Each trial measures the time from the client's CREATE of the writer to the first sample in rclpy;
-the bound (2.5 s) is a generous sanity bound for a loaded machine, not the figure
-(bench/discovery.py measures that: under 1 s in every trial). With the old settings about half the
-trials lost the race and a lost race waited 0-3 s, so several trials catch a regression.
+The announcement period is checked directly: a socket on the unicast discovery port of the 32nd
+participant of the test's domain (where the agent's participant sends every announcement under
+LOCALHOST) counts the agent's announcements over 3 s, about 6 with the profile and 1 without.
+
+Each trial of (a) and (b) measures the time from the client's CREATE of the writer to the first
+sample in rclpy (bench/discovery.py gives the figures: under 1 s in 20 of 20 trials of each order
+on an idle machine). Fast DDS still loses a race now and then on a loaded machine: 2 of 40
+trials of (a) under four CPU hogs on 2 cores saw their first sample after ~3 s, when the
+subscriber's own first periodic announcement went out, although both sides had exchanged their
+endpoints by 0.7 s (the samples themselves go through shared memory, out of a capture's sight).
+So a trial may be slow without failing the test: every trial must see its first sample within
+DELIVERY_S, and all but a few within SLOW_S. With the old settings about half
+the trials lost the race and waited 0-3 s.
 """
 
+import collections
 import os
+import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -29,9 +41,11 @@ from xrce.client import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
 
-BOUND_S = 2.5
+SLOW_S = 1.5
+DELIVERY_S = 5.0
 TRIALS_A = 5
 TRIALS_B = 3
+SPDP_WRITER = 0x000100C2
 
 _SUBSCRIBER = """
 import sys, time
@@ -81,7 +95,7 @@ class Subscriber:
 
 def first_sample_delay(port, domain_id, topic, subscriber, key):
     """Create a session, participant and reliable writer on ``topic``; write every 20 ms until the
-    subscriber reports a sample or BOUND_S + 2 s pass. Seconds from the writer's CREATE to the
+    subscriber reports a sample or DELIVERY_S pass. Seconds from the writer's CREATE to the
     first sample (None: none arrived)."""
     session = Session(UdpTransport("127.0.0.1", port), key=key)
     try:
@@ -92,7 +106,7 @@ def first_sample_delay(port, domain_id, topic, subscriber, key):
         writer = session.create_writer(node, topic, String, reliable=True, depth=10)
         assert session.run_until_all_status(5000), session.last_statuses
         message = String(data="hello")
-        while time.monotonic() - created < BOUND_S + 2.0:
+        while time.monotonic() - created < DELIVERY_S:
             if subscriber.arrivals:
                 return subscriber.arrivals[0] - created
             session.write(writer, message)
@@ -114,7 +128,9 @@ def test_agent_then_subscriber_then_client(ros_domain):  # noqa: F811
                                                  0x22A00000 + trial))
             finally:
                 subscriber.close()
-    assert all(d is not None and d <= BOUND_S for d in delays), delays
+    # Two of five: the race left in Fast DDS (module docstring) hit 2 of 40 trials under four
+    # CPU hogs; the announcement period itself is checked exactly by the test below.
+    assert_fast_enough(delays, slow_allowed=2)
 
 
 def test_subscriber_then_agent_then_client(ros_domain):  # noqa: F811
@@ -129,7 +145,67 @@ def test_subscriber_then_agent_then_client(ros_domain):  # noqa: F811
             subscriber.arrivals.clear()
     finally:
         subscriber.close()
-    assert all(d is not None and d <= BOUND_S for d in delays), delays
+    assert_fast_enough(delays, slow_allowed=1)
+
+
+def assert_fast_enough(delays, slow_allowed):
+    assert all(d is not None for d in delays), "a trial saw no sample within %.1f s: %r" % (
+        DELIVERY_S, delays)
+    slow = [d for d in delays if d > SLOW_S]
+    assert len(slow) <= slow_allowed, "%d of %d trials slower than %.1f s: %r" % (
+        len(slow), len(delays), SLOW_S, delays)
+
+
+def spdp_sender(datagram):
+    """The GUID prefix of an RTPS datagram that carries a participant announcement, else None."""
+    if datagram[:4] != b"RTPS" or len(datagram) < 20:
+        return None
+    offset = 20
+    while offset + 4 <= len(datagram):
+        kind, flags = datagram[offset], datagram[offset + 1]
+        length = struct.unpack("<H" if flags & 1 else ">H", datagram[offset + 2:offset + 4])[0]
+        if kind == 0x15 and length >= 12 and \
+                struct.unpack(">I", datagram[offset + 12:offset + 16])[0] == SPDP_WRITER:
+            return datagram[8:20]
+        if not length:
+            return None
+        offset += 4 + length
+    return None
+
+
+def test_agent_announces_its_participant_every_half_second(ros_domain):  # noqa: F811
+    # Fast DDS's well-known metatraffic unicast port of participant 31 in this domain
+    # (7400 + 250 * domain + 10 + 2 * 31): nothing of this test's uses it, the agent's
+    # participant sends each announcement there as to the 31 others.
+    port = 7400 + 250 * ros_domain + 10 + 2 * 31
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", port))
+    try:
+        with AgentProcess("udp4", "-m", "dds"):
+            time.sleep(1.0)  # past the participant's 5 initial announcements (100 ms apart)
+            listener.setblocking(False)
+            while True:  # what queued up since the bind: the initial ones, not the period
+                try:
+                    listener.recv(65536)
+                except BlockingIOError:
+                    break
+            listener.settimeout(0.2)
+            announcements = collections.Counter()
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                try:
+                    datagram = listener.recv(65536)
+                except socket.timeout:
+                    continue
+                sender = spdp_sender(datagram)
+                if sender is not None:
+                    announcements[sender] += 1
+    finally:
+        listener.close()
+    assert len(announcements) == 1, announcements  # the agent's participant, alone in the domain
+    count = max(announcements.values())
+    assert count >= 4, "%d announcements in 3 s: the 0.5 s period of the agent's profile is not " \
+                       "in force" % count
 
 
 @pytest.fixture(autouse=True)
