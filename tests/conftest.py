@@ -11,7 +11,7 @@ import tty
 import pytest
 
 from engine_peer import ced_agent  # noqa: F401
-from hygiene import PrivateRosLogDir, remove_dead_fastdds_segments, shm_names
+from hygiene import PrivateRosLogDir, remove_dead_fastdds_segments_after_exit, shm_names
 from install_env import sourced_ros, wheel_venv, xrce_wheels  # noqa: F401
 
 _run = {}
@@ -34,7 +34,7 @@ def pytest_unconfigure(config):
     if ros_log is not None:
         ros_log.close()
     if "shm_before" in _run:
-        remove_dead_fastdds_segments(_run.pop("shm_before"))
+        remove_dead_fastdds_segments_after_exit(_run.pop("shm_before"))
     basetemp = _run.pop("basetemp", None)
     if basetemp is not None and not os.environ.get("XRCE_KEEP_TMP"):
         shutil.rmtree(basetemp, ignore_errors=True)

@@ -10,6 +10,11 @@ shared-memory segments in /dev/shm.
   to dead processes, which is also how Fast DDS's own ``fastdds shm clean`` tells them apart.
   Only files that appeared during the run are considered, and only once their lock file is a
   few seconds old: a segment being created has its lock taken within microseconds.
+- ``remove_dead_fastdds_segments_after_exit(before)``: the same once the test process has exited.
+  At the end of a run some owners are still alive: the test process itself (its in-process rclpy
+  participants go with it) and children still stopping; their segments are dead only after the
+  run (1-3 were left per run). A small detached process waits for the test process to end and
+  then removes them, for a few seconds while late children finish.
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ import fcntl
 import os
 import re
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -44,23 +51,29 @@ def _locked(path: str) -> bool:
         return True
 
 
-def remove_dead_fastdds_segments(before: set) -> list:
-    """Remove the Fast DDS segments and ports created since ``before`` whose owners are all gone;
-    the names removed."""
+def remove_dead_fastdds_segments(before: set, min_age_s: float = MIN_AGE_S) -> list:
+    """Remove the Fast DDS segments and ports created since ``before`` whose owners are all gone
+    and whose lock file is at least ``min_age_s`` old; the names removed."""
     removed = []
     now = time.time()
-    for name in sorted(shm_names() - before):
+    present = shm_names()
+    # Every lock is looked at, old ones too: a port's lock file may predate the run while the
+    # port and its mutex were made during it. Only what appeared during the run is removed.
+    for name in sorted(present):
         is_segment, is_port = _SEGMENT_LOCK.match(name), _PORT_LOCK.match(name)
         if not (is_segment or is_port):
             continue
+        base = name[:-3]
+        victims = [v for v in [name, base] + (["sem.%s_mutex" % base] if is_port else [])
+                   if v in present and v not in before]
+        if not victims:
+            continue
         lock = os.path.join(SHM_DIR, name)
         try:
-            if now - os.stat(lock).st_mtime < MIN_AGE_S or _locked(lock):
+            if now - os.stat(lock).st_mtime < min_age_s or _locked(lock):
                 continue
         except OSError:
             continue
-        base = name[:-3]
-        victims = [name, base] + (["sem.%s_mutex" % base] if is_port else [])
         for victim in victims:
             try:
                 os.remove(os.path.join(SHM_DIR, victim))
@@ -68,6 +81,39 @@ def remove_dead_fastdds_segments(before: set) -> list:
             except OSError:
                 pass
     return removed
+
+
+def _process_gone(pid: int) -> bool:
+    try:
+        with open("/proc/%d/stat" % pid) as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"  # exited, not yet reaped
+    except OSError:
+        return True
+
+
+def _clean_after(pid: int, before: set, linger_s: float = 5.0) -> None:
+    while not _process_gone(pid):
+        time.sleep(0.05)
+    end = time.monotonic() + linger_s
+    while True:
+        remove_dead_fastdds_segments(before, min_age_s=0.5)
+        if time.monotonic() >= end:
+            return
+        time.sleep(0.5)
+
+
+def remove_dead_fastdds_segments_after_exit(before: set) -> None:
+    """Remove now what is dead, and start a detached process that removes the rest once this
+    process has exited (see the module docstring)."""
+    remove_dead_fastdds_segments(before)
+    cleaner = ("import sys; sys.path.insert(0, %r); import hygiene; "
+               "hygiene._clean_after(%d, set(sys.stdin.read().split()))"
+               % (os.path.dirname(os.path.abspath(__file__)), os.getpid()))
+    process = subprocess.Popen([sys.executable, "-c", cleaner], stdin=subprocess.PIPE,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True, text=True)
+    process.stdin.write("\n".join(sorted(before)))
+    process.stdin.close()
 
 
 class PrivateRosLogDir:
