@@ -77,7 +77,7 @@ def install(environ: Optional[MutableMapping[str, str]] = None,
     if reason is not None:
         logging.getLogger("xrce.agent.rosenv").info(
             "%s: the agent's Fast DDS profile stays out (its 0.5 s announcements and asynchronous "
-            "discovery writers included, README \"Benchmarks\")", reason)
+            "discovery writers included, docs/PERFORMANCE.md)", reason)
         return None
     environ[PROFILES_VARIABLE] = PROFILE_PATH
     return PROFILE_PATH
