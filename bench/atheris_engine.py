@@ -17,8 +17,8 @@ import atheris
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 with atheris.instrument_imports():
-    from xrce.agent.ced import CedMiddleware
-    from xrce.agent.engine import Agent
+    from xrce.agent.middleware.ced import CedMiddleware
+    from xrce.agent.engine.dispatch import Agent
     from xrce.submessages import CreateClient, encode_message
 
 

@@ -32,7 +32,7 @@ after the receivers are attached (bytesPerPeriod 0: the unlimited asynchronous c
 periodic wake-up; a limited one with a 1 ms period cost the idle agent 2 % of a core, and with
 one of a 1 s period bench/discovery.py's order (a) saw its first sample only after 2.5-2.7 s in
 2 of 25 trials, 0 of 50 with the unlimited one). xrce-agent's profile
-(xrce/agent/fastdds_profile.xml) does this; ``--new-profile`` gives the restarted publisher a
+(xrce/agent/middleware/ros/fastdds_profile.xml) does this; ``--new-profile`` gives the restarted publisher a
 profiles file, ``--old-profile`` the subscriber that stays up. Eight restarts each (issue 22, in
 a network namespace of its own): defaults 5 of 8 waited for the periodic announcement (first
 sample after 0.1-3.0 s); the restarted publisher with the agent's profile 0 of 8 (0.00-0.06 s:

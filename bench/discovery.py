@@ -310,7 +310,7 @@ def profile_without_discovery_settings(directory):
     ``directory``: the agent as it was before, for a same-run comparison."""
     import xml.etree.ElementTree as ElementTree
 
-    from xrce.agent import fastdds_profile
+    from xrce.agent.middleware.ros import fastdds_profile
 
     namespace = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
     ElementTree.register_namespace("", namespace)

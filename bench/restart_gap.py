@@ -10,7 +10,7 @@ launched with the subscriber already waiting and the publisher started as soon a
 its banner, time from launch to the first sample. Then a board reset: the publisher is killed and
 started again at once with the same client key while the agent stays up.
 
-Each run also collects the agent's recovery timeline line (``xrce.agent.timeline``) so the phases of
+Each run also collects the agent's recovery timeline line (``xrce.agent.engine.timeline``) so the phases of
 the median run can be read next to the figures. ``bench/run.py --only restart`` calls ``measure``.
 """
 

@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from agent_process import AgentProcess  # noqa: E402
 from ros_helpers import DomainLease  # noqa: E402
-from xrce.agent.stats_view import fetch_stats  # noqa: E402
+from xrce.agent.observe.stats_view import fetch_stats  # noqa: E402
 
 from figures import print_table, record  # noqa: E402
 from harness import PYTHON, Child, cpu_seconds, stats_port  # noqa: E402

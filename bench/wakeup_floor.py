@@ -6,7 +6,7 @@ A receiver process that does nothing with a datagram but read it, fed single dat
 rate (paced per millisecond, as bench/xrce_flood.py paces its samples), in three forms:
 
 - ``asyncio``: an asyncio loop reading the socket from ``add_reader`` until it is drained, as
-  the agent's UDP link does (xrce.agent.udp_links.UdpServer) and nothing else;
+  the agent's UDP link does (xrce.agent.links.udp.UdpServer) and nothing else;
 - ``python``: a plain Python loop blocked in ``recvfrom``;
 - ``c``: the same loop compiled from C, when a C compiler is at hand (skipped otherwise);
 - ``bridge`` (``bridge_floor``, run by bench/agent_cost.py next to its subscriber): the asyncio

@@ -8,8 +8,8 @@ fixture (offered to every test module by conftest.py) is an engine with CED behi
 import pytest
 
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin,
 )

@@ -11,8 +11,8 @@ from hypothesis import given, settings, strategies as st
 
 from engine_peer import BIN, Clock, Link, Peer, data_of, talker_and_listener
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.objects import ParticipantBin, ReplierBin, RequesterBin
 from xrce.submessages import DeliveryControl, WriteData, decode_message, encode_message
 
@@ -168,7 +168,7 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(ced_ag
        sample=st.binary(max_size=600))
 def test_the_direct_data_encoding_is_byte_exact(session_id, stream_id, request_id, object_id,
                                                sample):
-    from xrce.agent.datapath import data_message
+    from xrce.agent.engine.datapath import data_message
     from xrce.submessages import Data
 
     class Client:

@@ -7,8 +7,8 @@ import pytest
 
 from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.objects import ParticipantBin
 from xrce.submessages import AckNack, Create, DeliveryControl, GetInfo, WriteData
 

@@ -5,9 +5,9 @@ built."""
 
 from engine_peer import BIN, REF, REPLACE, REUSE, XML, Clock, Link, Peer, data_of
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
-from xrce.agent.xmlrep import refs_from_profiles
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.xmlrep import refs_from_profiles
 from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 from xrce.submessages import Create, Delete, WriteData, encode_message
 

@@ -11,7 +11,7 @@ from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 
 
 def test_no_rcl_log_file(ros_domain, tmp_path):  # noqa: F811
-    """rcl's own log file stays closed (xrce/agent/ros_domain.py ROS_ARGS); every rclpy process
+    """rcl's own log file stays closed (xrce/agent/middleware/ros/domain.py ROS_ARGS); every rclpy process
     that opens it leaves one file per start in ROS_LOG_DIR."""
     pytest.importorskip("rclpy")
     with AgentProcess("udp4", env={"ROS_LOG_DIR": str(tmp_path)}) as agent:
@@ -48,11 +48,11 @@ main(sys.argv[1:])
 """
 
 # Each was imported by every agent once; each is only needed by some subcommand or option.
-_NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.tcp_links",
-                                "xrce.agent.serial_links", "shutil", "ssl",
-                                "xml.etree.ElementTree", "xrce.agent.xmlrep",
-                                "xrce.agent.capture", "xrce.agent.stats_view",
-                                "xrce.agent.interface_build")
+_NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.links.tcp",
+                                "xrce.agent.links.serial", "shutil", "ssl",
+                                "xml.etree.ElementTree", "xrce.agent.engine.xmlrep",
+                                "xrce.agent.observe.capture", "xrce.agent.observe.stats_view",
+                                "xrce.agent.interfaces.build")
 
 
 def _modules_of_a_serving_agent(*args):
@@ -65,12 +65,12 @@ def _modules_of_a_serving_agent(*args):
 
 def test_a_udp_agent_leaves_out_what_other_subcommands_use():
     modules = _modules_of_a_serving_agent("udp4", "-p", "0", "-m", "ced")
-    assert "xrce.agent.udp_links" in modules and "xrce.agent.engine" in modules
+    assert "xrce.agent.links.udp" in modules and "xrce.agent.engine.dispatch" in modules
     assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
 
 
 def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_domain):  # noqa: F811
-    """rclpy's parameter and logger services stay unloaded (xrce/agent/rclpy_services.py): of
+    """rclpy's parameter and logger services stay unloaded (xrce/agent/middleware/ros/rclpy_services.py): of
     rcl_interfaces' eight service types only the one rclpy.node names is imported."""
     pytest.importorskip("rclpy")
     modules = _modules_of_a_serving_agent("udp4", "-p", "0")
@@ -78,15 +78,15 @@ def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_doma
     loaded = sorted(name for name in modules if name.startswith("rcl_interfaces.srv._"))
     assert loaded == ["rcl_interfaces.srv._list_parameters"]
     assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
-    if importlib.util.find_spec("xrce.agent._fastpath") is not None:
+    if importlib.util.find_spec("xrce.agent.engine._fastpath") is not None:
         # The start-up malloc_trim goes through the compiled helper, not the ctypes package.
-        assert "xrce.agent._fastpath" in modules and "ctypes" not in modules
+        assert "xrce.agent.engine._fastpath" in modules and "ctypes" not in modules
 
 
 _NODE_WITH_PARAMETER_SERVICES = """
 import sys
 import rclpy
-from xrce.agent import rclpy_services
+from xrce.agent.middleware.ros import rclpy_services
 rclpy_services.defer_unused()
 from rclpy.context import Context
 from rclpy.node import Node
@@ -137,7 +137,7 @@ def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_doma
     from rclpy.context import Context
     from rclpy.publisher import Publisher
 
-    from xrce.agent.ros_domain import NO_TYPE_DESCRIPTION, AgentNode
+    from xrce.agent.middleware.ros.domain import NO_TYPE_DESCRIPTION, AgentNode
 
     context = Context()
     rclpy.init(args=[], context=context, domain_id=ros_domain)

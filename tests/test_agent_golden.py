@@ -25,8 +25,8 @@ import pathlib
 import pytest
 
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.submessages import (
     Create, CreateClient, Locator, WriteData, decode_message, encode_message,
 )

@@ -15,10 +15,10 @@ from test_msgs.srv import BasicTypes
 from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
 from xrce.agent.middleware import (EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
                                    UnknownTypeError)
-from xrce.agent.observability import client_tag
-from xrce.agent.ros import RosMiddleware
-from xrce.agent.ros_domain import ENCAPSULATION_LE
-from xrce.agent.rostypes import dds_topic_to_ros, node_name_and_namespace, service_class
+from xrce.agent.observe.observability import client_tag
+from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE
+from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, service_class
 
 CLIENT = 0x1234ABCD
 QOS = EndpointQosSpec(reliable=True, keep_last=True, depth=10, durability="volatile")
@@ -355,8 +355,8 @@ from xrce.agent.launcher import _import_asyncio_without_tls
 _import_asyncio_without_tls()
 import asyncio
 from xrce.agent.middleware import EndpointQosSpec, TopicSpec, TypeNotReady
-from xrce.agent.diagnostics import DIAGNOSTIC_ARRAY_TYPE, diagnostic_array_type
-from xrce.agent.ros import RosMiddleware
+from xrce.agent.observe.diagnostics import DIAGNOSTIC_ARRAY_TYPE, diagnostic_array_type
+from xrce.agent.middleware.ros.entities import RosMiddleware
 
 async def main():
     mw = RosMiddleware()
@@ -414,7 +414,7 @@ def test_bridging_common_types_imports_no_python_message_machinery(ros_domain): 
 _REPLIER_SCRIPT = r"""
 import asyncio, sys
 from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
-from xrce.agent.ros import RosMiddleware
+from xrce.agent.middleware.ros.entities import RosMiddleware
 
 async def main():
     mw = RosMiddleware()
@@ -454,7 +454,7 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
     is destroyed."""
     from engine_peer import BIN, Link, Peer
     from xrce import constants as C
-    from xrce.agent.engine import Agent
+    from xrce.agent.engine.dispatch import Agent
     from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
     from xrce.submessages import Create, GetInfo
 

@@ -17,8 +17,8 @@ from agent_process import AgentProcess
 from engine_peer import Link, Peer, talker_and_listener
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.client.session import Session
 from xrce.message import iter_submessages
 from xrce.msgs.std_msgs import String

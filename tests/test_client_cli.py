@@ -33,13 +33,13 @@ REFERENCE_PING_REPLY = bytes.fromhex(
     "80000000 06011C00 000AFFFD 0000010D 58524345 0100010F 00010D00 01000000 00000000".replace(" ", ""))
 
 try:
-    import xrce.agent.ced  # noqa: F401
-    import xrce.agent.engine  # noqa: F401
+    import xrce.agent.middleware.ced  # noqa: F401
+    import xrce.agent.engine.dispatch  # noqa: F401
     HAVE_ENGINE = True
 except ImportError:
     HAVE_ENGINE = False
 
-needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine / ced not importable")
+needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine.dispatch / ced not importable")
 
 
 def _env():

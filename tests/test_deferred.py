@@ -1,11 +1,11 @@
-"""xrce.agent.deferred: a deferred module runs on first use of a name, never on import alone."""
+"""xrce.agent.middleware.ros.deferred: a deferred module runs on first use of a name, never on import alone."""
 
 import importlib
 import sys
 
 import pytest
 
-from xrce.agent import deferred
+from xrce.agent.middleware.ros import deferred
 
 
 @pytest.fixture

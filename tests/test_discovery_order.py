@@ -211,7 +211,7 @@ def test_agent_announces_its_participant_every_half_second(ros_domain):  # noqa:
 @pytest.fixture(autouse=True)
 def _no_user_fast_dds_profile(monkeypatch):
     # The agent installs its own profile only when the user has none
-    # (xrce/agent/fastdds_profile.py); these tests are about that profile, so a profiles file in
+    # (xrce/agent/middleware/ros/fastdds_profile.py); these tests are about that profile, so a profiles file in
     # the environment must not replace it.
     monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     monkeypatch.delenv("FASTDDS_DEFAULT_PROFILES_FILE", raising=False)

@@ -1,4 +1,4 @@
-"""The Fast DDS profile the agent installs when the user has none (xrce/agent/fastdds_profile.py):
+"""The Fast DDS profile the agent installs when the user has none (xrce/agent/middleware/ros/fastdds_profile.py):
 when it goes in, that a user's configuration keeps it out, that Fast DDS reads it without error,
 and that ``xrce-agent`` installs it before its participant exists."""
 
@@ -10,7 +10,7 @@ import pytest
 
 from agent_process import AgentProcess
 from ros_helpers import ros_domain  # noqa: F401
-from xrce.agent import fastdds_profile
+from xrce.agent.middleware.ros import fastdds_profile
 
 
 def test_installed_when_the_user_has_no_fast_dds_configuration(tmp_path):

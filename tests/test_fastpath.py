@@ -1,4 +1,4 @@
-"""The UDP link's compiled receive path (xrce/agent/_fastpath.c, xrce/agent/fastpath.py).
+"""The UDP link's compiled receive path (xrce/agent/engine/_fastpath.c, xrce/agent/engine/fastpath.py).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
 and once with ``XRCE_FASTPATH=0``: both must deliver the same samples in the same order and count
@@ -15,16 +15,16 @@ import pytest
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_observability import client_row, stats_port
-from xrce.agent.stats_view import fetch_stats
+from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist, Vector3
 from xrce.transports.udp import UdpTransport
 
 try:
-    from xrce.agent import _fastpath as fastpath
+    from xrce.agent.engine import _fastpath as fastpath
 except ImportError:  # built without a compiler: only the packaging tests apply
     fastpath = None
-needs_extension = pytest.mark.skipif(fastpath is None, reason="xrce.agent._fastpath not built")
+needs_extension = pytest.mark.skipif(fastpath is None, reason="xrce.agent.engine._fastpath not built")
 
 
 class CapturingTransport:
@@ -366,7 +366,7 @@ def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled)
     assert build.returncode == 0, build.stdout[-3000:]
     (wheel,) = tmp_path.glob("xrce-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert any(n.startswith("xrce/agent/_fastpath.") and n.endswith(".so") for n in names) == compiled
-    assert "xrce/agent/fastpath.py" in names
+    assert any(n.startswith("xrce/agent/engine/_fastpath.") and n.endswith(".so") for n in names) == compiled
+    assert "xrce/agent/engine/fastpath.py" in names
     if env.get("XRCE_FASTPATH") == "0":
         assert wheel.name.endswith("-py3-none-any.whl"), wheel.name

@@ -19,7 +19,7 @@ from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_fastpath import CapturingTransport, Twist_ros, needs_extension, twist_datagrams, with_seq
 from test_observability import stats_port
 from xrce import constants as C
-from xrce.agent.stats_view import fetch_stats
+from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist
 from xrce.submessages import Delete, encode_message

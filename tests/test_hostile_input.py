@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ros_helpers import ros_domain  # noqa: F401
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.submessages import CreateClient, encode_message
 from xrce.transports.framing import FrameDecoder
 

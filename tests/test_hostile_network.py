@@ -17,8 +17,8 @@ from pathlib import Path
 from engine_peer import BIN, Clock, Link, Peer
 from ros_helpers import ros_domain  # noqa: F401
 from xrce import constants as C
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import MAX_PARKED_MESSAGES, Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import MAX_PARKED_MESSAGES, Agent
 from xrce.agent.middleware import TypeNotReady
 from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 from xrce.streams import OutputReliableStream

@@ -23,8 +23,8 @@ from test_msgs.srv import BasicTypes
 from agent_process import REPO, AgentProcess, child_pids
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
-from xrce.agent.capture import decode_capture, read_capture
-from xrce.agent.stats_view import fetch_stats
+from xrce.agent.observe.capture import decode_capture, read_capture
+from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.submessages import CreateClient
@@ -399,9 +399,9 @@ def test_allow_from_refuses_other_addresses():
 
 
 def test_allow_from_reads_every_kind_of_endpoint():
-    from xrce.agent.admission import AdmissionPolicy, parse_keys, parse_networks
+    from xrce.agent.engine.admission import AdmissionPolicy, parse_keys, parse_networks
 
-    class TcpPeer:  # what xrce.agent.tcp_links hands the engine: the connection, with its peer
+    class TcpPeer:  # what xrce.agent.links.tcp hands the engine: the connection, with its peer
         def __init__(self, peer):
             self.peer = peer
 

@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from xrce.agent.ced import CedMiddleware
-from xrce.agent.engine import Agent
+from xrce.agent.middleware.ced import CedMiddleware
+from xrce.agent.engine.dispatch import Agent
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 

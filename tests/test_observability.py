@@ -18,8 +18,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from agent_process import REPO, AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
-from xrce.agent.capture import decode_capture, read_capture
-from xrce.agent.stats_view import fetch_stats
+from xrce.agent.observe.capture import decode_capture, read_capture
+from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.submessages import CreateClient, Delete, GetInfo, Info, Status, StatusAgent, encode_message
@@ -136,7 +136,7 @@ def test_capture_file_decodes_back_in_order(tmp_path):
     kinds = [(record.direction, [type(p) for p in payloads]) for record, _, payloads in decoded]
     assert kinds == [("in", [CreateClient]), ("out", [StatusAgent]), ("in", [GetInfo]),
                      ("out", [Info]), ("in", [Delete]), ("out", [Status])]
-    # The key is masked by one pseudonym, the same wherever it appears (xrce.agent.capture).
+    # The key is masked by one pseudonym, the same wherever it appears (xrce.agent.observe.capture).
     pseudonym = decoded[0][2][0].client_key
     assert pseudonym != session.key and len(pseudonym) == 4
     assert session.key.hex() not in capture.read_text()

@@ -1,1 +1,15 @@
-"""The XRCE agent: asyncio transport servers, the protocol engine and middleware backends (CPython)."""
+"""The XRCE agent (CPython), laid out along its data path:
+
+- ``links``: UDP (and discovery), TCP, serial and pseudoterminal links; each hands whole XRCE
+  messages to the engine and sends its replies;
+- ``engine``: the protocol engine (dispatch, sessions, objects, data path, liveliness, recovery
+  timelines, admission, the compiled UDP receive path);
+- ``middleware``: what XRCE objects map onto: the interface, ``ced`` (no ROS) and ``ros`` (rclpy);
+- ``interfaces``: finding and building ROS 2 interface packages for the types clients name;
+- ``observe``: stats, ``xrce-agent stats``, ``/diagnostics`` and capture files;
+- ``cli`` (``xrce-agent``), started through ``launcher``; ``demo`` (``xrce-agent demo``).
+"""
+
+from xrce.agent import _moved
+
+_moved.install()  # the module names from before this layout, for one more release

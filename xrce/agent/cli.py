@@ -27,7 +27,9 @@ import signal
 import socket
 import sys
 
-from xrce.agent import interfaces, links, observability, udp_links
+from xrce.agent import interfaces, links
+from xrce.agent.links import udp
+from xrce.agent.observe import observability
 from xrce.tools.cli_types import domain_id
 
 PROG = "xrce-agent"
@@ -142,39 +144,39 @@ def _positive(text):
 
 
 def _add_session_options(parser):
-    from xrce.agent import engine  # no rclpy behind it; the defaults are documented there
+    from xrce.agent.engine import dispatch  # no rclpy behind it; the defaults are documented there
 
     group = parser.add_argument_group("client liveliness and per-client quotas")
     group.add_argument("--client-dead-time", type=_milliseconds, metavar="MS",
-                       default=int(engine.CLIENT_DEAD_TIME * 1000),
+                       default=int(dispatch.CLIENT_DEAD_TIME * 1000),
                        help="a client silent this long is dead: no more HEARTBEATs to it, entities "
                             "kept, any message revives it (default %(default)s, as eProsima)")
     group.add_argument("--client-expire-time", type=_milliseconds, metavar="MS",
-                       default=int(engine.CLIENT_EXPIRE_TIME * 1000),
+                       default=int(dispatch.CLIENT_EXPIRE_TIME * 1000),
                        help="a client silent this long (since its last message) is deleted with "
                             "all its ROS entities; 0 = never (default, as eProsima without uxr_hl)")
-    group.add_argument("--max-clients", type=_positive, metavar="N", default=engine.MAX_CLIENTS,
+    group.add_argument("--max-clients", type=_positive, metavar="N", default=dispatch.MAX_CLIENTS,
                        help="sessions at once; a new one evicts the longest-dead client or is "
                             "refused with ERR_RESOURCES (default %(default)s)")
     group.add_argument("--max-objects", type=_positive, metavar="N",
-                       default=engine.MAX_OBJECTS_PER_CLIENT,
+                       default=dispatch.MAX_OBJECTS_PER_CLIENT,
                        help="XRCE objects per client; beyond, CREATE gets ERR_RESOURCES "
                             "(default %(default)s)")
     group.add_argument("--max-reassembly", type=_positive, metavar="BYTES",
-                       default=engine.MAX_REASSEMBLY,
+                       default=dispatch.MAX_REASSEMBLY,
                        help="largest fragmented message per client and stream (default %(default)s)")
     group.add_argument("--max-output-queue", type=_positive, metavar="BYTES",
-                       default=engine.MAX_OUTPUT_QUEUE_BYTES,
+                       default=dispatch.MAX_OUTPUT_QUEUE_BYTES,
                        help="sample bytes queued towards one client; the oldest are dropped "
                             "beyond (default %(default)s)")
     group.add_argument("--max-client-memory", type=_positive, metavar="BYTES",
-                       default=engine.MAX_CLIENT_BYTES,
+                       default=dispatch.MAX_CLIENT_BYTES,
                        help="bytes one client's buffers may hold (out-of-order input, reassembly, "
                             "parked messages, output queues and windows); beyond, its reliable "
                             "input waits unacknowledged and its output is dropped "
                             "(default %(default)s)")
     group.add_argument("--max-memory", type=_positive, metavar="BYTES",
-                       default=engine.MAX_TOTAL_BYTES,
+                       default=dispatch.MAX_TOTAL_BYTES,
                        help="the same, all clients together (default %(default)s)")
 
 
@@ -188,7 +190,7 @@ def _allow_list(parse):
 
 
 def _add_admission_options(parser):
-    from xrce.agent import admission
+    from xrce.agent.engine import admission
 
     group = parser.add_argument_group("admission (XRCE has no authentication: see README)")
     group.add_argument("--allow-keys", type=_allow_list(admission.parse_keys),
@@ -220,7 +222,7 @@ def _add_common_options(parser):
 def _add_ip_options(parser):
     parser.add_argument("-p", "--port", type=_port, required=True,
                         help="UDP/TCP port to serve (0: any free port, shown in the banner)")
-    parser.add_argument("-d", "--discovery", type=_port, nargs="?", const=udp_links.DISCOVERY_PORT,
+    parser.add_argument("-d", "--discovery", type=_port, nargs="?", const=udp.DISCOVERY_PORT,
                         metavar="PORT", help="answer discovery requests on PORT (default 7400)")
 
 
@@ -269,32 +271,32 @@ def _add_pty_options(parser):
 
 def _udp_links(family):
     def make_links(args, agent):
-        return [udp_links.UdpServer(agent, args.port, family=family)]
+        return [udp.UdpServer(agent, args.port, family=family)]
     return make_links
 
 
 def _tcp_links(family):
     def make_links(args, agent):
-        from xrce.agent import tcp_links
-        return [tcp_links.TcpServer(agent, args.port, family=family,
+        from xrce.agent.links import tcp
+        return [tcp.TcpServer(agent, args.port, family=family,
                                     max_connections=args.max_connections)]
     return make_links
 
 
 def _serial_links(args, agent):
-    from xrce.agent import serial_links
-    return [serial_links.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
+    from xrce.agent.links import serial
+    return [serial.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
 
 
 def _multiserial_links(args, agent):
-    from xrce.agent import serial_links
+    from xrce.agent.links import serial
     devices = args.devs.split()
-    return [serial_links.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
+    return [serial.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
 
 
 def _pty_links(args, agent):
-    from xrce.agent import serial_links
-    return [serial_links.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
+    from xrce.agent.links import serial
+    return [serial.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
 
 
 # The demo's options are defined here and its module imported only when it runs: every agent
@@ -392,7 +394,7 @@ def _strip_namespaces(element):
 def load_refs(path):
     """``{profile_name: xml}`` for every element carrying a ``profile_name`` in a Fast DDS XML
     profiles file; the XML of each is that element alone, namespaces removed."""
-    import xml.etree.ElementTree as ElementTree  # only with -r: see xrce.agent.xmlrep._parse
+    import xml.etree.ElementTree as ElementTree  # only with -r: see xrce.agent.engine.xmlrep._parse
 
     try:
         tree = ElementTree.parse(path)
@@ -439,9 +441,9 @@ def check_paths(args):
 def make_middleware(name):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
-        from xrce.agent.ced import CedMiddleware
+        from xrce.agent.middleware.ced import CedMiddleware
         return CedMiddleware()
-    from xrce.agent.ros import RosMiddleware
+    from xrce.agent.middleware.ros.entities import RosMiddleware
     return RosMiddleware(park_creation=True)
 
 
@@ -456,7 +458,7 @@ def configure_logging(verbosity):
 
 async def serve(args, refs):
     """Run the agent on the links of ``args.subcommand`` until SIGINT/SIGTERM; the exit code."""
-    from xrce.agent.engine import Agent
+    from xrce.agent.engine.dispatch import Agent
 
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
@@ -471,7 +473,7 @@ async def serve(args, refs):
                   max_reassembly_bytes=args.max_reassembly,
                   max_output_queue_bytes=args.max_output_queue,
                   max_client_bytes=args.max_client_memory, max_total_bytes=args.max_memory)
-    from xrce.agent.admission import AdmissionPolicy
+    from xrce.agent.engine.admission import AdmissionPolicy
     agent.admission = AdmissionPolicy.from_args(args)
     if agent.admission is not None:
         logging.getLogger("xrce.agent.admission").info("admission: %s", agent.admission.describe())
@@ -490,7 +492,7 @@ async def serve(args, refs):
                 await link.start()
                 started.append(link)
             if getattr(args, "discovery", None) is not None:
-                discovery = udp_links.DiscoveryServer(links[0].port, args.discovery)
+                discovery = udp.DiscoveryServer(links[0].port, args.discovery)
                 await discovery.start()
                 started.append(discovery)
             observe = observability.Observability.from_args(args, agent, started, middleware)
@@ -545,7 +547,7 @@ def _open_error(args, links, started, exc):
             return "cannot open %s port %d (-p): %s%s" % (link.name, port, reason, hint)
         return "cannot open %s: %s" % (link.describe(), reason)
     if getattr(args, "discovery", None) is not None and not any(
-            isinstance(link, udp_links.DiscoveryServer) for link in started):
+            isinstance(link, udp.DiscoveryServer) for link in started):
         return "cannot open discovery port %d (-d): %s" % (args.discovery, reason)
     if getattr(args, "stats_port", None) is not None:
         return "cannot open stats port %d (--stats-port): %s" % (args.stats_port, reason)
@@ -582,14 +584,14 @@ def main(argv=None):
     if args.interfaces:  # the build code loads only when there is something to tell it
         interfaces.add_search_dirs(args.interfaces)
     if args.middleware == "dds":
-        from xrce.agent import rosenv
+        from xrce.agent.middleware.ros import env as rosenv
         try:  # the one line saying which ROS 2, rclpy and RMW this agent joins
             rosenv.log_ros_in_use(logging.getLogger("xrce.agent.rosenv"))
         except rosenv.RosUnavailable as exc:
             sys.stderr.write("%s: error: %s\n" % (PROG, exc))
             sys.stderr.flush()
             return 1
-        from xrce.agent import fastdds_profile, rclpy_services
+        from xrce.agent.middleware.ros import fastdds_profile, rclpy_services
         rclpy_services.defer_unused()  # before anything imports rclpy.node
         if fastdds_profile.install():  # before any participant: Fast DDS reads it once
             logging.getLogger("xrce.agent.rosenv").debug(

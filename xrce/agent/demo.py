@@ -231,7 +231,7 @@ class _Square:
 
 
 def run(args):
-    from xrce.agent import rosenv
+    from xrce.agent.middleware.ros import env as rosenv
 
     try:
         domain, localhost_only, holder, env = choose_network(args)

@@ -7,7 +7,7 @@ on the project's machine), and changes nothing for a program that imports ``xrce
   only to offer TLS transports, which the agent never opens, and ``ssl`` with its OpenSSL library
   costs 4.3 MB (``import asyncio`` +9.4 MB with it, +5.0 MB without). Other code may still
   ``import ssl`` afterwards; only this process's asyncio has no TLS.
-- ``yaml`` is deferred (``xrce.agent.deferred``): rclpy imports it at start-up for parameter
+- ``yaml`` is deferred (``xrce.agent.middleware.ros.deferred``): rclpy imports it at start-up for parameter
   files, which the agent's nodes never read; it runs, whole, on first use (1.4 MB with its C
   extension and libyaml otherwise).
 """
@@ -28,7 +28,7 @@ def _import_asyncio_without_tls():
 
 def main(argv=None):
     _import_asyncio_without_tls()
-    from xrce.agent import deferred
+    from xrce.agent.middleware.ros import deferred
     deferred.defer("yaml")
     from xrce.agent.cli import main as agent_main
     return agent_main(argv)

@@ -8,7 +8,7 @@
  * here. At the first datagram that is not (reliable streams, fragments, control, unknown clients,
  * anything malformed) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
- * order. xrce/agent/fastpath.py is the Python side.
+ * order. xrce/agent/engine/fastpath.py is the Python side.
  *
  * Measured and not kept: a thread of its own reading the socket and waking the loop through an
  * eventfd for the rest. Best-effort was cheaper still, but every other datagram then cost two
@@ -579,7 +579,7 @@ static PyMethodDef Receiver_methods[] = {
 
 static PyTypeObject ReceiverType = {
     PyVarObject_HEAD_INIT(NULL, 0)
-    .tp_name = "xrce.agent._fastpath.Receiver",
+    .tp_name = "xrce.agent.engine._fastpath.Receiver",
     .tp_basicsize = sizeof(Receiver),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_new = PyType_GenericNew,
@@ -601,7 +601,7 @@ static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
     return PyBool_FromLong(rcl_publish_serialized != NULL);
 }
 
-/* malloc_trim(0) once start-up is over (xrce.agent.engine). Here rather than through ctypes:
+/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through ctypes:
    the ctypes package, once imported, stays in the process (0.57 MB of classes). */
 static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
 #if defined(__GLIBC__)
@@ -619,7 +619,7 @@ static PyMethodDef module_methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "xrce.agent._fastpath", NULL, -1, module_methods,
+    PyModuleDef_HEAD_INIT, "xrce.agent.engine._fastpath", NULL, -1, module_methods,
 };
 
 PyMODINIT_FUNC PyInit__fastpath(void) {

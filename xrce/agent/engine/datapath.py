@@ -1,6 +1,6 @@
 """The per-message data path: samples in (WRITE_DATA, FRAGMENT) and out (READ_DATA delivery, DATA) (XRCE-WIRE.md §6–§8).
 
-Everything a sample touches between the dispatcher (``xrce.agent.engine``) and the middleware is
+Everything a sample touches between the dispatcher (``xrce.agent.engine.dispatch``) and the middleware is
 here, so this module is the one to read and profile for throughput:
 
 - in: ``_write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``_fragment`` reassembles
@@ -10,7 +10,7 @@ here, so this module is the one to read and profile for throughput:
   ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``_send_on_stream`` numbers, stores (reliable) and fragments output.
 
-With the optional compiled UDP path (``xrce.agent.fastpath``), best-effort WRITE_DATA of writers
+With the optional compiled UDP path (``xrce.agent.engine.fastpath``), best-effort WRITE_DATA of writers
 this path has handled once are published by the UDP link's read before they reach Python; what
 ``_fast_write`` hands it (``offer``) is how it learns which ones.
 """
@@ -23,7 +23,7 @@ from collections import deque
 from typing import Hashable, Optional
 
 from xrce import constants as C
-from xrce.agent.session import (
+from xrce.agent.engine.session import (
     MAX_REASSEMBLY, STREAM_WINDOW, TRACE, ClientProxy, Link, ObjectEntry, ReadRequest,
 )
 from xrce.message import header_size
@@ -102,7 +102,7 @@ class DataPath:
         entry.write(data[start + 8:])
         if not stream_id & 0x80:
             fastpath = getattr(link, "fastpath", None)
-            if fastpath is not None:  # the next ones may not need Python (xrce.agent.fastpath)
+            if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
                 fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
             self._acknack_soon(client, stream)

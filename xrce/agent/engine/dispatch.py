@@ -7,10 +7,10 @@ touching any other client. Everything runs on one asyncio loop.
 
 ``Agent`` is assembled from one module per protocol seam, each readable alone:
 
-- ``xrce.agent.session``: per-client state (``ClientProxy``), CREATE_CLIENT, GET_INFO, deletion;
-- ``xrce.agent.registry``: CREATE/DELETE of XRCE objects and the middleware entities behind them;
-- ``xrce.agent.datapath``: the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
-- ``xrce.agent.liveliness``: ACKNACK/HEARTBEAT and the timed work per client;
+- ``xrce.agent.engine.session``: per-client state (``ClientProxy``), CREATE_CLIENT, GET_INFO, deletion;
+- ``xrce.agent.engine.objects``: CREATE/DELETE of XRCE objects and the middleware entities behind them;
+- ``xrce.agent.engine.datapath``: the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
+- ``xrce.agent.engine.liveliness``: ACKNACK/HEARTBEAT and the timed work per client;
 - this module: message header, stream admission and submessage dispatch, parking of clients whose
   CREATE waits for a type build, and the agent's lifecycle.
 
@@ -34,17 +34,17 @@ from collections import deque
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
 
 from xrce import constants as C, names as wire_names
-from xrce.agent.admission import RefusalLog
-from xrce.agent.datapath import DataPath
-from xrce.agent.liveliness import NEVER, Liveliness
+from xrce.agent.engine.admission import RefusalLog
+from xrce.agent.engine.datapath import DataPath
+from xrce.agent.engine.liveliness import NEVER, Liveliness
 from xrce.agent.middleware import Middleware
-from xrce.agent.registry import ObjectRegistry, Parked
-from xrce.agent.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
+from xrce.agent.engine.objects import ObjectRegistry, Parked
+from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
     ClientProxy, Link, SessionTable,
 )
-from xrce.agent.timeline import TIMELINE_CHECK_S, RecoveryTimelines
+from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
 from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_add, seq_sub
@@ -65,7 +65,7 @@ def _return_free_heap() -> None:
     Through the compiled helper where it is built: the ctypes package, once imported, stays in
     the process (0.57 MB of classes)."""
     try:
-        from xrce.agent._fastpath import return_free_heap
+        from xrce.agent.engine._fastpath import return_free_heap
     except ImportError:
         try:
             import ctypes
@@ -126,14 +126,14 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # the next turn (see _process_message).
         self._yield_due = False
         # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
-        # ("out"), e.g. by a capture file (xrce.agent.capture); None costs one test.
+        # ("out"), e.g. by a capture file (xrce.agent.observe.capture); None costs one test.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
-        self.admission = None  # who may open a session (xrce.agent.admission); None: anyone
+        self.admission = None  # who may open a session (xrce.agent.engine.admission); None: anyone
         # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
         # must not fill the operator's log (see ObjectRegistry._create).
         self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self.clock())
         self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
-        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.fastpath) feeding this agent
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.fastpath) feeding this agent
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -270,7 +270,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
 
     async def run(self) -> None:
         """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent
-        for traffic and for the timer of the next due work (see ``xrce.agent.liveliness``)."""
+        for traffic and for the timer of the next due work (see ``xrce.agent.engine.liveliness``)."""
         await self.start()
         self.tick()
         try:

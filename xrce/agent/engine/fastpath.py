@@ -1,4 +1,4 @@
-"""The UDP link's optional compiled receive path (``xrce/agent/_fastpath.c``), Python side.
+"""The UDP link's optional compiled receive path (``xrce/agent/engine/_fastpath.c``), Python side.
 
 When the extension is built and the middleware is rclpy, the UDP link's read goes through C: one
 ``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl,
@@ -24,13 +24,13 @@ import os
 import time
 from typing import Dict, Optional
 
-from xrce.agent.session import TRACE
+from xrce.agent.engine.session import TRACE
 from xrce.streams import InputBestEffortStream
 
 log = logging.getLogger("xrce.agent")
 
 try:
-    from xrce.agent import _fastpath
+    from xrce.agent.engine import _fastpath
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 

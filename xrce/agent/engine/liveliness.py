@@ -1,6 +1,6 @@
 """Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead and expired clients (XRCE-WIRE.md §9, §10).
 
-``Liveliness`` is the part of ``xrce.agent.engine.Agent`` that answers a client's HEARTBEAT with
+``Liveliness`` is the part of ``xrce.agent.engine.dispatch.Agent`` that answers a client's HEARTBEAT with
 an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
 HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead/expired clients
 and paced READ_DATA delivery.
@@ -19,7 +19,7 @@ import threading
 import math
 
 from xrce import constants as C
-from xrce.agent.session import STREAM_WINDOW, ClientProxy
+from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
 from xrce.streams import InputReliableStream, is_reliable
 from xrce.submessages import AckNack, GetInfo, Heartbeat
 

@@ -2,7 +2,7 @@
 
 Object ids, parents and REUSE/REPLACE signatures are the engine's business; what an object maps
 onto (an rclpy node, publisher, subscription, …) is the middleware's. ``ObjectRegistry`` is the
-part of ``xrce.agent.engine.Agent`` that answers CREATE and DELETE with STATUS and keeps each
+part of ``xrce.agent.engine.dispatch.Agent`` that answers CREATE and DELETE with STATUS and keeps each
 client's ``objects`` table consistent with the middleware.
 """
 
@@ -13,12 +13,12 @@ import os
 from typing import Optional
 
 from xrce import constants as C, names as wire_names
-from xrce.agent import reuse
+from xrce.agent.engine import reuse
 from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
 )
-from xrce.agent.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
+from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.errors import DecodeError
 from xrce.objects import PARENT_KIND, with_kind
 from xrce.streams import is_reliable
@@ -49,7 +49,7 @@ class ObjectRegistry:
     """Mixin of ``Agent``: CREATE/DELETE of XRCE objects and their middleware entities.
 
     Uses the agent's ``middleware``, ``refs``, ``stats``, ``max_objects_per_client`` and
-    ``create_failures`` (a rate-limited log: xrce.agent.admission.RefusalLog);
+    ``create_failures`` (a rate-limited log: xrce.agent.engine.admission.RefusalLog);
     ``_send_on_stream``/``_send_raw`` and the sample callbacks (data path) and ``_quota_warning``
     (sessions).
     """
@@ -250,7 +250,7 @@ class ObjectRegistry:
 def _xml():
     # XML representations load with the first XML request: clients creating their entities in
     # binary (eProsima's C client with binary creation, xrce.client) never pay for it (~0.1 MB).
-    from xrce.agent import xmlrep
+    from xrce.agent.engine import xmlrep
 
     return xmlrep
 

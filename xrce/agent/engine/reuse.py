@@ -52,7 +52,7 @@ def matches(kind: int, stored: Representation, request, refs: Dict[str, str]) ->
 
 
 def _meaning(kind: int, fmt: int, text: str, refs: Dict[str, str]):
-    from xrce.agent import xmlrep  # loaded with the first XML request only (see registry._xml)
+    from xrce.agent.engine import xmlrep  # loaded with the first XML request only (see objects._xml)
 
     if fmt == C.REPRESENTATION_BY_REFERENCE:
         name, text = text, refs.get(text)

@@ -1,7 +1,7 @@
 """Session state: what the agent knows about each client, and how sessions begin and end (XRCE-WIRE.md §3, §4).
 
 ``ClientProxy`` is one client: its key, where replies go, its streams, its XRCE objects and its
-per-client counters. ``SessionTable`` is the part of ``xrce.agent.engine.Agent`` that answers
+per-client counters. ``SessionTable`` is the part of ``xrce.agent.engine.dispatch.Agent`` that answers
 CREATE_CLIENT and GET_INFO, binds sessions to endpoints, enforces ``max_clients`` and deletes
 clients. The agent-wide counters (``AgentStats``) and the per-client quota defaults live here too.
 """
@@ -15,7 +15,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 
 from xrce import constants as C
 from xrce.agent.middleware import EntityKey, TopicSpec
-from xrce.agent.observability import client_tag
+from xrce.agent.observe.observability import client_tag
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )
@@ -130,7 +130,7 @@ class ObjectEntry:
     object_id: int
     kind: int
     parent: Optional[int]
-    signature: Tuple[int, Any, int]  # (format, decoded representation, tail): xrce.agent.reuse
+    signature: Tuple[int, Any, int]  # (format, decoded representation, tail): xrce.agent.engine.reuse
     topic: Optional[int] = None  # the topic object a writer/reader uses
     topic_spec: Optional[TopicSpec] = None
     reader: Optional[ReaderState] = None
@@ -167,16 +167,16 @@ class ClientProxy:
         self.out_reliable: Dict[int, OutputReliableStream] = {}
         self.reassembly: Dict[int, bytearray] = {}
         # Reliable output not yet sent, per stream: fragments of a sample longer than the window
-        # has room for, sent as ACKNACKs free room (xrce.agent.datapath._send_pending).
+        # has room for, sent as ACKNACKs free room (xrce.agent.engine.datapath._send_pending).
         self.out_pending: Dict[int, Deque[bytes]] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored
         # While a CREATE waits for its type to be built: the messages to process afterwards, in
         # order, starting with the rest of the one that held the CREATE. None when not parked.
         self.parked: Optional[list] = None
-        # xrce.agent.fastpath.CompiledClient while the UDP link's compiled path knows this client.
+        # xrce.agent.engine.fastpath.CompiledClient while the UDP link's compiled path knows this client.
         self.fast: Any = None
-        # Per-client counters for xrce.agent.observability; plain ints so the hot path stays cheap.
+        # Per-client counters for xrce.agent.observe.observability; plain ints so the hot path stays cheap.
         self.created_at = now
         self.messages_in = 0
         self.bytes_in = 0
@@ -245,7 +245,7 @@ class SessionTable:
             status = C.STATUS_ERR_INCOMPATIBLE
         elif self.admission is not None and \
                 not self.admission.admits(bytes(request.client_key), link, endpoint):
-            status = C.STATUS_ERR_DENIED  # --allow-keys / --allow-from (xrce.agent.admission)
+            status = C.STATUS_ERR_DENIED  # --allow-keys / --allow-from (xrce.agent.engine.admission)
         elif not self._room_for_client(bytes(request.client_key), link, endpoint, session_id):
             status = C.STATUS_ERR_RESOURCES
         if status == C.STATUS_OK:

@@ -1,10 +1,10 @@
 """Build ROS 2 interface packages (``.msg``/``.srv``) against the ROS 2 xrce runs on: the PyPI
-wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see rosenv.py).
+wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see xrce.agent.middleware.ros.env).
 
 ``xrce-agent build-interfaces [DIR ...]`` and the agent's lazy path (``ensure_package``), both here,
 run plain cmake on every interface package found under the given directories into a content-hash
-cache (xrce.agent.interface_build); a ``.pth`` hook makes the built packages importable in every
-interpreter of the venv with no environment variable (xrce.agent.interface_registry).
+cache (xrce.agent.interfaces.build); a ``.pth`` hook makes the built packages importable in every
+interpreter of the venv with no environment variable (xrce.agent.interfaces.registry).
 
 Only the standard library is imported at module level: the ``.pth`` hook imports this module in
 every interpreter start of the venv.
@@ -16,11 +16,11 @@ import os
 import sys
 import threading
 
-from xrce.agent.interface_registry import REGISTRY_NAME, default_site_dir
+from xrce.agent.interfaces.registry import REGISTRY_NAME, default_site_dir
 # Used through this module: the .pth hook calls activate_registry.
-from xrce.agent.interface_registry import activate_registry  # noqa: F401
+from xrce.agent.interfaces.registry import activate_registry  # noqa: F401
 
-# The build code (xrce.agent.interface_build: package search, hashing, cmake) loads when a build or
+# The build code (xrce.agent.interfaces.build: package search, hashing, cmake) loads when a build or
 # the search path is first needed, also for callers that name it through this module (the agent's
 # --interfaces DIR calls add_search_dirs): the .pth hook imports this module in every interpreter
 # of the environment, and an agent whose types are built already never needs it.
@@ -29,7 +29,7 @@ _FROM_BUILD = ("InterfaceBuildError", "add_search_dirs", "build", "find_packages
 
 def __getattr__(name):
     if name in _FROM_BUILD:
-        from xrce.agent import interface_build
+        from xrce.agent.interfaces import build as interface_build
 
         return getattr(interface_build, name)
     raise AttributeError("module %r has no attribute %r" % (__name__, name))
@@ -38,7 +38,7 @@ def __getattr__(name):
 # ----------------------------------------------------------------------------- agent's lazy path
 
 # A client names types; a type name must never make the agent run code it would not run anyway
-# (xrce.agent.rostypes decides what may be imported). Building is for packages the interface
+# (xrce.agent.middleware.ros.types decides what may be imported). Building is for packages the interface
 # directories hold: their names are listed once per agent run by a child interpreter, each such
 # package gets one build attempt per run, and both children are killed past their timeout, so a
 # CREATE parked on them always comes back.
@@ -73,12 +73,12 @@ def search_index():
 def _list_in_child():
     import subprocess
 
-    from xrce.agent.interface_build import search_dirs
+    from xrce.agent.interfaces.build import search_dirs
 
     dirs = search_dirs()
     if not dirs:
         return frozenset()
-    command = [sys.executable, "-m", "xrce.agent.interface_build", "--list"] + dirs
+    command = [sys.executable, "-m", "xrce.agent.interfaces.build", "--list"] + dirs
     try:
         completed = _run_child(command, SEARCH_INDEX_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -144,9 +144,9 @@ def _build_in_child(package_name):
     import importlib
     import subprocess
 
-    from xrce.agent.interface_build import NOT_IN_SEARCH_PATH, InterfaceBuildError, search_dirs
+    from xrce.agent.interfaces.build import NOT_IN_SEARCH_PATH, InterfaceBuildError, search_dirs
 
-    command = [sys.executable, "-m", "xrce.agent.interface_build", package_name] + search_dirs()
+    command = [sys.executable, "-m", "xrce.agent.interfaces.build", package_name] + search_dirs()
     try:
         completed = _run_child(command, LAZY_BUILD_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -167,7 +167,7 @@ def ensure_package(package_name, timeout_s=None):
     when built (or cached) and registered, False when no such package is in the search path."""
     import concurrent.futures
 
-    from xrce.agent.interface_build import InterfaceBuildError
+    from xrce.agent.interfaces.build import InterfaceBuildError
 
     timeout_s = timeout_s if timeout_s is not None else LAZY_BUILD_TIMEOUT_S
     try:
@@ -191,7 +191,7 @@ def add_build_options(parser):
 
 
 def run_build_command(args):
-    from xrce.agent.interface_build import InterfaceBuildError, build
+    from xrce.agent.interfaces.build import InterfaceBuildError, build
 
     def report(result):
         sys.stdout.write("%s %s %s %.2fs\n" % ("cached" if result.cached else "built",

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 import sys
 
-from xrce.agent.interface_registry import COMPLETE_MARKER, register
+from xrce.agent.interfaces.registry import COMPLETE_MARKER, register
 
 # ROS packages whose versions change the generated code (read from their package.xml wherever the
 # ROS in use installed them: the wheels' prefix or a sourced ROS).
@@ -134,7 +134,7 @@ def default_cache_root():
 
 
 def _toolchain_fingerprint():
-    from xrce.agent import rosenv
+    from xrce.agent.middleware.ros import env as rosenv
 
     parts = ["python=%d.%d" % sys.version_info[:2], "machine=%s" % os.uname().machine]
     for package in _ROSIDL_PACKAGES:
@@ -185,7 +185,7 @@ class BuildResult:
 def _cmake_environment(dependency_prefixes):
     """The build's environment: the in-tree dependencies' prefixes, then the ROS in use (a sourced
     ROS's AMENT_PREFIX_PATH and/or the wheels in this interpreter's prefix)."""
-    from xrce.agent import rosenv
+    from xrce.agent.middleware.ros import env as rosenv
 
     env = dict(os.environ)
     prefixes = []
@@ -289,7 +289,7 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
     if not dirs:
         raise InterfaceBuildError("no interface directories: pass one (this xrce ships no "
                                   "xrce/ros_interfaces)")
-    from xrce.agent import rosenv
+    from xrce.agent.middleware.ros import env as rosenv
 
     if not rosenv.ament_prefixes():
         raise InterfaceBuildError("no ROS 2 to build against: source your ROS 2 first (source "
@@ -320,7 +320,7 @@ NOT_IN_SEARCH_PATH = 3  # exit code of main(): no interface package of that name
 
 
 def main(argv=None):
-    """``python -m xrce.agent.interface_build PACKAGE DIR...``: build and register PACKAGE (with its
+    """``python -m xrce.agent.interfaces.build PACKAGE DIR...``: build and register PACKAGE (with its
     in-tree dependencies) from DIRs; ``--list DIR...``: print the names of the packages there.
     The agent's lazy build runs this in a child interpreter (xrce.agent.interfaces), so that
     nothing a build or the search imports stays in the agent's memory."""

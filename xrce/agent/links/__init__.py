@@ -4,10 +4,10 @@ Every link has a ``name``, a ``stats`` (``LinkStats``) and ``send(endpoint, data
 each complete XRCE message it receives to ``receiver.receive(link, endpoint, data)`` (the protocol
 engine). What an endpoint is depends on the link:
 
-- UDP: the datagram's source address tuple (``xrce.agent.udp_links``);
-- TCP: the ``TcpConnection`` object of the stream (``xrce.agent.tcp_links``);
+- UDP: the datagram's source address tuple (``xrce.agent.links.udp``);
+- TCP: the ``TcpConnection`` object of the stream (``xrce.agent.links.tcp``);
 - serial / multiserial / pseudoterminal: ``(port_name, remote_serial_address)``
-  (``xrce.agent.serial_links``).
+  (``xrce.agent.links.serial``).
 
 A malformed datagram or frame, or an exception raised by the receiver, is logged and counted as a
 drop; nothing raises into the event loop. The byte framers themselves live in

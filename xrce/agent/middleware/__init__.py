@@ -1,11 +1,11 @@
 """The interface between the agent's protocol engine and what its objects map onto.
 
-The engine (``xrce.agent.engine``) owns XRCE semantics: sessions, streams, object trees,
+The engine (``xrce.agent.engine.dispatch``) owns XRCE semantics: sessions, streams, object trees,
 REUSE/REPLACE, STATUS codes, READ_DATA delivery control. A middleware only creates, deletes and moves
 data through the backing entities:
 
 - ``CedMiddleware`` (``-m ced``): routes samples between the agent's own clients by topic name, no ROS.
-- ``RosMiddleware`` (``-m dds``, ``xrce.agent.ros``): rclpy nodes, publishers, subscriptions, service
+- ``RosMiddleware`` (``-m dds``, ``xrce.agent.middleware.ros.entities``): rclpy nodes, publishers, subscriptions, service
   clients and servers.
 
 Entity handles are the engine's ``EntityKey`` = ``(client_key: int, object_id: int)``, unique across
@@ -70,14 +70,14 @@ class EndpointQosSpec:
 
 # Fast DDS defaults when a representation is silent: a DataWriter is RELIABLE + TRANSIENT_LOCAL, a
 # DataReader BEST_EFFORT + VOLATILE, and both keep the last sample only. Here, not in
-# xrce.agent.xmlrep, because binary endpoints without QoS take them too and must not load the XML
+# xrce.agent.engine.xmlrep, because binary endpoints without QoS take them too and must not load the XML
 # code for them.
 WRITER_DEFAULTS = EndpointQosSpec(reliable=True, keep_last=True, depth=1, durability="transient_local")
 READER_DEFAULTS = EndpointQosSpec(reliable=False, keep_last=True, depth=1, durability="volatile")
 
 
 class XmlRepresentationError(ValueError):
-    """The XML does not describe the object kind it was sent for (raised by xrce.agent.xmlrep,
+    """The XML does not describe the object kind it was sent for (raised by xrce.agent.engine.xmlrep,
     defined here so that the engine can catch it without loading that module)."""
 
 

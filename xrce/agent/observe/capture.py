@@ -24,7 +24,7 @@ import os
 import time
 
 from xrce import constants as C
-from xrce.agent.observability import (CAPTURE_FILES, CAPTURE_MAX_BYTES, client_pseudonym,
+from xrce.agent.observe.observability import (CAPTURE_FILES, CAPTURE_MAX_BYTES, client_pseudonym,
                                       endpoint_text)
 from xrce.message import header_size, iter_submessages
 

@@ -1,7 +1,7 @@
 """``/diagnostics``: with ``-m dds`` and ``diagnostic_msgs`` importable, a
 ``diagnostic_msgs/DiagnosticArray`` goes out once a second in every ROS domain the agent has joined
 where some node subscribes to it: one status for the agent, one per client, named after the
-client's tag (``observability.client_tag``: the key itself is a credential). Its content is an ``Observer`` snapshot (xrce.agent.observability).
+client's tag (``observability.client_tag``: the key itself is a credential). Its content is an ``Observer`` snapshot (xrce.agent.observe.observability).
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING
 from xrce.cdr import CdrWriter
 
 if TYPE_CHECKING:
-    from xrce.agent.observability import Observer
+    from xrce.agent.observe.observability import Observer
 
-# One logger for everything observability does (xrce.agent.observability wires this module in).
+# One logger for everything observability does (xrce.agent.observe.observability wires this module in).
 log = logging.getLogger("xrce.agent.observability")
 
 STALE_AFTER_S = 5.0  # a client silent this long is reported WARN on /diagnostics
@@ -27,7 +27,7 @@ DIAGNOSTIC_WARN = 1
 def diagnostic_array_type():
     """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed."""
     try:
-        from xrce.agent.rostypes import raw_message_type
+        from xrce.agent.middleware.ros.types import raw_message_type
         return raw_message_type(DIAGNOSTIC_ARRAY_TYPE)
     except Exception as exc:  # no rclpy or no diagnostic_msgs: the agent runs without
         log.debug("no /diagnostics: %s", exc)

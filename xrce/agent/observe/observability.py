@@ -6,11 +6,11 @@
   ``update_rates()`` calls, made once a second by ``Observability`` while anything shows them.
 - ``StatsServer``: ``--stats-port PORT`` serves that snapshot as one JSON document to every TCP
   connection on 127.0.0.1 (TCP, not UDP: a thousand clients do not fit in one datagram).
-  ``xrce-agent stats -p PORT`` polls it and redraws a terminal table (xrce.agent.stats_view).
+  ``xrce-agent stats -p PORT`` polls it and redraws a terminal table (xrce.agent.observe.stats_view).
 - At ``-v 5`` the agent logs a one-line summary (and one line per active client) periodically.
-- With ``-m dds``, ``/diagnostics`` carries the snapshot into ROS (xrce.agent.diagnostics).
+- With ``-m dds``, ``/diagnostics`` carries the snapshot into ROS (xrce.agent.observe.diagnostics).
 - ``--capture FILE`` writes every message in both directions to a text file that
-  ``read_capture``/``decode_capture`` read back (xrce.agent.capture).
+  ``read_capture``/``decode_capture`` read back (xrce.agent.observe.capture).
 
 ``Observability`` attaches the ones the command line asks for to one agent; each lives in the
 module named above, readable alone.
@@ -36,7 +36,7 @@ except ImportError:
     from hashlib import blake2b
 
 from xrce import constants as C
-from xrce.agent.diagnostics import DiagnosticsPublisher, diagnostic_array_type
+from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
 # The `xrce-agent stats` subcommand is registered (xrce/agent/cli.py) through this module.
 
 log = logging.getLogger("xrce.agent.observability")
@@ -237,7 +237,7 @@ class StatsServer:
 
 # ------------------------------------------------------------------------------------ wiring
 
-CAPTURE_MAX_BYTES = 16 * 1024 * 1024  # xrce.agent.capture: a flood fills 4 x 16 MiB at most
+CAPTURE_MAX_BYTES = 16 * 1024 * 1024  # xrce.agent.observe.capture: a flood fills 4 x 16 MiB at most
 CAPTURE_FILES = 4
 _MIN_CAPTURE_BYTES = 4096
 
@@ -299,7 +299,7 @@ class Observability:
             else None
         self.capture = None
         if capture:
-            from xrce.agent.capture import CaptureWriter
+            from xrce.agent.observe.capture import CaptureWriter
 
             self.capture = CaptureWriter(capture, capture_max_bytes, capture_files)
         self.summary_period = summary_period
@@ -383,7 +383,7 @@ class Observability:
                     self.diagnostics.publish()
                 if next_summary is not None and time.monotonic() >= next_summary:
                     next_summary += self.summary_period
-                    from xrce.agent.stats_view import summary_lines
+                    from xrce.agent.observe.stats_view import summary_lines
 
                     for line in summary_lines(self.observer.snapshot()):
                         log.debug("%s", line)
@@ -407,7 +407,7 @@ class Observability:
             self.capture.close()
 
 
-# `xrce-agent stats`: its options are declared with every subcommand's, its code (xrce.agent.stats_view)
+# `xrce-agent stats`: its options are declared with every subcommand's, its code (xrce.agent.observe.stats_view)
 # loads only when it runs; a serving agent never needs it.
 def add_stats_options(parser) -> None:
     parser.add_argument("-p", "--port", type=int, required=True,
@@ -423,7 +423,7 @@ def add_stats_options(parser) -> None:
 
 
 def run_stats(args) -> int:
-    from xrce.agent.stats_view import run_stats as run
+    from xrce.agent.observe.stats_view import run_stats as run
 
     return run(args)
 

@@ -1,4 +1,4 @@
-"""Text views of an ``Observer`` snapshot (xrce.agent.observability).
+"""Text views of an ``Observer`` snapshot (xrce.agent.observe.observability).
 
 - ``xrce-agent stats -p PORT`` reads a running agent's ``--stats-port`` (one JSON document per TCP
   connection) and redraws its links, clients and topics as terminal tables (plain ANSI, no
@@ -13,7 +13,7 @@ import socket
 import sys
 import time
 
-from xrce.agent.timeline import format_timeline
+from xrce.agent.engine.timeline import format_timeline
 
 
 def _number(value) -> str:

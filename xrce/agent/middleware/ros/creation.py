@@ -1,7 +1,7 @@
 """Entity creation on a ROS domain's executor thread without holding up the loop (``-m dds``).
 
 Every rclpy node, publisher, subscription, client and service is made on its domain's executor
-thread (``xrce.agent.ros_domain``). The loop used to wait for each (up to ``entity_timeout_s``),
+thread (``xrce.agent.middleware.ros.domain``). The loop used to wait for each (up to ``entity_timeout_s``),
 and every other client with it. With ``park_creation`` (the CLI's agent) a ``create_*`` submits
 the job and raises ``TypeNotReady``: the engine parks only the creating client's processing and
 retries its CREATE when the job is done or timed out, and the retry takes the job's result.
@@ -12,7 +12,7 @@ from __future__ import annotations
 import concurrent.futures
 
 from xrce.agent.middleware import EntityKey, MiddlewareError, TypeNotReady
-from xrce.agent.ros_domain import log
+from xrce.agent.middleware.ros.domain import log
 
 
 class Creation:

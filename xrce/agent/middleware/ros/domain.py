@@ -1,4 +1,4 @@
-"""The threads behind ``RosMiddleware`` (``xrce.agent.ros``): one rclpy context and executor thread
+"""The threads behind ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``): one rclpy context and executor thread
 per ROS domain, the jobs the asyncio loop hands to it, and the samples it hands back to the loop.
 
 Threading model (measured on the 2-core dev machine, Twist, peer in another process):
@@ -54,7 +54,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from xrce.agent.middleware import DataCallback, MiddlewareError
-from xrce.agent.rostypes import raw_message_type
+from xrce.agent.middleware.ros.types import raw_message_type
 
 # The whole ROS bridge logs under one name, the one it had as a single module, so that existing
 # log filters keep matching.

@@ -2,8 +2,8 @@
 
 The threads (one rclpy context and executor thread per domain, its job queue and wake-up, the
 bounded hand-off of samples back to the loop) and the measurements behind them are in
-``xrce.agent.ros_domain``; requesters and repliers (the request/reply path) in
-``xrce.agent.ros_services``. This module maps the XRCE entities onto rclpy ones and moves their
+``xrce.agent.middleware.ros.domain``; requesters and repliers (the request/reply path) in
+``xrce.agent.middleware.ros.services``. This module maps the XRCE entities onto rclpy ones and moves their
 data.
 """
 
@@ -25,7 +25,7 @@ from xrce.agent.middleware import (
     TopicSpec,
     TypeNotReady,
 )
-from xrce.agent.ros_domain import (
+from xrce.agent.middleware.ros.domain import (
     ENCAPSULATION_LE,
     EXECUTOR_EVENTS,
     EXECUTOR_SINGLE,
@@ -35,10 +35,10 @@ from xrce.agent.ros_domain import (
     in_thread,
     log,
 )
-from xrce.agent.observability import client_tag
-from xrce.agent.ros_creation import ParkedCreation
-from xrce.agent.ros_services import RosServices
-from xrce.agent.rostypes import (
+from xrce.agent.observe.observability import client_tag
+from xrce.agent.middleware.ros.creation import ParkedCreation
+from xrce.agent.middleware.ros.services import RosServices
+from xrce.agent.middleware.ros.types import (
     dds_topic_to_ros,
     node_name_and_namespace,
     qos_profile,
@@ -119,7 +119,7 @@ def _default_domain_id() -> int:
 
 def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
     domain.stop(timeout_s)
-    from xrce.agent.engine import _return_free_heap
+    from xrce.agent.engine.dispatch import _return_free_heap
 
     _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
 
@@ -133,7 +133,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
                  idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False):
         """``park_creation``: an entity's creation on the executor thread does not hold up the
-        loop (``xrce.agent.ros_creation``); for the engine, which parks the creating client.
+        loop (``xrce.agent.middleware.ros.creation``); for the engine, which parks the creating client.
         Without it, ``create_*`` wait for the executor (direct callers, tests)."""
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
@@ -160,7 +160,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         self._leaving: list = []  # threads stopping domains whose last participant went
         self.park_creation = park_creation
         # key -> Creation: entities being created on an executor thread while their client is
-        # parked, taken by the CREATE when the engine retries it (xrce.agent.ros_creation).
+        # parked, taken by the CREATE when the engine retries it (xrce.agent.middleware.ros.creation).
         self._creating: dict = {}
 
     # -- plumbing -----------------------------------------------------------------------------
@@ -339,7 +339,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
     def publisher_address(self, writer: EntityKey) -> int | None:
         """The address of a datawriter's rcl_publisher_t, for the compiled UDP path
-        (xrce.agent.fastpath), which must forget it before ``delete``; None if rclpy hides it."""
+        (xrce.agent.engine.fastpath), which must forget it before ``delete``; None if rclpy hides it."""
         record = self._entities.get(writer)
         if record is None or record.kind != "datawriter":
             return None

@@ -4,7 +4,7 @@
 with them every service type of ``rcl_interfaces`` (eight, each a request, a response and an event
 class): 0.5 MB of the agent's resident memory. The agent's nodes start neither service
 (``start_parameter_services=False``, no logger service), so the two modules are deferred
-(``xrce.agent.deferred``): their classes are stand-ins that run the real module when a node
+(``xrce.agent.middleware.ros.deferred``): their classes are stand-ins that run the real module when a node
 constructs one, and ``rcl_interfaces.srv`` holds the one type ``rclpy.node`` names
 (``ListParameters``) until any other name is asked of it, which runs the package whole. A client
 that creates a service of an ``rcl_interfaces`` type gets the real package that way.
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import sys
 
-from xrce.agent import deferred
+from xrce.agent.middleware.ros import deferred
 
 _SERVICE_MODULES = (("rclpy.parameter_service", "ParameterService"),
                     ("rclpy.logging_service", "LoggingService"))

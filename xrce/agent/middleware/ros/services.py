@@ -1,11 +1,11 @@
-"""The request/reply (ROS service) half of ``RosMiddleware`` (``xrce.agent.ros``).
+"""The request/reply (ROS service) half of ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``).
 
 An XRCE requester is an rclpy service client, an XRCE replier an rclpy service. A request waits
 on the loop until its reply arrives or ``request_timeout_s`` passes (held, if its server is not
 discovered yet, under one shared timer; at most MAX_PENDING_REQUESTS_PER_CLIENT per client); a
 replier's incoming request gets a sample identity of its own and waits for the XRCE client's reply
 just as long. Clients and services are made, and requests sent (``call_async``), on the domain's
-executor thread (``xrce.agent.ros_domain``); a service response goes out from the loop thread, rcl
+executor thread (``xrce.agent.middleware.ros.domain``); a service response goes out from the loop thread, rcl
 send_response being thread-safe.
 """
 
@@ -26,9 +26,9 @@ from xrce.agent.middleware import (
     RequestCallback,
     ServiceSpec,
 )
-from xrce.agent.observability import client_tag
-from xrce.agent.ros_domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
-from xrce.agent.rostypes import qos_profile, service_class, service_ros_name
+from xrce.agent.observe.observability import client_tag
+from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
+from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
 
 
 class _TakenRequest:

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.exceptions import InvalidServiceNameException, InvalidTopicNameException
 
-from xrce.agent import deferred
+from xrce.agent.middleware.ros import deferred
 from xrce.agent.middleware import EndpointQosSpec, MiddlewareError, TypeNotReady, UnknownTypeError
 
 
@@ -31,7 +31,7 @@ def _defer_rosidl_code_generator() -> None:
     import_type_support``, and that package's ``__init__`` also imports the code generator with
     lark, empy and hashlib/OpenSSL: 5 MB of resident memory and 35 ms of start-up the agent never
     uses. The package is registered with only ``import_type_support``; touching any other of its
-    names runs its real ``__init__`` then (``xrce.agent.deferred``).
+    names runs its real ``__init__`` then (``xrce.agent.middleware.ros.deferred``).
     """
     def prepare(package) -> None:
         from rosidl_generator_py.import_type_support_impl import import_type_support
@@ -104,7 +104,7 @@ def _split_type(dds_type: str) -> tuple[str, str, str]:
 # datagram: "this::msg::dds_::Foo_" used to print the Zen of Python, "numpy::msg::..." to load
 # numpy (+16 MB). A package is imported only when it is an interface package of the ROS in use
 # (its ament index lists it under rosidl_interfaces) or one the agent's interface registry holds
-# a complete build of (xrce.agent.interface_registry). A package of the agent's interface
+# a complete build of (xrce.agent.interfaces.registry). A package of the agent's interface
 # directories gets one build attempt per agent run (xrce.agent.interfaces); any other name is
 # refused (ERR_DDS_ERROR, logged with the type by the engine) without a child process.
 
@@ -116,7 +116,7 @@ def _in_ament_index(package: str) -> bool:
     if known is None:
         import os
 
-        from xrce.agent import rosenv
+        from xrce.agent.middleware.ros import env as rosenv
 
         known = any(os.path.isfile(os.path.join(prefix, "share", "ament_index", "resource_index",
                                                 "rosidl_interfaces", package))
@@ -127,7 +127,7 @@ def _in_ament_index(package: str) -> bool:
 
 
 def _registered(package: str) -> bool:
-    from xrce.agent.interface_registry import is_registered
+    from xrce.agent.interfaces.registry import is_registered
 
     return is_registered(package)
 

@@ -1,0 +1,13 @@
+"""``-m dds``: the middleware that maps XRCE objects onto rclpy, and the ROS 2 it runs on.
+
+- ``entities``: ``RosMiddleware``, XRCE entities as rclpy nodes, publishers and subscriptions;
+  ``creation``: entity creation parked while a type builds; ``services``: requesters and repliers;
+- ``domain``: one rclpy context and executor thread per ROS domain, and the hand-off to the loop;
+- ``types``: XRCE/DDS names, interface classes and QoS as ROS 2 spells them;
+- ``env``: which ROS 2 the agent runs on (also read by setup.py, by path); ``fastdds_profile``
+  (and its ``.xml``): the Fast DDS profile used when the user has none;
+- ``deferred`` and ``rclpy_services``: what rclpy imports and starts that the agent never uses,
+  kept from loading.
+
+Nothing here is imported by a ``-m ced`` agent: this package imports nothing itself.
+"""
