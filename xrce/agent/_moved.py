@@ -83,6 +83,7 @@ def engine_attribute(name):
         raise AttributeError("module 'xrce.agent.engine' has no attribute %r" % name)
     value = getattr(importlib.import_module(ENGINE_MODULE), name)
     _warn("xrce.agent.engine.%s" % name, "%s.%s" % (ENGINE_MODULE, name))
+    setattr(sys.modules["xrce.agent.engine"], name, value)  # found there from now on: warned once
     return value
 
 
