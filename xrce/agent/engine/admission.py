@@ -153,7 +153,7 @@ class AdmissionPolicy:
         if reason is None:
             return True
         self.refused += 1
-        from xrce.agent.observe.observability import endpoint_text
+        from xrce.agent.observe.names import endpoint_text
 
         self._refusals.warning("refused CREATE_CLIENT of key %s from %s %s: %s (ERR_DENIED)",
                                bytes(key).hex(), getattr(link, "name", "link"),
@@ -180,7 +180,7 @@ class AdmissionPolicy:
         if not verdict:  # "" : on the list
             return True
         self.datagrams_refused += 1
-        from xrce.agent.observe.observability import endpoint_text
+        from xrce.agent.observe.names import endpoint_text
 
         self._datagram_refusals.warning("dropped a datagram of session 0x%02X from %s %s: %s",
                                         data[0], getattr(link, "name", "link"),

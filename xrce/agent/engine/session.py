@@ -15,7 +15,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 
 from xrce import constants as C
 from xrce.agent.middleware import EntityKey, TopicSpec
-from xrce.agent.observe.observability import client_tag
+from xrce.agent.observe.names import client_tag
 from xrce.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )

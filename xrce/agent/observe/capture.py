@@ -10,7 +10,7 @@ Capture files travel (bug reports) and anyone on the network decides what goes i
 
 - A client key never appears in clear. Wherever it sits in a message (the header of a session with
   a key, the CREATE_CLIENT payload) the file holds the client's 4-byte pseudonym instead
-  (``observability.client_pseudonym``, whose hex is the tag the stats and /diagnostics show):
+  (``names.client_pseudonym``, whose hex is the tag the stats and /diagnostics show):
   every message still decodes, one client's messages still carry one key, but a capture handed
   around cannot be used to take over a session. Everything else is the bytes on the wire.
 - The file is created 0600 (it shows traffic of every client).
@@ -24,8 +24,7 @@ import os
 import time
 
 from xrce import constants as C
-from xrce.agent.observe.observability import (CAPTURE_FILES, CAPTURE_MAX_BYTES, client_pseudonym,
-                                      endpoint_text)
+from xrce.agent.observe.names import client_pseudonym, endpoint_text
 from xrce.message import header_size, iter_submessages
 
 _HEADER_LINE = "# xrce-agent capture: time direction link endpoint hex\n"
@@ -64,7 +63,8 @@ def _open_private(path: str):
 class CaptureWriter:
     """The engine's tap: one line per message (see the module docstring for the format)."""
 
-    def __init__(self, path: str, max_bytes: int = CAPTURE_MAX_BYTES, files: int = CAPTURE_FILES):
+    def __init__(self, path: str, max_bytes: int, files: int):
+        # No defaults here: they are the command line's (observability.CAPTURE_MAX_BYTES, _FILES).
         self.path = path
         self.max_bytes = max_bytes
         self.files = max(1, files)

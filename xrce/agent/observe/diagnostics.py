@@ -1,19 +1,16 @@
 """``/diagnostics``: with ``-m dds`` and ``diagnostic_msgs`` importable, a
 ``diagnostic_msgs/DiagnosticArray`` goes out once a second in every ROS domain the agent has joined
 where some node subscribes to it: one status for the agent, one per client, named after the
-client's tag (``observability.client_tag``: the key itself is a credential). Its content is an ``Observer`` snapshot (xrce.agent.observe.observability).
+client's tag (``names.client_tag``: the key itself is a credential). Its content is an
+``Observer`` snapshot (xrce.agent.observe.observability).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING
 
 from xrce.cdr import CdrWriter
-
-if TYPE_CHECKING:
-    from xrce.agent.observe.observability import Observer
 
 # One logger for everything observability does (xrce.agent.observe.observability wires this module in).
 log = logging.getLogger("xrce.agent.observability")
@@ -71,9 +68,10 @@ def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
 
 class DiagnosticsPublisher:
     """Publishes ``diagnostic_array`` in every domain a ``RosMiddleware`` has joined, while some
-    ROS node subscribes to /diagnostics there (nobody listening: no snapshot is built)."""
+    ROS node subscribes to /diagnostics there (nobody listening: no snapshot is built).
+    ``observer`` is observability's ``Observer``, which wires this module in: named, not imported."""
 
-    def __init__(self, observer: Observer, middleware, message_type):
+    def __init__(self, observer, middleware, message_type):
         self.observer = observer
         self.middleware = middleware
         self.message_type = message_type

@@ -27,16 +27,12 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import os
 import time
-
-try:  # the BLAKE2 core alone: hashlib would load OpenSSL for nothing
-    from _blake2 import blake2b
-except ImportError:
-    from hashlib import blake2b
 
 from xrce import constants as C
 from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
+# In this module's __all__ too, as before they had a module of their own.
+from xrce.agent.observe.names import client_pseudonym, client_tag, endpoint_text  # noqa: F401
 # The `xrce-agent stats` subcommand is registered (xrce/agent/cli.py) through this module.
 
 log = logging.getLogger("xrce.agent.observability")
@@ -44,27 +40,6 @@ log = logging.getLogger("xrce.agent.observability")
 DEFAULT_SUMMARY_PERIOD_S = 5.0
 RATE_PERIOD_S = 1.0
 _TOPIC_KINDS = {C.OBJK_DATAWRITER: "to_ros", C.OBJK_DATAREADER: "from_ros"}
-
-
-# A client key is the only credential of an XRCE session: with it, anyone who can send a
-# datagram to the agent can delete or take over that session. What others can read (/diagnostics:
-# the whole ROS domain; the stats port: any local user; capture files, which travel with bug
-# reports) names a client by a tag instead: the first 4 bytes of BLAKE2b keyed with a secret drawn
-# at agent start. Keyed, because a key has only 2**32 values: a plain hash prefix is undone by
-# hashing them all, in minutes. Per run, because the secret is never stored: the same client has
-# the same tag for the agent's whole run (and its capture files), a new one after a restart. The
-# operator's log names the key with its tag when the session is created, as a lookup table.
-_TAG_SECRET = os.urandom(16)
-
-
-def client_pseudonym(key: bytes) -> bytes:
-    """4 bytes that stand for client ``key`` in what others can read (see above)."""
-    return blake2b(bytes(key), digest_size=4, key=_TAG_SECRET).digest()
-
-
-def client_tag(key: bytes) -> str:
-    """``client_pseudonym`` as 8 hex digits: how stats, /diagnostics and node names show a key."""
-    return client_pseudonym(key).hex()
 
 
 def _link_crc_errors(link) -> int:
@@ -76,16 +51,6 @@ def _link_crc_errors(link) -> int:
 
 def _ms(seconds):
     return None if seconds is None else round(seconds * 1000.0, 3)
-
-
-def endpoint_text(endpoint) -> str:
-    """A link endpoint as one word (capture files split on spaces). An IPv6 address goes in
-    brackets, as in a URL: its own colons would run into the port's otherwise (a link-local
-    one keeps its ``%scope``, which the socket puts in the host)."""
-    if isinstance(endpoint, tuple) and len(endpoint) >= 2:
-        host = endpoint[0]
-        return ("[%s]:%s" if ":" in str(host) else "%s:%s") % (host, endpoint[1])
-    return str(endpoint).replace(" ", "")
 
 
 class Observer:

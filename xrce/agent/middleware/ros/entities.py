@@ -35,7 +35,7 @@ from xrce.agent.middleware.ros.domain import (
     in_thread,
     log,
 )
-from xrce.agent.observe.observability import client_tag
+from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.types import (

@@ -26,7 +26,7 @@ from xrce.agent.middleware import (
     RequestCallback,
     ServiceSpec,
 )
-from xrce.agent.observe.observability import client_tag
+from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
 from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
 
