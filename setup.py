@@ -3,11 +3,13 @@
 With a ROS 2 sourced in the installing shell (ROS_DISTRO set) xrce runs on that ROS and must not pull
 a second one from PyPI; otherwise the ros-jazzy-* wheels from PyPI are a dependency (on the platforms
 PyPI has them for). XRCE_ROS=pypi|system overrides the guess. The rules live in
-xrce/agent/middleware/ros/env.py, loaded by path: the package itself is not importable in pip's build environment.
+xrce/agent/middleware/ros/env.py, loaded by path: the package itself is not importable in pip's
+build environment.
 
-The agent's compiled UDP receive path (xrce/agent/engine/_fastpath.c, see xrce/agent/engine/fastpath.py) is an
-optional extension: without a C compiler pip still installs xrce and the agent runs pure Python.
-XRCE_FASTPATH=0 at build time leaves it out (a pure, platform-independent wheel).
+The agent's compiled UDP receive path (xrce/agent/engine/_fastpath.c, see
+xrce/agent/engine/fastpath.py) is an optional extension: without a C compiler pip still installs
+xrce and the agent runs pure Python. XRCE_FASTPATH=0 at build time leaves it out (a pure,
+platform-independent wheel).
 """
 
 import importlib.util
@@ -16,7 +18,8 @@ import os
 from setuptools import Extension, setup
 
 _spec = importlib.util.spec_from_file_location(
-    "_xrce_rosenv", os.path.join(os.path.dirname(os.path.abspath(__file__)), "xrce", "agent", "middleware", "ros", "env.py"))
+    "_xrce_rosenv", os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                 "xrce", "agent", "middleware", "ros", "env.py"))
 _rosenv = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_rosenv)
 

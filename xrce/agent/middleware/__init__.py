@@ -5,8 +5,8 @@ REUSE/REPLACE, STATUS codes, READ_DATA delivery control. A middleware only creat
 data through the backing entities:
 
 - ``CedMiddleware`` (``-m ced``): routes samples between the agent's own clients by topic name, no ROS.
-- ``RosMiddleware`` (``-m dds``, ``xrce.agent.middleware.ros.entities``): rclpy nodes, publishers, subscriptions, service
-  clients and servers.
+- ``RosMiddleware`` (``-m dds``, ``xrce.agent.middleware.ros.entities``): rclpy nodes,
+  publishers, subscriptions, service clients and servers.
 
 Entity handles are the engine's ``EntityKey`` = ``(client_key: int, object_id: int)``, unique across
 the agent. Every ``create_*`` either succeeds or raises ``MiddlewareError`` (the engine answers
