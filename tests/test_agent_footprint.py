@@ -52,7 +52,7 @@ _NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.links.tcp",
                                 "xrce.agent.links.serial", "shutil", "ssl",
                                 "xml.etree.ElementTree", "xrce.agent.engine.xmlrep",
                                 "xrce.agent.observe.capture", "xrce.agent.observe.stats_view",
-                                "xrce.agent.interfaces.build")
+                                "xrce.agent.interfaces.builder")
 
 
 def _modules_of_a_serving_agent(*args):

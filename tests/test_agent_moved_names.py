@@ -97,3 +97,21 @@ def test_the_agent_itself_imports_no_old_name():
     script = ("import importlib, warnings\nwarnings.simplefilter('error', DeprecationWarning)\n"
               "for name in %r:\n    importlib.import_module(name)\nprint('imported')\n" % names)
     assert _run(script).strip() == "imported"
+
+
+def test_no_submodule_shares_a_name_with_what_its_package_offers():
+    """A package's name that is also one of its submodules is replaced by the submodule once that
+    is imported (``xrce.agent.interfaces.build``, the function, against a module ``build``)."""
+    import importlib
+    import types
+
+    for package in [m.name for m in pkgutil.walk_packages(xrce.agent.__path__, "xrce.agent.")
+                    if m.ispkg] + ["xrce.agent"]:
+        module = importlib.import_module(package)
+        offered = {name for name, value in vars(module).items()
+                   if not isinstance(value, types.ModuleType)}
+        offered |= set(getattr(module, "_FROM_BUILD", ()))  # read through a module __getattr__
+        if package == "xrce.agent.engine":
+            offered |= _moved.OLD_ENGINE_NAMES
+        submodules = {m.name for m in pkgutil.iter_modules(module.__path__)}
+        assert not offered & submodules, package

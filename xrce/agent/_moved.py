@@ -14,7 +14,6 @@ only for names no real module has. Removed with the next release, with its lines
 """
 
 import importlib
-import importlib.abc
 import importlib.util
 import sys
 import warnings
@@ -32,7 +31,7 @@ _OLD_TO_NEW = {
     "rclpy_services": "middleware.ros.rclpy_services", "rosenv": "middleware.ros.env",
     "rostypes": "middleware.ros.types", "fastdds_profile": "middleware.ros.fastdds_profile",
     "deferred": "middleware.ros.deferred",
-    "interface_build": "interfaces.build", "interface_registry": "interfaces.registry",
+    "interface_build": "interfaces.builder", "interface_registry": "interfaces.registry",
     "observability": "observe.observability", "diagnostics": "observe.diagnostics",
     "capture": "observe.capture", "stats_view": "observe.stats_view",
 }
@@ -57,8 +56,10 @@ def _warn(old, new):
                   DeprecationWarning, stacklevel=3)
 
 
-class _OldNames(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Finds an old module name and loads it as the module's new name."""
+class _OldNames:
+    """Finds an old module name and loads it as the module's new name (a meta path finder and
+    loader; not derived from importlib.abc, which loads importlib.resources, tempfile and shutil
+    into every agent)."""
 
     def find_spec(self, fullname, path=None, target=None):
         new = MOVED.get(fullname)

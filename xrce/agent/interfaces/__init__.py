@@ -4,7 +4,7 @@ xrce.agent.middleware.ros.env).
 
 ``xrce-agent build-interfaces [DIR ...]`` and the agent's lazy path (``ensure_package``), both here,
 run plain cmake on every interface package found under the given directories into a content-hash
-cache (xrce.agent.interfaces.build); a ``.pth`` hook makes the built packages importable in every
+cache (xrce.agent.interfaces.builder); a ``.pth`` hook makes the built packages importable in every
 interpreter of the venv with no environment variable (xrce.agent.interfaces.registry).
 
 Only the standard library is imported at module level: the ``.pth`` hook imports this module in
@@ -21,7 +21,7 @@ from xrce.agent.interfaces.registry import REGISTRY_NAME, default_site_dir
 # Used through this module: the .pth hook calls activate_registry.
 from xrce.agent.interfaces.registry import activate_registry  # noqa: F401
 
-# The build code (xrce.agent.interfaces.build: package search, hashing, cmake) loads when a build or
+# The build code (xrce.agent.interfaces.builder: package search, hashing, cmake) loads when a build or
 # the search path is first needed, also for callers that name it through this module (the agent's
 # --interfaces DIR calls add_search_dirs): the .pth hook imports this module in every interpreter
 # of the environment, and an agent whose types are built already never needs it.
@@ -30,9 +30,9 @@ _FROM_BUILD = ("InterfaceBuildError", "add_search_dirs", "build", "find_packages
 
 def __getattr__(name):
     if name in _FROM_BUILD:
-        from xrce.agent.interfaces import build as interface_build
+        from xrce.agent.interfaces import builder
 
-        return getattr(interface_build, name)
+        return getattr(builder, name)
     raise AttributeError("module %r has no attribute %r" % (__name__, name))
 
 
@@ -74,12 +74,12 @@ def search_index():
 def _list_in_child():
     import subprocess
 
-    from xrce.agent.interfaces.build import search_dirs
+    from xrce.agent.interfaces.builder import search_dirs
 
     dirs = search_dirs()
     if not dirs:
         return frozenset()
-    command = [sys.executable, "-m", "xrce.agent.interfaces.build", "--list"] + dirs
+    command = [sys.executable, "-m", "xrce.agent.interfaces.builder", "--list"] + dirs
     try:
         completed = _run_child(command, SEARCH_INDEX_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -145,9 +145,9 @@ def _build_in_child(package_name):
     import importlib
     import subprocess
 
-    from xrce.agent.interfaces.build import NOT_IN_SEARCH_PATH, InterfaceBuildError, search_dirs
+    from xrce.agent.interfaces.builder import NOT_IN_SEARCH_PATH, InterfaceBuildError, search_dirs
 
-    command = [sys.executable, "-m", "xrce.agent.interfaces.build", package_name] + search_dirs()
+    command = [sys.executable, "-m", "xrce.agent.interfaces.builder", package_name] + search_dirs()
     try:
         completed = _run_child(command, LAZY_BUILD_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -168,7 +168,7 @@ def ensure_package(package_name, timeout_s=None):
     when built (or cached) and registered, False when no such package is in the search path."""
     import concurrent.futures
 
-    from xrce.agent.interfaces.build import InterfaceBuildError
+    from xrce.agent.interfaces.builder import InterfaceBuildError
 
     timeout_s = timeout_s if timeout_s is not None else LAZY_BUILD_TIMEOUT_S
     try:
@@ -192,7 +192,7 @@ def add_build_options(parser):
 
 
 def run_build_command(args):
-    from xrce.agent.interfaces.build import InterfaceBuildError, build
+    from xrce.agent.interfaces.builder import InterfaceBuildError, build
 
     def report(result):
         sys.stdout.write("%s %s %s %.2fs\n" % ("cached" if result.cached else "built",

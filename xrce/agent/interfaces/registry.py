@@ -27,7 +27,7 @@ PTH_NAME = "xrce_interfaces.pth"
 _LIBRARY_ORDER = ("rosidl_generator_c", "rosidl_typesupport_fastrtps_c",
                   "rosidl_typesupport_introspection_c", "rosidl_typesupport_c",
                   "rosidl_generator_py")
-# Written last into a build's prefix (xrce.agent.interfaces.build): a prefix without it is a build
+# Written last into a build's prefix (xrce.agent.interfaces.builder): a prefix without it is a build
 # that died half way, which the finder does not import from.
 COMPLETE_MARKER = ".xrce-complete"
 

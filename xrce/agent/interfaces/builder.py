@@ -18,15 +18,16 @@ from __future__ import annotations
 import os
 import sys
 
+import xrce
 from xrce.agent.interfaces.registry import COMPLETE_MARKER, register
 
 # ROS packages whose versions change the generated code (read from their package.xml wherever the
 # ROS in use installed them: the wheels' prefix or a sourced ROS).
 _ROSIDL_PACKAGES = ("rosidl_cmake", "rosidl_default_generators", "rosidl_generator_py", "rclpy",
                     "std_msgs")
-_PROJECT_INTERFACES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                                   "ros_interfaces")
-_CMAKE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "interfaces_cmake")
+# Found from the xrce package, not from this file, which has moved before (issue 24).
+_PROJECT_INTERFACES = os.path.join(os.path.dirname(os.path.abspath(xrce.__file__)), "ros_interfaces")
+_CMAKE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cmake")  # this package's
 _PROJECT_INCLUDE = os.path.join(_CMAKE_DIR, "project_include.cmake")
 
 
@@ -320,7 +321,7 @@ NOT_IN_SEARCH_PATH = 3  # exit code of main(): no interface package of that name
 
 
 def main(argv=None):
-    """``python -m xrce.agent.interfaces.build PACKAGE DIR...``: build and register PACKAGE (with its
+    """``python -m xrce.agent.interfaces.builder PACKAGE DIR...``: build and register PACKAGE (with its
     in-tree dependencies) from DIRs; ``--list DIR...``: print the names of the packages there.
     The agent's lazy build runs this in a child interpreter (xrce.agent.interfaces), so that
     nothing a build or the search imports stays in the agent's memory."""
