@@ -42,7 +42,8 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 sys.path.insert(0, str(REPO / "tests"))
 
-from run import Child, PYTHON, cpu_seconds, percentile, record, udp_echo_rtts, wait_for  # noqa: E402
+from figures import percentile, record  # noqa: E402
+from harness import PYTHON, Child, cpu_seconds, udp_echo_rtts, wait_for  # noqa: E402
 from wakeup_floor import bridge_floor, record_floors, wakeup_floors  # noqa: E402
 
 from xrce import constants as C  # noqa: E402
@@ -438,7 +439,7 @@ def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
 
 
 def main(argv=None):
-    from run import print_table
+    from figures import print_table
     from ros_helpers import DomainLease
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -21,7 +21,7 @@ sys.path.insert(0, str(REPO / "bench"))
 sys.path.insert(0, str(REPO / "tests"))
 
 from agent_cost import IDLE_SECONDS, SETTLE_SECONDS, Agent, offered_load, robot_load  # noqa: E402
-from run import Child  # noqa: E402
+from harness import Child  # noqa: E402
 
 RATES = (5000, 20000, 50000)
 

@@ -42,9 +42,6 @@ from xrce.agent.observe.stats_view import fetch_stats  # noqa: E402
 from figures import print_table, record  # noqa: E402
 from harness import PYTHON, Child, cpu_seconds, stats_port  # noqa: E402
 from ros_bridge import ros_benchmarks  # noqa: E402
-# bench/agent_cost.py takes these from here too.
-from figures import percentile  # noqa: E402, F401
-from harness import udp_echo_rtts, wait_for  # noqa: E402, F401
 
 
 # ----------------------------------------------------------------------------------- serial

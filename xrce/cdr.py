@@ -27,14 +27,11 @@ _BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
 
 
 # __getattr__ of both classes: a method named in xrce.cdr_more is attached to the classes on first use.
+# xrce.cdr_more is handed the classes rather than importing this module, so neither imports the other.
 def _more(self, name):
-    import xrce.cdr_more  # noqa: F401
+    from xrce.cdr_more import lookup
 
-    # Dunder names (``__dict__`` of a slotted instance, ``__length_hint__``...) are never
-    # xrce.cdr_more's, and the class may hold one the instance lacks: asking again would recurse.
-    if name[0] == "_" or getattr(type(self), name, None) is None:
-        raise AttributeError(name)
-    return getattr(self, name)
+    return lookup(self, name, CdrWriter, CdrReader)
 
 
 class CdrWriter:
@@ -184,4 +181,6 @@ class CdrReader:
 
 
 if not IS_MICROPYTHON:
-    import xrce.cdr_more  # noqa: F401,E402  (attaches the rest of the methods)
+    from xrce.cdr_more import bind  # noqa: E402
+
+    bind(CdrWriter, CdrReader)

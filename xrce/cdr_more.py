@@ -1,9 +1,9 @@
-# The CdrWriter and CdrReader methods the client core never calls, attached to both classes when this
-# module loads: at import of xrce.cdr on CPython, at the first call of one of them on MicroPython (see
-# xrce.cdr's _more). Each is defined here only, so encoding and decoding still live in one place.
+# The CdrWriter and CdrReader methods the client core never calls, which xrce.cdr attaches to both
+# classes with ``bind``: at its import on CPython, at the first call of one of them on MicroPython
+# (see xrce.cdr's _more). Each is defined here only, so encoding and decoding still live in one place.
+# This module is handed the classes instead of importing xrce.cdr, so the two do not import each other.
 
 from xrce import EncodeError
-from xrce.cdr import CdrReader, CdrWriter
 
 
 def _write_i8(self, value):
@@ -100,7 +100,20 @@ _READER = (("i8", _read_i8), ("i16", _read_i16), ("u16", _read_u16), ("i32", _re
            ("u64", _read_u64), ("f32", _read_f32), ("f64", _read_f64), ("octets", _read_octets),
            ("remaining", _read_remaining), ("rest", _read_rest))
 
-for _name, _method in _WRITER:
-    setattr(CdrWriter, _name, _method)
-for _name, _method in _READER:
-    setattr(CdrReader, _name, _method)
+
+def bind(writer_class, reader_class):
+    for name, method in _WRITER:
+        setattr(writer_class, name, method)
+    for name, method in _READER:
+        setattr(reader_class, name, method)
+
+
+def lookup(codec, name, writer_class, reader_class):
+    # xrce.cdr's _more, the classes' __getattr__ (a board's first call of one of these methods loads
+    # this module through it): attach the methods, then answer.
+    # Dunder names (``__dict__`` of a slotted instance, ``__length_hint__``...) are never this
+    # module's, and the class may hold one the instance lacks: asking again would recurse.
+    bind(writer_class, reader_class)
+    if name[0] == "_" or getattr(type(codec), name, None) is None:
+        raise AttributeError(name)
+    return getattr(codec, name)

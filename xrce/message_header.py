@@ -1,10 +1,11 @@
 # The XRCE message header as an object (XRCE-WIRE.md §1), for the agent and the tools.
 #
 # Importable as xrce.message.Header and xrce.message.decode_header, whose __getattr__ loads this
-# module on first use; a client never does.
+# module on first use; a client never does. It imports nothing from xrce.message, so the two do not
+# import each other: the header's size follows from its first byte by the rule decode_header applies
+# (xrce.message.header_size states it for the client, which never loads this module).
 
 from xrce import DecodeError
-from xrce.message import header_size
 
 _SESSION_ID_WITHOUT_KEY_MASK = 0x80
 HEADER_SIZE_NO_KEY = 4
@@ -19,7 +20,7 @@ class Header:
         self.stream_id = stream_id
         self.seq = seq
         self.key = key
-        self.size = header_size(session_id)
+        self.size = HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else HEADER_SIZE_NO_KEY
 
     def __eq__(self, other):
         return (isinstance(other, Header) and self.session_id == other.session_id

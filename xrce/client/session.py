@@ -25,12 +25,18 @@
 # READ_DATA and deleting entities (xrce.client.entities); constructing, creating, deleting and
 # restoring the session itself (xrce.client.lifecycle). The submessages a session sends are written
 # by the lean encoders of xrce.client.wire, not by the general codec the agent uses.
+#
+# That makes the one import circle the project keeps on purpose (tests/test_import_graph.py names
+# it): services, on_demand and ping build on this module (its sample decoding, its agent-info
+# parsing) and import it at their top, while it imports them only inside the functions that first
+# need them. The other way round every board would load them with the session. Everything below
+# the session (xrce.client.wire, the wire core) imports nothing from it.
 
 import sys
 
-from xrce import DecodeError, IS_MICROPYTHON, XrceError, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
+from xrce import DecodeError, IS_MICROPYTHON, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrReader
-from xrce.client.wire import Outbound
+from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
 from xrce.message import iter_submessages
 
 # Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
@@ -55,11 +61,6 @@ _STATUS_NONE = const(0xFF)
 _REQUEST_ID_LOGOUT = const(0x0002)
 _FIRST_REQUEST_ID = const(0x000A)
 _INFO_ACTIVITY = const(0x02)
-
-
-class SessionError(XrceError):
-    # The session is not usable for the requested operation (not created, window full, ...).
-    pass
 
 
 class Session(Outbound):

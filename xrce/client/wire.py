@@ -9,12 +9,18 @@
 # cases a client produces; tests/test_client_wire.py checks them against the general codec, so
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
-from xrce import const, ticks_add, ticks_ms
+from xrce import XrceError, const, ticks_add, ticks_ms
 from xrce.message import MessageWriter
 
 _STREAM_NONE = const(0x00)
 _WRITE_DATA = const(7)
 _FLAG_LITTLE_ENDIAN = const(0x01)
+
+
+class SessionError(XrceError):
+    # The session is not usable for the requested operation (not created, window full, ...). Defined
+    # here, below the session (xrce.client.session re-exports it), as the output path raises it too.
+    pass
 
 
 # CREATE, DELETE, READ_DATA and WRITE_DATA: the request and object ids, then a body prepared once
@@ -72,8 +78,6 @@ class Outbound:
             stream_id = self.reliable
         out = self._outputs.get(stream_id)
         if out is None:
-            from xrce.client.session import SessionError
-
             raise SessionError("no output stream 0x%02X" % stream_id)
         for _ in range(2):
             if not out.has_content and not self._begin_with_room(out):

@@ -470,10 +470,11 @@ class TurtleBot3:
 # ---------------------------------------------------------------------- CPython command line
 
 def main(argv=None):
-    # The command line lives in its own module: a board running this firmware never pays for it.
+    # The command line lives in its own module: a board running this firmware never pays for it. It
+    # is handed the robot class rather than importing this module, so neither imports the other.
     from xrce.examples.turtlebot3_cli import main
 
-    return main(argv)
+    return main(TurtleBot3, argv)
 
 
 if __name__ == "__main__":

@@ -3,9 +3,9 @@
 #
 #     python -m xrce.examples.turtlebot3 udp4 --agent 127.0.0.1 -p 8888
 #     python -m xrce.examples.turtlebot3 serial --dev /dev/pts/5 [-b 115200]
-
-from xrce.compat import ticks_ms
-from xrce.examples.turtlebot3 import TurtleBot3, _Periodic
+#
+# The firmware's main() hands its robot class to main() here instead of this module importing the
+# firmware, so the two do not import each other.
 
 
 def status_line(robot):
@@ -26,10 +26,12 @@ def _make_transport(args):
     return SerialTransport(args.dev, args.baudrate)
 
 
-def main(argv=None):
+def main(robot_class, argv=None):
+    # robot_class: xrce.examples.turtlebot3.TurtleBot3 (its main() passes it).
     import argparse
     import signal
     import sys
+    import time
 
     class OneLineErrors(argparse.ArgumentParser):
         def error(self, message):  # one line and exit 2, as xrce-agent and xrce-client
@@ -69,7 +71,7 @@ def main(argv=None):
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
     log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
     transport = _make_transport(args)
-    robot = TurtleBot3(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
+    robot = robot_class(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
                        log=log)
     try:
         if robot.connect(attempts=args.connect_attempts) is None:
@@ -80,12 +82,16 @@ def main(argv=None):
         failed = ", ".join(robot.failed_topics) if robot.failed_topics else "none"
         log("turtlebot3: running (node %s, domain %d; topics the agent refused: %s)"
             % (robot.node_name, domain, failed))
-        status = None
-        if args.status_period > 0:
-            status = _Periodic(int(args.status_period * 1000), ticks_ms())
+        period = args.status_period
+        status_due = time.monotonic() if period > 0 else None  # the first line at once
         while not stop:
             robot.step()
-            if status is not None and status.take(ticks_ms()):
+            now = time.monotonic()
+            if status_due is not None and now >= status_due:
+                # drift-free: whole periods on; a late loop skips what it missed, never bursts
+                status_due += period
+                if now >= status_due:
+                    status_due = now + period
                 log(status_line(robot))
         return 0
     except KeyboardInterrupt:
