@@ -12,6 +12,7 @@ xrce and the agent runs pure Python. XRCE_FASTPATH=0 at build time leaves it out
 platform-independent wheel).
 """
 
+import binascii
 import importlib.util
 import os
 
@@ -30,7 +31,13 @@ except ValueError as exc:
 
 _extensions = []
 if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
+    # The source's CRC goes into the module: fastpath.attach() leaves a module built from another
+    # version of _fastpath.c unused (an editable install's .so outlives edits to the .c).
+    with open(os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                           "xrce", "agent", "engine", "_fastpath.c"), "rb") as _source:
+        _source_crc = "%08x" % binascii.crc32(_source.read())
     _extensions.append(Extension("xrce.agent.engine._fastpath", ["xrce/agent/engine/_fastpath.c"],
+                                 define_macros=[("XRCE_FASTPATH_SOURCE_CRC", '"%s"' % _source_crc)],
                                  extra_compile_args=["-O2"], optional=True))
 
 setup(install_requires=_install_requires, extras_require=_extras_require, ext_modules=_extensions)

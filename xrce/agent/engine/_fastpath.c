@@ -618,6 +618,11 @@ static PyMethodDef module_methods[] = {
     {NULL},
 };
 
+/* CRC-32 of this file, given by setup.py (xrce.agent.engine.fastpath compares it with the file). */
+#ifndef XRCE_FASTPATH_SOURCE_CRC
+#define XRCE_FASTPATH_SOURCE_CRC "unknown"
+#endif
+
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "xrce.agent.engine._fastpath", NULL, -1, module_methods,
 };
@@ -629,6 +634,10 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
     Py_INCREF(&ReceiverType);
     if (PyModule_AddObject(m, "Receiver", (PyObject *)&ReceiverType) < 0) {
         Py_DECREF(&ReceiverType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    if (PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_FASTPATH_SOURCE_CRC) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -19,6 +19,7 @@ counters are folded into the agent's, the link's, the clients' and the writers' 
 
 from __future__ import annotations
 
+import binascii
 import logging
 import os
 import time
@@ -227,6 +228,23 @@ class FastPath:
                 entry.samples += count
                 entry.sample_bytes += size
 
+def stale_build(module) -> Optional[str]:
+    """Why ``module`` (the built extension) is not what ``_fastpath.c`` beside it builds, or None.
+
+    An editable install keeps the .so it built while the .c changes under it; a stale receive
+    path would publish by the old rules. A wheel ships no .c: nothing to compare, None."""
+    source = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_fastpath.c")
+    try:
+        with open(source, "rb") as handle:
+            crc = "%08x" % binascii.crc32(handle.read())  # binascii: hashlib would load OpenSSL
+    except OSError:
+        return None
+    built = getattr(module, "SOURCE_CRC", "unknown")
+    if built != crc:
+        return "built from another _fastpath.c (CRC %s, the file's is %s)" % (built, crc)
+    return None
+
+
 def attach(link, sock) -> Optional[FastPath]:
     """A ``FastPath`` for ``link`` if the extension, the environment and the agent allow one."""
     agent = link.receiver
@@ -235,6 +253,11 @@ def attach(link, sock) -> Optional[FastPath]:
         return None
     if not enabled_by_environment():
         log.debug("%s: compiled receive path off (XRCE_FASTPATH); Python path", link.name)
+        return None
+    stale = stale_build(_fastpath)
+    if stale is not None:
+        log.warning("%s: compiled receive path %s: `pip install -e .` rebuilds it; Python path",
+                    link.name, stale)
         return None
     if getattr(getattr(agent, "middleware", None), "publisher_address", None) is None or \
             not hasattr(agent, "fastpaths"):
