@@ -32,6 +32,7 @@ SHM_DIR = "/dev/shm"
 # Fast DDS 2.x names them fastrtps_*, 3.x fastdds_*.
 _SEGMENT_LOCK = re.compile(r"^(fastrtps|fastdds)_[0-9a-z]{16}(_el|_sl)$")
 _PORT_LOCK = re.compile(r"^(fastrtps|fastdds)_port\d{1,5}(_el|_sl)$")
+_PORT = re.compile(r"^(fastrtps|fastdds)_port\d{1,5}$")
 MIN_AGE_S = 2.0
 
 
@@ -74,12 +75,29 @@ def remove_dead_fastdds_segments(before: set, min_age_s: float = MIN_AGE_S) -> l
                 continue
         except OSError:
             continue
-        for victim in victims:
+        removed += _remove(victims)
+    # A port whose lock file is gone: its last user removed the lock and left the port and its
+    # mutex (seen after a run, 2 ports). Fast DDS itself takes a port whose lock it can take as
+    # dead, and a missing lock file is one it can create and take.
+    for name in sorted(present - before):
+        if _PORT.match(name) and not any(name + suffix in present for suffix in ("_el", "_sl")):
             try:
-                os.remove(os.path.join(SHM_DIR, victim))
-                removed.append(victim)
+                if now - os.stat(os.path.join(SHM_DIR, name)).st_mtime < min_age_s:
+                    continue
             except OSError:
-                pass
+                continue
+            removed += _remove([v for v in (name, "sem.%s_mutex" % name) if v in present])
+    return removed
+
+
+def _remove(names) -> list:
+    removed = []
+    for name in names:
+        try:
+            os.remove(os.path.join(SHM_DIR, name))
+            removed.append(name)
+        except OSError:
+            pass
     return removed
 
 
