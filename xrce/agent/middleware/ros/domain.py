@@ -15,7 +15,8 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   ``EventsExecutor``: calling ``wake()``/``add_node()`` on it from another thread while it spins
   deadlocks (observed: every time, within milliseconds), and node/entity creation wakes the executor.
   SingleThreadedExecutor tolerates cross-thread creation, but it delivers raw subscriptions about
-  an order of magnitude slower (ros-from-wheels.md), so both go through the same job queue.
+  ten times slower (measured when the executor was chosen; no bench here keeps that
+  figure), so both go through the same job queue.
 - Nothing polls. The events executor cannot be woken from another thread (``wake()`` deadlocks,
   rclpy guard conditions are "not supported" by it, and a future completed from another thread
   never ends its spin), so each domain's agent node subscribes to a private wake topic and
