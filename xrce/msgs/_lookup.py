@@ -80,10 +80,15 @@ def service_attr(namespace, name):
     cut = name.rfind("_")
     services = namespace["_SERVICE_CLASSES"]
     base = name[:cut]
+    action = name[:name.find("_")]
+    actions = namespace.get("_ACTION_CLASSES", ())
     if base in services:
         module = base
     elif base + "_Service" in services:
         module = base + "_Service"
+    elif action in actions or action + "_Action" in actions:
+        # An action's types (Name_Goal, Name_SendGoal_Request, ...) live in the action's module.
+        module = action if action in actions else action + "_Action"
     try:
         return getattr(_import(namespace["__name__"] + "._" + module), name)
     except ImportError:
