@@ -1,0 +1,229 @@
+"""The client's action server and client (xrce.client.actions).
+
+Against rclc: the entities and the replies, feedback and results rclc's action server wrote for
+rclpy's ActionClient in tests/golden/microros/actions_params.jsonl (a goal with four feedbacks
+and its result [0, 1, 1, 2, 3, 5]; a goal of order 30 cancelled), replayed into a real client session whose
+transport records what it sends; and the requests our action client writes, against the ones
+rclpy's made there. End to end: under real MicroPython (tests/mp_harness.py) through a live agent.
+"""
+
+import re
+
+import pytest
+
+from client_capture import RclcCapture
+from client_recorder import RecordingSession
+from xrce.client.actions import ActionClient, ActionServer
+from xrce.msgs import action_msgs
+from xrce.msgs.test_msgs import Fibonacci
+
+ACTION = "/mcu/fibonacci"
+SERVICES = ("send_goal", "cancel_goal", "get_result")
+
+
+@pytest.fixture(scope="module")
+def rclc():
+    return RclcCapture()
+
+
+def _texts(body):
+    return [t.decode() for t in re.findall(rb"[ -~]{4,}", body[1:])]
+
+
+def _qos(body):
+    # A datawriter's or datareader's representation past its topic id, without rclc's uninitialised
+    # alignment byte after has-depth and without the parent's id.
+    return body[10:15] + body[16:19]
+
+
+def _theirs_entities(rclc):
+    repliers = sorted(rclc.entities[rclc.replier(ACTION + "/_action/" + s)][1] for s in SERVICES)
+    topics = {t: (rclc.entities[rclc.writer_of(t)[0]], rclc.writer_of(t)[1])
+              for t in ("rt" + ACTION + "/_action/feedback", "rt" + ACTION + "/_action/status")}
+    return repliers, topics
+
+
+def _ours_entities(created):
+    endpoints = sorted(_texts(body) for oid, body in created if body[0] in (7, 8))
+    topics = [_texts(body) for oid, body in created if body[0] == 2]
+    qos = [body for oid, body in created if body[0] in (5, 6)]
+    return endpoints, topics, qos
+
+
+def test_server_entities_are_rclcs(rclc):
+    recorder = RecordingSession()
+    node = recorder.session.create_participant(name="/mcu/feat_fw")
+    ActionServer(recorder.session, node, ACTION, Fibonacci, lambda goal: True)
+    repliers, topics = _theirs_entities(rclc)
+    endpoints, our_topics, qos = _ours_entities(recorder.creations())
+    assert endpoints == repliers
+    assert our_topics == [texts for kind, texts, _ in rclc.entities.values()
+                          if kind == 2 and texts[0] in topics]
+    # Feedback reliable keep-last 10, status reliable transient-local keep-last 1.
+    assert [_qos(body) for body in qos] == [_qos(topics[t][1]) for t in topics]
+
+
+def test_client_entities_name_rclcs_server(rclc):
+    recorder = RecordingSession()
+    node = recorder.session.create_participant(name="/mcu/feat_fw")
+    ActionClient(recorder.session, node, ACTION, Fibonacci)
+    repliers, topics = _theirs_entities(rclc)
+    endpoints, our_topics, qos = _ours_entities(recorder.creations())
+    assert endpoints == repliers  # requester and replier share one representation
+    assert our_topics == [["rt" + ACTION + "/_action/feedback", "test_msgs::action::dds_::Fibonacci_FeedbackMessage_"]]
+    feedback_writer = topics["rt" + ACTION + "/_action/feedback"][1]
+    assert qos[0][10:15] + qos[0][16:19] == _qos(feedback_writer)  # what the reader asks, the writer offers
+
+
+def _decoded(cls, body):
+    return cls.from_bytes(body).to_dict()
+
+
+def test_server_answers_as_rclc(rclc):
+    # rclc's firmware: a feedback per step (the sequence so far, from [0, 1, 1]) and the result
+    # after the fourth; a cancelled goal ends canceled with an empty sequence.
+    recorder = RecordingSession()
+    node = recorder.session.create_participant(name="/mcu/feat_fw")
+    server = ActionServer(recorder.session, node, ACTION, Fibonacci, lambda goal: True)
+    recorder.take()
+    send_goal = rclc.exchanges(ACTION + "/_action/send_goal")
+    get_result = rclc.exchanges(ACTION + "/_action/get_result")
+    cancel = rclc.exchanges(ACTION + "/_action/cancel_goal")
+    feedback_writer = rclc.writer_of("rt" + ACTION + "/_action/feedback")[0]
+    their_feedback = rclc.writes[feedback_writer]
+    our_feedback = []
+
+    def serve(replier, identity, request):
+        # The reply (if any) the request got, and the feedback written meanwhile.
+        callback, msg_class = recorder.session._readers[replier]
+        callback(identity, msg_class.from_bytes(request))
+        writes = recorder.writes()
+        our_feedback.extend(body for oid, body in writes if oid == server.feedback_writer)
+        return [body[24:] for oid, body in writes if oid == replier]
+
+    def step(goal):
+        sequence = list(goal.sequence_so_far)
+        goal.sequence_so_far = sequence + [sequence[-1] + sequence[-2]] if len(sequence) > 1 else [0, 1]
+        feedback = Fibonacci.Feedback(sequence=goal.sequence_so_far)
+        goal.publish_feedback(feedback)
+
+    for n, (goal_exchange, result_exchange) in enumerate(zip(send_goal, get_result)):
+        reply = serve(server.send_goal_replier, bytes([n]) * 24, goal_exchange[0])
+        ours_reply = _decoded(Fibonacci.SendGoal.Response, reply[0])
+        theirs_reply = _decoded(Fibonacci.SendGoal.Response, goal_exchange[1])
+        assert ours_reply["accepted"] == theirs_reply["accepted"] is True
+        goal = server.active()[0]
+        assert goal.goal.order == Fibonacci.SendGoal.Request.from_bytes(goal_exchange[0]).goal.order
+        assert serve(server.result_replier, bytes([n + 10]) * 24, result_exchange[0]) == []  # waits
+        goal.sequence_so_far = [0, 1]
+        for _ in range(4):
+            step(goal)
+        if n == 0:
+            goal.succeed(Fibonacci.Result(sequence=goal.sequence_so_far))
+        else:
+            cancel_reply = serve(server.cancel_replier, b"\x20" * 24, cancel[0][0])
+            ours_cancel = _decoded(action_msgs.CancelGoal.Response, cancel_reply[0])
+            theirs_cancel = _decoded(action_msgs.CancelGoal.Response, cancel[0][1])
+            for answer in (ours_cancel, theirs_cancel):  # rclc stamps goals 0, this server with the clock
+                for info in answer["goals_canceling"]:
+                    info.pop("stamp")
+            assert ours_cancel == theirs_cancel and goal.cancel_requested
+            goal.canceled(Fibonacci.Result())
+        writes = recorder.writes()
+        our_feedback.extend(body for oid, body in writes if oid == server.feedback_writer)
+        results = [body[24:] for oid, body in writes if oid == server.result_replier]
+        assert [_decoded(Fibonacci.GetResult.Response, r) for r in results] == \
+            [_decoded(Fibonacci.GetResult.Response, result_exchange[1])]
+    assert our_feedback == their_feedback
+
+
+def test_client_asks_as_rclpy_did(rclc):
+    recorder = RecordingSession()
+    node = recorder.session.create_participant(name="/mcu/feat_fw")
+    client = ActionClient(recorder.session, node, ACTION, Fibonacci, max_goals=2)
+    recorder.take()
+    results, feedbacks = [], []
+    theirs_request = Fibonacci.SendGoal.Request.from_bytes(rclc.exchanges(ACTION + "/_action/send_goal")[0][0])
+    goal = client.send_goal(Fibonacci.Goal(order=theirs_request.goal.order), on_feedback=lambda g, f: feedbacks.append(list(f.sequence)),
+                            on_result=results.append)
+    sent = recorder.writes()
+    assert [oid for oid, _ in sent] == [client.send_goal_requester]
+    ours_request = Fibonacci.SendGoal.Request.from_bytes(sent[0][1])
+    assert ours_request.goal.order == theirs_request.goal.order and bytes(ours_request.goal_id.uuid) == goal.goal_id
+    assert len(set(goal.goal_id)) > 1  # a random UUID, not zeros
+
+    def reply(requester, body):
+        callback, msg_class = recorder.session._readers[requester]
+        request_id = [rid for rid, g in client._pending.items() if g is goal][0]
+        callback(request_id, msg_class.from_bytes(body))
+
+    # rclc's acceptance: the client asks for the result at once (on_result given).
+    reply(client.send_goal_requester, rclc.exchanges(ACTION + "/_action/send_goal")[0][1])
+    assert goal.accepted is True
+    sent = recorder.writes()
+    assert [oid for oid, _ in sent] == [client.result_requester]
+    assert bytes(Fibonacci.GetResult.Request.from_bytes(sent[0][1]).goal_id.uuid) == goal.goal_id
+    # Feedback reaches the goal it names (rclc's feedback samples, renamed to this goal).
+    for body in rclc.writes[rclc.writer_of("rt" + ACTION + "/_action/feedback")[0]][:4]:
+        client._on_feedback(Fibonacci.FeedbackMessage.from_bytes(goal.goal_id + body[16:]))
+    client._on_feedback(Fibonacci.FeedbackMessage.from_bytes(bytes(16) + body[16:]))  # someone else's
+    assert feedbacks == [[0, 1, 1], [0, 1, 1, 2], [0, 1, 1, 2, 3], [0, 1, 1, 2, 3, 5]]
+    reply(client.result_requester, rclc.exchanges(ACTION + "/_action/get_result")[0][1])
+    assert results == [goal] and goal.status == 4 and list(goal.result.sequence) == [0, 1, 1, 2, 3, 5]
+
+    # Cancelling: the request names the goal with a zero stamp, as rclpy's did.
+    second = client.send_goal(Fibonacci.Goal(order=30))
+    recorder.take()
+    second.cancel()
+    sent = recorder.writes()
+    cancel_request = action_msgs.CancelGoal.Request.from_bytes(sent[0][1])
+    theirs_cancel = action_msgs.CancelGoal.Request.from_bytes(rclc.exchanges(ACTION + "/_action/cancel_goal")[0][0])
+    assert bytes(cancel_request.goal_info.goal_id.uuid) == second.goal_id
+    assert cancel_request.goal_info.stamp.to_dict() == theirs_cancel.goal_info.stamp.to_dict()
+
+
+def test_server_bounds_and_cancel_rules():
+    recorder = RecordingSession()
+    node = recorder.session.create_participant(name="fw")
+    refused = []
+    server = ActionServer(recorder.session, node, "/fib", Fibonacci, lambda goal: goal.goal.order >= 0,
+                          on_cancel=lambda goal: goal.goal.order != 13 or refused.append(goal), max_goals=2)
+    recorder.take()
+
+    def send(order, uuid):
+        request = Fibonacci.SendGoal.Request()
+        request.goal_id.uuid, request.goal.order = uuid, order
+        return Fibonacci.SendGoal.Response.from_bytes(
+            recorder.serve(server.send_goal_replier, uuid + bytes(8), request.to_bytes())).accepted
+
+    def cancel(uuid, sec=0):
+        request = action_msgs.CancelGoal.Request()
+        request.goal_info.goal_id.uuid, request.goal_info.stamp.sec = uuid, sec
+        return action_msgs.CancelGoal.Response.from_bytes(
+            recorder.serve(server.cancel_replier, uuid + bytes(8), request.to_bytes()))
+
+    a, b, c = bytes([1] * 16), bytes([2] * 16), bytes([3] * 16)
+    assert send(-1, a) is False  # on_goal refused
+    assert send(5, a) and send(13, b)
+    assert send(7, c) is False  # both slots hold active goals
+    statuses = [action_msgs.GoalStatusArray.from_bytes(body) for oid, body in recorder.last_writes
+                if oid == server.status_writer]
+    assert statuses == []  # a refused goal changes no status
+    assert cancel(bytes([9] * 16)).return_code == 2  # unknown goal
+    response = cancel(bytes(16))  # every goal: 13 refuses
+    assert response.return_code == 0 and [bytes(i.goal_id.uuid) for i in response.goals_canceling] == [a]
+    assert refused and server.active()[1].status == 2
+    status = [action_msgs.GoalStatusArray.from_bytes(body) for oid, body in recorder.last_writes
+              if oid == server.status_writer][-1]
+    assert [(bytes(s.goal_info.goal_id.uuid), s.status) for s in status.status_list] == [(a, 3), (b, 2)]
+    server.active()[0].canceled(Fibonacci.Result())
+    assert cancel(a).return_code == 3  # terminated
+    assert cancel(b).return_code == 1  # on_cancel refused
+    with pytest.raises(ValueError):
+        server.goals[0].succeed(Fibonacci.Result())
+    # A finished goal's slot goes to a new goal; its result is then gone (status unknown).
+    assert send(7, c)
+    result = Fibonacci.GetResult.Request()
+    result.goal_id.uuid = a
+    answer = Fibonacci.GetResult.Response.from_bytes(recorder.serve(server.result_replier, a + bytes(8), result.to_bytes()))
+    assert answer.status == 0 and list(answer.result.sequence) == []
