@@ -227,3 +227,136 @@ def test_server_bounds_and_cancel_rules():
     result.goal_id.uuid = a
     answer = Fibonacci.GetResult.Response.from_bytes(recorder.serve(server.result_replier, a + bytes(8), result.to_bytes()))
     assert answer.status == 0 and list(answer.result.sequence) == []
+
+
+# ---------------------------------------------------------------------------- end to end
+
+import threading  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from agent_process import AgentProcess  # noqa: E402
+from mp_harness import run_micropython  # noqa: E402
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: E402,F401
+
+BOARD = Path(__file__).resolve().parent / "micropython" / "action_board.py"
+
+
+def _board(agent, domain, role, seconds=60):
+    result = {}
+    runner = threading.Thread(target=lambda: result.setdefault(
+        "run", run_micropython(BOARD, agent.port, domain, role, seconds, timeout=seconds + 60)), daemon=True)
+    runner.start()
+    return runner, result
+
+
+def _lines(run):
+    assert run.returncode == 0, run.stdout + run.stderr
+    lines = dict(line.split(" ", 1) for line in run.stdout.splitlines() if " " in line)
+    assert lines["connect"] == lines["setup"] == lines["done"] == "True", run.stdout
+    return lines
+
+
+def _done(future, seconds=30.0):
+    assert wait_until(future.done, seconds), "no answer in %.0f s" % seconds
+    return future.result()
+
+
+def _cpython_session(agent, domain, name):
+    from xrce.client.session import Session
+    from xrce.transports.udp import UdpTransport
+
+    session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+    assert session.create(attempts=5, timeout_ms=1000)
+    return session, session.create_participant(domain_id=domain, name=name)
+
+
+def _spin_until(session, predicate, seconds=30.0):
+    deadline = time.monotonic() + seconds
+    while not predicate() and time.monotonic() < deadline:
+        session.spin_once(20)
+    return predicate()
+
+
+@pytest.mark.timeout(240)
+def test_board_server_and_cpython_client_through_the_agent(ros_domain):  # noqa: F811
+    # Both ends ours, through a live agent's own routing (-m ced): the board's server (MicroPython)
+    # with this process's ActionClient, every outcome and two goals at once.
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        runner, result = _board(agent, ros_domain, "server", 120)
+        session, node = _cpython_session(agent, ros_domain, "fib_cpython_client")
+        try:
+            client = ActionClient(session, node, "/fibonacci", Fibonacci, max_goals=2)
+            assert session.run_until_all_status(5000)
+            feedback = {}
+
+            def send(order):
+                goal = None
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline:  # until the board's server is up
+                    goal = client.send_goal(Fibonacci.Goal(order=order),
+                                            on_feedback=lambda g, f: feedback.setdefault(order, []).append(len(f.sequence)),
+                                            on_result=lambda g: None)
+                    if _spin_until(session, lambda: goal.accepted is not None, 2):
+                        return goal
+                    client.goals.remove(goal)
+                raise AssertionError("no answer to goal %d" % order)
+
+            goal = send(5)
+            assert goal.accepted and _spin_until(session, lambda: goal.done)
+            assert goal.status == 4 and list(goal.result.sequence) == [0, 1, 1, 2, 3, 5] and feedback[5] == [3, 4, 5, 6]
+            assert send(-1).accepted is False
+            goal = send(30)
+            assert _spin_until(session, lambda: len(feedback.get(30, ())) >= 2)
+            goal.cancel()
+            assert _spin_until(session, lambda: goal.done) and goal.status == 5 and goal.cancel_return_code == 0
+            goal = send(45)
+            assert _spin_until(session, lambda: goal.done) and goal.status == 6
+            first, second = send(8), send(9)
+            assert client.send_goal(Fibonacci.Goal(order=1)) is None  # two in flight already
+            assert _spin_until(session, lambda: first.done and second.done)
+            assert [(g.status, len(g.result.sequence)) for g in (first, second)] == [(4, 9), (4, 10)]
+            client.send_goal(Fibonacci.Goal(order=1000))
+            session.run_until_timeout(500)
+        finally:
+            runner.join(150)
+            session.delete(attempts=2, timeout_ms=500)
+            session.close()
+    lines = _lines(result["run"])
+    assert lines["goals"] == "5:succeeded,30:canceled,45:aborted,8:succeeded,9:succeeded", lines["goals"]
+
+
+@pytest.mark.timeout(240)
+def test_board_client_and_cpython_server_through_the_agent(ros_domain):  # noqa: F811
+    # The board's ActionClient (MicroPython) against this process's ActionServer, through -m ced.
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        session, node = _cpython_session(agent, ros_domain, "fib_cpython_server")
+        server = ActionServer(session, node, "/fibonacci", Fibonacci, lambda goal: True, max_goals=2)
+        assert session.run_until_all_status(5000)
+        runner, result = _board(agent, ros_domain, "client", 90)
+        sequences = {}
+        try:
+            last = time.monotonic()
+            while runner.is_alive():
+                session.spin_once(10)
+                if time.monotonic() - last < 0.1:
+                    continue
+                last = time.monotonic()
+                for goal in server.active():
+                    sequence = sequences.setdefault(goal.goal_id, [0, 1])
+                    if goal.cancel_requested:
+                        goal.canceled(Fibonacci.Result(sequence=sequence))
+                        continue
+                    sequence.append(sequence[-1] + sequence[-2])
+                    goal.publish_feedback(Fibonacci.Feedback(sequence=sequence))
+                    if len(sequence) >= goal.goal.order + 1:
+                        goal.succeed(Fibonacci.Result(sequence=sequence))
+        finally:
+            runner.join(120)
+            session.delete(attempts=2, timeout_ms=500)
+            session.close()
+    lines = _lines(result["run"])
+    assert lines["first"] == "True succeeded [0, 1, 1, 2, 3, 5] 4", lines["first"]
+    assert lines["second"] == "True canceled 0", lines["second"]
+    assert lines["third"] == "True"
+    assert lines["both"] == "succeeded,[0, 1, 1, 2];succeeded,[0, 1, 1, 2, 3]", lines["both"]
