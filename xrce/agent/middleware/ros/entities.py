@@ -406,7 +406,8 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         elif record.kind == "replier":
             record.closed = True
             for _header, expiry in record.pending.values():
-                expiry.cancel()
+                if expiry is not None:
+                    expiry.cancel()
             record.pending.clear()
 
     def delete(self, key: EntityKey) -> None:

@@ -51,20 +51,32 @@ SERVER_CHECK_MAX_S = 0.1
 # Requests of one XRCE client in flight (held, or sent and not answered yet); beyond, a request is
 # refused. Each holds a deserialized request and an expiry timer for request_timeout_s.
 MAX_PENDING_REQUESTS_PER_CLIENT = 256
+# An action's get_result request is answered when its goal ends, which may be minutes later: rcl_action
+# and micro_ros_agent wait for it as long as that takes, so those requests never expire here; a
+# replier holds at most this many ROS-side ones (the oldest is forgotten first), a requester's count
+# against MAX_PENDING_REQUESTS_PER_CLIENT.
+MAX_HELD_RESULT_REQUESTS = 256
+_RESULT_SERVICE_SUFFIX = "/_action/get_result"
+
+
+def _expires(service_name: str) -> bool:
+    """Whether requests of this ROS service expire after request_timeout_s."""
+    return not service_name.endswith(_RESULT_SERVICE_SUFFIX)
 
 
 class _RequesterRecord:
     __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed",
-                 "client_key")
+                 "client_key", "expires")
     kind = "requester"
 
-    def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback):
+    def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback, expires: bool = True):
         self.participant = participant
+        self.expires = expires
         self.client_key = participant[0]  # the XRCE client's, for its pending-request quota
         self.client = None
         self.srv = srv
         self.on_reply = on_reply
-        # correlation id -> [rclpy Future or None until sent, expiry TimerHandle]
+        # correlation id -> [rclpy Future or None until sent, expiry TimerHandle or None]
         self.pending: dict[int, list] = {}
         # correlation id -> (entry, request) held until the service server is discovered
         self.waiting: dict[int, tuple] = {}
@@ -83,16 +95,19 @@ class _ReplierRecord:
     """
 
     __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
-                 "identity_prefix", "sequence", "loop", "middleware")
+                 "identity_prefix", "sequence", "loop", "middleware", "expires")
     kind = "replier"
 
     def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
-                 identity_prefix: bytes, loop: asyncio.AbstractEventLoop, middleware: "RosServices"):
+                 identity_prefix: bytes, loop: asyncio.AbstractEventLoop, middleware: "RosServices",
+                 expires: bool = True):
         self.participant = participant
+        self.expires = expires
         self.service = None
         self.srv = srv
         self.on_request = on_request
-        self.pending: dict[bytes, tuple] = {}  # identity -> (request header, expiry TimerHandle)
+        # identity -> (request header, expiry TimerHandle or None), oldest first
+        self.pending: dict[bytes, tuple] = {}
         self.closed = False
         self.identity_prefix = identity_prefix  # guidPrefix(12) + entityKey(3) + entityKind(1)
         self.sequence = 0
@@ -152,7 +167,7 @@ class RosServices:
         self._get_loop()
         creation = self._creating.get(key)
         record = creation.context if creation is not None else \
-            _RequesterRecord(owner, srv, on_reply)
+            _RequesterRecord(owner, srv, on_reply, _expires(service_name))
         node = participant_record.node
         record.client, _ = self._create_on_executor(key, participant_record, lambda: node.create_client(
             srv, service_name, qos_profile=profile), node.destroy_client, record)
@@ -171,7 +186,8 @@ class RosServices:
             # with key (the reply writer a DDS replier would own).
             prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] \
                 + b"\x02"
-            record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self)
+            record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self,
+                                    _expires(service_name))
         node = participant_record.node
 
         def make_service():
@@ -209,7 +225,7 @@ class RosServices:
             return False
         self._pending_by_client[record.client_key] = in_flight + 1
         entry = [None, loop.call_later(self.request_timeout_s, self._expire_request, record,
-                                       correlation_id)]
+                                       correlation_id) if record.expires else None]
         record.pending[correlation_id] = entry
         if record.client.service_is_ready():
             self._send_request(record, correlation_id, entry, request)
@@ -321,14 +337,16 @@ class RosServices:
             return
         del record.pending[correlation_id]
         self._release(record)
-        entry[1].cancel()
+        if entry[1] is not None:
+            entry[1].cancel()
         try:
             record.on_reply(correlation_id, body)
         except Exception:
             log.exception("on_reply failed")
 
     def _forget_request(self, record: _RequesterRecord, entry: list) -> None:
-        entry[1].cancel()
+        if entry[1] is not None:
+            entry[1].cancel()
         if entry[0] is not None and record.client is not None:
             record.client.remove_pending_request(entry[0])
 
@@ -346,7 +364,16 @@ class RosServices:
                          header) -> None:
         if record.closed:
             return
-        expiry = self._loop.call_later(self.request_timeout_s, self._expire_reply, record, identity)
+        if record.expires:
+            expiry = self._loop.call_later(self.request_timeout_s, self._expire_reply, record,
+                                           identity)
+        else:
+            expiry = None
+            if len(record.pending) >= MAX_HELD_RESULT_REQUESTS:
+                del record.pending[next(iter(record.pending))]
+                self.requests_timed_out += 1
+                log.warning("replier holds %d result requests its XRCE client has not answered: "
+                            "the oldest is forgotten", MAX_HELD_RESULT_REQUESTS)
         record.pending[identity] = (header, expiry)
         try:
             record.on_request(identity, body)
@@ -367,7 +394,8 @@ class RosServices:
         if entry is None:
             return False
         header, expiry = entry
-        expiry.cancel()
+        if expiry is not None:
+            expiry.cancel()
         try:
             response = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Response)
             Service.send_response(record.service, response, header)
