@@ -262,6 +262,73 @@ def _done(future, seconds=30.0):
     return future.result()
 
 
+def _check_feedback(received, result, order):
+    # The sequence so far, one step at a time, each a step further than the one before, up to the
+    # result. rclpy's ActionClient drops feedback that reaches it before the goal's acceptance or
+    # after its result (feedback is a topic, those are service replies: nothing orders them), so the
+    # first and the last step may be missing on a loaded machine; the steps between may not.
+    result = list(result)
+    lengths = [len(sequence) for sequence in received]
+    assert all(sequence == result[:len(sequence)] for sequence in received), received
+    assert lengths == list(range(lengths[0], lengths[0] + len(lengths))), lengths
+    assert lengths[0] <= 4 and lengths[-1] >= order, (lengths, order)
+
+
+@pytest.mark.timeout(240)
+def test_rclpy_action_client_against_the_board_under_micropython(ros_peer, ros_domain):  # noqa: F811
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient as RosActionClient
+    from test_msgs.action import Fibonacci as RosFibonacci
+
+    client = RosActionClient(ros_peer.node, RosFibonacci, "/fibonacci")
+    with AgentProcess("udp4", "-m", "dds") as agent:
+        runner, result = _board(agent, ros_domain, "server", 120)
+        try:
+            assert client.wait_for_server(60), "the board's action server never appeared"
+            feedback = {}
+
+            def send(order):
+                future = client.send_goal_async(
+                    RosFibonacci.Goal(order=order),
+                    feedback_callback=lambda m, o=order: feedback.setdefault(o, []).append(list(m.feedback.sequence)))
+                return _done(future)
+
+            # A goal with feedback and result.
+            handle = send(5)
+            assert handle.accepted
+            outcome = _done(handle.get_result_async())
+            assert outcome.status == GoalStatus.STATUS_SUCCEEDED and list(outcome.result.sequence) == [0, 1, 1, 2, 3, 5]
+            _check_feedback(feedback[5], outcome.result.sequence, 5)
+            # A rejected goal.
+            assert not send(-3).accepted
+            # A cancelled goal.
+            handle = send(30)
+            assert wait_until(lambda: len(feedback.get(30, ())) >= 2, 30)
+            cancel = _done(handle.cancel_goal_async())
+            assert cancel.return_code == 0 and [bytes(g.goal_id.uuid) for g in cancel.goals_canceling] == [
+                bytes(handle.goal_id.uuid)]
+            outcome = _done(handle.get_result_async())
+            assert outcome.status == GoalStatus.STATUS_CANCELED and len(outcome.result.sequence) >= 4
+            # An aborted goal.
+            handle = send(45)
+            outcome = _done(handle.get_result_async())
+            assert outcome.status == GoalStatus.STATUS_ABORTED and list(outcome.result.sequence) == [0, 1, 1, 2]
+            # Two goals at once; a third while both run is refused (max_goals=2).
+            first, second = send(8), send(9)
+            assert first.accepted and second.accepted and not send(7).accepted
+            outcomes = [_done(h.get_result_async()) for h in (first, second)]
+            assert [(o.status, len(o.result.sequence)) for o in outcomes] == [
+                (GoalStatus.STATUS_SUCCEEDED, 9), (GoalStatus.STATUS_SUCCEEDED, 10)]
+            for order, outcome in zip((8, 9), outcomes):
+                _check_feedback(feedback[order], outcome.result.sequence, order)
+            assert handle.status == GoalStatus.STATUS_ABORTED  # followed /_action/status
+            send(1000)  # ends the board's run
+        finally:
+            runner.join(150)
+    lines = _lines(result["run"])
+    assert lines["goals"] == "5:succeeded,30:canceled,45:aborted,8:succeeded,9:succeeded", lines["goals"]
+
+
 def _cpython_session(agent, domain, name):
     from xrce.client.session import Session
     from xrce.transports.udp import UdpTransport
@@ -357,6 +424,53 @@ def test_board_client_and_cpython_server_through_the_agent(ros_domain):  # noqa:
             session.close()
     lines = _lines(result["run"])
     assert lines["first"] == "True succeeded [0, 1, 1, 2, 3, 5] 4", lines["first"]
+    assert lines["second"] == "True canceled 0", lines["second"]
+    assert lines["third"] == "True"
+    assert lines["both"] == "succeeded,[0, 1, 1, 2];succeeded,[0, 1, 1, 2, 3]", lines["both"]
+
+
+@pytest.mark.timeout(240)
+def test_board_action_client_against_rclpy_action_server(ros_peer, ros_domain):  # noqa: F811
+    # The board's ActionClient (MicroPython) against rclpy's ActionServer through -m dds: feedback
+    # and result, a cancelled goal, two goals at once.
+    from rclpy.action import ActionServer as RosActionServer, CancelResponse
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+    from test_msgs.action import Fibonacci as RosFibonacci
+
+    def execute(goal_handle):
+        sequence = [0, 1]
+        while len(sequence) < goal_handle.request.order + 1:
+            time.sleep(0.1)
+            if goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+                return RosFibonacci.Result(sequence=sequence)
+            sequence.append(sequence[-1] + sequence[-2])
+            goal_handle.publish_feedback(RosFibonacci.Feedback(sequence=sequence))
+        goal_handle.succeed()
+        return RosFibonacci.Result(sequence=sequence)
+
+    node = Node("fib_ros_server", context=ros_peer.context, start_parameter_services=False,
+                enable_rosout=False, use_global_arguments=False)
+    RosActionServer(node, RosFibonacci, "/fibonacci", execute, callback_group=ReentrantCallbackGroup(),
+                    cancel_callback=lambda request: CancelResponse.ACCEPT)
+    executor = MultiThreadedExecutor(num_threads=4, context=ros_peer.context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        with AgentProcess("udp4", "-m", "dds") as agent:
+            runner, result = _board(agent, ros_domain, "client", 90)
+            runner.join(150)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        spinner.join(10)
+    lines = _lines(result["run"])
+    # Feedback for each step but those that overtook the acceptance or the result (_check_feedback).
+    assert lines["first"].startswith("True succeeded [0, 1, 1, 2, 3, 5] "), lines["first"]
+    assert 2 <= int(lines["first"].rsplit(" ", 1)[1]) <= 4, lines["first"]
     assert lines["second"] == "True canceled 0", lines["second"]
     assert lines["third"] == "True"
     assert lines["both"] == "succeeded,[0, 1, 1, 2];succeeded,[0, 1, 1, 2, 3]", lines["both"]
