@@ -73,6 +73,9 @@ def test_action_names_are_rosidl_s():
     from xrce.msgs.test_msgs import Fibonacci_GetResult_Response
 
     assert Fibonacci_GetResult_Response is Fibonacci.GetResult.Response
+    from xrce.msgs import test_msgs, turtlebot3_msgs
+
+    assert test_msgs.SERVICES == {} and sorted(turtlebot3_msgs.SERVICES) == ["Dqn", "Goal", "Sound"]
 
 
 def test_patrol_matches_the_built_turtlebot3_msgs():
@@ -110,7 +113,7 @@ def test_generator_expands_an_action_of_any_package(tmp_path):
     text = (out / "dock_msgs" / "_Dock.py").read_text()
     assert "'dock_msgs::action::dds_::Dock_SendGoal_Request_'" in text
     assert "(unique_identifier_msgs.UUID, Dock_Goal, )" in text
-    assert "_ACTION_CLASSES = ('Dock', )" in (out / "dock_msgs" / "__init__.py").read_text()
+    assert "_SERVICE_CLASSES = ('Dock', )" in (out / "dock_msgs" / "__init__.py").read_text()
 
 
 def test_generator_refuses_an_action_without_three_parts(tmp_path, capsys):

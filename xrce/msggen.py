@@ -251,14 +251,13 @@ def generate_package_init(package, service_classes, command=SHIPPED_COMMAND, act
         "from xrce.msgs import _type_attr",
         "",
         "# Service descriptor classes; Name_Request/Name_Response live in the same module.",
-        "_SERVICE_CLASSES = (%s)" % "".join("%r, " % name for name in service_classes),
     ]
     if action_classes:
-        lines += [
-            "# Action descriptor classes; every type of an action (Name_Goal, ...) lives in its module.",
-            "_ACTION_CLASSES = (%s)" % "".join("%r, " % name for name in action_classes),
-        ]
+        # Action descriptors join them: their modules (the action's every type) stay loaded on a
+        # board in the same way, with no code of its own in the runtime every board loads.
+        lines.append("# And action descriptor classes, whose modules hold every type of the action.")
     lines += [
+        "_SERVICE_CLASSES = (%s)" % "".join("%r, " % name for name in list(service_classes) + list(action_classes)),
         "",
         "",
         "def __getattr__(name):",

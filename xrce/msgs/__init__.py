@@ -364,8 +364,7 @@ def _type_attr(namespace, name):
 
         value = service_attr(namespace, name)
     else:
-        if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"] and name not in namespace.get(
-                "_ACTION_CLASSES", ()):
+        if IS_MICROPYTHON and name not in namespace["_SERVICE_CLASSES"]:
             del sys.modules[module]
             namespace.pop("_" + name, None)
     namespace[name] = value
