@@ -77,7 +77,6 @@ def serve():
 def run_client():
     client = ActionClient(session, node, "/fibonacci", Fibonacci, max_goals=2)
     print("setup", session.run_until_all_status(10000))
-    session.run_until_timeout(2000)  # discovery of the server on the ROS side
     feedback = {}
     finished = []
 
@@ -92,7 +91,16 @@ def run_client():
             session.spin_once(20)
         return predicate()
 
-    first = client.send_goal(Fibonacci.Goal(order=5), on_feedback=on_feedback, on_result=on_result)
+    # A request sent before the agent's side has found the server is lost (DDS, volatile): the first
+    # goal is sent again until it is answered, as a firmware waiting for its server would.
+    while running():
+        first = client.send_goal(Fibonacci.Goal(order=5), on_feedback=on_feedback, on_result=on_result)
+        answered = ticks_ms()
+        while first.accepted is None and ticks_diff(ticks_ms(), answered) < 2000:
+            session.spin_once(20)
+        if first.accepted is not None:
+            break
+        client.goals.remove(first)
     wait(lambda: first.done)
     print("first", first.accepted, STATUS_NAMES[first.status], list(first.result.sequence) if first.result else None,
           len(feedback.get(first.goal_id, ())))
