@@ -115,7 +115,9 @@ class TurtleBot3:
 
     def __init__(self, transport, domain_id=0, node_name=NODE_NAME, cmd_vel_reliable=True,
                  periods_ms=None, failsafe_ms=FAILSAFE_MS, time_sync_period_ms=TIME_SYNC_PERIOD_MS,
-                 key=None, log=print):
+                 key=None, log=print, ros_extras=False):
+        # ``ros_extras``: calibration parameters and the /patrol action as well
+        # (xrce.examples.turtlebot3_extras, loaded only then).
         self.transport = transport
         self.domain_id = domain_id
         self.node_name = node_name
@@ -136,6 +138,8 @@ class TurtleBot3:
         self.time_syncs = 0
         self.published = {}
         self.failed_topics = []
+        self.ros_extras = ros_extras
+        self.extras = None
         self._writers = {}
         self._schedule = []
         self._sync_timer = None
@@ -249,6 +253,13 @@ class TurtleBot3:
         yield from self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
         yield from self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
         yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
+        if self.ros_extras:
+            from xrce.examples.turtlebot3_extras import RobotExtras
+
+            self.extras = RobotExtras(self, node)
+            yield
+            if not (yield from self._statuses(timeout_ms)):
+                self.failed_topics.append("parameters/patrol")
         session.hold_set_up(False)
         yield
         session.size_output_buffers(largest)
@@ -337,8 +348,9 @@ class TurtleBot3:
         half_track = self.angular * _WHEEL_SEPARATION * 0.5
         left_speed = self.linear - half_track
         right_speed = self.linear + half_track
-        self.left_angle += left_speed * dt / _WHEEL_RADIUS
-        self.right_angle += right_speed * dt / _WHEEL_RADIUS
+        radius = _WHEEL_RADIUS if self.extras is None else self.extras.wheel_radius  # a parameter
+        self.left_angle += left_speed * dt / radius
+        self.right_angle += right_speed * dt / radius
         self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         linear = (left_speed + right_speed) * 0.5
@@ -448,6 +460,8 @@ class TurtleBot3:
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
             yield
+        if self.extras is not None:
+            self.extras.step(now)
 
     def run(self, duration_ms=None, should_stop=None):
         # Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true.

@@ -57,6 +57,8 @@ def main(robot_class, argv=None):
                            help="print a status line every S seconds (0: never)")
         child.add_argument("--connect-attempts", type=int, default=0,
                            help="agent pings before giving up (0: forever)")
+        child.add_argument("--ros-extras", action="store_true",
+                           help="also serve calibration parameters and the /patrol action")
     args = parser.parse_args(argv)
     import os
     domain = args.domain
@@ -72,7 +74,7 @@ def main(robot_class, argv=None):
     log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
     transport = _make_transport(args)
     robot = robot_class(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
-                       log=log)
+                       log=log, ros_extras=args.ros_extras)
     try:
         if robot.connect(attempts=args.connect_attempts) is None:
             log("turtlebot3: no agent answered")
