@@ -216,6 +216,7 @@ package(
         "transports/udp.py",
         "examples/__init__.py",
         "examples/turtlebot3.py",
+        "examples/turtlebot3_extras.py",
     ),
     base_path=".",
 )
