@@ -1,0 +1,259 @@
+"""rclc actions through ``xrce-agent -m dds`` with rclpy's real ``ActionClient``/``ActionServer``.
+
+The board is ``rclc_action_peer.RclcActionPeer``: the entities rmw_microxrcedds created for the
+rclc action server of tests/golden/microros/actions_params.jsonl (taken from that capture), over
+UDP and over a serial line (a real pty pair). Three things an rclc user does:
+
+- the board serves the action: a goal with its feedbacks and result SUCCEEDED, a second goal
+  cancelled while it runs (CANCELED);
+- the board is the action client of an rclpy ActionServer: the same, seen from the board;
+- the board resets (same client key, a new CREATE_CLIENT; over UDP from a new source port) while
+  a goal runs: the ROS side gets no made-up result for the lost goal, its cancel is answered by the
+  rebooted board (unknown goal), and the next goal succeeds; the agent keeps serving.
+
+Before, the agent refused the send_goal replier (``'test_msgs::action::dds_::
+Fibonacci_SendGoal_Request_' is not a service type``) and ``rclc_action_server_init`` failed.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from contextlib import contextmanager
+
+import pytest
+
+from agent_process import AgentProcess
+from microros_replay import SerialChannel, UdpChannel
+from rclc_action_peer import RclcActionPeer
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from xrce import constants as C
+
+LINKS = ("udp", "serial")
+FEEDBACKS = [[0, 1, 1], [0, 1, 1, 2], [0, 1, 1, 2, 3], [0, 1, 1, 2, 3, 5]]  # order 6, as recorded
+
+
+@contextmanager
+def board_link(link: str, pty_pair):
+    """(agent, channel): an ``xrce-agent -m dds`` and the board's side of its link."""
+    if link == "udp":
+        with AgentProcess("udp4", "-m", "dds", "-v", "0") as agent:
+            channel = UdpChannel(agent.port)
+            try:
+                yield agent, channel
+            finally:
+                channel.close()
+    else:
+        board_fd, board_tty = pty_pair()
+        with AgentProcess("multiserial", "--devs", board_tty, "-m", "dds", "-v", "0") as agent:
+            yield agent, SerialChannel(board_fd)
+
+
+def _done(future, timeout: float = 30.0):
+    assert wait_until(future.done, timeout), "no answer within %.0f s" % timeout
+    return future.result()
+
+
+def _booted(board: RclcActionPeer, expected=(C.STATUS_OK,)) -> None:
+    statuses = board.boot_up()
+    assert all(status in expected for status in statuses), statuses
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("link", LINKS)
+def test_board_serves_an_action_to_rclpy(link, ros_peer, ros_domain, pty_pair):  # noqa: F811
+    from action_msgs.msg import GoalStatus
+    from action_msgs.srv import CancelGoal
+    from rclpy.action import ActionClient
+    from test_msgs.action import Fibonacci
+
+    with board_link(link, pty_pair) as (agent, channel):
+        board = RclcActionPeer(channel, ros_domain)
+        client = ActionClient(ros_peer.node, Fibonacci, "/mcu/fibonacci")
+        try:
+            _booted(board)
+            assert wait_until(client.server_is_ready, 20)
+            feedback = []
+            handle = _done(client.send_goal_async(Fibonacci.Goal(order=6), lambda message: (
+                feedback.append(list(message.feedback.sequence)))))
+            assert handle.accepted
+            result = _done(handle.get_result_async())
+            assert (result.status, list(result.result.sequence)) == \
+                (GoalStatus.STATUS_SUCCEEDED, [0, 1, 1, 2, 3, 5])
+            assert wait_until(lambda: len(feedback) >= 4, 5) and feedback == FEEDBACKS
+
+            board.feedback_period = 0.3  # long enough to cancel it on the way
+            running = []
+            handle = _done(client.send_goal_async(Fibonacci.Goal(order=40), lambda message: (
+                running.append(list(message.feedback.sequence)))))
+            assert handle.accepted
+            result_future = handle.get_result_async()
+            assert wait_until(lambda: running, 10)
+            cancel = _done(handle.cancel_goal_async())
+            assert cancel.return_code == CancelGoal.Response.ERROR_NONE
+            assert [bytes(g.goal_id.uuid) for g in cancel.goals_canceling] == \
+                [bytes(handle.goal_id.uuid)]
+            result = _done(result_future)
+            assert result.status == GoalStatus.STATUS_CANCELED
+            assert 3 <= len(result.result.sequence) < 40
+        finally:
+            client.destroy()
+            board.reset()
+        assert agent.proc.poll() is None
+
+
+class RosActionServer:
+    """An rclpy ActionServer of /mcu/fibonacci on its own node and multithreaded executor (a
+    running goal must not hold up the cancel request)."""
+
+    def __init__(self, ros_peer, period: float = 0.1):
+        from rclpy.action import ActionServer, CancelResponse
+        from rclpy.callback_groups import ReentrantCallbackGroup
+        from rclpy.executors import MultiThreadedExecutor
+        from rclpy.node import Node
+        from test_msgs.action import Fibonacci
+
+        self.Fibonacci = Fibonacci
+        self.period = period
+        self.node = Node("fibonacci_server", context=ros_peer.context,
+                         start_parameter_services=False, enable_rosout=False)
+        self.server = ActionServer(self.node, Fibonacci, "/mcu/fibonacci", self.execute,
+                                   cancel_callback=lambda _request: CancelResponse.ACCEPT,
+                                   callback_group=ReentrantCallbackGroup())
+        self.executor = MultiThreadedExecutor(num_threads=3, context=ros_peer.context)
+        self.executor.add_node(self.node)
+        self._stop = False
+        self._thread = threading.Thread(target=self._spin, name="fibonacci-server", daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while not self._stop:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def execute(self, handle):
+        sequence = [0, 1]
+        while len(sequence) < handle.request.order:
+            if handle.is_cancel_requested:
+                handle.canceled()
+                return self.Fibonacci.Result(sequence=sequence)
+            sequence.append(sequence[-1] + sequence[-2])
+            handle.publish_feedback(self.Fibonacci.Feedback(sequence=sequence))
+            time.sleep(self.period)
+        handle.succeed()
+        return self.Fibonacci.Result(sequence=sequence)
+
+    def close(self):
+        self._stop = True
+        self._thread.join(5)
+        self.server.destroy()
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()
+        self.executor.shutdown()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("link", LINKS)
+def test_board_is_the_action_client_of_rclpy(link, ros_peer, ros_domain, pty_pair):  # noqa: F811
+    from action_msgs.msg import GoalInfo, GoalStatus
+    from action_msgs.srv import CancelGoal
+    from unique_identifier_msgs.msg import UUID
+
+    server = RosActionServer(ros_peer)
+    impl = server.Fibonacci.Impl
+    node = server.node
+    try:
+        with board_link(link, pty_pair) as (agent, channel):
+            board = RclcActionPeer(channel, ros_domain, role="client")
+            try:
+                _booted(board)
+                # The board's feedback and status readers are in the ROS graph before the goal.
+                assert wait_until(lambda: node.count_subscribers(
+                    "/mcu/fibonacci/_action/feedback") >= 1 and node.count_subscribers(
+                    "/mcu/fibonacci/_action/status") >= 1, 20)
+                first = UUID(uuid=list(os.urandom(16)))
+                accepted = board.reply(board.send("send_goal", impl.SendGoalService.Request(
+                    goal_id=first, goal=server.Fibonacci.Goal(order=6))),
+                    impl.SendGoalService.Response)
+                assert accepted.accepted
+                result = board.reply(board.send("get_result", impl.GetResultService.Request(
+                    goal_id=first)), impl.GetResultService.Response)
+                assert (result.status, list(result.result.sequence)) == \
+                    (GoalStatus.STATUS_SUCCEEDED, [0, 1, 1, 2, 3, 5])
+                mine = lambda goal: [s for g, s in board.feedback if g == bytes(goal.uuid)]  # noqa: E731
+                assert wait_until(lambda: len(mine(first)) >= 4, 5) and mine(first) == FEEDBACKS
+                # The status topic (transient_local, depth 1) tells the goal's end too.
+                assert wait_until(lambda: any(
+                    bytes(s.goal_info.goal_id.uuid) == bytes(first.uuid) and
+                    s.status == GoalStatus.STATUS_SUCCEEDED
+                    for array in board.status_arrays for s in array.status_list), 10)
+
+                server.period = 0.3
+                second = UUID(uuid=list(os.urandom(16)))
+                assert board.reply(board.send("send_goal", impl.SendGoalService.Request(
+                    goal_id=second, goal=server.Fibonacci.Goal(order=40))),
+                    impl.SendGoalService.Response).accepted
+                result_request = board.send("get_result", impl.GetResultService.Request(
+                    goal_id=second))
+                assert wait_until(lambda: mine(second), 10)
+                cancel = board.reply(board.send("cancel_goal", CancelGoal.Request(
+                    goal_info=GoalInfo(goal_id=second))), CancelGoal.Response)
+                assert cancel.return_code == CancelGoal.Response.ERROR_NONE
+                assert [bytes(g.goal_id.uuid) for g in cancel.goals_canceling] == \
+                    [bytes(second.uuid)]
+                result = board.reply(result_request, impl.GetResultService.Response)
+                assert result.status == GoalStatus.STATUS_CANCELED
+            finally:
+                board.reset()
+            assert agent.proc.poll() is None
+    finally:
+        server.close()
+
+
+@pytest.mark.timeout(150)
+@pytest.mark.parametrize("link", LINKS)
+def test_board_reset_with_a_goal_in_flight(link, ros_peer, ros_domain, pty_pair):  # noqa: F811
+    from action_msgs.msg import GoalStatus
+    from action_msgs.srv import CancelGoal
+    from rclpy.action import ActionClient
+    from test_msgs.action import Fibonacci
+
+    with board_link(link, pty_pair) as (agent, channel):
+        board = RclcActionPeer(channel, ros_domain, feedback_period=0.2)
+        client = ActionClient(ros_peer.node, Fibonacci, "/mcu/fibonacci")
+        try:
+            _booted(board)
+            assert wait_until(client.server_is_ready, 20)
+            lost = []
+            handle = _done(client.send_goal_async(Fibonacci.Goal(order=40), lambda message: (
+                lost.append(list(message.feedback.sequence)))))
+            assert handle.accepted
+            lost_result = handle.get_result_async()
+            assert wait_until(lambda: len(lost) >= 2, 10)
+
+            board.reset()  # power cut mid-goal: nothing more from this boot
+            board = RclcActionPeer(channel, ros_domain, boot=1)
+            # rmw_microxrcedds creates everything again with REUSE|REPLACE: the agent kept it.
+            _booted(board, (C.STATUS_OK_MATCHED,))
+            assert client.server_is_ready()
+
+            # The rebooted board does not know the goal: its cancel says so, and nothing
+            # answers the lost goal's result with an outcome the board never produced.
+            cancel = _done(handle.cancel_goal_async())
+            assert cancel.return_code == CancelGoal.Response.ERROR_UNKNOWN_GOAL_ID
+            feedbacks_then = len(lost)
+            time.sleep(0.5)
+            assert len(lost) == feedbacks_then and not lost_result.done()
+
+            fresh = []
+            handle = _done(client.send_goal_async(Fibonacci.Goal(order=6), lambda message: (
+                fresh.append(list(message.feedback.sequence)))))
+            assert handle.accepted
+            result = _done(handle.get_result_async())
+            assert (result.status, list(result.result.sequence)) == \
+                (GoalStatus.STATUS_SUCCEEDED, [0, 1, 1, 2, 3, 5])
+            assert wait_until(lambda: len(fresh) >= 4, 5) and fresh == FEEDBACKS
+        finally:
+            client.destroy()
+            board.reset()
+        assert agent.proc.poll() is None
