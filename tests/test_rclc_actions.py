@@ -17,6 +17,7 @@ Fibonacci_SendGoal_Request_' is not a service type``) and ``rclc_action_server_i
 
 from __future__ import annotations
 
+import asyncio
 import os
 import threading
 import time
@@ -257,3 +258,89 @@ def test_board_reset_with_a_goal_in_flight(link, ros_peer, ros_domain, pty_pair)
             client.destroy()
             board.reset()
         assert agent.proc.poll() is None
+
+
+# ---------------------------------------------------------- the mapping and the middleware alone
+
+FIBONACCI = "test_msgs::action::dds_::Fibonacci_"
+
+
+def test_action_parts_map_onto_rclpys_action_classes():
+    from action_msgs.srv import CancelGoal
+    from test_msgs.action import Fibonacci
+
+    from xrce.agent.middleware import UnknownTypeError
+    from xrce.agent.middleware.ros.types import message_class, raw_message_type, service_class
+
+    impl = Fibonacci.Impl
+    assert service_class(FIBONACCI + "SendGoal_Request_") is impl.SendGoalService
+    assert service_class(FIBONACCI + "SendGoal_Response_") is impl.SendGoalService
+    assert service_class(FIBONACCI + "GetResult_Request_") is impl.GetResultService
+    assert service_class("action_msgs::srv::dds_::CancelGoal_Request_") is CancelGoal
+    assert message_class(FIBONACCI + "FeedbackMessage_") is impl.FeedbackMessage
+    assert message_class(FIBONACCI + "Goal_") is Fibonacci.Goal
+    # What the agent publishes feedback with: the C type support alone (the tests above see
+    # rclpy's ActionClient take those samples).
+    raw = raw_message_type(FIBONACCI + "FeedbackMessage_")
+    assert (raw.__module__, raw.__name__) == ("test_msgs.action", "Fibonacci_FeedbackMessage")
+    for wrong, call in ((FIBONACCI + "FeedbackMessage_", service_class),
+                        (FIBONACCI + "SendGoal_Request_", raw_message_type),
+                        (FIBONACCI + "Cancel_Request_", service_class),
+                        ("test_msgs::action::dds_::NoSuchAction_SendGoal_Request_", service_class)):
+        with pytest.raises(UnknownTypeError):
+            call(wrong)
+
+
+async def test_result_requests_wait_for_the_goal_beyond_the_request_timeout(
+        ros_domain, ros_peer):  # noqa: F811
+    """A get_result request is answered when the goal ends, which may be long after the agent's
+    request timeout: neither the replier (board = action server) nor the requester (board =
+    action client) gives up on it, as rcl_action does not; a plain service's request still does."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from test_msgs.action import Fibonacci
+
+    from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
+    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from ros_helpers import async_wait_until
+
+    impl = Fibonacci.Impl
+    qos = EndpointQosSpec(reliable=True, keep_last=True, depth=10, durability="volatile")
+    request_t, reply_t = FIBONACCI + "GetResult_Request_", FIBONACCI + "GetResult_Response_"
+    mw = RosMiddleware(request_timeout_s=0.3)
+    await mw.start()
+    try:
+        mw.create_participant((1, 0x01), ros_domain, "board")
+        pending = []
+        mw.create_replier((1, 0x18), (1, 0x01), ServiceSpec(
+            "/board/fib/_action/get_result", request_t, reply_t), qos,
+            lambda identity, body: pending.append(identity))
+        client = ros_peer.node.create_client(impl.GetResultService, "/board/fib/_action/get_result")
+        assert await async_wait_until(client.service_is_ready)
+        future = client.call_async(impl.GetResultService.Request())
+        assert await async_wait_until(lambda: pending)
+        await asyncio.sleep(0.8)
+        answer = impl.GetResultService.Response(status=4)
+        answer.result.sequence = [0, 1, 1]
+        assert mw.write_reply((1, 0x18), pending[0], serialize_message(answer)[4:])
+        assert await async_wait_until(future.done)
+        assert list(future.result().result.sequence) == [0, 1, 1] and mw.requests_timed_out == 0
+
+        def late_result(_request, response):  # the goal ends 0.8 s after the request
+            time.sleep(0.8)
+            response.status = 4
+            response.result.sequence = [0, 1]
+            return response
+
+        ros_peer.node.create_service(impl.GetResultService, "/server/fib/_action/get_result",
+                                     late_result)
+        replies = []
+        mw.create_requester((1, 0x27), (1, 0x01), ServiceSpec(
+            "/server/fib/_action/get_result", request_t, reply_t), qos,
+            lambda correlation, body: replies.append(body))
+        assert mw.write_request((1, 0x27), 7, serialize_message(
+            impl.GetResultService.Request())[4:])
+        assert await async_wait_until(lambda: replies, 10)
+        result = deserialize_message(b"\x00\x01\x00\x00" + replies[0], impl.GetResultService.Response)
+        assert list(result.result.sequence) == [0, 1] and mw.requests_timed_out == 0
+    finally:
+        await mw.close()
