@@ -344,3 +344,72 @@ async def test_result_requests_wait_for_the_goal_beyond_the_request_timeout(
         assert list(result.result.sequence) == [0, 1] and mw.requests_timed_out == 0
     finally:
         await mw.close()
+
+
+async def test_an_action_of_a_package_the_wheels_do_not_carry(ros_domain, ros_peer):  # noqa: F811
+    """turtlebot3_msgs' Patrol.action (built from xrce's interface directory, not in any wheel):
+    a board's send_goal replier and feedback writer of that action reach an rclpy ActionClient."""
+    from rclpy.action import ActionClient
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from xrce.agent import interfaces
+    from xrce.agent.middleware import EndpointQosSpec, ServiceSpec, TopicSpec
+    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from ros_helpers import async_wait_until
+
+    interfaces.build(names=["turtlebot3_msgs"])  # a cache hit after the first time
+    from turtlebot3_msgs.action import Patrol
+
+    patrol = "turtlebot3_msgs::action::dds_::Patrol_"
+    qos = EndpointQosSpec(reliable=True, keep_last=True, depth=10, durability="volatile")
+    status_qos = EndpointQosSpec(reliable=True, keep_last=True, depth=1,
+                                 durability="transient_local")
+    mw = RosMiddleware()
+    await mw.start()
+    client = ActionClient(ros_peer.node, Patrol, "/tb3/patrol")
+    try:
+        board = (1, 0x01)
+        mw.create_participant(board, ros_domain, "tb3")
+        goals = []
+        repliers = {}
+        for index, (part, request_t, reply_t) in enumerate((
+                ("send_goal", patrol + "SendGoal_Request_", patrol + "SendGoal_Response_"),
+                ("cancel_goal", "action_msgs::srv::dds_::CancelGoal_Request_",
+                 "action_msgs::srv::dds_::CancelGoal_Response_"),
+                ("get_result", patrol + "GetResult_Request_", patrol + "GetResult_Response_"))):
+            repliers[part] = (1, 0x08 | (index + 1) << 4)
+            mw.create_replier(repliers[part], board, ServiceSpec(
+                "/tb3/patrol/_action/" + part, request_t, reply_t), qos,
+                lambda identity, body, part=part: goals.append((part, identity, body)))
+        writers = {}
+        for index, (part, type_name, endpoint_qos) in enumerate((
+                ("feedback", patrol + "FeedbackMessage_", qos),
+                ("status", "action_msgs::msg::dds_::GoalStatusArray_", status_qos))):
+            base = 0x100 * (index + 1)
+            mw.create_topic((1, base | 0x02), board, TopicSpec("rt/tb3/patrol/_action/" + part,
+                                                              type_name))
+            mw.create_publisher((1, base | 0x03), board)
+            mw.create_datawriter((1, base | 0x05), (1, base | 0x03), (1, base | 0x02),
+                                 endpoint_qos)
+            writers[part] = (1, base | 0x05)
+        assert await async_wait_until(client.server_is_ready, 20)
+        feedback = []
+        sent = client.send_goal_async(Patrol.Goal(radius=0.5),
+                                      lambda message: feedback.append(message.feedback.left_time))
+        assert await async_wait_until(lambda: goals, 10)
+        part, identity, body = goals[0]
+        request = deserialize_message(b"\x00\x01\x00\x00" + body, Patrol.Impl.SendGoalService.Request)
+        assert part == "send_goal" and request.goal.radius == 0.5
+        assert mw.write_reply(repliers["send_goal"], identity, serialize_message(
+            Patrol.Impl.SendGoalService.Response(accepted=True))[4:])
+        assert await async_wait_until(sent.done, 10) and sent.result().accepted
+        message = Patrol.Impl.FeedbackMessage(goal_id=request.goal_id)
+        message.feedback.left_time = 3.5
+        for _attempt in range(50):  # the first samples may predate matching
+            assert mw.write(writers["feedback"], serialize_message(message)[4:])
+            if await async_wait_until(lambda: feedback, 0.2):
+                break
+        assert feedback and feedback[0] == 3.5
+    finally:
+        client.destroy()
+        await mw.close()
