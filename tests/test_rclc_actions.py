@@ -413,3 +413,45 @@ async def test_an_action_of_a_package_the_wheels_do_not_carry(ros_domain, ros_pe
     finally:
         client.destroy()
         await mw.close()
+
+
+async def test_unanswered_result_requests_are_bounded(ros_domain, ros_peer):  # noqa: F811
+    """A board that never answers get_result (it reset, or it is hostile) does not make the agent
+    hold ROS-side requests without bound: the oldest beyond MAX_HELD_RESULT_REQUESTS goes."""
+    from test_msgs.action import Fibonacci
+
+    from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
+    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.services import MAX_HELD_RESULT_REQUESTS
+    from ros_helpers import async_wait_until
+
+    impl = Fibonacci.Impl
+    mw = RosMiddleware(request_timeout_s=0.3)
+    await mw.start()
+    try:
+        mw.create_participant((1, 0x01), ros_domain, "board")
+        taken = []
+        mw.create_replier((1, 0x18), (1, 0x01), ServiceSpec(
+            "/board/fib/_action/get_result", FIBONACCI + "GetResult_Request_",
+            FIBONACCI + "GetResult_Response_"),
+            EndpointQosSpec(reliable=True, keep_last=True, depth=1000, durability="volatile"),
+            lambda identity, body: taken.append(identity))
+        from rclpy.qos import QoSProfile
+
+        client = ros_peer.node.create_client(impl.GetResultService,
+                                             "/board/fib/_action/get_result",
+                                             qos_profile=QoSProfile(depth=1000))
+        assert await async_wait_until(client.service_is_ready)
+        extra = 20
+        for _ in range(MAX_HELD_RESULT_REQUESTS + extra):
+            client.call_async(impl.GetResultService.Request())
+            await asyncio.sleep(0.002)
+        assert await async_wait_until(lambda: len(taken) == MAX_HELD_RESULT_REQUESTS + extra,
+                                      20), len(taken)
+        record = mw._entities[(1, 0x18)]
+        assert len(record.pending) == MAX_HELD_RESULT_REQUESTS
+        assert mw.requests_timed_out == extra
+        # The oldest went; the newest can still be answered.
+        assert taken[0] not in record.pending and taken[-1] in record.pending
+    finally:
+        await mw.close()
