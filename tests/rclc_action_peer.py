@@ -273,7 +273,8 @@ class RclcActionPeer:
             request = _decoded(body, impl.SendGoalService.Request)
             goal_id = bytes(request.goal_id.uuid)
             self.goals[goal_id] = {"order": request.goal.order, "sequence": [0, 1],
-                                   "status": 2, "next": time.monotonic(), "waiting": []}
+                                   "status": 2, "next": time.monotonic() + self.feedback_period,
+                                   "waiting": []}
             self._reply("send_goal", identity, impl.SendGoalService.Response(accepted=True))
         elif object_id == self.ids["get_result"]:
             goal_id = bytes(_decoded(body, impl.GetResultService.Request).goal_id.uuid)
