@@ -220,8 +220,11 @@ def _action_part(package: str, type_name: str, parts: dict, dds_type: str):
                                % (dds_type, "message" if parts is _ACTION_MESSAGES else "service",
                                   ", ".join("X_" + name for name in parts)))
     found = _import_interface(package, "action", action_name)
-    for attribute in path:
-        found = getattr(found, attribute)
+    try:
+        for attribute in path:
+            found = getattr(found, attribute)
+    except AttributeError:  # a name of the module that is no generated action class
+        raise UnknownTypeError("%s.action.%s is not an action" % (package, action_name)) from None
     return found
 
 
