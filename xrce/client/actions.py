@@ -22,6 +22,10 @@
 # writer and, in the capture, never writes it; this server publishes every goal's status on each
 # change, as rclcpp and rclpy servers do, so `ros2 action` and rclpy goal handles see the states.
 #
+# The client follows a goal through its replies (acceptance, cancel, result) and its feedback, not
+# through the status topic: a GoalStatusArray holds every goal of the server, which a board need not
+# decode to know its own.
+#
 # Bounded: a server holds at most ``max_goals`` goals (a finished goal keeps its slot, and its result
 # for a late get_result, until a new goal needs the slot); a client has at most ``max_goals`` goals in
 # flight. A board loads this module only when it makes an action server or client
