@@ -8,7 +8,6 @@ real client session whose transport records what it sends. End to end: under rea
 
 import re
 import threading
-import time
 from pathlib import Path
 
 import pytest

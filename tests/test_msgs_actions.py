@@ -4,7 +4,6 @@ against rclpy's own serializer for test_msgs/action/Fibonacci, against rclpy's c
 turtlebot3_msgs/action/Patrol once built, and the generator on a package of one's own."""
 
 import os
-import sys
 
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message

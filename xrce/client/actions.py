@@ -32,7 +32,7 @@
 # (bench/client_footprint.py states its cost).
 
 from xrce import const, ticks_us
-from xrce.msgs import action_msgs, unique_identifier_msgs
+from xrce.msgs import action_msgs
 
 _UNKNOWN = const(0)
 _ACCEPTED = const(1)
