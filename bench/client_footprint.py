@@ -273,7 +273,7 @@ def run(report, argv):
     import xrce.client.actions
     yield
     imported = mpheap.live
-    report("import xrce.client.actions (+ action_msgs, UUID)", imported - start)
+    report("import xrce.client.actions (+ the action_msgs package)", imported - start)
     from xrce.msgs.test_msgs import Fibonacci
     yield
     typed = mpheap.live
