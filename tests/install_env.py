@@ -174,7 +174,7 @@ def sourced_ros(tmp_path_factory):
     prefix = root / "opt" / "ros" / "jazzy"
     # --ignore-installed: the prefix holds the whole ROS, as /opt/ros does, whatever pip runs in.
     laid_out = run([python, "-m", "pip", "install", "-q", "--prefix", prefix, "--ignore-installed",
-                    *rosenv.PYPI_ROS_REQUIREMENTS], env=clean_env(), timeout=600)
+                    *rosenv.pypi_ros_requirements()], env=clean_env(), timeout=600)
     assert laid_out.returncode == 0, _pip_output(laid_out)[-3000:]
     ros = SourcedRos(prefix, root / "venv")
     install = run([python, "-m", "pip", "install", "-q", REPO], env=ros.env(), timeout=300)

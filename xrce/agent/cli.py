@@ -593,9 +593,9 @@ def main(argv=None):
             return 1
         from xrce.agent.middleware.ros import fastdds_profile, rclpy_services
         rclpy_services.defer_unused()  # before anything imports rclpy.node
-        if fastdds_profile.install():  # before any participant: Fast DDS reads it once
-            logging.getLogger("xrce.agent.rosenv").debug(
-                "Fast DDS participant profile: %s", fastdds_profile.PROFILE_PATH)
+        profile = fastdds_profile.install()  # before any participant: Fast DDS reads it once
+        if profile:
+            logging.getLogger("xrce.agent.rosenv").debug("Fast DDS participant profile: %s", profile)
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown
