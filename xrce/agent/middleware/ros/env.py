@@ -383,10 +383,14 @@ def would_use():
     elif wheel_distro:
         ros = "ROS 2 %s (PyPI wheels in %s)" % (wheel_distro, sys.prefix)
     else:
-        return "ROS 2: none found (no ROS sourced, no ROS wheels in %s); -m ced runs without" % sys.prefix
+        return ("ROS 2: none found (no ROS sourced, no ROS wheels in %s); -m ced needs none"
+                % sys.prefix)
     rmws = installed_rmws()
+    # rmw_implementation's own default when RMW_IMPLEMENTATION is unset.
     rmw = requested or ("rmw_fastrtps_cpp" if "rmw_fastrtps_cpp" in rmws or not rmws else rmws[0])
     words = "%s, RMW %s" % (ros, rmw)
+    if rmws and rmw not in rmws:
+        return words + " (not installed: this ROS 2 has %s)" % ", ".join(rmws)
     if rmw.startswith("rmw_fastrtps"):
         fastdds = installed_fastdds()
         if fastdds:
