@@ -25,7 +25,7 @@ from unittest import mock
 
 import pytest
 
-from agent_process import AgentProcess
+from agent_process import AgentProcess, restore_default_signals
 
 REPO = Path(__file__).resolve().parents[1]
 PYTHON_DIR = "python%d.%d" % sys.version_info[:2]
@@ -45,7 +45,7 @@ def clean_env(**extra):
 
 def run(command, env=None, timeout=300, cwd=None):
     return subprocess.run([str(c) for c in command], env=env, cwd=cwd, stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, timeout=timeout)
+                          stderr=subprocess.STDOUT, text=True, timeout=timeout, preexec_fn=restore_default_signals)
 
 
 def _pip_output(result):
