@@ -4,6 +4,7 @@ without importing rclpy. And how xrce picks which distribution's PyPI wheels to 
 (``XRCE_ROS_DISTRO``, xrce/agent/middleware/ros/env.py)."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +12,8 @@ from pathlib import Path
 import pytest
 
 import xrce
+from agent_process import AgentProcess
+from ros_helpers import ros_domain  # noqa: F401
 from xrce.agent.middleware.ros import env as rosenv
 
 BIN = Path(sys.executable).parent
@@ -49,6 +52,22 @@ def test_agent_version_names_the_ros_it_would_join():
     assert other.returncode == 0
     assert other.stdout.splitlines()[1].endswith(
         "RMW rmw_nonexistent_cpp (not installed: this ROS 2 has %s)" % ", ".join(rosenv.installed_rmws()))
+
+
+def test_the_agent_first_line_names_the_distribution_and_the_dds_it_loaded(ros_domain):  # noqa: F811
+    pytest.importorskip("rclpy")
+    version = _run("xrce-agent", "--version").stdout.splitlines()[1]
+    distro = version.split()[2]
+    fastdds = rosenv.installed_fastdds()[1]
+    with AgentProcess("udp4") as agent:
+        pass
+    log = "".join(agent.output)
+    line = re.search(r"INFO +xrce\.agent\.rosenv: (ROS 2 .*)", log)
+    assert line, log
+    # e.g. "ROS 2 kilted from PyPI wheels (...): rclpy 9.1.2 at ..., RMW rmw_fastrtps_cpp (Fast DDS 3.2.2)"
+    assert line.group(1).startswith("ROS 2 %s from " % distro), line.group(1)
+    assert line.group(1).endswith("RMW rmw_fastrtps_cpp (Fast DDS %s)" % fastdds), line.group(1)
+    assert "XMLPARSER" not in log and "deprecated" not in log, log
 
 
 @pytest.mark.parametrize("command", ["xrce-agent", "xrce-client"])
