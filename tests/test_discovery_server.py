@@ -106,10 +106,18 @@ def discovery_server(ros_domain):  # noqa: F811
     server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               preexec_fn=restore_default_signals)
     try:
-        first = server.stdout.readline()
-        assert "Server is running" in first or "Discovery Server" in first or first.strip(), \
-            first + (server.communicate(timeout=10)[0] if server.poll() is not None else "")
-        assert server.poll() is None, first + server.communicate(timeout=10)[0]
+        # "### Server is running ###" (Fast DDS 2) or "#### Server started ####" (3), then its
+        # addresses: ours must be among them.
+        address = "UDPv4:[127.0.0.1]:%d" % port
+        banner = []
+        while len(banner) < 10 and not (banner and address in banner[-1]):
+            line = server.stdout.readline()
+            if not line:  # ended before saying where it listens
+                break
+            banner.append(line)
+        text = "".join(banner)
+        assert ("Server is running" in text or "Server started" in text) and address in text, \
+            text + (server.communicate(timeout=10)[0] if server.poll() is not None else "")
         yield "127.0.0.1:%d" % port
     finally:
         _stop(server)
@@ -145,9 +153,9 @@ def test_data_crosses_both_ways_through_a_discovery_server(discovery_server, ros
 
             # Outside the server's graph: a node without ROS_DISCOVERY_SERVER (simple discovery on
             # the same domain) sees none of the agent's or the peer's topics.
+            plain = {k: v for k, v in os.environ.items() if k != "ROS_DISCOVERY_SERVER"}
             outsider = subprocess.run([sys.executable, "-c", _PLAIN_NODE, "3"], capture_output=True,
-                                      text=True, timeout=60,
-                                      env={k: v for k, v in os.environ.items() if k != "ROS_DISCOVERY_SERVER"})
+                                      text=True, timeout=60, env=plain)
             assert outsider.returncode == 0, outsider.stdout + outsider.stderr
             topics = outsider.stdout.strip().splitlines()[-1]
             assert "/to_ros" not in topics and "/from_ros" not in topics, topics

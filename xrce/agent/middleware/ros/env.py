@@ -29,8 +29,8 @@ DISTRO_VARIABLE = "XRCE_ROS_DISTRO"
 PYPI_DISTROS = ("jazzy", "kilted")
 DEFAULT_DISTRO = "jazzy"
 
-# Where PyPI has ros-jazzy-* and ros-kilted-* wheels (cp311 and cp312 manylinux x86_64 only). pip evaluates these on
-# the installing machine, so a wheel of xrce built anywhere installs on a Raspberry Pi too.
+# Where PyPI has ros-jazzy-* and ros-kilted-* wheels (cp311 and cp312 manylinux x86_64 only). pip
+# evaluates these on the installing machine, so a wheel of xrce built anywhere installs on a Pi too.
 PYPI_ROS_MARKER = ('sys_platform == "linux" and platform_machine == "x86_64" and '
                    'python_version >= "3.11" and python_version < "3.13"')
 COMMON_REQUIREMENTS = ("pyserial", "crcmod-plus", "pyyaml")
