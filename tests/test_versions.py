@@ -85,7 +85,10 @@ def test_the_distribution_of_the_wheels_is_chosen_at_install():
         assert "ros-%s-rclpy[fastrtps]; %s" % (distro, rosenv.PYPI_ROS_MARKER) in ros
         assert all(r.startswith("ros-%s-" % distro) for r in ros), ros
         assert "ros-%s-test-msgs; %s" % (distro, rosenv.PYPI_ROS_MARKER) in extras["test"]
-    # Jazzy stays the default; PyPI has no python-cmake-module for Kilted (nor does it need one).
+    # Jazzy stays the default; PyPI has no python-cmake-module for Kilted (nor does it need one),
+    # and Kilted's typesupport generators need ament_cmake_ros_core to build interface packages.
+    assert "ros-kilted-ament-cmake-ros-core; " + rosenv.PYPI_ROS_MARKER in \
+        rosenv.install_requirements({"XRCE_ROS_DISTRO": "kilted"})[0]
     assert rosenv.install_requirements({})[0] == rosenv.install_requirements({"XRCE_ROS_DISTRO": "jazzy"})[0]
     assert not [r for r in rosenv.install_requirements({"XRCE_ROS_DISTRO": "Kilted"})[0]
                 if "python-cmake-module" in r]

