@@ -25,7 +25,7 @@ from nav_msgs.msg import Odometry as RosOdometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu as RosImu
 
-from agent_process import AgentProcess, child_pids
+from agent_process import AgentProcess, child_pids, restore_default_signals
 from mp_harness import run_micropython
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce.examples.turtlebot3 import ENCODER_TICKS_PER_REV, TurtleBot3
@@ -302,7 +302,8 @@ def pid_alive(pid):
 @pytest.mark.parametrize("serial", [False, True], ids=["udp", "serial"])
 def test_demo_prints_robot_topics_and_exits_cleanly_on_sigint(ros_domain, serial):  # noqa: F811
     command = [sys.executable, "-m", "xrce.agent", "demo"] + (["--serial"] if serial else [])
-    demo = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    demo = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=restore_default_signals)
     lines = []
     reader = threading.Thread(target=lambda: lines.extend(demo.stdout), daemon=True)
     reader.start()
