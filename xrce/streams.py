@@ -204,6 +204,17 @@ class InputReliableStream:
         self._pop_consecutive(out)
         return out
 
+    def receive_next(self, seq):
+        # ``receive`` for the common case without its list: True, and ``seq`` handled, when it is the
+        # next in order and nothing is stored (the caller then processes that message itself);
+        # False otherwise, with nothing changed (call ``receive``).
+        if self.stored or seq != seq_add(self.last_handled, 1):
+            return False
+        self.last_handled = seq
+        if seq_less(self.last_announced, seq):
+            self.last_announced = seq
+        return True
+
     def _pop_consecutive(self, out):
         stored = self.stored
         while stored:
@@ -219,19 +230,24 @@ class InputReliableStream:
         # Note what the sender has sent; skip what it no longer holds. Returns deliverable messages.
         if seq_less(self.last_announced, last_unacked):
             self.last_announced = last_unacked
+        if not seq_less(seq_add(self.last_handled, 1), first_unacked):
+            return ()  # nothing skipped: no list (a client gets a HEARTBEAT every few messages)
+        # The sender gave up on messages before first_unacked: they will never come.
         out = []
-        if seq_less(seq_add(self.last_handled, 1), first_unacked):
-            # The sender gave up on messages before first_unacked: they will never come.
-            skip_to = seq_add(first_unacked, -1)
-            for seq in list(self.stored):
-                if not seq_less(skip_to, seq):
-                    self.stored_bytes -= len(self.stored.pop(seq))
-            self.last_handled = skip_to
-            self._pop_consecutive(out)
+        skip_to = seq_add(first_unacked, -1)
+        for seq in list(self.stored):
+            if not seq_less(skip_to, seq):
+                self.stored_bytes -= len(self.stored.pop(seq))
+        self.last_handled = skip_to
+        self._pop_consecutive(out)
         return out
 
     def acknack(self):
         # ``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream.
+        return seq_add(self.last_handled, 1), self.nack_bitmap()
+
+    def nack_bitmap(self):
+        # The NACK bitmap of ``acknack`` alone: no tuple (first_unacked is last_handled + 1).
         first = seq_add(self.last_handled, 1)
         bitmap = 0
         for i in range(_NACK_BITS):
@@ -240,4 +256,4 @@ class InputReliableStream:
                 break
             if seq not in self.stored:
                 bitmap |= 1 << i
-        return first, bitmap
+        return bitmap

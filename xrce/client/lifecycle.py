@@ -9,11 +9,10 @@
 # CPython binds these functions on Session (xrce.client.entities.bind).
 
 from xrce import const, random_client_key, ticks_ms
-from xrce.client.wire import _Output
+from xrce.cdr import CdrReader
+from xrce.client.wire import _History, _Output
 from xrce.message import MessageWriter, header_size
-from xrce.streams import (
-    InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
-)
+from xrce.streams import InputBestEffortStream, InputReliableStream, OutputBestEffortStream
 
 _DEFAULT_SESSION_ID = const(0x81)
 _BUILTIN_BEST_EFFORT = const(0x01)
@@ -37,6 +36,10 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
         _error("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
     session.transport = transport
+    # Bound once here: the session sends the first bytes of its buffers through it (a board's
+    # UdpTransport writes them from the buffer), and looking it up per message would bind it anew.
+    session._transport_send_from = getattr(transport, "send_from", None)
+    session._sample_reader = CdrReader(b"")  # every sample is decoded through this one
     if key is None:
         key = random_client_key()
     elif isinstance(key, int):
@@ -67,7 +70,7 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
         inputs[sid] = InputBestEffortStream(sid)
     for i in range(reliable_streams):
         sid = _BUILTIN_RELIABLE + i
-        outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
+        outputs[sid] = _Output(sid, _History(sid, history), _FIRST_OUTPUT_BUFFER)
         inputs[sid] = InputReliableStream(sid, history)
     if largest_sample:
         session.size_output_buffers(largest_sample)

@@ -37,7 +37,6 @@ import sys
 from xrce import DecodeError, IS_MICROPYTHON, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrReader
 from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
-from xrce.message import iter_submessages
 
 # Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
@@ -257,7 +256,12 @@ class Session(Outbound):
                 if stream is None:
                     self.dropped_messages += 1
                     return
-                ready = stream.receive(buf[2] | (buf[3] << 8), buf)
+                seq = buf[2] | (buf[3] << 8)
+                if stream.receive_next(seq):  # in order, nothing stored: no list of one
+                    self._send_acknack(stream)
+                    self._process_reliable(buf)
+                    return
+                ready = stream.receive(seq, buf)
                 self._send_acknack(stream)
                 for message in ready:
                     self._process_reliable(message)
@@ -265,9 +269,9 @@ class Session(Outbound):
             self.decode_errors += 1
 
     def _send_acknack(self, stream):
-        first, bitmap = stream.acknack()
+        bitmap = stream.nack_bitmap()  # acknack() without its tuple
         w = self._begin_control(_ACKNACK)
-        w.u16(first)
+        w.u16((stream.last_handled + 1) & 0xFFFF)
         w.u8(bitmap >> 8)
         w.u8(bitmap & 0xFF)
         w.u8(stream.stream_id)
@@ -283,8 +287,18 @@ class Session(Outbound):
 
     def _process(self, buf, end):
         # What a client receives (XRCE-WIRE.md §5), one branch per submessage: one method each
-        # would cost a board heap for its code object; anything else is ignored.
-        for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
+        # would cost a board heap for its code object; anything else is ignored. The submessages
+        # are walked as xrce.message.iter_submessages does, inline: a generator and a tuple per
+        # submessage would be a board's garbage on every message received.
+        pos = self.header_size
+        while end - pos >= 4:
+            sub_id = buf[pos]
+            flags = buf[pos + 1]
+            s = pos + 4
+            e = s + (buf[pos + 2] | (buf[pos + 3] << 8))
+            if e > end:
+                raise DecodeError("submessage %d runs past the message end" % sub_id)
+            pos = (e + 3) & ~3
             if sub_id == _DATA:
                 if s == e:  # length 0: a sample > 64 KiB, to the end of the reassembled message
                     self._on_data(buf, flags, s, end)
@@ -302,9 +316,8 @@ class Session(Outbound):
                     # first unacknowledged, NACK bitmap (always big-endian) of one of our streams
                     out = self._outputs.get(stream_id)
                     if out is not None and out.reliable:
-                        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3],
-                                                            ticks_ms(), self.heartbeat_ms // 2):
-                            self._send(message)
+                        out.state.on_acknack_send(self, first, (buf[s + 2] << 8) | buf[s + 3],
+                                                  ticks_ms(), self.heartbeat_ms // 2)
                 else:
                     # first and last sequence numbers the agent still holds for one of its streams
                     stream = self._inputs.get(stream_id)
@@ -345,17 +358,31 @@ class Session(Outbound):
         if rid in self._statuses:
             self._statuses[rid] = _STATUS_OK  # a DATA answers its READ_DATA (§5)
         reader = self._readers.get(oid)
-        data = memoryview(buf)[s + 4:e]
         if self.on_topic is not None:
-            self.on_topic(self, oid, rid, buf[1], data)
+            self.on_topic(self, oid, rid, buf[1], memoryview(buf)[s + 4:e])
         if reader is None:
             return
         callback, msg_class = reader
         if oid & 0x0F >= _OBJK_REQUESTER:
             from xrce.client.services import deliver
-            deliver(oid & 0x0F, callback, msg_class, data)
+            deliver(oid & 0x0F, callback, msg_class, memoryview(buf)[s + 4:e])
+        elif msg_class is None:
+            callback(bytes(memoryview(buf)[s + 4:e]))
         else:
-            callback(_decode_sample(msg_class, data))
+            # The session's one reader over the message itself: no view, no reader per sample.
+            r = self._sample_reader
+            r.buf = buf
+            r.pos = r.origin = s + 4
+            r.end = e
+            try:
+                if type(msg_class) is type:
+                    sample = msg_class.decode(r)
+                else:  # an instance (create_reader's ``into``): decoded in place
+                    msg_class.decode_into(r)
+                    sample = msg_class
+            finally:
+                r.buf = b""  # the datagram is not kept alive until the next one
+            callback(sample)
 
 
 def _never():
