@@ -19,7 +19,7 @@ def write_fragmented(session, out, mark, end):
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
     # The submessage is in ``out.big`` (wire._Output: a sample too large for a message's buffer is
     # written there), or in a buffer that grew to hold it, which then becomes ``out.big``; the
-    # fragments are built in the history's buffers (wire._History): no copy of the sample, one
+    # fragments are built in the history's buffers (OutputReliableStream.keep): no copy of the sample, one
     # view of each fragment's bytes.
     out.pos = end
     out.pad_to_4()

@@ -72,7 +72,7 @@ class Session(Outbound):
         # reliable_streams=1, heartbeat_ms=100, max_reassembly=None, on_topic=None,
         # auto_recover=True, liveliness_ms=500, on_link_state=None, largest_sample=0):
         # xrce.client.lifecycle.init, which CPython binds here. ``largest_sample`` (serialized
-        # bytes) sizes the output buffers at once: see wire.Outbound.size_output_buffers.
+        # bytes) sizes the output buffers at once: see lifecycle.size_output_buffers.
         _set_up_module("lifecycle").init(self, *args, **kwargs)
 
     # ------------------------------------------------------------------ session lifecycle
@@ -316,8 +316,8 @@ class Session(Outbound):
                     # first unacknowledged, NACK bitmap (always big-endian) of one of our streams
                     out = self._outputs.get(stream_id)
                     if out is not None and out.reliable:
-                        out.state.on_acknack_send(self, first, (buf[s + 2] << 8) | buf[s + 3],
-                                                  ticks_ms(), self.heartbeat_ms // 2)
+                        out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3], ticks_ms(),
+                                             self.heartbeat_ms // 2, self)
                 else:
                     # first and last sequence numbers the agent still holds for one of its streams
                     stream = self._inputs.get(stream_id)
@@ -335,9 +335,9 @@ class Session(Outbound):
                 elif rid in self._statuses:  # only requests someone waits for (not re-creations)
                     self._statuses[rid] = buf[s + 4]
             elif sub_id == _INFO:
-                impl_status, availability = _agent_activity(buf, flags, s, e)
+                availability = _agent_activity(buf, flags, s, e)
                 if availability is not None and availability > 0:
-                    if impl_status == 1:
+                    if buf[s + 5] == 1:  # implementation status
                         self._pong_in_session = True
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
@@ -378,7 +378,7 @@ class Session(Outbound):
                 if type(msg_class) is type:
                     sample = msg_class.decode(r)
                 else:  # an instance (create_reader's ``into``): decoded in place
-                    msg_class.decode_into(r)
+                    _decode_into(msg_class, r)
                     sample = msg_class
             finally:
                 r.buf = b""  # the datagram is not kept alive until the next one
@@ -389,6 +389,16 @@ def _never():
     return False
 
 
+def _decode_into(msg, r):
+    # xrce.msgs._into.decode_into, imported by the first sample an ``into`` reader gets; then this
+    # name is that function (an import per sample would look the module up each time).
+    global _decode_into
+    from xrce.msgs._into import decode_into
+
+    _decode_into = decode_into
+    decode_into(msg, r)
+
+
 def _decode_sample(msg_class, data):
     if msg_class is None:
         return bytes(data)
@@ -396,28 +406,38 @@ def _decode_sample(msg_class, data):
 
 
 def _agent_activity(buf, flags, s, e):
-    # ``(implementation status, availability or None)`` of an INFO payload in ``buf[s:e]``.
-    r = CdrReader(buf, s + 4, e, 0, bool(flags & 1))
-    r.u8()  # status
-    impl_status = r.u8()
-    if r.boolean():  # the agent's configuration: kind, cookie, version, vendor, properties
-        r.u8()
-        r.raw(8)
-        if r.boolean():  # properties: discovery's INFO reader skips them
+    # The availability (int16) an agent's INFO payload in ``buf[s:e]`` reports, or None (the
+    # implementation status is ``buf[s + 5]``). Read byte by byte: a reader, its bytes and a tuple
+    # would be a board's garbage on every ping answered.
+    p = s + 7  # related request (4), status, implementation status, then the optional config
+    if p > e or buf[p - 1] > 1:
+        raise DecodeError("bad INFO")
+    if buf[p - 1]:  # the agent's configuration: kind, cookie, version, vendor, properties
+        p += 10
+        if p > e or buf[p - 1] > 1:
+            raise DecodeError("bad INFO configuration")
+        if buf[p - 1]:  # properties: discovery's INFO reader skips them
             from xrce.client.discovery import info_activity
 
-            return info_activity(buf, flags, s, e)
-    if not r.boolean():
-        return impl_status, None
-    if r.u8() != _OBJK_AGENT:
+            return info_activity(buf, flags, s, e)[1]
+    if p >= e or buf[p] > 1:
+        raise DecodeError("bad INFO activity")
+    if not buf[p]:
+        return None
+    if p + 1 >= e or buf[p + 1] != _OBJK_AGENT:
         raise DecodeError("INFO activity is not an agent's")
-    return impl_status, r._get(0, 2)  # int16: the reader's i16 lives in xrce.cdr_more
+    p += 2
+    p += p & 1  # an int16, aligned from the message start
+    if p + 2 > e:
+        raise DecodeError("short INFO activity")
+    value = (buf[p] | (buf[p + 1] << 8)) if flags & 1 else ((buf[p] << 8) | buf[p + 1])
+    return value - 0x10000 if value & 0x8000 else value
 
 
 # The session attributes xrce.client.lifecycle serves (a string looked up as " name ": on a board
 # each string of a tuple would be an object of its own). Told apart here, so that neither module
 # loads the other for a call.
-_LIFECYCLE = " create delete _reset_streams _restore "
+_LIFECYCLE = " create delete _reset_streams _restore size_output_buffers "
 # xrce.client.on_demand's own, which it then sets on the class: their first look-up (a firmware's
 # first time sync, typically before any entity) goes there without loading xrce.client.entities,
 # which passes on the names it does not serve (the services') itself.

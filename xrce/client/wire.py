@@ -9,13 +9,16 @@
 # cases a client produces; tests/test_client_wire.py checks them against the general codec, so
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
-from xrce import EncodeError, XrceError, const, ticks_add, ticks_diff, ticks_ms
+from xrce import XrceError, const, ticks_add, ticks_ms
 from xrce.message import MessageWriter
-from xrce.streams import OutputReliableStream, seq_add, seq_less
 
 _STREAM_NONE = const(0x00)
 _WRITE_DATA = const(7)
 _FLAG_LITTLE_ENDIAN = const(0x01)
+
+
+# One tuple for the module: written in put_request, it would be built anew for every sample.
+_BUFFERS = (bytes, bytearray, memoryview)
 
 
 class SessionError(XrceError):
@@ -35,7 +38,7 @@ def put_request(w, request_id, object_id, body, prefix=None):
     w.u8(object_id & 0xFF)
     if prefix is not None:
         w.raw(prefix)
-    if isinstance(body, (bytes, bytearray, memoryview)):
+    if isinstance(body, _BUFFERS):
         w.raw(body)
     else:
         saved = w.origin
@@ -160,32 +163,6 @@ class Outbound:
             if out.has_content:
                 self._close_message(out)
 
-    def size_output_buffers(self, largest_sample):
-        # Give every output stream, now, the buffer a sample of ``largest_sample`` serialized bytes
-        # needs, so that the first such sample does not grow it in the firmware's loop (growing
-        # takes a block twice the size in one piece while the old one is live: on a board, the
-        # TurtleBot3's first /odom asked for 1024 bytes mid-run). A reliable stream writes a sample
-        # whole before cutting it into fragments, so its buffer takes the whole sample in a message
-        # of its own (as after a flush: rmw and the TurtleBot3 flush after every write); a
-        # best-effort stream never builds more than a message. A buffer never shrinks, and one too
-        # small still grows. Here, not in a set-up module: a firmware calls it at the end of
-        # set-up, when loading a module's code may no longer find room.
-        # A reliable stream's history slots (messages kept for retransmission) get buffers of a
-        # message's size; a sample larger than that is written whole into one more buffer of its
-        # own (``big``), which it is cut from into the slots as FRAGMENTs.
-        whole = (self.header_size + 8 + largest_sample + 3) & ~3  # subheader, request and object ids
-        size = whole if whole < self.max_message else self.max_message
-        self.flush()  # nothing open is lost with the buffer it is in
-        outputs = self._outputs
-        for stream_id in outputs:
-            out = outputs[stream_id]
-            if len(out.buf) < size:
-                out.buf = bytearray(size)
-            if out.reliable:
-                out.state.size_buffers(size)
-                if whole > size and (out.big is None or len(out.big) < whole):
-                    out.big = bytearray(whole)
-
     def _begin_control(self, sub_id, session_id=None, key=None):
         # Start a stream-0 message with one submessage; returns the writer for its payload.
         mw = self._control
@@ -233,89 +210,16 @@ class _Output(MessageWriter):
         self.home = None  # the buffer a message moved to ``big`` from was begun in
 
     def reserve(self, n):
-        if self.pos + n > len(self.buf):
-            self._grow(n)
-
-    def _grow(self, n):
         # A sample that does not fit a message's buffer goes on in ``big`` (the message so far
         # copied there, the buffer kept to come back to) rather than growing a buffer the history
         # would keep (xrce.client.fragments cuts it from ``big``); anything else grows as a
         # CdrWriter's buffer does.
         big = self.big
         buf = self.buf
-        if big is not None and buf is not big and self.pos + n <= len(big):
+        end = self.pos + n
+        if end > len(buf) and big is not None and buf is not big and end <= len(big):
             big[0:self.pos] = memoryview(buf)[0:self.pos]
             self.home = buf
             self.buf = big
         else:
             MessageWriter.reserve(self, n)
-
-
-class _History(OutputReliableStream):
-    # A client's reliable output history: every slot keeps the buffer its message was built in
-    # and the message's length, and keeps the buffer once the message is acknowledged, for the
-    # writer to build a later one in (see Outbound._commit); retransmissions are sent from it.
-    # Neither keeping a message nor an ACKNACK allocates.
-
-    def __init__(self, stream_id, history):
-        self.sizes = [0] * history  # 0: no unacknowledged message in the slot
-        OutputReliableStream.__init__(self, stream_id, history)
-
-    def reset(self):
-        # The buffers stay: only what they hold is forgotten.
-        self.last_sent = self.last_acknowledged = 0xFFFF
-        self.stored_bytes = 0
-        for i in range(self.history):
-            self.sizes[i] = 0
-            self.resent_at[i] = None
-
-    def keep(self, buf, length):
-        # ``buf[:length]`` is the next sequence number's message; returns the buffer the slot held.
-        if not self.has_room():
-            raise EncodeError("reliable stream full")
-        seq = seq_add(self.last_sent, 1)
-        i = seq & (self.history - 1)
-        free = self.slots[i]
-        self.slots[i] = buf
-        self.sizes[i] = length
-        self.resent_at[i] = None
-        self.last_sent = seq
-        return free
-
-    def size_buffers(self, size):
-        # Every slot gets a buffer of at least ``size`` bytes now, at set-up (one still holding an
-        # unacknowledged message gets a copy of it).
-        slots = self.slots
-        for i in range(self.history):
-            old = slots[i]
-            if old is None or len(old) < size:
-                new = bytearray(size)
-                length = self.sizes[i]
-                if length:
-                    new[0:length] = memoryview(old)[0:length]
-                slots[i] = new
-
-    def on_acknack_send(self, session, first_unacked, nack_bitmap, now_ms, holdoff_ms):
-        # OutputReliableStream.on_acknack, sending the retransmissions through the session at once
-        # instead of returning a list of them.
-        history = self.history
-        if not seq_less(seq_add(self.last_sent, 1), first_unacked):
-            while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
-                self.last_acknowledged = seq_add(self.last_acknowledged, 1)
-                self.sizes[self.last_acknowledged & (history - 1)] = 0
-        if not nack_bitmap:
-            return
-        for i in range(16):
-            if nack_bitmap & (1 << i):
-                seq = seq_add(first_unacked, i)
-                if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
-                    slot = seq & (history - 1)
-                    if not self.sizes[slot]:
-                        continue
-                    last = self.resent_at[slot]
-                    if holdoff_ms and last is not None and ticks_diff(now_ms, last) < holdoff_ms:
-                        self.suppressed += 1
-                        continue
-                    self.resent_at[slot] = now_ms
-                    self.retransmissions += 1
-                    session._send_from(self.slots[slot], self.sizes[slot])

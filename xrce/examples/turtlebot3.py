@@ -18,9 +18,10 @@
 # ``/odom`` and ``/tf`` reliable. ``/odom`` is larger than one 512-byte message and is fragmented,
 # which only the reliable stream can do.
 
+import gc
 import math
 
-from xrce import const, ticks_add, ticks_diff, ticks_ms
+from xrce import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
 from xrce.client.session import Session, ping_agent
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
@@ -59,6 +60,7 @@ _MAX_WAIT_MS = const(5)  # the loop's longest sleep: bounds fail-safe and schedu
 _MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishing on time
 
 _NS_PER_S = const(1000000000)
+_GC_THRESHOLD = const(4096)
 _STATUS_OK = const(0x00)  # the XRCE STATUS values (xrce.constants)
 _STATUS_OK_MATCHED = const(0x01)
 _STATUS_NONE = const(0xFF)  # not answered yet
@@ -82,6 +84,15 @@ def _set_yaw(quaternion, yaw):
     quaternion.y = 0.0
     quaternion.z = math.sin(yaw * 0.5)
     quaternion.w = math.cos(yaw * 0.5)
+
+
+def _collect():
+    # On a board, collect the garbage before allocating what is kept for good: the collector
+    # otherwise runs only once an allocation fails, and what is allocated before that lands in the
+    # holes between garbage, so that the heap is cut into small pieces once it is collected
+    # (issue 32: the set-up's to_bytes found no 808-byte gap at 92 KiB with 20 KB free).
+    if IS_MICROPYTHON:
+        gc.collect()
 
 
 class _Periodic:
@@ -128,7 +139,11 @@ class TurtleBot3:
         self.failsafe_ms = failsafe_ms
         self.time_sync_period_ms = time_sync_period_ms
         self.log = log
-        self.session = Session(transport, key=key, history=16)
+        _collect()  # the imports' garbage (loading .mpy code), before anything the robot keeps
+        # History 8: /odom (two fragments) and /tf, 10 Hz each, stay in flight for about a heartbeat
+        # period (100 ms) before the agent acknowledges them. Each slot is a message buffer kept
+        # from set-up on (Session.size_output_buffers, below).
+        self.session = Session(transport, key=key, history=4)
 
         self.commands_received = 0
         self.last_command = None
@@ -172,6 +187,20 @@ class TurtleBot3:
         self._transform.header.frame_id = "odom"
         self._transform.child_frame_id = "base_footprint"
         self._tf = TFMessage(transforms=[self._transform])
+        # A type's first encode builds its plan, which the message runtime then keeps: built here,
+        # the loop's first passes neither wait for it nor carry what building it allocates (on a
+        # board: up to ~5 KB for Odometry) on top of the settled heap. The largest (/odom, 0.7 KB:
+        # fragmented) sizes the session's output buffers and its reliable history now, while the
+        # heap is still in one piece: blocks a board keeps for good, allocated before the
+        # exchanges with the agent have cut the heap up (issue 32: at the end of set-up, 8 of
+        # them no longer found room at caps where the loop would have run).
+        largest = 0
+        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
+            size = len(sample.to_bytes())
+            if size > largest:
+                largest = size
+        _collect()  # the plans' garbage
+        self.session.size_output_buffers(largest)
 
     # ------------------------------------------------------------------ start-up
 
@@ -200,19 +229,6 @@ class TurtleBot3:
     def setup_stages(self, timeout_ms=5000):
         # ``setup`` one exchange with the agent at a time, for a firmware loop that does other work
         # (or collects its garbage) in between: yields None after each stage, then True or False.
-        # A type's first encode builds its plan, which the message runtime then keeps: built here,
-        # one type per stage, the loop's first passes neither wait for it nor carry what building
-        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap.
-        # The largest (/odom, 0.7 KB: fragmented) sizes the session's output buffers at the end of
-        # set-up, so that its first publication does not grow the reliable stream's buffer mid-run
-        # (on a board a 1 KB block in one piece, when the loop's heap is the most fragmented). At
-        # the end: the entities' creations, set-up's largest steps, do not carry them too.
-        largest = 0
-        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
-            size = len(sample.to_bytes())
-            if size > largest:
-                largest = size
-            yield
         session = self.session
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
@@ -251,7 +267,14 @@ class TurtleBot3:
         yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
         session.hold_set_up(False)
         yield
-        session.size_output_buffers(largest)
+        if IS_MICROPYTHON:
+            # Collect every _GC_THRESHOLD bytes allocated rather than when the heap is full: what
+            # the loop allocates (its floats, a message's new values, a datagram received) then
+            # stays in the free space nearest what is kept, and the rest of the heap stays in one
+            # piece for a datagram's block (issue 32: filled to the top before each collection, the
+            # heap was cut into pieces too small for 513 bytes with 20 KB free).
+            gc.collect()
+            gc.threshold(_GC_THRESHOLD)
         now = ticks_ms()
         self._last_motion_ms = now
         self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))

@@ -270,40 +270,6 @@ class _Message:
                     setattr(msg, name, o)
         return msg
 
-    # decode(r) into this instance, in place, nested messages and number arrays too: a board then
-    # allocates no message objects per sample (Session.create_reader's ``into``), only the values
-    # themselves where they are objects (a float, a string, a sequence) and one tuple per struct
-    # call.
-    def decode_into(self, r):
-        cls = type(self)
-        names = cls.__slots__
-        specs = cls._S
-        if not names:
-            r.u8()
-        buf = r.buf
-        plan = cls._P
-        if plan is None:
-            plan = _planned(cls)
-        for step in plan:
-            if type(step) is int:
-                t = specs[step]
-                if type(t) is str or type(t) is tuple:
-                    setattr(self, names[step], _get_field(r, t))
-                else:
-                    getattr(self, names[step]).decode_into(r)
-                continue
-            start = _take(r, step[0], step[1])
-            for i in range(2, len(step)):
-                name, kind, fmt, offset, fields, checks = step[i]
-                values = _unpack_from(fmt, buf, start + offset)
-                o = self if name is None else getattr(self, name)
-                if fields is None:
-                    for j in range(len(values)):
-                        o[j] = values[j]
-                    continue
-                for j in range(len(fields)):
-                    setattr(o, fields[j], values[j])
-
     # One generic comparison instead of one per class: equality is never on the encode/decode path.
     def __eq__(self, other):
         if type(other) is not type(self):
