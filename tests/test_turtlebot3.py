@@ -385,3 +385,19 @@ def test_robot_command_line_ends_on_sigterm_and_sigint(signum, with_agent):
                 robot.communicate()
         assert robot.returncode == 0, output + rest
         assert "turtlebot3: at x=" in rest  # the clean exit's last status line
+
+
+def test_largest_sample_constant_is_the_largest_sample():
+    # LARGEST_SAMPLE sizes the session's buffers before the messages exist (issue 32): it must be
+    # what the largest of them serializes to, or /odom would grow a buffer in the loop.
+    from xrce.examples.turtlebot3 import LARGEST_SAMPLE
+
+    transport = UdpTransport("127.0.0.1", 9)
+    try:
+        robot = TurtleBot3(transport)
+        samples = (robot._sensor_state, robot._imu, robot._battery, robot._odom, robot._tf)
+        assert max(len(sample.to_bytes()) for sample in samples) == LARGEST_SAMPLE
+        reliable = robot.session._outputs[robot.session.reliable]
+        assert len(reliable.big) >= 4 + 8 + LARGEST_SAMPLE  # header, subheader and ids, the sample
+    finally:
+        transport.close()

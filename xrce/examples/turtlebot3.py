@@ -22,6 +22,7 @@ import gc
 import math
 
 from xrce import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
+from xrce.cdr import CdrWriter
 from xrce.client.session import Session, ping_agent
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
@@ -53,6 +54,9 @@ _POWER_SUPPLY_STATUS_DISCHARGING = const(2)
 _POWER_SUPPLY_HEALTH_GOOD = const(1)
 _POWER_SUPPLY_TECHNOLOGY_LIPO = const(3)
 
+# The serialized size of the largest sample (/odom: fixed frame ids, no sequences that grow), which
+# sizes the session's buffers before anything else is allocated; tests/test_turtlebot3.py checks it.
+LARGEST_SAMPLE = const(720)
 TIME_SYNC_PERIOD_MS = const(10000)
 FAILSAFE_MS = const(500)
 _PHASE_STEP_MS = const(17)  # offset between the topics' periods (ms)
@@ -87,12 +91,15 @@ def _set_yaw(quaternion, yaw):
 
 
 def _collect():
-    # On a board, collect the garbage before allocating what is kept for good: the collector
-    # otherwise runs only once an allocation fails, and what is allocated before that lands in the
-    # holes between garbage, so that the heap is cut into small pieces once it is collected
-    # (issue 32: the set-up's to_bytes found no 808-byte gap at 92 KiB with 20 KB free).
+    # On a board, collect the garbage now, and from now on every _GC_THRESHOLD bytes allocated
+    # rather than only once an allocation fails: what is kept for good (set-up's objects) and what
+    # the loop allocates (its floats, a message's new values, a datagram received) then stay in the
+    # free space nearest what is already kept, and the rest of the heap stays in one piece for a
+    # datagram's block. Filled to the top before each collection, the heap was cut into pieces
+    # too small for a 513-byte datagram with 20 KB free (issue 32).
     if IS_MICROPYTHON:
         gc.collect()
+        gc.threshold(_GC_THRESHOLD)
 
 
 class _Periodic:
@@ -140,10 +147,12 @@ class TurtleBot3:
         self.time_sync_period_ms = time_sync_period_ms
         self.log = log
         _collect()  # the imports' garbage (loading .mpy code), before anything the robot keeps
-        # History 8: /odom (two fragments) and /tf, 10 Hz each, stay in flight for about a heartbeat
-        # period (100 ms) before the agent acknowledges them. Each slot is a message buffer kept
-        # from set-up on (Session.size_output_buffers, below).
-        self.session = Session(transport, key=key, history=4)
+        # The session's buffers first, while the heap is in one piece: blocks a board keeps for
+        # good, sized for the largest sample (/odom: fragmented), so that no sample grows one in
+        # the loop (on a board: a 1 KB block in one piece, when the heap is the most cut up).
+        # History 4: /odom (two fragments) and /tf at 10 Hz wait about a heartbeat period (100 ms)
+        # for the agent's acknowledgement; each slot is a message buffer.
+        self.session = Session(transport, key=key, history=4, largest_sample=LARGEST_SAMPLE)
 
         self.commands_received = 0
         self.last_command = None
@@ -189,18 +198,19 @@ class TurtleBot3:
         self._tf = TFMessage(transforms=[self._transform])
         # A type's first encode builds its plan, which the message runtime then keeps: built here,
         # the loop's first passes neither wait for it nor carry what building it allocates (on a
-        # board: up to ~5 KB for Odometry) on top of the settled heap. The largest (/odom, 0.7 KB:
-        # fragmented) sizes the session's output buffers and its reliable history now, while the
-        # heap is still in one piece: blocks a board keeps for good, allocated before the
-        # exchanges with the agent have cut the heap up (issue 32: at the end of set-up, 8 of
-        # them no longer found room at caps where the loop would have run).
+        # board: up to ~5 KB for Odometry) on top of the settled heap. Into the session's own
+        # buffer for a sample too large for a message (to_bytes would grow a writer per sample
+        # and copy each out); the largest must be LARGEST_SAMPLE.
         largest = 0
+        writer = CdrWriter(self.session._outputs[self.session.reliable].big or bytearray(64))
         for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
-            size = len(sample.to_bytes())
-            if size > largest:
-                largest = size
+            writer.reset()
+            sample.encode(writer)
+            if writer.pos > largest:
+                largest = writer.pos
+        if largest > LARGEST_SAMPLE:
+            self.session.size_output_buffers(largest)  # a sample grown past what was planned for
         _collect()  # the plans' garbage
-        self.session.size_output_buffers(largest)
 
     # ------------------------------------------------------------------ start-up
 
@@ -267,14 +277,7 @@ class TurtleBot3:
         yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
         session.hold_set_up(False)
         yield
-        if IS_MICROPYTHON:
-            # Collect every _GC_THRESHOLD bytes allocated rather than when the heap is full: what
-            # the loop allocates (its floats, a message's new values, a datagram received) then
-            # stays in the free space nearest what is kept, and the rest of the heap stays in one
-            # piece for a datagram's block (issue 32: filled to the top before each collection, the
-            # heap was cut into pieces too small for 513 bytes with 20 KB free).
-            gc.collect()
-            gc.threshold(_GC_THRESHOLD)
+        _collect()
         now = ticks_ms()
         self._last_motion_ms = now
         self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))
