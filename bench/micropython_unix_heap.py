@@ -299,7 +299,8 @@ def main(argv=None):
                 for thread in workers:
                     thread.start()
                 for thread in workers:
-                    thread.join()
+                    while thread.is_alive():  # a join with a timeout lets Ctrl-C through
+                        thread.join(1)
             finally:
                 driver.close()
     print()

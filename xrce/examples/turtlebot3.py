@@ -20,6 +20,7 @@
 
 import gc
 import math
+import sys
 
 from xrce import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrWriter
@@ -97,7 +98,9 @@ def _collect():
     # free space nearest what is already kept, and the rest of the heap stays in one piece for a
     # datagram's block. Filled to the top before each collection, the heap was cut into pieces
     # too small for a 513-byte datagram with 20 KB free (issue 32).
-    if IS_MICROPYTHON:
+    # (Not on the WebAssembly port, whose collector cannot run while Python code does: it
+    # collects when the host's call into Python returns, and grows the heap meanwhile.)
+    if IS_MICROPYTHON and sys.platform != "webassembly":
         gc.collect()
         gc.threshold(_GC_THRESHOLD)
 
@@ -196,21 +199,6 @@ class TurtleBot3:
         self._transform.header.frame_id = "odom"
         self._transform.child_frame_id = "base_footprint"
         self._tf = TFMessage(transforms=[self._transform])
-        # A type's first encode builds its plan, which the message runtime then keeps: built here,
-        # the loop's first passes neither wait for it nor carry what building it allocates (on a
-        # board: up to ~5 KB for Odometry) on top of the settled heap. Into the session's own
-        # buffer for a sample too large for a message (to_bytes would grow a writer per sample
-        # and copy each out); the largest must be LARGEST_SAMPLE.
-        largest = 0
-        writer = CdrWriter(self.session._outputs[self.session.reliable].big or bytearray(64))
-        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
-            writer.reset()
-            sample.encode(writer)
-            if writer.pos > largest:
-                largest = writer.pos
-        if largest > LARGEST_SAMPLE:
-            self.session.size_output_buffers(largest)  # a sample grown past what was planned for
-        _collect()  # the plans' garbage
 
     # ------------------------------------------------------------------ start-up
 
@@ -239,7 +227,23 @@ class TurtleBot3:
     def setup_stages(self, timeout_ms=5000):
         # ``setup`` one exchange with the agent at a time, for a firmware loop that does other work
         # (or collects its garbage) in between: yields None after each stage, then True or False.
+        # A type's first encode builds its plan, which the message runtime then keeps: built here,
+        # one type per stage, the loop's first passes neither wait for it nor carry what building
+        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap. Into the
+        # session's buffer for a sample too large for a message (to_bytes would grow a writer per
+        # sample and copy each out); the largest must fit the buffers LARGEST_SAMPLE sized.
         session = self.session
+        writer = CdrWriter(session._outputs[session.reliable].big or bytearray(64))
+        largest = 0
+        for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
+            writer.reset()
+            sample.encode(writer)
+            if writer.pos > largest:
+                largest = writer.pos
+            yield
+        writer = None
+        if largest > LARGEST_SAMPLE:
+            session.size_output_buffers(largest)  # a sample grown past what was planned for
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
             yield False
