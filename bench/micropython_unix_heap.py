@@ -101,6 +101,39 @@ print("done", True)
 
 _MAX_FREE = re.compile(r"max free sz: (\d+)")
 
+# Runs under the unix port and under the WebAssembly harness with its socket shim
+# (tests/micropython/socket.py): what UdpTransport.recv allocates per datagram received, with the
+# collector kept out of the way (disabled on the port; the WebAssembly port does not collect while
+# Python runs). argv: echo_port count size
+RECV_CHECK = """\
+import gc
+import sys
+
+from xrce.transports.udp import UdpTransport
+
+port = int(sys.argv[1])
+count = int(sys.argv[2])
+size = int(sys.argv[3])
+transport = UdpTransport("127.0.0.1", port)
+message = bytes(size)
+got = [None] * count
+for i in range(2):  # warm-up: the first poll, the first datagram
+    transport.send(message)
+    transport.recv(2000)
+gc.collect()
+gc.disable()
+total = 0
+for i in range(count):
+    transport.send(message)
+    before = gc.mem_alloc()
+    got[i] = transport.recv(2000)
+    total += gc.mem_alloc() - before
+    got[i] = None
+gc.enable()
+print("recv_bytes_per_datagram", total // count)
+transport.close()
+"""
+
 
 def build(source, mirror=None):
     """The 32-bit unix port's binary (built unless present)."""
@@ -211,6 +244,55 @@ def run_firmware(binary, lib, script, workdir, cap_kib, port, seconds, sample_s,
     return {"ok": ok, "cap": cap_kib, "samples": samples, "lines": lines, "error": error}
 
 
+class Echo(threading.Thread):
+    """A UDP peer that sends every datagram back."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        import socket
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+
+    def run(self):
+        try:
+            while True:
+                data, address = self.sock.recvfrom(4096)
+                self.sock.sendto(data, address)
+        except OSError:
+            pass  # closed
+
+
+def socket_check(binary, lib, workdir, sizes=(24, 200, 500), count=50):
+    """Bytes UdpTransport.recv allocates per datagram: the unix port's real socket beside the
+    WebAssembly harness' socket shim, which should allocate the same plus the n-byte receive
+    buffer the port frees on return (garbage until the step ends there) and its two views."""
+    from mp_harness import run_micropython
+
+    echo = Echo()
+    echo.start()
+    try:
+        script = workdir / "recv_check.py"
+        script.write_text(RECV_CHECK)
+        rows = []
+        for size in sizes:
+            args = [str(echo.port), str(count), str(size)]
+            port = subprocess.run([str(binary), str(script), *args], cwd=workdir, capture_output=True, text=True,
+                                  env=dict(os.environ, MICROPYPATH=str(lib)), timeout=120)
+            shim = run_micropython(RECV_CHECK, *args, timeout=120)
+            values = []
+            for result in (port, shim):
+                match = re.search(r"recv_bytes_per_datagram (\d+)", result.stdout)
+                values.append(int(match.group(1)) if match else None)
+                if match is None:
+                    print("recv check failed:", result.stdout[-500:], result.stderr[-500:])
+            rows.append((size, values[0], values[1]))
+        return rows
+    finally:
+        echo.sock.close()
+
+
 def figure(results):
     """The smallest cap from which every larger cap tried passed every run (None if the largest failed)."""
     best = None
@@ -249,9 +331,24 @@ def main(argv=None):
     parser.add_argument("--load", choices=("mpy", "py"), default="mpy")
     parser.add_argument("--parallel", type=int, default=4, help="firmware runs at once")
     parser.add_argument("--verbose", action="store_true", help="every heap sample of every run")
+    parser.add_argument("--socket-check", action="store_true",
+                        help="also compare the test harness' socket shim with the port's recv (no sweep if --caps is empty)")
     args = parser.parse_args(argv)
-    caps = sorted(int(cap) for cap in args.caps.split(","))
+    caps = sorted(int(cap) for cap in args.caps.split(",") if cap)
     binary = build(args.source, args.mirror)
+    if args.socket_check:
+        with tempfile.TemporaryDirectory(prefix="xrce-unix-recv-") as tmp:
+            tmp = Path(tmp)
+            lib = prepare_lib(tmp, "mpy")
+            workdir = tmp / "cwd"
+            workdir.mkdir()
+            print("UdpTransport.recv, bytes allocated per datagram (gc.mem_alloc growth, no collection):")
+            print("  datagram  unix port  harness shim  shim - port")
+            for size, port, shim in socket_check(binary, lib, workdir):
+                print("  %8d  %9s  %12s  %11s" % (size, port, shim,
+                                                 "-" if port is None or shim is None else shim - port))
+        if not caps:
+            return 0
     print("port: %s (32-bit unix, MicroPython %s); load: .%s; %d run(s) of %g s per cap; /cmd_vel %d Hz"
           % (binary, MICROPYTHON_TAG, args.load, args.runs, args.seconds, CMD_VEL_HZ), flush=True)
     results = {cap: [] for cap in caps}
