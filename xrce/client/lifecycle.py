@@ -88,7 +88,6 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session._pong_in_session = False
     session._delete_status = None
     session._sync_originate = None
-    session._waits = None  # xrce.client.on_demand: what time sync and ping wait for
     session._reassembly = None
     session._next_heartbeat = {}
     session._last_heard = ticks_ms()

@@ -73,20 +73,10 @@ def sync_time(session, timeout_ms=1000, attempts=1):
         w._put("<i", 4, originate // 1000000000)  # int32: the writer's i32 lives in xrce.cdr_more
         w.u32(originate % 1000000000)
         session._send_control()
-        if session._wait(timeout_ms, _predicate(session, 0)):
+        if session._wait(timeout_ms, lambda: session._sync_originate is None):
             return True
     session._sync_originate = None
     return False
-
-
-def _predicate(session, which):
-    # What sync_time (0) and ping (1) wait for, made once per session and kept in
-    # ``session._waits``: a lambda per call would be garbage on every sync or ping.
-    waits = session._waits
-    if waits is None:
-        waits = session._waits = (lambda: session._sync_originate is None,
-                                  lambda: session._pong_in_session)
-    return waits[which]
 
 
 def on_timestamp_reply(session, buf, flags, s, e):
@@ -131,7 +121,7 @@ def ping(session, timeout_ms=1000, attempts=1):
         session._pong_in_session = False
         sent = ticks_us()
         session._send_ping()
-        if session._wait(timeout_ms, _predicate(session, 1)):
+        if session._wait(timeout_ms, lambda: session._pong_in_session):
             session.last_rtt_us = ticks_diff(ticks_us(), sent)
             return True
     return False

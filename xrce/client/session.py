@@ -297,7 +297,7 @@ class Session(Outbound):
             s = pos + 4
             e = s + (buf[pos + 2] | (buf[pos + 3] << 8))
             if e > end:
-                raise DecodeError("submessage %d runs past the message end" % sub_id)
+                raise DecodeError("submessage past the message end")
             pos = (e + 3) & ~3
             if sub_id == _DATA:
                 if s == e:  # length 0: a sample > 64 KiB, to the end of the reassembled message
@@ -374,14 +374,12 @@ class Session(Outbound):
             r.buf = buf
             r.pos = r.origin = s + 4
             r.end = e
-            try:
-                if type(msg_class) is type:
-                    sample = msg_class.decode(r)
-                else:  # an instance (create_reader's ``into``): decoded in place
-                    _decode_into(msg_class, r)
-                    sample = msg_class
-            finally:
-                r.buf = b""  # the datagram is not kept alive until the next one
+            if type(msg_class) is type:
+                sample = msg_class.decode(r)
+            else:  # an instance (create_reader's ``into``): decoded in place
+                _decode_into(msg_class, r)
+                sample = msg_class
+            r.buf = b""  # the datagram is not kept alive until the next one
             callback(sample)
 
 
@@ -415,21 +413,21 @@ def _agent_activity(buf, flags, s, e):
     if buf[p - 1]:  # the agent's configuration: kind, cookie, version, vendor, properties
         p += 10
         if p > e or buf[p - 1] > 1:
-            raise DecodeError("bad INFO configuration")
+            raise DecodeError("bad INFO")
         if buf[p - 1]:  # properties: discovery's INFO reader skips them
             from xrce.client.discovery import info_activity
 
             return info_activity(buf, flags, s, e)[1]
     if p >= e or buf[p] > 1:
-        raise DecodeError("bad INFO activity")
+        raise DecodeError("bad INFO")
     if not buf[p]:
         return None
-    if p + 1 >= e or buf[p + 1] != _OBJK_AGENT:
-        raise DecodeError("INFO activity is not an agent's")
+    if p + 1 >= e or buf[p + 1] != _OBJK_AGENT:  # the activity of an agent
+        raise DecodeError("bad INFO")
     p += 2
     p += p & 1  # an int16, aligned from the message start
     if p + 2 > e:
-        raise DecodeError("short INFO activity")
+        raise DecodeError("bad INFO")
     value = (buf[p] | (buf[p + 1] << 8)) if flags & 1 else ((buf[p] << 8) | buf[p + 1])
     return value - 0x10000 if value & 0x8000 else value
 

@@ -151,7 +151,9 @@ class Outbound:
             buf[0:length] = memoryview(out.big)[0:length]
             out.home = None
         free = out.state.keep(buf, length)
-        out.buf = free if free is not None and len(free) >= len(buf) else bytearray(len(buf))
+        # A slot without a buffer yet (the history not sized): one the size of this message, which
+        # the next one grows if it must.
+        out.buf = free if free is not None else bytearray(length)
         self._send_from(buf, length)
 
     def flush(self):
