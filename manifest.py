@@ -28,6 +28,7 @@ package(
         "message_header.py",
         "msgs/__init__.py",
         "msgs/_dict.py",
+        "msgs/_into.py",
         "msgs/_ints.py",
         "msgs/_lookup.py",
         "msgs/_plan.py",
