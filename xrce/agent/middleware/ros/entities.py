@@ -405,9 +405,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._close_requester(record)
         elif record.kind == "replier":
             record.closed = True
-            for _header, expiry in record.pending.values():
-                expiry.cancel()
-            record.pending.clear()
+            record.pending.clear()  # the reply sweep forgets the record (services.py)
 
     def delete(self, key: EntityKey) -> None:
         record = self._entities.get(key)
