@@ -348,7 +348,8 @@ async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer): 
 
 
 # What a process bridging the TurtleBot3's topics has imported: the raw type handles, the deferred
-# rosidl code generator and asyncio without TLS keep these out (each costs megabytes of RSS).
+# rosidl code generator and asyncio without TLS keep these out (each costs megabytes of RSS); the
+# raw types' C type support comes from each package's C library, not its Python extension module.
 _FOOTPRINT_SCRIPT = r"""
 import sys
 from xrce.agent.launcher import _import_asyncio_without_tls
@@ -388,8 +389,16 @@ async def main():
         assert publisher.subscriber_count() == 0
     finally:
         await mw.close()
-    print(" ".join(sorted(name for name in ("numpy", "lark", "em", "ssl", "hashlib")
-                          if sys.modules.get(name) is not None)))
+    names = [name for name in ("numpy", "lark", "em", "ssl", "hashlib")
+             if sys.modules.get(name) is not None]
+    try:
+        from xrce.agent.engine._fastpath import message_type_support
+    except ImportError:  # without the compiled helper the packages' Python modules serve
+        print("no compiled helper: the raw types came from the Python type support modules")
+    else:
+        # With it, from the C type support libraries: no package's Python extension is loaded.
+        names += [name for name in sys.modules if name.endswith("_s__rosidl_typesupport_c")]
+    print(" ".join(sorted(names)))
 
 asyncio.run(main())
 """
