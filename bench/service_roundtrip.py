@@ -35,7 +35,9 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from agent_process import AgentProcess  # noqa: E402
 from figures import record  # noqa: E402
-from microros_replay import FIRMWARE_STREAM, Capture, Replayer, UdpChannel, _submessages  # noqa: E402
+from microros_replay import (  # noqa: E402
+    FIRMWARE_STREAM, Capture, Replayer, UdpChannel, _submessages,
+)
 from peer_agent import CommandAgent  # noqa: E402
 
 from xrce import constants as C  # noqa: E402
