@@ -242,6 +242,55 @@ _raw_types: dict = {}  # dds type name -> raw type handle
 _typesupport_names: dict = {}  # package -> {lower-case type name without "_": function suffix}
 
 
+def _library_type_support(package: str, type_name: str):
+    """The metaclass attributes of a raw type: the C type support capsule of ``package``'s message
+    ``type_name`` straight from ``lib<package>__rosidl_typesupport_c.so`` (``<prefix>/lib`` beside
+    its Python code) through the agent's compiled helper (``_fastpath.message_type_support``), and
+    conversions that refuse to run (``_fastpath.raw_type_conversions``). None when the helper or
+    the library is missing or the name is not found: the package's Python type support module
+    serves then. Raw publishers and subscriptions need only the type support; that module also
+    loads the rosidl_generator_py libraries of the package and of each one it depends on, 2-3 ms
+    of the ~3 ms a firmware's first topic of a package took to create (bench/entity_creation.py)
+    and about 0.12 MB resident per package."""
+    try:
+        from xrce.agent.engine import _fastpath
+    except ImportError:
+        return None
+    load = getattr(_fastpath, "message_type_support", None)
+    conversions = getattr(_fastpath, "raw_type_conversions", None)
+    if load is None or conversions is None:
+        return None
+    import importlib.util
+    import os
+
+    from xrce.agent.interfaces.registry import c_typesupport_library
+
+    library = c_typesupport_library(package)  # a package the agent built
+    if library is None:
+        try:  # a top-level package's spec: its __init__ is not run
+            spec = importlib.util.find_spec(package)
+        except (ImportError, ValueError):
+            return None
+        locations = spec.submodule_search_locations if spec is not None else None
+        if not locations:
+            return None
+        # <prefix>/lib/pythonX.Y/site-packages/<package> -> <prefix>/lib
+        library = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(locations[0]))),
+                               "lib%s__rosidl_typesupport_c.so" % package)
+    if not os.path.isfile(library):
+        return None
+    try:
+        type_support = load(library, "rosidl_typesupport_c__get_message_type_support_handle__"
+                            "%s__msg__%s" % (package, type_name))
+    except ImportError as exc:
+        log.debug("%s/%s: no type support in %s (%s); the Python module's", package, type_name,
+                  library, exc)
+        return None
+    create, from_py, to_py, destroy = conversions()
+    return {"_TYPE_SUPPORT": type_support, "_CREATE_ROS_MESSAGE": create,
+            "_CONVERT_FROM_PY": from_py, "_CONVERT_TO_PY": to_py, "_DESTROY_ROS_MESSAGE": destroy}
+
+
 def raw_message_type(dds_type: str):
     """A stand-in for the message class of ``dds_type`` that rclpy accepts for publishers and
     raw subscriptions, made from the package's C type support module alone.
@@ -265,6 +314,12 @@ def raw_message_type(dds_type: str):
     elif kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
     _check_package(package, dds_type)
+    attributes = _library_type_support(package, type_name)
+    if attributes is not None:
+        meta = type("Metaclass_" + type_name, (_RawTypeMeta,), attributes)
+        handle = _raw_types[dds_type] = meta(type_name, (), {"__module__": "%s.msg" % package,
+                                                             "__slots__": ()})
+        return handle
     module = _import_module(package, "%s.%s_s__rosidl_typesupport_c" % (package, package))
     names = _typesupport_names.get((package, kind))
     if names is None:
