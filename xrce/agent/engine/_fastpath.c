@@ -50,6 +50,8 @@
 #define WRITE_DATA 0x07
 #define FORMAT_MASK 0x0E
 #define FORMAT_DATA 0x00
+#define ACKNACK 0x0A
+#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
 
 /* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
  * them; rmw reads only buffer and buffer_length of a message it publishes. */
@@ -98,7 +100,7 @@ typedef struct Client {
     socklen_t addr_len;
     Stream *streams;
     Writer *writers;
-    uint64_t messages, bytes;
+    uint64_t messages, bytes, messages_out, bytes_out;
     int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
 } Client;
 
@@ -112,7 +114,11 @@ typedef struct {
     long next_handle;
     int enabled;
     /* Agent-wide counters since the last fold. */
-    uint64_t messages, bytes, samples, stale, publish_errors;
+    uint64_t messages, bytes, samples, stale, publish_errors, acknacks, acknack_bytes;
+    /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found
+     * by fold's walk instead): read() acknowledges these without walking every client. */
+    struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
+    int pending_count;
     /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
     uint8_t (*buffers)[MAX_DATAGRAM];
     struct mmsghdr messages_hdr[BATCH];
@@ -196,6 +202,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     }
     stream->last_seq = seq;
     if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
+    if (!stream->ack_due && self->pending_count < PENDING_ACKS) {
+        self->pending[self->pending_count].client = client;
+        self->pending[self->pending_count++].stream = stream;
+    }
     stream->ack_due = 1;
     client->messages++;
     client->bytes += length;
@@ -262,6 +272,42 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
         pos = (pos + 4 + sub_length + 3) & ~(size_t)3;
     }
     return 1;
+}
+
+/* The ACKNACK each pending stream owes, sent here as xrce.agent.engine.liveliness._send_acknack
+ * would (the same bytes: a test holds them equal), when Python holds nothing out of order for it
+ * (last_announced is last_seq: the NACK bitmap is empty). A stream that does not qualify, or whose
+ * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch read() handled
+ * whole, on the last read of a wake-up, while Python has no ACKNACK of its own queued: so a
+ * stream gets one ACKNACK per wake-up, as on the Python path. */
+static void send_due_acknacks(Receiver *self) {
+    for (int i = 0; i < self->pending_count; i++) {
+        Client *c = self->pending[i].client;
+        Stream *s = self->pending[i].stream;
+        if (!s->ack_due || !c->enabled || s->last_announced != s->last_seq) continue;
+        uint8_t message[17];
+        size_t n = 0;
+        uint16_t first = (uint16_t)(s->last_seq + 1);
+        message[n++] = c->session_id;
+        message[n++] = 0, message[n++] = 0, message[n++] = 0;  /* stream none, sequence 0 */
+        if (c->session_id < 0x80) {
+            memcpy(message + n, c->key, 4);
+            n += 4;
+        }
+        message[n++] = ACKNACK, message[n++] = 0x01, message[n++] = 5, message[n++] = 0;
+        message[n++] = first & 0xFF, message[n++] = first >> 8;
+        message[n++] = 0, message[n++] = 0;  /* nothing missing */
+        message[n++] = s->stream_id;
+        if (sendto(self->sock, message, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
+                   c->addr_len) != (ssize_t)n)
+            continue;
+        s->ack_due = 0;
+        c->messages_out++;
+        c->bytes_out += n;
+        self->acknacks++;
+        self->acknack_bytes += n;
+    }
+    self->pending_count = 0;
 }
 
 /* ----------------------------------------------------------------------------- Python side */
@@ -333,11 +379,14 @@ static void Receiver_dealloc(Receiver *self) {
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-/* read() -> (datagrams for Python, more): one recvmmsg batch from the non-blocking socket, handled
- * here up to the first datagram that is not fast; that one and the rest come back as
- * [(bytes, address)], in order. more: the batch was full, the socket may hold more. */
-static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
-    (void)unused;
+/* read([may_acknowledge]) -> (datagrams for Python, more): one recvmmsg batch from the
+ * non-blocking socket, handled here up to the first datagram that is not fast; that one and the
+ * rest come back as [(bytes, address)], in order. more: the batch was full, the socket may hold
+ * more. may_acknowledge: Python has no ACKNACK queued, so this read, if it handles its whole batch
+ * and is the last of the wake-up, sends the ACKNACKs owed (send_due_acknacks). */
+static PyObject *Receiver_read(Receiver *self, PyObject *args) {
+    int may_acknowledge = 0;
+    if (!PyArg_ParseTuple(args, "|p", &may_acknowledge)) return NULL;
     if (self->buffers == NULL) {
         void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
                          MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
@@ -361,6 +410,8 @@ static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
                                        self->messages_hdr[handled].msg_len,
                                        &self->sources[handled]))
         handled++;
+    if (may_acknowledge && self->enabled && handled == (count < 0 ? 0 : count) && count < BATCH)
+        send_due_acknacks(self);
     pthread_mutex_unlock(&self->mutex);
     Py_END_ALLOW_THREADS
     for (int i = 0; i < count; i++)  /* the kernel wrote the address lengths of these */
@@ -421,6 +472,10 @@ static PyObject *Receiver_remove_client(Receiver *self, PyObject *arg) {
         if ((*link)->handle == handle) {
             Client *c = *link;
             *link = c->next;
+            int kept = 0;
+            for (int i = 0; i < self->pending_count; i++)
+                if (self->pending[i].client != c) self->pending[kept++] = self->pending[i];
+            self->pending_count = kept;
             free_client(c);
             break;
         }
@@ -586,8 +641,9 @@ static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
 }
 
 /* fold(): the counters since the previous fold, reset here:
- * ((messages, bytes, samples, stale, publish_errors),
- *  [(handle, messages, bytes, last_seen_ns)], [(handle, object_id, samples, bytes)],
+ * ((messages, bytes, samples, stale, publish_errors, acknacks sent, their bytes),
+ *  [(handle, messages, bytes, last_seen_ns, messages_out, bytes_out)],
+ *  [(handle, object_id, samples, bytes)],
  *  [(handle, stream_id)] of the reliable streams that handled a message: each owes an ACKNACK) */
 static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
     PyObject *clients = PyList_New(0), *writers = PyList_New(0), *acks = PyList_New(0);
@@ -596,12 +652,14 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
     pthread_mutex_lock(&self->mutex);
     int failed = 0;
     for (Client *c = self->clients; c && !failed; c = c->next) {
-        if (c->messages) {
-            PyObject *row = Py_BuildValue("(lKKL)", c->handle, (unsigned long long)c->messages,
-                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns);
+        if (c->messages || c->messages_out) {
+            PyObject *row = Py_BuildValue("(lKKLKK)", c->handle, (unsigned long long)c->messages,
+                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns,
+                                          (unsigned long long)c->messages_out,
+                                          (unsigned long long)c->bytes_out);
             failed = row == NULL || PyList_Append(clients, row) < 0;
             Py_XDECREF(row);
-            c->messages = c->bytes = 0;
+            c->messages = c->bytes = c->messages_out = c->bytes_out = 0;
         }
         for (Writer *w = c->writers; w && !failed; w = w->next) {
             if (!w->samples) continue;
@@ -620,12 +678,16 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
             s->ack_due = 0;
         }
     }
-    PyObject *totals = Py_BuildValue("(KKKKK)", (unsigned long long)self->messages,
+    PyObject *totals = Py_BuildValue("(KKKKKKK)", (unsigned long long)self->messages,
                                      (unsigned long long)self->bytes,
                                      (unsigned long long)self->samples,
                                      (unsigned long long)self->stale,
-                                     (unsigned long long)self->publish_errors);
+                                     (unsigned long long)self->publish_errors,
+                                     (unsigned long long)self->acknacks,
+                                     (unsigned long long)self->acknack_bytes);
     self->messages = self->bytes = self->samples = self->stale = self->publish_errors = 0;
+    self->acknacks = self->acknack_bytes = 0;
+    self->pending_count = 0;  /* every ack_due was just handed to Python */
     pthread_mutex_unlock(&self->mutex);
     if (!failed && totals) result = Py_BuildValue("(NOOO)", totals, clients, writers, acks);
     else Py_XDECREF(totals);
@@ -664,7 +726,8 @@ static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
 }
 
 static PyMethodDef Receiver_methods[] = {
-    {"read", (PyCFunction)Receiver_read, METH_NOARGS, "([(datagram, address)] for Python, more)"},
+    {"read", (PyCFunction)Receiver_read, METH_VARARGS,
+     "read([may_acknowledge]) -> ([(datagram, address)] for Python, more)"},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
     {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
     {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},

@@ -190,9 +190,12 @@ class FastPath:
         stats = link.stats
         read = self.receiver.read
         handed = False
+        agent = self.agent
         for _ in range(READ_ROUNDS):  # bounded: TCP and serial links share the loop
             try:
-                rest, more = read()
+                # With no ACKNACK of Python's queued, C sends those it owes itself at the end of
+                # the wake-up, saving a turn of the loop; otherwise they join Python's (fold).
+                rest, more = read(not agent._acks_due)
             except OSError as exc:
                 # ICMP errors (port unreachable after a client went away) arrive here on Linux.
                 log.debug("%s: socket error %s", link.name, exc)
@@ -267,8 +270,15 @@ class FastPath:
 
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
-        (messages, size, samples, stale, publish_errors), clients, writers, acks = \
-            self.receiver.fold()
+        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes), clients, \
+            writers, acks = self.receiver.fold()
+        if acknacks:
+            stats = self.agent.stats
+            stats.acknacks_out += acknacks
+            stats.messages_out += acknacks
+            stats.bytes_out += acknack_bytes
+            self.link.stats.messages_out += acknacks
+            self.link.stats.bytes_out += acknack_bytes
         if messages:
             stats = self.agent.stats
             stats.messages_in += messages
@@ -283,9 +293,13 @@ class FastPath:
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
         offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
             else 0.0
-        for handle, count, size, seen_ns in clients:
+        for handle, count, size, seen_ns, count_out, size_out in clients:
             client = self.clients.get(handle)
             if client is None:
+                continue
+            client.messages_out += count_out
+            client.bytes_out += size_out
+            if not count:
                 continue
             client.messages_in += count
             client.bytes_in += size
