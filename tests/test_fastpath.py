@@ -317,7 +317,7 @@ def test_reliable_stream_compiled_and_python_paths_deliver_acknowledge_and_count
         assert deltas["duplicates"] == 1 and deltas["dropped"] == 0, deltas
         assert deltas["acknacks_out"] == 11 and deltas["decode_errors"] == 0, deltas
     assert compiled[2]["bytes_in"] == python[2]["bytes_in"] == compiled[2]["client_bytes_in"]
-    assert "samples take the compiled path" in compiled[3]
+    assert "reliable stream 0x80: samples in order take the compiled path" in compiled[3]
     # The first goes through Python and registers the stream (the session's CREATEs came on it
     # before); the gap, its filling and the duplicate too: 1, 2, 6, 7, 8 and 9 were published in C.
     assert compiled[2]["samples_compiled"] == 6 and python[2]["samples_compiled"] == 0

@@ -240,6 +240,8 @@ class FastPath:
             client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
                                                                    stream)
             state.streams.add(stream_id)
+            log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
+                      client.key.hex(), stream_id)
         elif stream_id not in state.streams:
             stream = client.in_best_effort.get(stream_id)
             if stream is None:
