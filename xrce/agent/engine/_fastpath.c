@@ -6,7 +6,8 @@
  * whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered, on a
  * best-effort stream Python registered, is published with rcl_publish_serialized_message right
  * here. So is, on a reliable stream Python registered, a datagram holding one such WRITE_DATA that
- * is the next message in order (try_fast_reliable); Python sends the ACKNACK it owes.
+ * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
+ * end of the wake-up, or by Python (send_due_acknacks says when).
  * At the first datagram that is neither (other reliable messages, fragments, control, unknown
  * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival

@@ -16,7 +16,8 @@ which C lets go of before the middleware destroys it: ``CompiledClient.forget_wr
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
 pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
 counters are folded into the agent's, the link's, the clients' and the writers' after every read,
-and each reliable stream C delivered on gets its ACKNACK as if Python had (``_acknack_soon``).
+and each reliable stream C delivered on gets its ACKNACK: from C at the end of the wake-up when
+Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
 """
