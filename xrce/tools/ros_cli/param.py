@@ -12,6 +12,8 @@ from xrce.tools.ros_cli.graph import CliNode, absolute_node_name
 NAME = "param"
 HELP = "Various param related sub-commands"
 SERVICES_TIMEOUT_S = 5.0  # ros2param's wait for a node's parameter services
+CALL_TIMEOUT_S = 5.0
+CALL_ATTEMPTS = 3
 
 
 def add_verbs(verbs):
@@ -61,12 +63,20 @@ def _client(cli, node_name):
     return client
 
 
-def _answer(cli, node_name, future):
-    cli.spin_until_done(future)
-    if future.result() is None:
-        raise CommandError("Exception while calling service of node %s: %s"
-                           % (node_name, future.exception()))
-    return future.result()
+def _answer(cli, node_name, call):
+    """The response to ``call()`` (a parameter-service request, all of which are safe to repeat).
+    A request sent while the node's server has not matched this client's response reader yet is
+    answered into the void (the client calls the service ready before that side is matched):
+    after CALL_TIMEOUT_S it is sent again, where ros2param would wait forever."""
+    for _ in range(CALL_ATTEMPTS):
+        future = call()
+        if cli.spin_until_done(future, CALL_TIMEOUT_S):
+            if future.result() is None:
+                raise CommandError("Exception while calling service of node %s: %s"
+                                   % (node_name, future.exception()))
+            return future.result()
+        future.cancel()
+    raise CommandError("No answer from the parameter services of node %s" % node_name)
 
 
 def _wait_for_node(cli, node_name, include_hidden, timeout_s):
@@ -104,20 +114,20 @@ def list_parameters(args):
                 print("Wait for service timed out waiting for parameter services for node %s"
                       % node_name)
                 continue
-            future = client.list_parameters(prefixes=args.param_prefixes)
-            cli.spin_until_done(future)
-            if future.result() is None:
-                print("Exception while calling service of node '%s': %s"
-                      % (node_name, future.exception()), file=sys.stderr)
+            try:
+                listed = _answer(cli, node_name,
+                                 lambda: client.list_parameters(prefixes=args.param_prefixes))
+            except CommandError as error:
+                print(error, file=sys.stderr)
                 continue
-            names = sorted(future.result().result.names)
+            names = sorted(listed.result.names)
             if pattern is not None:
                 names = [name for name in names if pattern.match(name)]
             if not args.node_name and names:
                 print("%s:" % node_name)
             types = {}
             if args.param_type and names:
-                described = _answer(cli, node_name, client.describe_parameters(names))
+                described = _answer(cli, node_name, lambda: client.describe_parameters(names))
                 types = {d.name: _type_label(d.type) for d in described.descriptors}
             for name in names:
                 print("  %s (type: %s)" % (name, types[name]) if args.param_type else "  %s" % name)
@@ -154,7 +164,8 @@ def get_parameter(args):
         if client is None:
             raise CommandError("Wait for service timed out waiting for parameter services for "
                                "node %s" % node_name)
-        response = _answer(cli, node_name, client.get_parameters([args.parameter_name]))
+        response = _answer(cli, node_name,
+                           lambda: client.get_parameters([args.parameter_name]))
     if not response.values:
         raise CommandError("Parameter not set")
     label, value = _value_line(response.values[0])
@@ -179,7 +190,7 @@ def set_parameter(args):
         if client is None:
             raise CommandError("Wait for service timed out waiting for parameter services for "
                                "node %s" % node_name)
-        response = _answer(cli, node_name, client.set_parameters([parameter]))
+        response = _answer(cli, node_name, lambda: client.set_parameters([parameter]))
     result = response.results[0]
     if result.successful:
         print("Set parameter successful" + (": " + result.reason if result.reason else ""))
