@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from xrce.tools.ros_cli.cli import CommandError, UsageError, add_graph_arguments
+from xrce.tools.ros_cli.arguments import CommandError, UsageError, add_graph_arguments
 from xrce.tools.ros_cli.graph import NODE_NAME_PREFIX, CliNode
 from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, parse_yaml_values,
                                          set_message_fields)

@@ -16,7 +16,7 @@ import yaml
 from rosidl_parser.definition import (AbstractNestedType, Array, BoundedSequence, BasicType,
                                       AbstractString, AbstractWString, NamespacedType, NamedType)
 
-from xrce.tools.ros_cli.cli import UsageError
+from xrce.tools.ros_cli.arguments import UsageError
 
 
 # ----------------------------------------------------------------------------- types by name
@@ -89,7 +89,8 @@ def message_to_dict(msg, truncate_length=None, no_arr=False, no_str=False):
 def _plain(value, slot_type, truncate_length, no_arr, no_str):
     if isinstance(value, bytes):  # a byte field: shown as the characters of its bytes
         text = "".join(chr(b) for b in value[:truncate_length])
-        return text + "..." if truncate_length is not None and len(value) > truncate_length else text
+        cut = truncate_length is not None and len(value) > truncate_length
+        return text + "..." if cut else text
     if isinstance(value, str):
         if no_str:
             return "<string length: <%d>>" % len(value)

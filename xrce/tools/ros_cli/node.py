@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from xrce.tools.ros_cli.cli import add_graph_arguments
+from xrce.tools.ros_cli.arguments import add_graph_arguments
 from xrce.tools.ros_cli.graph import CliNode
 
 NAME = "node"

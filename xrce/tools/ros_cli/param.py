@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 import sys
 
-from xrce.tools.ros_cli.cli import CommandError, UsageError, add_graph_arguments
+from xrce.tools.ros_cli.arguments import CommandError, UsageError, add_graph_arguments
 from xrce.tools.ros_cli.graph import CliNode, absolute_node_name
 
 NAME = "param"

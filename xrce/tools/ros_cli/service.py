@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import time
 
-from xrce.tools.ros_cli.cli import CommandError, UsageError, add_graph_arguments, positive_float
+from xrce.tools.ros_cli.arguments import (CommandError, UsageError, add_graph_arguments,
+                                          positive_float)
 from xrce.tools.ros_cli.graph import NODE_NAME_PREFIX, CliNode
 from xrce.tools.ros_cli.messages import interface_class, parse_yaml_values, set_message_fields
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 import time
 
-from xrce.tools.ros_cli.cli import (CommandError, UsageError, add_graph_arguments,
-                                    add_qos_arguments, nonnegative_int, positive_float,
-                                    positive_int, qos_from_arguments, qos_overridden)
+from xrce.tools.ros_cli.arguments import (CommandError, UsageError, add_graph_arguments,
+                                          add_qos_arguments, nonnegative_int, positive_float,
+                                          positive_int, qos_from_arguments, qos_overridden)
 from xrce.tools.ros_cli.graph import CliNode
 from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, parse_yaml_values,
                                          set_message_fields)
