@@ -229,6 +229,23 @@ def test_topic_echo_once_prints_the_boards_sample_as_yaml(graph):
     assert re.fullmatch(r"hello \d+", lines[0]) and lines[1:] == ["---"], lines
 
 
+def test_topic_echo_runs_until_ctrl_c(graph):
+    echo = graph.start("topic", "echo", "/chatter")
+    try:
+        lines = [echo.stdout.readline() for _ in range(4)]  # two samples
+        echo.send_signal(signal.SIGINT)
+        assert echo.wait(20) == 130
+    finally:
+        if echo.poll() is None:
+            echo.kill()
+            echo.wait()
+        echo.stdout.close()
+        echo.stderr.close()
+    assert [line for line in lines[1::2]] == ["---\n", "---\n"], lines
+    first, second = (int(re.fullmatch(r"data: hello (\d+)\n", line).group(1)) for line in lines[::2])
+    assert second > first, lines
+
+
 def test_topic_hz_prints_ros2s_rate_lines(graph):
     hz = graph.start("topic", "hz", "/chatter")
     try:

@@ -8,6 +8,7 @@ bad argument).
 
 from __future__ import annotations
 
+import os
 import sys
 
 from xrce.tools.ros_cli.arguments import (EXIT_FAILED, EXIT_INTERRUPTED, PROG, ArgumentParser,
@@ -46,3 +47,8 @@ def main(argv=None):
         return EXIT_FAILED
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader went away (`xrce-ros topic echo /odom | head`): end quietly, and keep the
+        # interpreter's final flush from failing on the same pipe.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
