@@ -388,3 +388,26 @@ def test_a_bad_argument_gets_one_line_and_exit_2(args, says):
     assert done.returncode == 2, done
     assert done.stdout == "" and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("xrce-ros: error: ") and says in done.stderr, done.stderr
+
+
+# ----------------------------------------------------------------------------- banners
+
+def test_banners_name_the_ros2_command_that_exists(tmp_path):
+    from xrce.tools.ros_cli import ros2_command
+
+    venv_bin = os.path.dirname(sys.executable)
+    ours = os.path.join(venv_bin, "xrce-ros")
+    if not os.path.exists(ours):
+        pytest.skip("SKIPPED LOUDLY: this venv has no xrce-ros script (pip install -e . again)")
+    ros_bin = tmp_path / "ros" / "bin"
+    ros_bin.mkdir(parents=True)
+    (ros_bin / "ros2").write_text("#!/bin/sh\n")
+    (ros_bin / "ros2").chmod(0o755)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    # A ROS install's ros2 on PATH wins; else this venv's xrce-ros, by name when PATH finds it,
+    # else by a path the user can type from where they are.
+    assert ros2_command({"PATH": "%s:%s" % (ros_bin, venv_bin)}) == "ros2"
+    assert ros2_command({"PATH": "%s:/usr/bin" % venv_bin}) == "xrce-ros"
+    assert ros2_command({"PATH": str(empty)}, cwd=str(REPO)) == os.path.relpath(ours, REPO)
+    assert ros2_command({"PATH": str(empty)}, cwd=str(empty)) == ours  # not below: the full path
