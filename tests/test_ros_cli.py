@@ -381,6 +381,8 @@ def test_action_list_and_send_goal_on_an_rclpy_action_server(graph):
     (["service", "call", "/x", "std_msgs/msg/String"], "The passed service type is invalid"),
     (["action", "send_goal", "/x", "test_msgs/action/Nope"], "The passed action type is invalid"),
     (["node", "list", "--spin-time", "-1"], "value must be positive"),
+    (["topic", "pub", "-n", "bad-node", "/x", "std_msgs/msg/String"], "Invalid node name"),
+    (["topic", "echo", "bad topic", "std_msgs/msg/String"], "Invalid topic name"),
 ])
 def test_a_bad_argument_gets_one_line_and_exit_2(args, says):
     done = subprocess.run(xrce_ros_command() + args, cwd=REPO, text=True, capture_output=True,

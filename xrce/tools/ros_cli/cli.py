@@ -38,10 +38,14 @@ def main(argv=None):
     # Line-buffered as ros2cli makes it: a pipe reader (a script, a test) sees each message when
     # it is printed, not when a block fills.
     sys.stdout.reconfigure(line_buffering=True)
+    from rclpy.exceptions import NameValidationException
+
     try:
         return args.run(args) or 0
     except UsageError as error:
         usage_exit(str(error))
+    except NameValidationException as error:  # a topic, service or node name rclpy refuses
+        usage_exit(" ".join(str(error).split()))
     except CommandError as error:
         sys.stderr.write("%s\n" % error)
         return EXIT_FAILED

@@ -122,5 +122,21 @@ class CliNode:
         return names
 
 
+def checked_name(name, is_service=False):
+    """``name`` as rclpy expands it for a node in ``/``; a name rclpy refuses raises its
+    NameValidationException (``cli`` makes that a one-line usage error) before any node uses it."""
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+
+    try:
+        full_name = expand_topic_name(name, NODE_NAME_PREFIX, "/")
+    except ValueError as error:  # what rclpy's expansion raises for a malformed name
+        from rclpy.exceptions import InvalidTopicNameException
+
+        raise InvalidTopicNameException(name, str(error), 0) from None
+    validate_full_topic_name(full_name, is_service=is_service)
+    return full_name
+
+
 def absolute_node_name(name):
     return name if name.startswith("/") else "/" + name

@@ -6,7 +6,7 @@ import time
 
 from xrce.tools.ros_cli.arguments import (CommandError, UsageError, add_graph_arguments,
                                           positive_float)
-from xrce.tools.ros_cli.graph import NODE_NAME_PREFIX, CliNode
+from xrce.tools.ros_cli.graph import NODE_NAME_PREFIX, CliNode, checked_name
 from xrce.tools.ros_cli.messages import interface_class, parse_yaml_values, set_message_fields
 
 NAME = "service"
@@ -48,6 +48,7 @@ def list_services(args):
 
 
 def call(args):
+    checked_name(args.service_name, is_service=True)
     service_class = interface_class(args.service_type, "srv")
     request = service_class.Request()
     try:

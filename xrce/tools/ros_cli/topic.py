@@ -8,7 +8,7 @@ import time
 from xrce.tools.ros_cli.arguments import (CommandError, UsageError, add_graph_arguments,
                                           add_qos_arguments, nonnegative_int, positive_float,
                                           positive_int, qos_from_arguments, qos_overridden)
-from xrce.tools.ros_cli.graph import CliNode
+from xrce.tools.ros_cli.graph import CliNode, checked_name
 from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, parse_yaml_values,
                                          set_message_fields)
 
@@ -118,18 +118,11 @@ def list_topics(args):
 
 # ----------------------------------------------------------------------------- echo
 
-def _topic_class(cli, topic_name, wait):
-    """The class of the one type ``topic_name`` has in the graph. With ``wait``, as ros2topic's
-    hz does (and echo here too: a board that is still connecting is the usual case), waits for the
-    topic after saying so once; without, None when it is not there."""
-    from rclpy.expand_topic_name import expand_topic_name
-    from rclpy.validate_full_topic_name import validate_full_topic_name
-
-    try:
-        full_name = expand_topic_name(topic_name, cli.node.get_name(), cli.node.get_namespace())
-        validate_full_topic_name(full_name)
-    except Exception as error:  # rclpy's name errors carry the reason
-        raise UsageError(" ".join(str(error).split())) from None
+def _topic_class(cli, topic_name, wait_s=None):
+    """The class of the one type ``topic_name`` has in the graph. As ros2topic's hz does (and echo
+    here too: a board that is still connecting is the usual case, where ros2 echo gives up at
+    once), waits for the topic after saying so once, ``wait_s`` at most (None: until Ctrl-C)."""
+    full_name = checked_name(topic_name)
 
     def types_now():
         for name, types in cli.topic_names_and_types(include_hidden=True):
@@ -140,9 +133,8 @@ def _topic_class(cli, topic_name, wait):
     types = types_now()
     if types is None:
         print("WARNING: topic [%s] does not appear to be published yet" % topic_name)
-        if not wait:
-            return None
-        cli.spin_until(lambda: types_now() is not None)
+        if not cli.spin_until(lambda: types_now() is not None, wait_s):
+            raise CommandError("Could not determine the type for the passed topic")
         types = types_now()
     if len(types) > 1:
         raise CommandError("Cannot echo topic '%s', as it contains more than one type: [%s]"
@@ -193,10 +185,11 @@ def echo(args):
         if not field:
             raise UsageError("Invalid field value '%s'" % args.field)
     truncate_length = None if args.full_length else args.truncate_length
+    checked_name(args.topic_name)
     message_class = interface_class(args.message_type, "msg") if args.message_type else None
     with CliNode(spin_time=args.spin_time) as cli:
         if message_class is None:
-            message_class = _topic_class(cli, args.topic_name, wait=True)
+            message_class = _topic_class(cli, args.topic_name, args.timeout)
         qos = _echo_qos(cli, args)
         printed = []
 
@@ -266,8 +259,9 @@ class RateMeter:
 def hz(args):
     from rclpy.qos import qos_profile_sensor_data
 
+    checked_name(args.topic_name)
     with CliNode(spin_time=args.spin_time) as cli:
-        message_class = _topic_class(cli, args.topic_name, wait=True)
+        message_class = _topic_class(cli, args.topic_name)
         if args.use_wtime:
             clock_ns = time.time_ns
         else:
@@ -286,6 +280,7 @@ def hz(args):
 # ----------------------------------------------------------------------------- pub
 
 def pub(args):
+    checked_name(args.topic_name)
     message_class = interface_class(args.message_type, "msg")
     values = parse_yaml_values(args.values)
     qos = qos_from_arguments(args)
@@ -296,6 +291,10 @@ def pub(args):
     if not wanted and args.max_wait_time_secs is not None:
         raise UsageError("--max-wait-time-secs option is only effective with "
                          "--wait-matching-subscriptions, --once or --times")
+    if args.node_name is not None:
+        from rclpy.validate_node_name import validate_node_name
+
+        validate_node_name(args.node_name)  # before rclpy half-builds a node with it
     msg = message_class()
     try:
         stamp_setters = set_message_fields(msg, values, expand_header_auto=True,
