@@ -33,6 +33,14 @@ def build_parser():
 
 
 def main(argv=None):
+    # The agent's Fast DDS profile, on the same terms as the agent takes it (not over a user's
+    # profile, nor for another RMW): with Fast DDS's defaults a participant that joins next to
+    # running nodes often loses their answers to its first announcement and sees them only at
+    # their next one, 3 s later (docs/PERFORMANCE.md), which is after a command like this has
+    # listed the graph and gone. Its asynchronous discovery writers keep those answers.
+    from xrce.agent.middleware.ros import fastdds_profile
+
+    fastdds_profile.install()
     parser = build_parser()
     args = parser.parse_args(argv)
     # Line-buffered as ros2cli makes it: a pipe reader (a script, a test) sees each message when
