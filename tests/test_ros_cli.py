@@ -139,10 +139,10 @@ class Graph:
                         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
         self.env.pop("ROS_LOCALHOST_ONLY", None)
 
-    def run(self, *args, expect_rc=0, timeout_s=CLI_TIMEOUT_S):
+    def run(self, *args, expect_rc=0, timeout_s=CLI_TIMEOUT_S, env=None):
         """``xrce-ros ARGS`` to its end: (stdout lines, stderr text)."""
-        done = subprocess.run(xrce_ros_command() + list(args), env=self.env, cwd=REPO, text=True,
-                              capture_output=True, timeout=timeout_s)
+        done = subprocess.run(xrce_ros_command() + list(args), env=dict(self.env, **(env or {})),
+                              cwd=REPO, text=True, capture_output=True, timeout=timeout_s)
         if expect_rc is not None:
             assert done.returncode == expect_rc, (args, done.returncode, done.stdout, done.stderr)
         return done.stdout.splitlines(), done.stderr
@@ -318,6 +318,14 @@ def test_node_list_shows_the_board_and_hides_hidden_nodes(graph):
                     and any(line.startswith("/_xrce_ros_") for line in lines),
                     "node", "list", "-a", *SPIN)
     graph.run_until(["4"], "node", "list", "-c", *SPIN)
+    # ROS_DOMAIN_ID is read as ros2 reads it: another domain has none of these nodes.
+    other = DomainLease()
+    try:
+        lines, _ = graph.run("node", "list", "--spin-time", "2",
+                             env={"ROS_DOMAIN_ID": str(other.domain_id)})
+    finally:
+        other.release()
+    assert lines == []
 
 
 # ----------------------------------------------------------------------------- service
