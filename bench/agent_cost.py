@@ -10,7 +10,7 @@ unpacked older commit): the figure is this tree's agent, the baseline that one's
 baseline is the closest floor measured in the same run: bare rclpy ``publish(bytes)`` per message,
 a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only``)
 takes another agent started from a command line as the reference, e.g. eProsima's MicroXRCEAgent
-(``/work/peers/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
+(``$PEERS/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
 /dev/shm (``unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && ...'``).
 
 - "CPU per delivered message": bench/xrce_flood.py offers Twist samples at a fixed rate
@@ -518,8 +518,9 @@ def main(argv=None):
                              "(medians); takes --reference and --agent-cmd, both at once too")
     parser.add_argument("--agent-cmd", metavar="CMD",
                         help="with --robot-only or --reliable-only: another agent's command line "
-                             "(it gets 'udp4 -p PORT') as a reference, e.g. /work/peers/agent.sh; "
-                             "--reference may be given too, all three then take turns")
+                             "(it gets 'udp4 -p PORT') as a reference, e.g. $PEERS/agent.sh, "
+                             "eProsima's agent built outside this repository; --reference may be "
+                             "given too, all three then take turns")
     args = parser.parse_args(argv)
     if args.agent_cmd and not (args.robot_only or args.reliable_only):
         parser.error("--agent-cmd goes with --robot-only or --reliable-only")
