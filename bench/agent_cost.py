@@ -8,8 +8,9 @@ Run as ``bench/run.py --only cost`` or alone. Every figure comes from ``/proc/<a
 runs the same measurements, in the same run, against the agent of another source tree (e.g. an
 unpacked older commit): the figure is this tree's agent, the baseline that one's. Without it the
 baseline is the closest floor measured in the same run: bare rclpy ``publish(bytes)`` per message,
-a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only``)
-takes another agent started from a command line as the reference, e.g. eProsima's MicroXRCEAgent
+a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only`` or
+``--reliable-only``) takes another agent started from a command line as the reference, e.g.
+eProsima's MicroXRCEAgent
 (``$PEERS/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
 /dev/shm (``unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && ...'``).
 
