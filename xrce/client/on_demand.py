@@ -10,9 +10,8 @@
 # globals, imports, file name) on top of its code, and a firmware that syncs time also pings (the
 # minimum core of a session).
 
-import struct
-
-from xrce import DecodeError, const, epoch_ns, ticks_diff, ticks_us
+from xrce import DecodeError, const, ticks_diff, ticks_ms, ticks_us
+from xrce import epoch_ns as _wall_ns
 
 _TIMESTAMP = const(14)
 
@@ -20,7 +19,7 @@ _TIMESTAMP = const(14)
 # every string of a tuple would be an object of its own.
 _SERVICES = (" create_requester create_replier create_service_client create_service_server"
              " send_request send_reply ")
-_HERE = " sync_time epoch_ms ping run_until_confirm_delivery "
+_HERE = " sync_time epoch_ns epoch_ms ping run_until_confirm_delivery "
 
 
 def session_attr(session, name):
@@ -36,6 +35,8 @@ def session_attr(session, name):
         import xrce.client.services as module
 
         function = getattr(module, name)
+    elif name == "time_offset_ns":
+        function = property(_time_offset_ns)
     elif name == "link_state":
         # A property on the class like the methods: a firmware may read it on every pass, and on a
         # board each name Session lacks first loads xrce.client.entities for one call.
@@ -62,49 +63,229 @@ def _link_state(session):
 # ------------------------------------------------------------------ time sync
 
 # NTP-style offset of the agent's clock from one TIMESTAMP/TIMESTAMP_REPLY exchange
-# (XRCE-WIRE.md §5); Session.epoch_ns applies it.
+# (XRCE-WIRE.md §5). Nanoseconds since the epoch are big integers on a 32-bit port (small ones stop
+# at 2**30), so after the first exchange nothing here forms one: the client's clock is read from
+# ticks_us() onwards from the wall clock read once (time.time_ns() allocates), seconds are counted
+# from a base (a multiple of 65536 s: the client's at its first reading, the agent's at its first
+# reply) and kept apart from nanoseconds, stamps are read from the reply two bytes at a time, and
+# every value lives in one list per session (``session._demand``) filled in place. Only what a
+# user asks for as one number (epoch_ns, epoch_ms, time_offset_ns) is a big integer again.
+
+_NS = const(1000000000)
+# Longer than this since the clock was last read (ticks_us() wraps after 2**30 µs, ~17 min), the
+# wall clock is read again (that reading allocates).
+_REANCHOR_MS = const(500000)
+
+# session._demand, made at the first time sync or ping:
+_BASE = const(0)  # the client's seconds count from _BASE << 16
+_TICKS = const(1)  # ticks_us() and ticks_ms() when the clock was last read
+_MS = const(2)
+_NOW_S = const(3)  # what it read: seconds from the base, nanoseconds
+_NOW_NS = const(4)
+_T0_S = const(5)  # originate stamp of the exchange waited for
+_T0_NS = const(6)
+_PENDING = const(7)
+_AGENT_BASE = const(8)  # the agent's seconds count from _AGENT_BASE << 16
+_OFF_HI = const(9)  # the offset, client minus agent: (_OFF_HI << 16) + _OFF_S s + _OFF_NS ns
+_OFF_S = const(10)
+_OFF_NS = const(11)
+_SYNC_DONE = const(12)  # the waits' conditions, made once (a lambda per call would allocate)
+_PONG_DONE = const(13)
+
+
+def _state(session):
+    demand = session._demand
+    return _new_state(session) if demand is None else demand
+
+
+def _new_state(session):
+    # Apart from _state: on a board a function whose lambdas capture its variables allocates their
+    # cells on every call, whether it makes the lambdas or not.
+    type(session)._on_timestamp_reply = on_timestamp_reply
+    demand = session._demand = [None] * 14
+    demand[_PENDING] = False
+    demand[_OFF_HI] = demand[_OFF_S] = demand[_OFF_NS] = 0
+    demand[_SYNC_DONE] = lambda: not demand[_PENDING]
+    demand[_PONG_DONE] = lambda: session._pong_in_session
+    return demand
+
+
+def _anchor_at(demand, now_ns):
+    # The clock set from a wall-clock reading (nanoseconds since the epoch).
+    seconds, ns = divmod(now_ns, _NS)
+    if demand[_BASE] is None:
+        demand[_BASE] = seconds >> 16
+    demand[_NOW_S] = seconds - (demand[_BASE] << 16)
+    demand[_NOW_NS] = ns
+    demand[_TICKS] = ticks_us()
+    demand[_MS] = ticks_ms()
+
+
+def _now(demand):
+    # Read the client's clock into demand[_NOW_S], demand[_NOW_NS].
+    if demand[_BASE] is None:
+        _anchor_at(demand, _wall_ns())
+        return
+    ticks = ticks_us()
+    ms = ticks_ms()
+    elapsed = ticks_diff(ticks, demand[_TICKS])
+    if elapsed < 0 or ticks_diff(ms, demand[_MS]) > _REANCHOR_MS:
+        _anchor_at(demand, _wall_ns())
+        return
+    ns = demand[_NOW_NS] + (elapsed % 1000000) * 1000
+    seconds = demand[_NOW_S] + elapsed // 1000000
+    if ns >= _NS:
+        ns -= _NS
+        seconds += 1
+    demand[_NOW_S] = seconds
+    demand[_NOW_NS] = ns
+    demand[_TICKS] = ticks
+    demand[_MS] = ms
+
+
+def _begin_exchange(session):
+    # The originate stamp of a new exchange, remembered as the one waited for.
+    demand = _state(session)
+    _now(demand)
+    demand[_T0_S] = demand[_NOW_S]
+    demand[_T0_NS] = demand[_NOW_NS]
+    demand[_PENDING] = True
+    return demand
+
+
 def sync_time(session, timeout_ms=1000, attempts=1):
     # True when the offset was updated.
     session.flush()
     for _ in range(attempts):
-        originate = epoch_ns()
-        session._sync_originate = originate
+        demand = _begin_exchange(session)
         w = session._begin_control(_TIMESTAMP)
-        w._put("<i", 4, originate // 1000000000)  # int32: the writer's i32 lives in xrce.cdr_more
-        w.u32(originate % 1000000000)
+        # int32 seconds as two 16-bit halves (the payload starts 4-aligned: same bytes as "<i").
+        seconds = demand[_T0_S]
+        w.u16(seconds & 0xFFFF)
+        w.u16((demand[_BASE] + (seconds >> 16)) & 0xFFFF)
+        w.u32(demand[_T0_NS])
         session._send_control()
-        if session._wait(timeout_ms, lambda: session._sync_originate is None):
+        if session._wait(timeout_ms, demand[_SYNC_DONE]):
             return True
-    session._sync_originate = None
+    demand[_PENDING] = False
     return False
+
+
+def _half(buf, at, little):
+    return buf[at] | (buf[at + 1] << 8) if little else (buf[at] << 8) | buf[at + 1]
+
+
+def _high(buf, at, little):
+    # The upper 16 bits of the int32 at ``at``, signed.
+    high = _half(buf, at + 2 if little else at, little)
+    return high - 0x10000 if high & 0x8000 else high
+
+
+def _seconds(buf, at, little, base):
+    # The int32 of seconds at ``at``, counted from base << 16.
+    return ((_high(buf, at, little) - base) << 16) + _half(buf, at if little else at + 2, little)
+
+
+def _nanoseconds(buf, at, little):
+    low = _half(buf, at if little else at + 2, little)
+    return (_half(buf, at + 2 if little else at, little) << 16) | low
 
 
 def on_timestamp_reply(session, buf, flags, s, e):
     # Agent transmit, agent receive, client originate: (int32 s, uint32 ns) each.
     if e - s < 24:
         raise DecodeError("short TIMESTAMP_REPLY")
-    t = struct.unpack_from("<iIiIiI" if flags & 1 else ">iIiIiI", buf, s)
-    t0 = session._sync_originate
-    if t0 is None or t[4] * 1000000000 + t[5] != t0:
+    little = flags & 1
+    demand = session._demand
+    if (demand is None or not demand[_PENDING] or _nanoseconds(buf, s + 20, little) != demand[_T0_NS]
+            or _seconds(buf, s + 16, little, demand[_BASE]) != demand[_T0_S]):
         session.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
         return
-    t3 = epoch_ns()
-    session._sync_originate = None
-    received = t[2] * 1000000000 + t[3]
-    transmitted = t[0] * 1000000000 + t[1]
+    _now(demand)
+    demand[_PENDING] = False
+    if demand[_AGENT_BASE] is None:
+        demand[_AGENT_BASE] = _high(buf, s + 8, little)
+    agent_base = demand[_AGENT_BASE]
+    s0 = demand[_T0_S]
+    n0 = demand[_T0_NS]
+    s1 = _seconds(buf, s + 8, little, agent_base)  # received
+    n1 = _nanoseconds(buf, s + 12, little)
+    s2 = _seconds(buf, s, little, agent_base)  # transmitted
+    n2 = _nanoseconds(buf, s + 4, little)
+    s3 = demand[_NOW_S]
+    n3 = demand[_NOW_NS]
+    # rtt = (t3 - t0) - (t2 - t1), each difference's nanoseconds brought into [0, 1 s) first so
+    # that no sum leaves the small integers.
+    seconds = (s3 - s0) - (s2 - s1)
+    a = n3 - n0
+    if a < 0:
+        a += _NS
+        seconds -= 1
+    b = n2 - n1
+    if b < 0:
+        b += _NS
+        seconds += 1
+    # Never below 0: a clock coarser than the exchange can make it look negative, and a negative
+    # bound would only shrink as it ages (no exchange taken again).
+    rtt = seconds * _NS + (a - b)
+    if rtt < 0:
+        rtt = 0
     # The offset is only known to within half the exchange's round trip, and one stalled
     # exchange (a GC pause, a busy link) can be milliseconds off. Like NTP's clock filter,
     # keep the tightest exchange; the bound it gave ages by half at each slower one, so a
     # drifting clock is still followed within a few syncs.
-    rtt = (t3 - t0) - (transmitted - received)
     if session.time_synced and rtt > session.time_rtt_ns:
         session.time_rtt_ns += (session.time_rtt_ns >> 1) + 1
         return
     session.time_rtt_ns = rtt
-    twice = (t0 + t3) - (received + transmitted)
-    # Halved rounding toward zero, as the C client's int64 division does.
-    session.time_offset_ns = -((-twice) // 2) if twice < 0 else twice // 2
+    # Twice the offset, (t0 + t3) - (t1 + t2): 2 * (bases' difference << 16) + seconds s + a ns.
+    seconds = (s0 - s1) + (s3 - s2)
+    a = n0 - n1
+    if a < 0:
+        a += _NS
+        seconds -= 1
+    b = n3 - n2
+    if b < 0:
+        b += _NS
+        seconds -= 1
+    a -= _NS - b  # a + b, carried into the seconds without forming it
+    if a >= 0:
+        seconds += 1
+    else:
+        a += _NS
+    high = demand[_BASE] - agent_base
+    # Halved rounding toward zero, as the C client's int64 division does: an odd negative total
+    # rounds up.
+    half_ns = (a >> 1) + (500000000 if seconds & 1 else 0)
+    if a & 1 and high + (seconds >> 17) < 0:
+        half_ns += 1
+    seconds >>= 1
+    if half_ns >= _NS:
+        half_ns -= _NS
+        seconds += 1
+    demand[_OFF_HI] = high
+    demand[_OFF_S] = seconds
+    demand[_OFF_NS] = half_ns
     session.time_synced = True
+
+
+def _offset_ns(demand):
+    return ((demand[_OFF_HI] << 16) + demand[_OFF_S]) * _NS + demand[_OFF_NS]
+
+
+def _time_offset_ns(session):
+    # The client's clock minus the agent's, in ns (a big integer on a board: allocates).
+    demand = session._demand
+    return 0 if demand is None else _offset_ns(demand)
+
+
+def epoch_ns(session):
+    # Nanoseconds since the epoch on the agent's clock (after ``sync_time``; allocates).
+    demand = session._demand
+    if demand is None or demand[_BASE] is None:
+        return _wall_ns()
+    _now(demand)
+    return ((demand[_BASE] << 16) + demand[_NOW_S]) * _NS + demand[_NOW_NS] - _offset_ns(demand)
 
 
 def epoch_ms(session):
@@ -117,11 +298,12 @@ def ping(session, timeout_ms=1000, attempts=1):
     # GET_INFO inside the session: True only if the agent still knows this session. (The
     # session-less ping is xrce.client.ping.ping_agent.)
     session.flush()
+    done = _state(session)[_PONG_DONE]
     for _ in range(attempts):
         session._pong_in_session = False
         sent = ticks_us()
         session._send_ping()
-        if session._wait(timeout_ms, lambda: session._pong_in_session):
+        if session._wait(timeout_ms, done):
             session.last_rtt_us = ticks_diff(ticks_us(), sent)
             return True
     return False
