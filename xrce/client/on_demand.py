@@ -69,7 +69,8 @@ def _link_state(session):
 # from a base (a multiple of 65536 s: the client's at its first reading, the agent's at its first
 # reply) and kept apart from nanoseconds, stamps are read from the reply two bytes at a time, and
 # every value lives in one list per session (``session._demand``) filled in place. Only what a
-# user asks for as one number (epoch_ns, epoch_ms, time_offset_ns) is a big integer again.
+# user asks for as one number (epoch_ns, epoch_ms, time_offset_ns) is a big integer again: that
+# allocates, when asked.
 
 _NS = const(1000000000)
 # Longer than this since the clock was last read (ticks_us() wraps after 2**30 µs, ~17 min), the
@@ -86,25 +87,28 @@ _T0_S = const(5)  # originate stamp of the exchange waited for
 _T0_NS = const(6)
 _PENDING = const(7)
 _AGENT_BASE = const(8)  # the agent's seconds count from _AGENT_BASE << 16
-_OFF_HI = const(9)  # the offset, client minus agent: (_OFF_HI << 16) + _OFF_S s + _OFF_NS ns
-_OFF_S = const(10)
-_OFF_NS = const(11)
+# Twice the offset, agent minus client (halved when asked for: time_offset_ns):
+# ((_TWICE_HI << 17) + _TWICE_S) s + _TWICE_NS ns, _TWICE_HI the bases' difference.
+_TWICE_HI = const(9)
+_TWICE_S = const(10)
+_TWICE_NS = const(11)
 _SYNC_DONE = const(12)  # the waits' conditions, made once (a lambda per call would allocate)
 _PONG_DONE = const(13)
-
-
-def _state(session):
-    demand = session._demand
-    return _new_state(session) if demand is None else demand
+_T1_S = const(14)  # the reply's stamps: agent receive, agent transmit, client originate
+_T1_NS = const(15)
+_T2_S = const(16)
+_T2_NS = const(17)
+_ORIGINATE_S = const(18)
+_ORIGINATE_NS = const(19)
 
 
 def _new_state(session):
-    # Apart from _state: on a board a function whose lambdas capture its variables allocates their
-    # cells on every call, whether it makes the lambdas or not.
+    # Called as ``session._demand or _new_state(session)``: on a board a function whose lambdas
+    # capture its variables allocates their cells on every call, whether it makes them or not.
     type(session)._on_timestamp_reply = on_timestamp_reply
-    demand = session._demand = [None] * 14
+    demand = session._demand = [None] * 20
     demand[_PENDING] = False
-    demand[_OFF_HI] = demand[_OFF_S] = demand[_OFF_NS] = 0
+    demand[_TWICE_HI] = demand[_TWICE_S] = demand[_TWICE_NS] = 0
     demand[_SYNC_DONE] = lambda: not demand[_PENDING]
     demand[_PONG_DONE] = lambda: session._pong_in_session
     return demand
@@ -145,7 +149,7 @@ def _now(demand):
 
 def _begin_exchange(session):
     # The originate stamp of a new exchange, remembered as the one waited for.
-    demand = _state(session)
+    demand = session._demand or _new_state(session)
     _now(demand)
     demand[_T0_S] = demand[_NOW_S]
     demand[_T0_NS] = demand[_NOW_NS]
@@ -171,24 +175,20 @@ def sync_time(session, timeout_ms=1000, attempts=1):
     return False
 
 
-def _half(buf, at, little):
+def _u16(buf, at, little):
     return buf[at] | (buf[at + 1] << 8) if little else (buf[at] << 8) | buf[at + 1]
 
 
-def _high(buf, at, little):
-    # The upper 16 bits of the int32 at ``at``, signed.
-    high = _half(buf, at + 2 if little else at, little)
-    return high - 0x10000 if high & 0x8000 else high
-
-
-def _seconds(buf, at, little, base):
-    # The int32 of seconds at ``at``, counted from base << 16.
-    return ((_high(buf, at, little) - base) << 16) + _half(buf, at if little else at + 2, little)
-
-
-def _nanoseconds(buf, at, little):
-    low = _half(buf, at if little else at + 2, little)
-    return (_half(buf, at + 2 if little else at, little) << 16) | low
+def _stamp(demand, slot, buf, at, little, base):
+    # The (int32 s, uint32 ns) stamp at ``at`` into demand[slot], demand[slot + 1], its seconds
+    # counted from base << 16, read two bytes at a time; returns the seconds' upper half.
+    low = 0 if little else 2
+    high = _u16(buf, at + 2 - low, little)
+    if high & 0x8000:
+        high -= 0x10000
+    demand[slot] = ((high - base) << 16) + _u16(buf, at + low, little)
+    demand[slot + 1] = (_u16(buf, at + 6 - low, little) << 16) | _u16(buf, at + 4 + low, little)
+    return high
 
 
 def on_timestamp_reply(session, buf, flags, s, e):
@@ -197,37 +197,34 @@ def on_timestamp_reply(session, buf, flags, s, e):
         raise DecodeError("short TIMESTAMP_REPLY")
     little = flags & 1
     demand = session._demand
-    if (demand is None or not demand[_PENDING] or _nanoseconds(buf, s + 20, little) != demand[_T0_NS]
-            or _seconds(buf, s + 16, little, demand[_BASE]) != demand[_T0_S]):
+    if demand is not None:
+        _stamp(demand, _ORIGINATE_S, buf, s + 16, little, demand[_BASE])
+    if (demand is None or not demand[_PENDING] or demand[_ORIGINATE_S] != demand[_T0_S]
+            or demand[_ORIGINATE_NS] != demand[_T0_NS]):
         session.stale_timestamps += 1  # a late reply to an earlier attempt: its t3 would be wrong
         return
     _now(demand)
     demand[_PENDING] = False
-    if demand[_AGENT_BASE] is None:
-        demand[_AGENT_BASE] = _high(buf, s + 8, little)
     agent_base = demand[_AGENT_BASE]
-    s0 = demand[_T0_S]
-    n0 = demand[_T0_NS]
-    s1 = _seconds(buf, s + 8, little, agent_base)  # received
-    n1 = _nanoseconds(buf, s + 12, little)
-    s2 = _seconds(buf, s, little, agent_base)  # transmitted
-    n2 = _nanoseconds(buf, s + 4, little)
-    s3 = demand[_NOW_S]
-    n3 = demand[_NOW_NS]
-    # rtt = (t3 - t0) - (t2 - t1), each difference's nanoseconds brought into [0, 1 s) first so
-    # that no sum leaves the small integers.
-    seconds = (s3 - s0) - (s2 - s1)
-    a = n3 - n0
-    if a < 0:
-        a += _NS
-        seconds -= 1
-    b = n2 - n1
-    if b < 0:
-        b += _NS
-        seconds += 1
+    if agent_base is None:  # the first reply sets it
+        agent_base = demand[_AGENT_BASE] = _stamp(demand, _T1_S, buf, s + 8, little, 0)
+    _stamp(demand, _T1_S, buf, s + 8, little, agent_base)
+    _stamp(demand, _T2_S, buf, s, little, agent_base)
+    # t1 - t0 and t2 - t3, their nanoseconds brought into [0, 1 s) so that no sum below leaves the
+    # small integers: the round trip is their difference, twice the offset their sum.
+    out_s = demand[_T1_S] - demand[_T0_S]
+    out_ns = demand[_T1_NS] - demand[_T0_NS]
+    if out_ns < 0:
+        out_ns += _NS
+        out_s -= 1
+    back_s = demand[_T2_S] - demand[_NOW_S]
+    back_ns = demand[_T2_NS] - demand[_NOW_NS]
+    if back_ns < 0:
+        back_ns += _NS
+        back_s -= 1
     # Never below 0: a clock coarser than the exchange can make it look negative, and a negative
     # bound would only shrink as it ages (no exchange taken again).
-    rtt = seconds * _NS + (a - b)
+    rtt = (out_s - back_s) * _NS + (out_ns - back_ns)
     if rtt < 0:
         rtt = 0
     # The offset is only known to within half the exchange's round trip, and one stalled
@@ -238,39 +235,21 @@ def on_timestamp_reply(session, buf, flags, s, e):
         session.time_rtt_ns += (session.time_rtt_ns >> 1) + 1
         return
     session.time_rtt_ns = rtt
-    # Twice the offset, (t0 + t3) - (t1 + t2): 2 * (bases' difference << 16) + seconds s + a ns.
-    seconds = (s0 - s1) + (s3 - s2)
-    a = n0 - n1
-    if a < 0:
-        a += _NS
-        seconds -= 1
-    b = n3 - n2
-    if b < 0:
-        b += _NS
-        seconds -= 1
-    a -= _NS - b  # a + b, carried into the seconds without forming it
-    if a >= 0:
-        seconds += 1
+    out_ns -= _NS - back_ns  # out_ns + back_ns, carried into the seconds without forming it
+    if out_ns >= 0:
+        out_s += 1
     else:
-        a += _NS
-    high = demand[_BASE] - agent_base
-    # Halved rounding toward zero, as the C client's int64 division does: an odd negative total
-    # rounds up.
-    half_ns = (a >> 1) + (500000000 if seconds & 1 else 0)
-    if a & 1 and high + (seconds >> 17) < 0:
-        half_ns += 1
-    seconds >>= 1
-    if half_ns >= _NS:
-        half_ns -= _NS
-        seconds += 1
-    demand[_OFF_HI] = high
-    demand[_OFF_S] = seconds
-    demand[_OFF_NS] = half_ns
+        out_ns += _NS
+    demand[_TWICE_HI] = agent_base - demand[_BASE]
+    demand[_TWICE_S] = out_s + back_s
+    demand[_TWICE_NS] = out_ns
     session.time_synced = True
 
 
 def _offset_ns(demand):
-    return ((demand[_OFF_HI] << 16) + demand[_OFF_S]) * _NS + demand[_OFF_NS]
+    # Client minus agent, halved rounding toward zero as the C client's int64 division does.
+    twice = ((demand[_TWICE_HI] << 17) + demand[_TWICE_S]) * _NS + demand[_TWICE_NS]
+    return (-twice) // 2 if twice < 0 else -(twice // 2)
 
 
 def _time_offset_ns(session):
@@ -298,7 +277,7 @@ def ping(session, timeout_ms=1000, attempts=1):
     # GET_INFO inside the session: True only if the agent still knows this session. (The
     # session-less ping is xrce.client.ping.ping_agent.)
     session.flush()
-    done = _state(session)[_PONG_DONE]
+    done = (session._demand or _new_state(session))[_PONG_DONE]
     for _ in range(attempts):
         session._pong_in_session = False
         sent = ticks_us()
