@@ -10,7 +10,7 @@
 # globals, imports, file name) on top of its code, and a firmware that syncs time also pings (the
 # minimum core of a session).
 
-from xrce import DecodeError, const, ticks_diff, ticks_ms, ticks_us
+from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce import epoch_ns as _wall_ns
 
 _TIMESTAMP = const(14)
@@ -114,27 +114,39 @@ def _new_state(session):
     return demand
 
 
-def _anchor_at(demand, now_ns):
-    # The clock set from a wall-clock reading (nanoseconds since the epoch).
+def _anchor(demand):
+    # The wall clock read between two tick readings that agree: a port whose ticks step in
+    # milliseconds (the WebAssembly one) would otherwise set the clock up to a step behind.
+    for _ in range(3):
+        before = ticks_us()
+        now_ns = _wall_ns()
+        taken = ticks_diff(ticks_us(), before)
+        if taken < 1000:
+            break
+    _anchor_at(demand, now_ns, ticks_add(before, taken >> 1))
+
+
+def _anchor_at(demand, now_ns, ticks=None):
+    # The clock set from a wall-clock reading (nanoseconds since the epoch) taken at ``ticks``.
     seconds, ns = divmod(now_ns, _NS)
     if demand[_BASE] is None:
         demand[_BASE] = seconds >> 16
     demand[_NOW_S] = seconds - (demand[_BASE] << 16)
     demand[_NOW_NS] = ns
-    demand[_TICKS] = ticks_us()
+    demand[_TICKS] = ticks_us() if ticks is None else ticks
     demand[_MS] = ticks_ms()
 
 
 def _now(demand):
     # Read the client's clock into demand[_NOW_S], demand[_NOW_NS].
     if demand[_BASE] is None:
-        _anchor_at(demand, _wall_ns())
+        _anchor(demand)
         return
     ticks = ticks_us()
     ms = ticks_ms()
     elapsed = ticks_diff(ticks, demand[_TICKS])
     if elapsed < 0 or ticks_diff(ms, demand[_MS]) > _REANCHOR_MS:
-        _anchor_at(demand, _wall_ns())
+        _anchor(demand)
         return
     ns = demand[_NOW_NS] + (elapsed % 1000000) * 1000
     seconds = demand[_NOW_S] + elapsed // 1000000
