@@ -258,16 +258,14 @@ def on_timestamp_reply(session, buf, flags, s, e):
     session.time_synced = True
 
 
-def _offset_ns(demand):
-    # Client minus agent, halved rounding toward zero as the C client's int64 division does.
+def _time_offset_ns(session):
+    # The client's clock minus the agent's, in ns (a big integer on a board: allocates), halved
+    # rounding toward zero as the C client's int64 division does.
+    demand = session._demand
+    if demand is None:
+        return 0
     twice = ((demand[_TWICE_HI] << 17) + demand[_TWICE_S]) * _NS + demand[_TWICE_NS]
     return (-twice) // 2 if twice < 0 else -(twice // 2)
-
-
-def _time_offset_ns(session):
-    # The client's clock minus the agent's, in ns (a big integer on a board: allocates).
-    demand = session._demand
-    return 0 if demand is None else _offset_ns(demand)
 
 
 def epoch_ns(session):
@@ -276,7 +274,7 @@ def epoch_ns(session):
     if demand is None or demand[_BASE] is None:
         return _wall_ns()
     _now(demand)
-    return ((demand[_BASE] << 16) + demand[_NOW_S]) * _NS + demand[_NOW_NS] - _offset_ns(demand)
+    return ((demand[_BASE] << 16) + demand[_NOW_S]) * _NS + demand[_NOW_NS] - _time_offset_ns(session)
 
 
 def epoch_ms(session):
