@@ -249,6 +249,16 @@ def test_stale_timestamp_reply_is_rejected():
     assert session.stale_timestamps >= 1 and not session.time_synced
 
 
+def test_timestamp_reply_nobody_asked_for_is_counted_not_decoded():
+    import xrce.client.on_demand as timesync
+    session = Session(ScriptedAgent([]), auto_recover=False)
+    reply = bytes(range(24))
+    session.handle_message(b"\x81\x00\x00\x00\x0f\x01\x18\x00" + reply)  # before any sync or ping
+    timesync._new_state(session)  # as a ping leaves it: no clock read yet
+    timesync.on_timestamp_reply(session, reply, 1, 0, len(reply))
+    assert session.stale_timestamps == 2 and not session.time_synced
+
+
 def test_xml_helloworld_publisher():
     agent, session = new_session("xml_helloworld_pub")
     participant = session.create_participant(

@@ -209,7 +209,7 @@ def on_timestamp_reply(session, buf, flags, s, e):
         raise DecodeError("short TIMESTAMP_REPLY")
     little = flags & 1
     demand = session._demand
-    if demand is not None:
+    if demand is not None and demand[_PENDING]:  # (a ping alone makes the list, not the clock)
         _stamp(demand, _ORIGINATE_S, buf, s + 16, little, demand[_BASE])
     if (demand is None or not demand[_PENDING] or demand[_ORIGINATE_S] != demand[_T0_S]
             or demand[_ORIGINATE_NS] != demand[_T0_NS]):
