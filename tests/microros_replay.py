@@ -22,6 +22,7 @@ What our agent answered is collected the same way as eProsima's, so a test compa
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import select
@@ -62,6 +63,10 @@ class Answers:
         self.last_reliable = {}  # boot -> highest sequence number on the agent's stream 0x80
         self.acked = {}  # boot -> first sequence number of ours the agent has not acknowledged
         self.heartbeats = defaultdict(int)
+        # boot -> {sequence number, unwrapped: message} of the agent's reliable stream, the first
+        # copy of each, for samples() to reassemble (DATA in FRAGMENTs) in order.
+        self.reliable = defaultdict(dict)
+        self._epoch = defaultdict(lambda: [0, None])  # boot -> [wraps, last raw sequence number]
 
     def note(self, boot: int, message: bytes) -> list:
         """Record one message from the agent; the HEARTBEATs in it (to answer)."""
@@ -70,6 +75,12 @@ class Answers:
         if stream_id == FIRMWARE_STREAM:
             if seq > self.last_reliable.get(boot, -1):
                 self.last_reliable[boot] = seq
+            epoch = self._epoch[boot]
+            if epoch[1] is not None and seq < epoch[1] - 0x8000:
+                epoch[0] += 1
+            if epoch[1] is None or seq > epoch[1] or seq < epoch[1] - 0x8000:
+                epoch[1] = seq
+            self.reliable[boot].setdefault(epoch[0] * 0x10000 + seq, message)
         heartbeats = []
         start = 4 if session >= 0x80 else 8
         for sub_id, _flags, body in _submessages(message, start):
@@ -92,12 +103,39 @@ class Answers:
         return heartbeats
 
 
+    def samples(self, boot: int, object_id: int) -> list:
+        """The sample bodies the agent sent on its reliable stream in DATA for ``object_id`` (a
+        reader's), FRAGMENTs reassembled, in stream order."""
+        found = []
+        pieces = bytearray()
+        for seq in sorted(self.reliable[boot]):
+            message = self.reliable[boot][seq]
+            start = 4 if message[0] >= 0x80 else 8
+            for sub_id, flags, body in _submessages(message, start):
+                if sub_id == C.FRAGMENT:
+                    pieces += body
+                    if not flags & C.FLAG_LAST_FRAGMENT:
+                        continue
+                    whole, pieces = bytes(pieces), bytearray()
+                    inner = list(_submessages(whole, 0))
+                else:
+                    inner = [(sub_id, flags, body)]
+                for inner_id, _flags, inner_body in inner:
+                    if inner_id == C.DATA and len(inner_body) >= 4 and \
+                            (inner_body[2] << 8) | inner_body[3] == object_id:
+                        found.append(bytes(inner_body[4:]))
+        return found
+
+
 class Capture:
     """One capture file: the firmware's messages by boot, and eProsima's answers."""
 
     def __init__(self, name: str):
         self.name = name
-        self.records = [json.loads(line) for line in (CAPTURES / (name + ".jsonl")).open()]
+        path = CAPTURES / (name + ".jsonl")
+        opened = path.open() if path.exists() else gzip.open(str(path) + ".gz", "rt")
+        with opened as lines:
+            self.records = [json.loads(line) for line in lines]
         self.steps = []  # (boot, bytes) of every c2a message
         self.times = []  # when each was sent, seconds into the recording
         self.eprosima = Answers()
@@ -438,3 +476,52 @@ class RosSideFeeder:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2)
+
+
+# ------------------------------------------------------------ micro-ROS' graph (graph capture)
+
+GRAPH_ENTITY_KINDS = ("publisher", "subscriber", "service server", "service client")
+
+
+def decode_graph(body: bytes) -> list:
+    """A ``micro_ros_msgs/msg/Graph`` CDR body as [(namespace, name, [(kind, entity name,
+    (types...)), ...]), ...], read as rmw_microxrcedds reads it (little endian, as both agents
+    send it)."""
+    from xrce.cdr import CdrReader
+
+    reader = CdrReader(body)
+    nodes = []
+    for _ in range(reader.u32()):
+        namespace, name = reader.string(), reader.string()
+        entities = []
+        for _ in range(reader.u32()):
+            kind, entity = reader.u8(), reader.string()
+            entities.append((GRAPH_ENTITY_KINDS[kind], entity,
+                             tuple(reader.string() for _ in range(reader.u32()))))
+        nodes.append((namespace, name, entities))
+    return nodes
+
+
+class BoardView:
+    """What rmw_microxrcedds answers from one Graph: ``rcl_get_node_names``,
+    ``rcl_get_topic_names_and_types`` (publishers' and subscribers' names with their types),
+    ``rcl_count_publishers/subscribers`` (entities of that kind and name over all nodes) and the
+    service names and types."""
+
+    def __init__(self, graph: list):
+        self.nodes = sorted((namespace.rstrip("/") + "/" + name) for namespace, name, _ in graph)
+        self.topics = defaultdict(set)
+        self.services = defaultdict(set)
+        self.counts = defaultdict(int)  # (kind, name) -> entities
+        self.by_node = {}
+        for namespace, name, entities in graph:
+            self.by_node[namespace.rstrip("/") + "/" + name] = entities
+            for kind, entity, types in entities:
+                self.counts[(kind, entity)] += 1
+                target = self.topics if kind in ("publisher", "subscriber") else self.services
+                target[entity].update(types)
+
+    def node_topics(self, node: str) -> set:
+        """(kind, topic, types) of one node's publishers and subscribers."""
+        return {(kind, entity, types) for kind, entity, types in self.by_node.get(node, ())
+                if kind in ("publisher", "subscriber")}

@@ -83,7 +83,8 @@ def test_name_mapping():
     assert dds_topic_to_ros("rt/robot1/cmd_vel") == ("topic", "/robot1/cmd_vel")
     assert dds_topic_to_ros("rq/add_two_intsRequest") == ("request", "/add_two_ints")
     assert dds_topic_to_ros("rr/add_two_intsReply") == ("reply", "/add_two_ints")
-    assert dds_topic_to_ros("plain_topic") == ("topic", "/plain_topic")
+    # No ROS prefix: a DDS-level topic, kept out of the ROS graph (qos_profile(dds_level=True)).
+    assert dds_topic_to_ros("plain_topic") == ("dds", "/plain_topic")
     with pytest.raises(MiddlewareError):
         dds_topic_to_ros("rt/bad name!")
     assert node_name_and_namespace("robot/talker", "fb") == ("talker", "/robot")

@@ -77,6 +77,10 @@ NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # stop request is seen if its wake-up sample were lost, nothing else runs on this period.
 IDLE_WAIT_S = 5.0
 
+# The wake topic outside the ROS graph (see _make_agent_node); bench/domain_wake.py sets it
+# False for its baseline, the wake topic as a ROS topic.
+WAKE_DDS_LEVEL = True
+
 EXECUTOR_EVENTS = "events"
 EXECUTOR_SINGLE = "single"
 
@@ -157,11 +161,13 @@ class DomainRuntime:
         self.nodes.add(node)
         self.agent_node = node
         if self._events:
-            # Hidden (leading underscore) and unique per process and domain, so that no other
-            # agent's wake-ups reach this one; reliable depth 1: one pending wake-up is enough.
+            # Unique per process and domain, so that no other agent's wake-ups reach this one;
+            # reliable depth 1: one pending wake-up is enough. A DDS-level topic (no rt/
+            # prefix): ROS graph tools never list it, even with hidden topics shown.
             topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
             profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                 history=HistoryPolicy.KEEP_LAST)
+                                 history=HistoryPolicy.KEEP_LAST,
+                                 avoid_ros_namespace_conventions=WAKE_DDS_LEVEL)
             wake_type = raw_message_type(_WAKE_TYPE)
             node.create_subscription(wake_type, topic, self._on_wake, profile, raw=True)
             publisher = node.create_publisher(wake_type, topic, profile)
