@@ -119,7 +119,7 @@ def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
     def publishers():
         try:
             # no_demangle: the wake topic is a DDS-level one, which ROS listings leave out.
-            return dict(ros_peer.node.get_publisher_names_and_types_by_node("xrce_agent", "/",
+            return dict(ros_peer.node.get_publisher_names_and_types_by_node("_xrce_agent", "/",
                                                                              no_demangle=True))
         except Exception:  # the node is not discovered yet
             return {}

@@ -186,3 +186,113 @@ def test_graph_capture_replayed_gets_micro_ros_agents_graph(ros_peer, ros_domain
         pytest.xfail("actions are not bridged on this branch: the action server's entities were "
                      "left out of the comparison (%d STATUS differ: %s)"
                      % (len(mismatched), sorted(mismatched)))
+
+
+def _first_step(capture: Capture, predicate) -> int:
+    return next(i for i, (_b, data) in enumerate(capture.steps)
+                if data[0] > 0x80 and len(data) > 4 and predicate(data))
+
+
+def _ros_graph(node) -> tuple:
+    """What rclpy's graph API lists, hidden names included: (topics, nodes, services)."""
+    return ({name for name, _ in node.get_topic_names_and_types()},
+            set(node.get_node_names_and_namespaces()),
+            {name for name, _ in node.get_service_names_and_types()})
+
+
+def _node_owned(node, nodes) -> tuple:
+    """(topics, services) of ``nodes`` (name, namespace) by rclpy's per-node listings."""
+    topics, services = set(), set()
+    for name, namespace in nodes:
+        for listing, into in ((node.get_publisher_names_and_types_by_node, topics),
+                              (node.get_subscriber_names_and_types_by_node, topics),
+                              (node.get_service_names_and_types_by_node, services),
+                              (node.get_client_names_and_types_by_node, services)):
+            into.update(entry for entry, _ in listing(name, namespace))
+    return topics, services
+
+
+@pytest.mark.timeout(240)
+def test_ros_graph_beside_a_board_shows_only_the_board(ros_peer, ros_domain):  # noqa: F811
+    """With the graph firmware up (two nodes, parameter server, graph reader), rclpy's graph API
+    lists the board's nodes, topics and services and the test's own, nothing of the agent's: not
+    its wake topic, not the graph topic (DDS-level, as with eProsima's agents), no service. Its
+    one node is hidden (``_xrce_agent``), which ``ros2 node list`` leaves out."""
+    capture = Capture("graph")
+    _ros_types()
+    teardown = _first_step(capture, lambda data: data[4] == C.DELETE)
+    with AgentProcess("udp4", "-m", "dds", "-v", "0", "--no-diagnostics",
+                      "--interfaces", str(INTERFACES)) as agent:
+        channel = UdpChannel(agent.port)
+        try:
+            replay = Replayer(capture, channel, domain_id=ros_domain)
+            replay.run(until_step=teardown)
+            board = {("feat_fw", "/mcu"), ("feat_aux", "/mcu2"), ("microros_graph", "/")}
+            own = (ros_peer.node.get_name(), "/")
+            agent_node = ("_xrce_agent", "/")
+            node = ros_peer.node
+
+            def settled():
+                topics, nodes, _services = _ros_graph(node)
+                return board | {own, agent_node} <= nodes and "/mcu2/latched" in topics \
+                    and "/mcu/feat_fw/get_parameters" in _ros_graph(node)[2]
+            assert wait_until(settled, 20), _ros_graph(node)
+            topics, nodes, services = _ros_graph(node)
+            raw = {name for name, _ in node.get_topic_names_and_types(no_demangle=True)}
+            board_topics, board_services = _node_owned(node, board)
+            own_topics, own_services = _node_owned(node, [own])
+        finally:
+            channel.close()
+    assert nodes == board | {own, agent_node}, sorted(nodes)
+    assert agent_node[0].startswith("_")  # rclpy.node.HIDDEN_NODE_PREFIX: ros2 node list hides it
+    assert topics == board_topics | own_topics, sorted(topics - board_topics - own_topics)
+    assert services == board_services | own_services, \
+        sorted(services - board_services - own_services)
+    assert "/mcu/feat_fw/get_parameters" in services and "/mcu2/latched" in topics
+    listed = (topics | services) - own_topics - own_services
+    assert not [name for name in listed if "xrce" in name or "graph" in name
+                and name != "/graph_probe"], sorted(listed)
+    # They exist, at DDS level only: the graph topic (board reader, agent writer), the wake topic.
+    assert "/ros_to_microros_graph" in raw and any("/_xrce_agent/wake_" in name for name in raw)
+
+
+@pytest.mark.timeout(240)
+def test_no_graph_where_no_client_asked(ros_peer, ros_domain):  # noqa: F811
+    """A board without graph support (main capture) gets the agent to publish no Graph: no
+    writer on the graph topic, nothing for a DDS-level reader of it; a graph firmware that then
+    joins the same domain gets one at once (the check is not blind)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    _ros_types()
+    from micro_ros_msgs.msg import Graph
+
+    graphs = []
+    dds_level = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                           avoid_ros_namespace_conventions=True)
+    ros_peer.node.create_subscription(Graph, "ros_to_microros_graph", graphs.append, dds_level)
+
+    def writers():
+        return ros_peer.node.get_publishers_info_by_topic("/ros_to_microros_graph",
+                                                          no_mangle=True)
+
+    plain, graph = Capture("main"), Capture("graph")
+    with AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces", str(INTERFACES)) as agent:
+        channels = [UdpChannel(agent.port), UdpChannel(agent.port)]
+        try:
+            Replayer(plain, channels[0], domain_id=ros_domain).run(
+                until_step=_first_step(plain, lambda data: data[4] == C.WRITE_DATA))
+            assert wait_until(lambda: ros_peer.node.count_publishers("/sensor_state") >= 1, 15)
+            # Nothing to wait for but time: the agent's check period is 0.5 s.
+            assert not wait_until(lambda: graphs or writers(), 3), (graphs, writers())
+
+            reader = _graph_reader(graph)
+            Replayer(graph, channels[1], domain_id=ros_domain).run(
+                until_step=_first_step(graph, lambda data: data[4] == C.WRITE_DATA))
+            assert reader and wait_until(lambda: len(writers()) == 1 and graphs, 15), \
+                (writers(), len(graphs))
+            names = {node.node_name for node in graphs[-1].nodes}
+            assert {"feat_fw", "tb3_fw", ros_peer.node.get_name()} <= names, names
+        finally:
+            for channel in channels:
+                channel.close()

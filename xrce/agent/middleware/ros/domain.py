@@ -77,6 +77,7 @@ NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # stop request is seen if its wake-up sample were lost, nothing else runs on this period.
 IDLE_WAIT_S = 5.0
 
+AGENT_NODE_NAME = "_xrce_agent"
 # The wake topic outside the ROS graph (see _make_agent_node); bench/domain_wake.py sets it
 # False for its baseline, the wake topic as a ROS topic.
 WAKE_DDS_LEVEL = True
@@ -140,7 +141,8 @@ class DomainRuntime:
         self._wake_publisher = None
         self._wake_pending = False  # a wake-up sample is on its way: later posts need none
         self.nodes: set[Node] = set()
-        # The agent's own node ``xrce_agent``: hosts the wake topic and RosMiddleware.agent_publisher.
+        # The agent's own node ``_xrce_agent``: hosts the wake topic, RosMiddleware.agent_publisher
+        # and the graph topic's writer.
         self.agent_node: Node | None = None
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
@@ -156,7 +158,9 @@ class DomainRuntime:
                          use_global_arguments=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
 
     def _make_agent_node(self) -> None:
-        node = self.make_node("xrce_agent")
+        # Hidden (HIDDEN_NODE_PREFIX): ros2 node list leaves it out, as it shows no node of
+        # micro_ros_agent's own; rclpy's graph API still lists it.
+        node = self.make_node(AGENT_NODE_NAME)
         self.executor.add_node(node)
         self.nodes.add(node)
         self.agent_node = node

@@ -376,7 +376,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
     def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
                         on_matched=None):
-        """An ``AgentPublisher`` of the agent's own node ``xrce_agent`` in a domain already
+        """An ``AgentPublisher`` of the agent's own node ``_xrce_agent`` in a domain already
         joined, made on first use and destroyed with the domain; None when the agent has not
         joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
         (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
