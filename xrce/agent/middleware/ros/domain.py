@@ -21,7 +21,10 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   rclpy guard conditions are "not supported" by it, and a future completed from another thread
   never ends its spin), so each domain's agent node subscribes to a private wake topic and
   ``post``/``call`` publish one empty sample to it: its callback runs the queued jobs on the
-  executor thread (measured 29 µs p50, 67 µs p99 from post to job). Between events the thread
+  executor thread (measured 29 µs p50, 67 µs p99 from post to job). The wake topic is a
+  DDS-level one (``avoid_ros_namespace_conventions``): as a ROS topic it showed in every ROS
+  topic listing; bench/domain_wake.py measures both in one run (97 vs 96 µs p50 on the loaded
+  2-core machine: the same). Between events the thread
   waits in rclpy with a long timeout: 0.0 % of a core idle, where the former 2 ms spin slices
   cost about 2 % (and ``spin()`` without a timeout busy-loops in this rclpy). The
   SingleThreadedExecutor is woken by a guard condition of the agent node whose callback runs the
