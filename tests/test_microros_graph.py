@@ -214,15 +214,22 @@ def _node_owned(node, nodes) -> tuple:
 
 
 @pytest.mark.timeout(240)
-def test_ros_graph_beside_a_board_shows_only_the_board(ros_peer, ros_domain):  # noqa: F811
+@pytest.mark.parametrize("diagnostics", (False, True))
+def test_ros_graph_beside_a_board_shows_only_the_board(diagnostics, ros_peer,
+                                                       ros_domain):  # noqa: F811
     """With the graph firmware up (two nodes, parameter server, graph reader), rclpy's graph API
-    lists the board's nodes, topics and services and the test's own, nothing of the agent's: not
-    its wake topic, not the graph topic (DDS-level, as with eProsima's agents), no service. Its
-    one node is hidden (``_xrce_agent``), which ``ros2 node list`` leaves out."""
+    lists the board's nodes, topics and services and the test's own, nothing of the agent's: no
+    node (its entities live on a board's node while there is one), not its wake topic, not the
+    graph topic (DDS-level, as with eProsima's agents), no service. With /diagnostics on (the
+    default), that topic, which the agent publishes on purpose, and the hidden node that
+    publishes it (``_xrce_agent``, which ``ros2 node list`` leaves out) are the only additions."""
     capture = Capture("graph")
     _ros_types()
     teardown = _first_step(capture, lambda data: data[4] == C.DELETE)
-    with AgentProcess("udp4", "-m", "dds", "-v", "0", "--no-diagnostics",
+    agent_topics = {"/diagnostics"} if diagnostics else set()
+    agent_nodes = {("_xrce_agent", "/")} if diagnostics else set()
+    options = () if diagnostics else ("--no-diagnostics",)
+    with AgentProcess("udp4", "-m", "dds", "-v", "0", *options,
                       "--interfaces", str(INTERFACES)) as agent:
         channel = UdpChannel(agent.port)
         try:
@@ -230,23 +237,26 @@ def test_ros_graph_beside_a_board_shows_only_the_board(ros_peer, ros_domain):  #
             replay.run(until_step=teardown)
             board = {("feat_fw", "/mcu"), ("feat_aux", "/mcu2"), ("microros_graph", "/")}
             own = (ros_peer.node.get_name(), "/")
-            agent_node = ("_xrce_agent", "/")
             node = ros_peer.node
 
             def settled():
                 topics, nodes, _services = _ros_graph(node)
-                return board | {own, agent_node} <= nodes and "/mcu2/latched" in topics \
+                return board | {own} | agent_nodes <= nodes and "/mcu2/latched" in topics \
                     and "/mcu/feat_fw/get_parameters" in _ros_graph(node)[2]
             assert wait_until(settled, 20), _ros_graph(node)
             topics, nodes, services = _ros_graph(node)
             raw = {name for name, _ in node.get_topic_names_and_types(no_demangle=True)}
             board_topics, board_services = _node_owned(node, board)
             own_topics, own_services = _node_owned(node, [own])
+            agents_topics, agents_services = _node_owned(node, agent_nodes)
         finally:
             channel.close()
-    assert nodes == board | {own, agent_node}, sorted(nodes)
-    assert agent_node[0].startswith("_")  # rclpy.node.HIDDEN_NODE_PREFIX: ros2 node list hides it
-    assert topics == board_topics | own_topics, sorted(topics - board_topics - own_topics)
+    assert nodes == board | {own} | agent_nodes, sorted(nodes)
+    assert all(name.startswith("_") for name, _ in agent_nodes)  # rclpy.node.HIDDEN_NODE_PREFIX
+    assert agents_topics == agent_topics and not agents_services, (agents_topics, agents_services)
+    assert topics == board_topics | own_topics | agent_topics, \
+        sorted(topics - board_topics - own_topics)
+    assert not agent_topics & board_topics  # not under a board's node: the board would list it
     assert services == board_services | own_services, \
         sorted(services - board_services - own_services)
     assert "/mcu/feat_fw/get_parameters" in services and "/mcu2/latched" in topics

@@ -104,13 +104,18 @@ GRAPH_SPEC = TopicSpec(GRAPH_TOPIC, GRAPH_TYPE)
 
 
 class AgentPublisher:
-    """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
+    """A publisher of the agent's own that takes CDR bodies (no encapsulation header), on the
+    agent's hidden node (``DomainRuntime.host``, visible)."""
 
-    __slots__ = ("publisher", "matched_events")
+    __slots__ = ("publisher", "matched_events", "_make")
 
-    def __init__(self, publisher, matched_events: bool = False):
-        self.publisher = publisher
-        self.matched_events = matched_events
+    def __init__(self, make):
+        self._make = make  # node -> (rclpy publisher, matched events or not)
+        self.publisher = None
+        self.matched_events = False
+
+    def attach(self, node) -> None:
+        self.publisher, self.matched_events = self._make(node)
 
     def write(self, body: bytes) -> None:
         self.publisher.publish(ENCAPSULATION_LE + body)
@@ -252,14 +257,11 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
         def make_node():
             node = domain.make_node(node_name, namespace)
-            domain.executor.add_node(node)
-            domain.nodes.add(node)
+            domain.add_client_node(node)
             return node
 
         def destroy_node(node):
-            domain.executor.remove_node(node)
-            domain.nodes.discard(node)
-            node.destroy_node()
+            domain.remove_client_node(node)
 
         try:
             node, _ = self._create_on_executor(key, _ParticipantRecord(domain, None), make_node,
@@ -376,7 +378,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
     def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
                         on_matched=None):
-        """An ``AgentPublisher`` of the agent's own node ``_xrce_agent`` in a domain already
+        """An ``AgentPublisher`` of the agent's own (``DomainRuntime.host``) in a domain already
         joined, made on first use and destroyed with the domain; None when the agent has not
         joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
         (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
@@ -397,18 +399,19 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             except RuntimeError:  # the loop has closed: the agent is gone
                 pass
 
-        def make_publisher():
+        def make_publisher(node):
             if on_matched is not None:
                 from rclpy.event_handler import PublisherEventCallbacks
                 try:
-                    return domain.agent_node.create_publisher(
+                    return node.create_publisher(
                         message_type, topic, depth,
                         event_callbacks=PublisherEventCallbacks(matched=matched)), True
                 except Exception as exc:  # an RMW without the matched event
                     log.debug("%s: no matched events (%s)", topic, exc)
-            return domain.agent_node.create_publisher(message_type, topic, depth), False
+            return node.create_publisher(message_type, topic, depth), False
 
-        publisher = AgentPublisher(*domain.call(make_publisher, self.entity_timeout_s))
+        publisher = AgentPublisher(make_publisher)
+        domain.call(lambda: domain.host(publisher, visible=True), self.entity_timeout_s)
         self._agent_publishers[(domain_id, topic)] = publisher
         return publisher
 
@@ -474,9 +477,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             domain, node = record.domain, record.node
 
             def destroy_node():
-                domain.executor.remove_node(node)
-                domain.nodes.discard(node)
-                node.destroy_node()
+                domain.remove_client_node(node)
 
             del self._entities[key]
             self._on_executor(record, destroy_node)

@@ -7,8 +7,8 @@ prefix) and answers ``rcl_get_topic_names_and_types``, ``rcl_count_publishers/su
 graph manager (micro-ROS-Agent, ``graph_manager.cpp``) keeps that topic published; this module does
 what it does, from what rclpy sees of the graph:
 
-- what: every node of the domain's ROS graph (the agent's own node left out: it is not one of
-  micro_ros_agent's, whose graph participant has no node), each with its publishers and
+- what: every node of the domain's ROS graph (the agent's hidden anchor node, should another
+  agent's be up, left out: micro_ros_agent's graph participant has no node), each with its publishers and
   subscriptions as ROS names and ``pkg/msg/T`` types; and under every node, as micro_ros_agent
   has it, every service of the whole graph twice: as SERVICE_SERVER each service with a request
   topic, as SERVICE_CLIENT each with a reply topic (``pkg/srv/T`` types, action services as
@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
+from xrce.agent.middleware.ros.domain import AGENT_NODE_NAME, ENCAPSULATION_LE, DomainRuntime, log
 from xrce.cdr import CdrWriter
 
 GRAPH_TOPIC = "ros_to_microros_graph"  # the DDS name rmw_microxrcedds reads
@@ -158,11 +158,15 @@ class GraphFeed:
         self._check()
 
     def _start(self) -> None:
+        if self.domain.agent_node is None or self.publisher is not None:
+            return
+        self.domain.host(self)
+        log.debug("domain %d: publishing %s", self.domain.domain_id, GRAPH_TOPIC)
+
+    def attach(self, node) -> None:
+        """Executor thread (DomainRuntime.host): the writer and its check on ``node``."""
         from rclpy.event_handler import PublisherEventCallbacks
 
-        node = self.domain.agent_node
-        if node is None or self.publisher is not None:
-            return
         try:
             self.publisher = node.create_publisher(
                 self.message_type, GRAPH_TOPIC, GRAPH_QOS,
@@ -171,12 +175,18 @@ class GraphFeed:
             log.debug("%s: no matched events (%s)", GRAPH_TOPIC, exc)
             self.publisher = node.create_publisher(self.message_type, GRAPH_TOPIC, GRAPH_QOS)
         self.timer = node.create_timer(self.period_s, self._check)
-        log.debug("domain %d: publishing %s", self.domain.domain_id, GRAPH_TOPIC)
-        self._check()
+        self._check(always=True)
+
+    def move(self, old, new) -> None:
+        publisher, timer = self.publisher, self.timer
+        self.attach(new)
+        old.destroy_timer(timer)
+        old.destroy_publisher(publisher)
 
     def _stop(self) -> None:
         node = self.domain.agent_node
         publisher, timer, self.publisher, self.timer = self.publisher, self.timer, None, None
+        self.domain.unhost(self)
         if node is None:
             return
         if timer is not None:
@@ -194,7 +204,7 @@ class GraphFeed:
         if self.publisher is None or node is None:
             return
         try:
-            sample = graph_sample(node, (node.get_name(), node.get_namespace()))
+            sample = graph_sample(node, (AGENT_NODE_NAME, "/"))
         except Exception:
             log.exception("domain %d: cannot read the ROS graph", self.domain.domain_id)
             return
