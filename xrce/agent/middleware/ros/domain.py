@@ -129,9 +129,15 @@ class _Wake:
         # Unique per process and domain, so that no other agent's wake-ups reach this one.
         self.topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
         self.entities = ()
+        self.generation = 0  # which attach() a callback comes from
 
     def attach(self, node: Node) -> None:
         runtime = self.runtime
+        self.generation += 1
+        generation = self.generation
+
+        def on_wake(_sample=None) -> None:
+            runtime._on_wake(generation)
         if runtime._events:
             # Reliable depth 1: one pending wake-up is enough; transient local: one sent before
             # a moved pair has matched still arrives. A DDS-level topic (no rt/ prefix): ROS
@@ -141,8 +147,8 @@ class _Wake:
                                  durability=WAKE_DURABILITY,
                                  avoid_ros_namespace_conventions=WAKE_DDS_LEVEL)
             wake_type = raw_message_type(_WAKE_TYPE)
-            subscription = node.create_subscription(wake_type, self.topic, runtime._on_wake,
-                                                    profile, raw=True)
+            subscription = node.create_subscription(wake_type, self.topic, on_wake, profile,
+                                                    raw=True)
             publisher = node.create_publisher(wake_type, self.topic, profile)
             publish = publisher.publish
             runtime._wake_publisher = lambda: publish(_WAKE_SAMPLE)
@@ -153,17 +159,19 @@ class _Wake:
             # again for the rest of its timeout when no callback is ready (the jobs then waited up
             # to 5 s, about 1 call in 6 under load). A guard condition with a callback is work the
             # executor runs, so spin_once returns after it.
-            guard = runtime._wake_guard = node.create_guard_condition(runtime._on_wake)
+            guard = runtime._wake_guard = node.create_guard_condition(on_wake)
             self.entities = ((node.destroy_guard_condition, guard),)
 
     def move(self, _old: Node, new: Node) -> None:
+        runtime = self.runtime
         old_entities = self.entities
         self.attach(new)
-        # A wake-up sent to the old topic may be lost with it; this runs as a job, and the
-        # executor looks at the queue again after it, so the next post must wake it anew.
-        self.runtime._wake_pending = False
-        for destroy, entity in old_entities:
-            destroy(entity)
+        # This runs as a job, most often from the old entity's own callback: destroying it now
+        # crashes the EventsExecutor (a segfault, seen when a board's last node went). It is
+        # destroyed from the first callback of the new one, which a wake-up now brings.
+        runtime.retire(lambda: [destroy(entity) for destroy, entity in old_entities])
+        runtime._wake_pending = False
+        runtime._wake()
 
 
 class DomainRuntime:
@@ -199,6 +207,8 @@ class DomainRuntime:
         self._anchor: Node | None = None  # the hidden ``_xrce_agent``, only while no client's
         self._hosted: list = []  # moved with the host (DDS-level)
         self._pinned: list = []  # on the anchor for good (ROS topics)
+        self._wake_item: _Wake | None = None
+        self._retired: list = []  # destroyers waiting for a safe callback (retire())
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
         self.thread.start()
@@ -227,7 +237,8 @@ class DomainRuntime:
 
     def _make_agent_node(self) -> None:
         self.agent_node = self._raise_anchor()
-        self.host(_Wake(self))
+        self._wake_item = _Wake(self)
+        self.host(self._wake_item)
 
     def _raise_anchor(self) -> Node:
         # Hidden (rclpy.node.HIDDEN_NODE_PREFIX): even while it exists, ros2 node list leaves it
@@ -274,9 +285,7 @@ class DomainRuntime:
             self._move_host(node)
             if not self._pinned:
                 self._anchor = None
-                self.executor.remove_node(anchor)
-                self.nodes.discard(anchor)
-                anchor.destroy_node()
+                self.retire(lambda: self._destroy_node(anchor))  # it hosted the wake-up
 
     def remove_client_node(self, node: Node) -> None:
         """Executor thread: destroy a client's node, the agent's entities moved off it first
@@ -286,13 +295,31 @@ class DomainRuntime:
         if self.agent_node is node:
             self._move_host(self.client_nodes[0] if self.client_nodes else
                             self._anchor or self._raise_anchor())
+            self.retire(lambda: self._destroy_node(node))  # it hosted the wake-up (_Wake.move)
+            return
+        self._destroy_node(node)
+
+    def _destroy_node(self, node: Node) -> None:
         self.executor.remove_node(node)
         self.nodes.discard(node)
         node.destroy_node()
 
-    def _on_wake(self, _sample) -> None:
-        """Wake topic callback (executor thread)."""
+    def retire(self, destroy) -> None:
+        """Executor thread: ``destroy()`` from the next wake-up callback of the current wake
+        entity, when no callback of what it destroys can be running."""
+        self._retired.append(destroy)
+
+    def _on_wake(self, generation: int) -> None:
+        """Wake-up callback (executor thread) of the ``generation``-th wake entity."""
         self._wake_pending = False  # before draining: a job posted from now on wakes us again
+        if self._retired and self._wake_item is not None and \
+                generation == self._wake_item.generation:
+            retired, self._retired = self._retired, []
+            for destroy in retired:
+                try:
+                    destroy()
+                except Exception:
+                    log.exception("domain %d: destroying a moved entity failed", self.domain_id)
         self._run_jobs()
 
     def _wake(self) -> None:
@@ -389,6 +416,7 @@ class DomainRuntime:
         self._wake_guard = None
         self._hosted.clear()
         self._pinned.clear()
+        self._retired.clear()  # their nodes are all destroyed below
         for node in list(self.nodes):
             self.executor.remove_node(node)
             node.destroy_node()

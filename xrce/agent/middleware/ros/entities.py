@@ -424,7 +424,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         record.graph_domain = domain.domain_id
         entry = self._graph_feeds.get(domain.domain_id)
         if entry is None or entry[0].domain is not domain:
-            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE))
+            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._get_loop())
             entry = self._graph_feeds[domain.domain_id] = [feed, 0]
             feed.start()
         entry[1] += 1
@@ -514,7 +514,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                 or any(c.domain is domain for c in self._creating.values()):
             return
         del self._domains[domain_id]
-        self._graph_feeds.pop(domain_id, None)  # its writer goes with the agent node
+        feed = self._graph_feeds.pop(domain_id, None)
+        if feed is not None:
+            feed[0].stop()  # its periodic check; its writer goes with the domain's nodes
         for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
             del self._agent_publishers[publisher_key]
         log.debug("ROS domain %d has no participant left: leaving it", domain_id)
@@ -565,6 +567,8 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             return
         self._closed = True
         self._agent_publishers.clear()
+        for feed, _readers in self._graph_feeds.values():
+            feed.stop()
         self._graph_feeds.clear()
         self._domain_listeners.clear()
         for record in self._entities.values():

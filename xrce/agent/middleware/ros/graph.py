@@ -17,13 +17,13 @@ what it does, from what rclpy sees of the graph:
   transient local, keep last 1; the board's reader is a DDS reader of that topic like any other
   (``types.dds_topic_to_ros``, kind "dds"), so other boards of the domain get it too, as they get
   micro_ros_agent's.
-- when: on every change of the graph, and whenever a reader matches the writer (a volatile reader
-  that matched after the last change would otherwise wait for the next one). micro_ros_agent is
+- when: on every change of the graph, and whenever a reader has matched the writer (a volatile
+  reader that matched after the last change would otherwise wait for the next one). micro_ros_agent is
   told of changes by Fast DDS discovery; rclpy offers no graph-change event (rcl's graph guard
   condition is not reachable from Python), so the domain's thread compares the graph every
-  ``CHECK_PERIOD_S`` and publishes only when it differs. That check runs only in a domain where a
+  ``CHECK_PERIOD_S`` (a job the loop posts) and publishes only when it differs. That check runs only in a domain where a
   client has a reader on the topic, from its first such reader to its last: a domain where no
-  client asked for the graph gets no writer and no timer.
+  client asked for the graph gets no writer and no check.
 
 Everything here runs on the domain's executor thread (``DomainRuntime.post``); the loop only
 counts readers.
@@ -128,23 +128,37 @@ def graph_sample(node, own: tuple[str, str]) -> bytes:
 class GraphFeed:
     """``ros_to_microros_graph`` kept published in one domain (module docstring)."""
 
-    def __init__(self, domain: DomainRuntime, message_type, period_s: float = CHECK_PERIOD_S):
+    def __init__(self, domain: DomainRuntime, message_type, loop,
+                 period_s: float = CHECK_PERIOD_S):
         self.domain = domain
         self.message_type = message_type  # types.raw_message_type(GRAPH_TYPE)
+        self.loop = loop
         self.period_s = period_s
         self.publisher = None
-        self.timer = None
+        self._tick = None  # the loop's timer handle of the next periodic check
         self.last = None  # the last Graph published (CDR body)
         self.published = 0
         self._check_posted = False  # a check is queued on the executor thread: no second one
+        self._readers = 0  # the writer's matched readers at the last check
 
     def start(self) -> None:
-        """Loop thread: make the writer and its check on the executor thread."""
+        """Loop thread: make the writer on the executor thread; check periodically.
+
+        The period is kept by the loop, which posts each check as a job: an rclpy timer would
+        have to move between nodes with the writer (``DomainRuntime.host``)."""
         self.domain.post(self._start)
+        self._tick = self.loop.call_later(self.period_s, self._periodic)
 
     def stop(self) -> None:
         """Loop thread: the writer and its check go (the domain's nodes may be gone already)."""
+        if self._tick is not None:
+            self._tick.cancel()
+            self._tick = None
         self.domain.post(self._stop)
+
+    def _periodic(self) -> None:
+        self.changed()
+        self._tick = self.loop.call_later(self.period_s, self._periodic)
 
     def changed(self) -> None:
         """Loop thread: the agent changed the graph (an entity of a client made or deleted):
@@ -164,45 +178,36 @@ class GraphFeed:
         log.debug("domain %d: publishing %s", self.domain.domain_id, GRAPH_TOPIC)
 
     def attach(self, node) -> None:
-        """Executor thread (DomainRuntime.host): the writer and its check on ``node``."""
-        from rclpy.event_handler import PublisherEventCallbacks
+        """Executor thread (DomainRuntime.host): the writer on ``node``, and a Graph for it.
 
-        try:
-            self.publisher = node.create_publisher(
-                self.message_type, GRAPH_TOPIC, GRAPH_QOS,
-                event_callbacks=PublisherEventCallbacks(matched=self._matched))
-        except Exception as exc:  # an RMW without the matched event: the check still publishes
-            log.debug("%s: no matched events (%s)", GRAPH_TOPIC, exc)
-            self.publisher = node.create_publisher(self.message_type, GRAPH_TOPIC, GRAPH_QOS)
-        self.timer = node.create_timer(self.period_s, self._check)
+        No matched-event callback: the EventsExecutor crashed (a segfault, the GIL not held)
+        dispatching the event of a writer destroyed with its readers, so each check compares
+        the writer's reader count instead."""
+        self.publisher = node.create_publisher(self.message_type, GRAPH_TOPIC, GRAPH_QOS)
+        self._readers = 0
         self._check(always=True)
 
     def move(self, old, new) -> None:
-        publisher, timer = self.publisher, self.timer
+        publisher = self.publisher
         self.attach(new)
-        old.destroy_timer(timer)
         old.destroy_publisher(publisher)
 
     def _stop(self) -> None:
         node = self.domain.agent_node
-        publisher, timer, self.publisher, self.timer = self.publisher, self.timer, None, None
+        publisher, self.publisher = self.publisher, None
         self.domain.unhost(self)
-        if node is None:
-            return
-        if timer is not None:
-            node.destroy_timer(timer)
-        if publisher is not None:
+        if node is not None and publisher is not None:
             node.destroy_publisher(publisher)
         log.debug("domain %d: %s no longer published", self.domain.domain_id, GRAPH_TOPIC)
-
-    def _matched(self, info) -> None:
-        if getattr(info, "current_count_change", 1) > 0:
-            self._check(always=True)
 
     def _check(self, always: bool = False) -> None:
         node = self.domain.agent_node
         if self.publisher is None or node is None:
             return
+        readers = self.publisher.get_subscription_count()
+        if readers > self._readers:  # one matched since the last Graph: it has none yet
+            always = True
+        self._readers = readers
         try:
             sample = graph_sample(node, (AGENT_NODE_NAME, "/"))
         except Exception:
