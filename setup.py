@@ -2,7 +2,8 @@
 
 With a ROS 2 sourced in the installing shell (ROS_DISTRO set) xrce runs on that ROS and must not pull
 a second one from PyPI; otherwise the ros-jazzy-* wheels from PyPI are a dependency (on the platforms
-PyPI has them for). XRCE_ROS=pypi|system overrides the guess. The rules live in
+PyPI has them for). XRCE_ROS=pypi|system overrides the guess; XRCE_ROS_DISTRO=kilted takes the
+ros-kilted-* wheels (Fast DDS 3) instead of Jazzy's. The rules live in
 xrce/agent/middleware/ros/env.py, loaded by path: the package itself is not importable in pip's
 build environment.
 

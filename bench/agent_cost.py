@@ -1,13 +1,17 @@
 """What the agent costs the robot's computer: CPU per message, idle CPU, robot load, memory, ping.
 
     .venv/bin/python bench/agent_cost.py [--quick] [--reference DIR] [--robot-only RUNS]
+        [--agent-cmd CMD]
 
 Run as ``bench/run.py --only cost`` or alone. Every figure comes from ``/proc/<agent pid>/stat``
 (utime + stime of all its threads) or ``/proc/<agent pid>/status`` (VmRSS). ``--reference DIR``
 runs the same measurements, in the same run, against the agent of another source tree (e.g. an
 unpacked older commit): the figure is this tree's agent, the baseline that one's. Without it the
 baseline is the closest floor measured in the same run: bare rclpy ``publish(bytes)`` per message,
-a bare rclpy process idle, a Python UDP echo for ping.
+a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only``)
+takes another agent started from a command line as the reference, e.g. eProsima's MicroXRCEAgent
+(``/work/peers/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
+/dev/shm (``unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && ...'``).
 
 - "CPU per delivered message": bench/xrce_flood.py offers Twist samples at a fixed rate
   (best-effort: one pre-encoded datagram per sample, a C client's cost) into a raw EventsExecutor
@@ -35,7 +39,8 @@ import threading
 import time
 from pathlib import Path
 
-from procs import interrupt, read_until  # noqa: E402  (bench/ is the script's directory)
+from peer_agent import CommandAgent  # noqa: E402  (bench/ is the script's directory)
+from procs import interrupt, read_until  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -122,6 +127,13 @@ class Agent:
 
     def stop(self):
         interrupt(self.proc, 20)
+
+
+class OtherAgent(CommandAgent):
+    """An agent from a command line (``--agent-cmd``), measured as ``Agent`` is."""
+
+    cpu_over = Agent.cpu_over
+    main_thread_over = Agent.main_thread_over
 
 
 def bare_rclpy_idle(env, seconds):
@@ -300,15 +312,18 @@ def measure_tree(tree, env, domain_id, quick, sink, robot_env=None, robot_domain
     return out
 
 
-def robot_only(env, domain_id, runs, reference=None, tree=None):
-    """Only the TurtleBot3 figures (CPU, RSS), ``runs`` times, this tree and the reference taking
-    turns in each run (a memory change is checked in minutes, not the whole bench's half hour);
-    each run's figures, then the medians and ranges."""
+def robot_only(env, domain_id, runs, reference=None, tree=None, agent_cmd=None):
+    """Only the TurtleBot3 figures (CPU, RSS), ``runs`` times, this tree and the reference (a tree,
+    or ``agent_cmd``) taking turns in each run (a memory change is checked in minutes, not the
+    whole bench's half hour); each run's figures, then the medians and ranges."""
     trees = [("here", tree or str(REPO))] + ([("reference", reference)] if reference else [])
+    if agent_cmd:
+        trees.append(("reference", None))
+        reference = agent_cmd
     results = {label: [] for label, _ in trees}
     for run in range(runs):
         for label, path in trees:
-            agent = Agent(path, env)
+            agent = Agent(path, env) if path is not None else OtherAgent(agent_cmd, env)
             try:
                 cpu, rss, threads = robot_load(agent, env, domain_id, IDLE_SECONDS)
             finally:
@@ -450,13 +465,19 @@ def main(argv=None):
                         help="measure the agent of this source tree instead of this checkout's")
     parser.add_argument("--robot-only", type=int, metavar="RUNS",
                         help="only the TurtleBot3 load's CPU and RSS, RUNS times (medians)")
+    parser.add_argument("--agent-cmd", metavar="CMD",
+                        help="with --robot-only: another agent's command line (it gets "
+                             "'udp4 -p PORT') as the reference, e.g. /work/peers/agent.sh")
     args = parser.parse_args(argv)
+    if args.agent_cmd and (args.reference or not args.robot_only):
+        parser.error("--agent-cmd goes with --robot-only and without --reference")
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
         if args.robot_only:
-            robot_only(env, lease.domain_id, args.robot_only, args.reference, args.tree)
+            robot_only(env, lease.domain_id, args.robot_only, args.reference, args.tree,
+                       args.agent_cmd)
         else:
             cost_benchmarks(env, lease.domain_id, args.quick, args.reference, args.tree)
     finally:

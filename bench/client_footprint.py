@@ -207,6 +207,101 @@ def run(report, argv):
     report("TOTAL with time sync, ping and delete used", mpheap.live - start)
 """
 
+# Parameters and actions load only when a firmware makes a parameter server or an action
+# server/client: what each adds on top of a session with one publisher and one subscriber (the
+# headline above, which neither changes).
+FEATURE_SESSION = r"""
+import mpheap
+
+class _NullTransport:
+    mtu = 512
+    def send(self, data):
+        return True
+    def recv(self, timeout_ms):
+        return None
+    def close(self):
+        pass
+
+def _session():
+    from xrce.client.session import Session
+    from xrce.msgs.std_msgs import String
+    from xrce.msgs.geometry_msgs import Twist
+    session = Session(_NullTransport(), key=b"\x01\x02\x03\x04")
+    node = session.create_participant(name="footprint")
+    session.create_writer(node, "/chatter", String, reliable=False)
+    session.create_reader(node, "/cmd_vel", Twist, lambda message: None)
+    session.flush()
+    return session, node
+"""
+
+PARAMETERS_SOURCE = FEATURE_SESSION + r"""
+def run(report, argv):
+    yield
+    session, node = _session()
+    yield
+    start = mpheap.live
+    import xrce.client.parameters
+    yield
+    imported = mpheap.live
+    report("import xrce.client.parameters (+ rcl_interfaces package)", imported - start)
+    params = xrce.client.parameters.ParameterServer(session, node, "/footprint")
+    params.declare("motor_kp", 120, min_value=0, max_value=1000)
+    params.declare("wheel_radius", 0.033)
+    params.declare("use_imu", True)
+    params.declare("robot_name", "tb3")
+    session.flush()
+    yield
+    report("server: 6 services, /parameter_events, 4 parameters (types + objects)", mpheap.live - imported)
+    # One request served: the set path and the event it publishes (plans of the types it encodes).
+    from xrce.msgs import rcl_interfaces
+    callback = session._readers[params.repliers[2]][0]
+    request = rcl_interfaces.SetParameters.Request(parameters=[rcl_interfaces.Parameter(
+        name="motor_kp", value=rcl_interfaces.ParameterValue(type=2, integer_value=150))])
+    callback(bytes(24), request)
+    request = None
+    session.flush()
+    yield
+    report("TOTAL parameter server after serving a set", mpheap.live - start)
+"""
+
+ACTIONS_SOURCE = FEATURE_SESSION + r"""
+def run(report, argv):
+    yield
+    session, node = _session()
+    yield
+    start = mpheap.live
+    import xrce.client.actions
+    yield
+    imported = mpheap.live
+    report("import xrce.client.actions (+ the action_msgs package)", imported - start)
+    from xrce.msgs.test_msgs import Fibonacci
+    yield
+    typed = mpheap.live
+    report("test_msgs/action/Fibonacci (its 8 types, 3 descriptors)", typed - imported)
+    server = xrce.client.actions.ActionServer(session, node, "/fibonacci", Fibonacci,
+                                              lambda goal: True, max_goals=2)
+    session.flush()
+    yield
+    served = mpheap.live
+    report("action server, 2 goals at most (entities + objects)", served - typed)
+    # One goal accepted, one feedback: the send-goal, status and feedback paths.
+    request = Fibonacci.SendGoal.Request()
+    request.goal_id.uuid = bytes(range(16))
+    request.goal.order = 5
+    session._readers[server.send_goal_replier][0](bytes(24), request)
+    request = None
+    server.active()[0].publish_feedback(Fibonacci.Feedback(sequence=[0, 1, 1]))
+    session.flush()
+    yield
+    executing = mpheap.live
+    report("server with one goal executing", executing - served)
+    client = xrce.client.actions.ActionClient(session, node, "/fibonacci_peer", Fibonacci, max_goals=2)
+    session.flush()
+    yield
+    report("action client, 2 goals at most (entities + objects)", mpheap.live - executing)
+    report("TOTAL actions (server with a goal + client)", mpheap.live - start)
+"""
+
 MESSAGES_SOURCE = r"""
 import gc
 from xrce.cdr import CdrWriter
@@ -316,6 +411,8 @@ def build_steps(iterations):
         Step("cdr_twist", CDR_TWIST_SOURCE, cpython=True, argv=[iterations]),
         Step("client_session", SESSION_SOURCE, stepped=True),
         Step("messages", MESSAGES_SOURCE, cpython=True, argv=[iterations]),
+        Step("parameters", PARAMETERS_SOURCE, stepped=True),
+        Step("actions", ACTIONS_SOURCE, stepped=True),
     ]
 
 

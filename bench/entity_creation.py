@@ -27,6 +27,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from agent_process import AgentProcess  # noqa: E402
 from figures import record  # noqa: E402
 from microros_replay import Capture, Replayer, UdpChannel  # noqa: E402
+from peer_agent import CommandAgent  # noqa: E402
 from xrce import constants as C  # noqa: E402
 
 INTERFACES = REPO / "tests" / "interfaces"
@@ -71,46 +72,66 @@ def figures_of(sent, answered):
     }
 
 
-def measure(env, runs):
+def _replay_set_up(agent, capture, until, creates, domain_id=None):
+    """(seconds each CREATE was sent at, seconds each was answered at) against ``agent``, the
+    firmware's participant in ``domain_id`` (None: the capture's, 0)."""
+    channel = UdpChannel(agent.port)
+    try:
+        replay = Replayer(capture, channel, domain_id=domain_id)
+        answers = replay.run(until_step=until)
+    finally:
+        channel.close()
+    bad = {hex(rid): answers.statuses.get((0, rid)) for rid in creates
+           if answers.statuses.get((0, rid), (0, None))[1] not in (C.STATUS_OK,
+                                                                   C.STATUS_OK_MATCHED)}
+    if bad:
+        raise RuntimeError("set-up CREATEs not answered OK: %r" % bad)
+    return ({rid: t for (_b, rid), t in replay.sent_at.items()},
+            {rid: t for (_b, rid), t in replay.answered_at.items()})
+
+
+def measure(env, runs, agent_cmd=None, domain_id=None):
+    """(each run's figures, each run's whole set-up) for this agent and for the other one (live
+    with ``agent_cmd``, else once from the capture), the capture, the set-up's request ids. The
+    firmware's participant asks for ``domain_id`` (None: the capture's domain 0)."""
     capture = Capture("main")
     until, creates = _set_up(capture)
-    runs_figures = []
-    whole = []
+    starts = [("xrce", lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
+                                            str(INTERFACES), env=env))]
+    if agent_cmd:
+        starts.append(("other", lambda: CommandAgent(agent_cmd, env)))
+    results = {name: ([], []) for name, _ in starts}
     for _ in range(runs):
-        with AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces", str(INTERFACES),
-                          env=env) as agent:
-            channel = UdpChannel(agent.port)
-            try:
-                replay = Replayer(capture, channel)
-                answers = replay.run(until_step=until)
-            finally:
-                channel.close()
-        bad = {hex(rid): answers.statuses.get((0, rid)) for rid in creates
-               if answers.statuses.get((0, rid), (0, None))[1] != C.STATUS_OK}
-        if bad:
-            raise RuntimeError("set-up CREATEs not answered OK: %r" % bad)
-        sent = {rid: t for (_b, rid), t in replay.sent_at.items()}
-        answered = {rid: t for (_b, rid), t in replay.answered_at.items()}
-        runs_figures.append(figures_of(sent, answered))
-        whole.append(answered[creates[-1]] - sent[creates[0]])
-    return runs_figures, whole, figures_of(*_eprosima(capture)), capture, creates
+        for name, start in starts:
+            with start() as agent:
+                sent, answered = _replay_set_up(agent, capture, until, creates, domain_id)
+            results[name][0].append(figures_of(sent, answered))
+            results[name][1].append(answered[creates[-1]] - sent[creates[0]])
+    if not agent_cmd:
+        sent, answered = _eprosima(capture)
+        results["other"] = ([figures_of(sent, answered)],
+                            [answered[creates[-1]] - sent[creates[0]]])
+    return results, creates
 
 
-def report(record_, env, runs=5):
-    runs_figures, whole, eprosima, capture, creates = measure(env, runs)
-    sent, answered = _eprosima(capture)
-    for name, baseline in eprosima.items():
+def report(record_, env, runs=5, agent_cmd=None, domain_id=None):
+    results, creates = measure(env, runs, agent_cmd, domain_id)
+    (runs_figures, whole), (other_figures, other_whole) = results["xrce"], results["other"]
+    baseline_name = ("%s, same CREATEs, live, median of %d" % (agent_cmd, runs) if agent_cmd
+                     else "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)")
+    for name in runs_figures[0]:
         values = [figures[name] * 1000 for figures in runs_figures]
+        others = [figures[name] * 1000 for figures in other_figures]
         record_("entity creation: %s (median of %d fresh agents)" % (name, runs),
-                statistics.median(values), "ms", baseline * 1000,
-                "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)",
+                statistics.median(values), "ms", statistics.median(others), baseline_name,
                 "<= 2x eProsima" if name != "participant (node)" else "",
-                "runs: %s" % ", ".join("%.1f" % v for v in values))
+                "runs: %s; other: %s" % (", ".join("%.1f" % v for v in values),
+                                         ", ".join("%.1f" % v for v in others)))
     record_("entity creation: the firmware's whole set-up, %d CREATEs (median)" % len(creates),
-            statistics.median(whole) * 1000, "ms",
-            (answered[creates[-1]] - sent[creates[0]]) * 1000,
-            "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)", "",
-            "runs: %s" % ", ".join("%.1f" % (v * 1000) for v in whole))
+            statistics.median(whole) * 1000, "ms", statistics.median(other_whole) * 1000,
+            baseline_name, "",
+            "runs: %s; other: %s" % (", ".join("%.1f" % (v * 1000) for v in whole),
+                                     ", ".join("%.1f" % (v * 1000) for v in other_whole)))
 
 
 def build_interfaces():
@@ -126,13 +147,19 @@ def main(argv=None):
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--other-domain", action="store_true",
+                        help="the firmware's node in the capture's domain 0, not the agent's own "
+                        "(ROS_DOMAIN_ID): the agent then starts a DDS participant for it")
+    parser.add_argument("--agent-cmd", metavar="CMD",
+                        help="another agent (e.g. /work/peers/agent.sh), measured in the same run")
     args = parser.parse_args(argv)
     build_interfaces()
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
-        report(record, env, args.runs)
+        report(record, env, args.runs, args.agent_cmd,
+               None if args.other_domain else lease.domain_id)
     finally:
         lease.release()
     from figures import print_table

@@ -41,6 +41,11 @@ class RecordingTransport:
         self.last_sent = bytes(message)
         return self.inner.send(message)
 
+    def send_from(self, buf, length):
+        # The session sends through send_from where a transport has one: without this, __getattr__
+        # would hand it the inner transport's and nothing would be recorded.
+        return self.send(memoryview(buf)[:length])
+
 
 def capture_best_effort_datagram(session, writer, sample):
     """The exact datagram Session.write + flush produces for one best-effort sample."""

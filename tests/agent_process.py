@@ -13,6 +13,19 @@ sys.path.insert(0, str(REPO / "bench"))
 from procs import read_until  # noqa: E402
 
 
+# The signals tests send their children. A process started with them ignored (a background job of
+# a script, ``nohup sh -c '...' &``) passes SIG_IGN on to every child it starts: an agent or client
+# a test stops with Ctrl-C would then go on running. Every test child that gets a signal starts with
+# these at their defaults, as it would from a terminal.
+SIGNALS_TESTS_SEND = (signal.SIGINT, signal.SIGTERM)
+
+
+def restore_default_signals():
+    """``preexec_fn`` for a test's child process: the signals tests send at their defaults."""
+    for signum in SIGNALS_TESTS_SEND:
+        signal.signal(signum, signal.SIG_DFL)
+
+
 def _is_banner(line):
     return line.startswith("xrce-agent:") and ("agent on port" in line or "pseudoterminal at" in line
                                                or "serial" in line)
@@ -38,7 +51,7 @@ class AgentProcess:
     def __enter__(self):
         self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *self.args], cwd=self.cwd,
                                      env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True)
+                                     text=True, preexec_fn=restore_default_signals)
         line, output = read_until(self.proc, _is_banner, self.start_timeout)
         self.output.append(output)
         if line is not None:

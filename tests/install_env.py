@@ -25,7 +25,7 @@ from unittest import mock
 
 import pytest
 
-from agent_process import AgentProcess
+from agent_process import AgentProcess, restore_default_signals
 
 REPO = Path(__file__).resolve().parents[1]
 PYTHON_DIR = "python%d.%d" % sys.version_info[:2]
@@ -45,7 +45,7 @@ def clean_env(**extra):
 
 def run(command, env=None, timeout=300, cwd=None):
     return subprocess.run([str(c) for c in command], env=env, cwd=cwd, stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, timeout=timeout)
+                          stderr=subprocess.STDOUT, text=True, timeout=timeout, preexec_fn=restore_default_signals)
 
 
 def _pip_output(result):
@@ -137,7 +137,10 @@ def wheel_venv(tmp_path_factory, xrce_wheels):
     root = tmp_path_factory.mktemp("wheel-venv")
     started = time.monotonic()
     python = make_venv(root)
-    install = run([python, "-m", "pip", "install", "-q", xrce_wheels["pypi"]], env=clean_env(), timeout=600)
+    # --no-compile: byte-compiling the ~250 MB of ROS wheels was 18 of 41 s of the install
+    # (docs/PERFORMANCE.md "CI time"); Python compiles the few modules a test imports itself.
+    install = run([python, "-m", "pip", "install", "-q", "--no-compile", xrce_wheels["pypi"]],
+                  env=clean_env(), timeout=600)
     assert install.returncode == 0, _pip_output(install)[-3000:]
     print("fresh venv with the xrce wheel and its ROS 2 wheels: %.1f s" % (time.monotonic() - started))
     return python, venv_site(root)
@@ -173,8 +176,8 @@ def sourced_ros(tmp_path_factory):
     python = make_venv(root / "venv")
     prefix = root / "opt" / "ros" / "jazzy"
     # --ignore-installed: the prefix holds the whole ROS, as /opt/ros does, whatever pip runs in.
-    laid_out = run([python, "-m", "pip", "install", "-q", "--prefix", prefix, "--ignore-installed",
-                    *rosenv.PYPI_ROS_REQUIREMENTS], env=clean_env(), timeout=600)
+    laid_out = run([python, "-m", "pip", "install", "-q", "--no-compile", "--prefix", prefix,
+                    "--ignore-installed", *rosenv.pypi_ros_requirements()], env=clean_env(), timeout=600)
     assert laid_out.returncode == 0, _pip_output(laid_out)[-3000:]
     ros = SourcedRos(prefix, root / "venv")
     install = run([python, "-m", "pip", "install", "-q", REPO], env=ros.env(), timeout=300)

@@ -63,31 +63,36 @@ class Answers:
         self.last_reliable = {}  # boot -> highest sequence number on the agent's stream 0x80
         self.acked = {}  # boot -> first sequence number of ours the agent has not acknowledged
         self.heartbeats = defaultdict(int)
-        # boot -> {sequence number, unwrapped: message} of the agent's reliable stream, the first
-        # copy of each, for samples() to reassemble (DATA in FRAGMENTs) in order.
-        self.reliable = defaultdict(dict)
-        self._epoch = defaultdict(lambda: [0, None])  # boot -> [wraps, last raw sequence number]
+        # (boot, object id) -> the samples of its DATA in order (a replier's begin with the
+        # request's 24-byte sample identity, which the firmware's reply echoes)
+        self.samples = defaultdict(list)
+        self._fragments = {}  # boot -> bytes of the FRAGMENTs of the message being reassembled
 
     def note(self, boot: int, message: bytes) -> list:
         """Record one message from the agent; the HEARTBEATs in it (to answer)."""
         session, stream_id = message[0], message[1]
         seq = message[2] | (message[3] << 8)
+        new = True
         if stream_id == FIRMWARE_STREAM:
-            if seq > self.last_reliable.get(boot, -1):
+            new = seq > self.last_reliable.get(boot, -1)
+            if new:
                 self.last_reliable[boot] = seq
-            epoch = self._epoch[boot]
-            if epoch[1] is not None and seq < epoch[1] - 0x8000:
-                epoch[0] += 1
-            if epoch[1] is None or seq > epoch[1] or seq < epoch[1] - 0x8000:
-                epoch[1] = seq
-            self.reliable[boot].setdefault(epoch[0] * 0x10000 + seq, message)
         heartbeats = []
         start = 4 if session >= 0x80 else 8
-        for sub_id, _flags, body in _submessages(message, start):
-            if sub_id == C.STATUS and len(body) >= 6:
+        for sub_id, flags, body in _submessages(message, start):
+            if sub_id == C.FRAGMENT and new:
+                # A sample larger than the MTU (reliable stream only): its DATA once whole.
+                whole = self._fragments.pop(boot, b"") + body
+                if flags & C.FLAG_LAST_FRAGMENT:
+                    for inner_id, _inner_flags, inner in _submessages(whole, 0):
+                        if inner_id == C.DATA and len(inner) >= 4:
+                            self._note_data(boot, inner)
+                else:
+                    self._fragments[boot] = whole
+            elif sub_id == C.STATUS and len(body) >= 6:
                 self.statuses[(boot, (body[0] << 8) | body[1])] = ((body[2] << 8) | body[3], body[4])
             elif sub_id == C.DATA and len(body) >= 4:
-                self.data[(boot, (body[0] << 8) | body[1])] += 1
+                self._note_data(boot, body)
             elif sub_id == C.STATUS_AGENT and body:
                 self.status_agent.append((boot, body[0]))
             elif sub_id == C.INFO:
@@ -102,29 +107,9 @@ class Answers:
                 heartbeats.append(body)
         return heartbeats
 
-
-    def samples(self, boot: int, object_id: int) -> list:
-        """The sample bodies the agent sent on its reliable stream in DATA for ``object_id`` (a
-        reader's), FRAGMENTs reassembled, in stream order."""
-        found = []
-        pieces = bytearray()
-        for seq in sorted(self.reliable[boot]):
-            message = self.reliable[boot][seq]
-            start = 4 if message[0] >= 0x80 else 8
-            for sub_id, flags, body in _submessages(message, start):
-                if sub_id == C.FRAGMENT:
-                    pieces += body
-                    if not flags & C.FLAG_LAST_FRAGMENT:
-                        continue
-                    whole, pieces = bytes(pieces), bytearray()
-                    inner = list(_submessages(whole, 0))
-                else:
-                    inner = [(sub_id, flags, body)]
-                for inner_id, _flags, inner_body in inner:
-                    if inner_id == C.DATA and len(inner_body) >= 4 and \
-                            (inner_body[2] << 8) | inner_body[3] == object_id:
-                        found.append(bytes(inner_body[4:]))
-        return found
+    def _note_data(self, boot: int, body: bytes) -> None:
+        self.data[(boot, (body[0] << 8) | body[1])] += 1
+        self.samples[(boot, (body[2] << 8) | body[3])].append(bytes(body[4:]))
 
 
 class Capture:
@@ -253,8 +238,14 @@ class Replayer:
     """Send a capture's firmware side to an agent and collect what it answers (module docstring)."""
 
     def __init__(self, capture: Capture, channel, status_timeout: float = 30.0,
-                 cancel_timeout: float = 3.0, domain_id: int | None = None):
+                 cancel_timeout: float = 3.0, domain_id: int | None = None,
+                 answer_requests: bool = False):
         self.capture = capture
+        # The firmware's replies echo the sample identity of the request DATA eProsima's agent
+        # sent it: with ``answer_requests``, the reply to eProsima's n-th request on a replier waits
+        # for this agent's n-th request DATA there and echoes its identity instead (derived from
+        # the agent's answers, like the ACKNACKs), so that ROS-side callers get their replies.
+        self.answer_requests = answer_requests
         # A ROS test's leased domain for the firmware's participant (it asks for domain 0): the
         # one rewrite besides the README's, so that the test's ROS graph stays its own.
         self.domain_id = domain_id
@@ -326,8 +317,33 @@ class Replayer:
             offset = (offset + 4 + length + 3) & ~3
         return bytes(out)
 
+    def _answering(self, boot: int, data: bytes) -> bytes:
+        """``data`` with the identity of each reply it carries rewritten (see ``answer_requests``)."""
+        if not self.answer_requests or data[0] <= 0x80:
+            return data
+        out = None
+        offset = 4
+        while offset + 4 <= len(data):
+            sub_id = data[offset]
+            length = data[offset + 2] | (data[offset + 3] << 8)
+            body = data[offset + 4:offset + 4 + length]
+            if sub_id == C.WRITE_DATA and len(body) >= 28:
+                key = (boot, (body[2] << 8) | body[3])
+                theirs = [sample[:24] for sample in self.capture.eprosima.samples.get(key, ())]
+                if body[4:28] in theirs:
+                    index = theirs.index(body[4:28])
+                    if not self.wait(lambda: len(self.answers.samples.get(key, ())) > index,
+                                     self.status_timeout):
+                        raise AssertionError("%s: the agent sent no request %d to replier 0x%04X "
+                                             "within %.0f s" % (self.capture.name, index + 1,
+                                                                key[1], self.status_timeout))
+                    out = out or bytearray(data)
+                    out[offset + 8:offset + 32] = self.answers.samples[key][index][:24]
+            offset = (offset + 4 + length + 3) & ~3
+        return data if out is None else bytes(out)
+
     def _send(self, boot: int, data: bytes) -> None:
-        data = self._in_domain(data)
+        data = self._answering(boot, self._in_domain(data))
         session, stream_id = data[0], data[1]
         seq = data[2] | (data[3] << 8)
         if session > 0x80 and stream_id == FIRMWARE_STREAM:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from agent_process import restore_default_signals
 from xrce import constants as C
 from xrce.agent.cli import load_refs
 from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
@@ -57,7 +58,8 @@ class AgentProcess:
         self.stderr_path = tmp_path / ("agent-stderr-%d.txt" % time.monotonic_ns())
         self._stderr = open(self.stderr_path, "wb")
         self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", *args], cwd=REPO,
-                                     env=_env(), stdout=subprocess.PIPE, stderr=self._stderr)
+                                     env=_env(), stdout=subprocess.PIPE, stderr=self._stderr,
+                                     preexec_fn=restore_default_signals)
         self.banner = None
 
     def wait_banner(self):
@@ -587,7 +589,7 @@ def test_stats_json_is_one_snapshot_and_a_closed_reader_ends_it_quietly(agent):
     # `xrce-agent stats | head -n 1`: the reader goes away while the view keeps refreshing.
     view = subprocess.Popen([sys.executable, "-m", "xrce.agent", "stats", "-p", str(stats_port),
                              "-i", "0.05"], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
+                            stderr=subprocess.PIPE, preexec_fn=restore_default_signals)
     try:
         assert view.stdout.readline().startswith(b"xrce-agent up ")
         view.stdout.close()

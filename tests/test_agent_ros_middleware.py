@@ -349,7 +349,8 @@ async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer): 
 
 
 # What a process bridging the TurtleBot3's topics has imported: the raw type handles, the deferred
-# rosidl code generator and asyncio without TLS keep these out (each costs megabytes of RSS).
+# rosidl code generator and asyncio without TLS keep these out (each costs megabytes of RSS); the
+# raw types' C type support comes from each package's C library, not its Python extension module.
 _FOOTPRINT_SCRIPT = r"""
 import sys
 from xrce.agent.launcher import _import_asyncio_without_tls
@@ -389,8 +390,16 @@ async def main():
         assert publisher.subscriber_count() == 0
     finally:
         await mw.close()
-    print(" ".join(sorted(name for name in ("numpy", "lark", "em", "ssl", "hashlib")
-                          if sys.modules.get(name) is not None)))
+    names = [name for name in ("numpy", "lark", "em", "ssl", "hashlib")
+             if sys.modules.get(name) is not None]
+    try:
+        from xrce.agent.engine._fastpath import message_type_support
+    except ImportError:  # without the compiled helper the packages' Python modules serve
+        print("no compiled helper: the raw types came from the Python type support modules")
+    else:
+        # With it, from the C type support libraries: no package's Python extension is loaded.
+        names += [name for name in sys.modules if name.endswith("_s__rosidl_typesupport_c")]
+    print(" ".join(sorted(names)))
 
 asyncio.run(main())
 """
@@ -516,3 +525,46 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
         assert not mw._creating
     finally:
         await agent.close()
+
+
+async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  # noqa: F811
+    """With park_creation, a participant in a domain the agent has not joined parks its client
+    while the domain's context, executor and DDS participant start on a thread of their own:
+    another client is answered meanwhile, then the participant is created in that domain."""
+    from engine_peer import BIN, Link, Peer
+    from ros_helpers import DomainLease
+    from xrce import constants as C
+    from xrce.agent.engine.dispatch import Agent
+    from xrce.objects import ParticipantBin
+    from xrce.submessages import Create, GetInfo
+
+    lease = DomainLease()
+    mw = RosMiddleware(park_creation=True)
+    agent = Agent(mw)
+    await agent.start()
+    link = Link()
+    creating = Peer(agent, link, ("h", 1))
+    other = Peer(agent, link, ("h", 2), key=b"\x01\x02\x03\x04")
+    try:
+        assert creating.connect()[1] == C.STATUS_OK and other.connect()[1] == C.STATUS_OK
+        assert lease.domain_id not in mw.domain_ids()
+        request = creating.next_request()
+        creating.send(0x80, Create(request, 0x0011, C.OBJK_PARTICIPANT, BIN,
+                                   ParticipantBin("joins"), lease.domain_id))
+        # Parked, and the domain not joined in the loop's time: that happens on a thread.
+        assert not creating.statuses() and lease.domain_id not in mw.domain_ids()
+        other.send(0, GetInfo(0x77))
+        assert [p.ID for _, ps in other.take() for p in ps] == [C.INFO]  # answered meanwhile
+        answers = {}
+
+        def seen():
+            answers.update({rid: status for _, rid, status in creating.statuses()})
+            return request in answers
+        assert await async_wait_until(seen, 20.0)
+        assert answers[request] == C.STATUS_OK
+        assert lease.domain_id in mw.domain_ids()
+        node = mw._entities[(agent.clients[creating.key].key_int, 0x0011)].node
+        assert node.get_name() == "joins" and node.context is mw._domains[lease.domain_id].context
+    finally:
+        await agent.close()
+        lease.release()

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from agent_process import restore_default_signals
 from xrce import constants as C
 from xrce.client import cli
 from xrce.message import decode_header, iter_submessages
@@ -63,7 +64,8 @@ class Process:
 
     def __init__(self, module, *args):
         self.proc = subprocess.Popen([sys.executable, "-m", module, *args], cwd=REPO, env=_env(),
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     preexec_fn=restore_default_signals)
         self.stdout = []
         self.stderr = []
         self._changed = threading.Condition()
@@ -447,7 +449,8 @@ def test_pub_follows_ros_domain_id_and_reaches_a_default_qos_ros_subscriber(ros_
         pub = subprocess.Popen([sys.executable, "-m", "xrce.client", "pub", "udp4", "-p", str(agent.port),
                                 "--topic", "chatter", "--type", "std_msgs/msg/String", "--data",
                                 "hello", "--count", "0", "--rate", "10"], cwd=REPO, env=env,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=restore_default_signals)
         try:
             assert wait_until(lambda: len(received) >= 3, 60.0), len(received)
             pub.send_signal(signal.SIGINT)
@@ -459,3 +462,20 @@ def test_pub_follows_ros_domain_id_and_reaches_a_default_qos_ros_subscriber(ros_
     assert pub.returncode == 130, err
     assert out.splitlines()[0] == "published 1 on chatter: {data: hello} (confirmed)"
     assert {m.data for m in received} == {"hello"}
+
+
+def test_children_get_ctrl_c_even_when_the_suite_was_started_with_it_ignored():
+    # As `nohup sh -c 'pytest ...' &` leaves the suite: SIGINT ignored, and passed on to every child
+    # as ignored; the Ctrl-C tests above then stop nothing. Children started through
+    # restore_default_signals see a Ctrl-C as from a terminal.
+    probe = "import signal; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        inherited = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                                   timeout=RUN_TIMEOUT)
+        restored = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                                  timeout=RUN_TIMEOUT, preexec_fn=restore_default_signals)
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert inherited.stdout.strip() == "False", inherited  # what the suite's children used to get
+    assert restored.stdout.strip() == "True", restored

@@ -215,7 +215,8 @@ def test_info_activity_with_and_without_agent_properties(properties, impl_status
     w = CdrWriter()
     Info(C.REQUEST_ID_PING, impl_status=impl_status, availability=availability, properties=properties).encode(w)
     message = bytes(8) + w.getvalue()  # where a payload starts: after a keyless header and its subheader
-    assert _agent_activity(message, 1, 8, len(message)) == (impl_status, availability)
+    assert _agent_activity(message, 1, 8, len(message)) == availability
+    assert message[8 + 5] == impl_status  # read by the session where it needs it
 
 
 def test_discovery_get_info_is_the_general_codecs():

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from agent_process import restore_default_signals
 from ros_helpers import RosPeer, ros_domain, ros_peer, wait_until  # noqa: F401
 
 REPO = Path(__file__).resolve().parent.parent
@@ -27,7 +28,8 @@ class Demo:
     def __init__(self, *args, env=None):
         self.proc = subprocess.Popen([sys.executable, "-m", "xrce.agent", "demo", *args], cwd=REPO,
                                      env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})),
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     preexec_fn=restore_default_signals)
         self.lines = []
         self._changed = threading.Condition()
         self._reader = threading.Thread(target=self._collect, daemon=True)

@@ -20,7 +20,7 @@ import time
 import pytest
 
 from install_env import (
-    REPO, _pip_output, clean_env, distributions_in, run, start_installed_agent,
+    REPO, _pip_output, clean_env, distributions_in, restore_default_signals, run, start_installed_agent,
     stop_listener_client_and_agent, venv_site,
 )
 from ros_helpers import ros_domain  # noqa: F401
@@ -129,7 +129,8 @@ def test_without_any_rclpy_dds_fails_in_one_line_and_ced_runs(sourced_ros, tmp_p
         tmp_path / "ros", other, sys.version_info[1]) in mismatched.stdout
 
     ced = subprocess.Popen([str(agent), "udp4", "-p", "0", "-m", "ced"], env=env, cwd=tmp_path,
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           preexec_fn=restore_default_signals)
     try:
         banner = ced.stdout.readline()
         assert re.match(r"xrce-agent: udp4 agent on port (\d+) \(middleware ced\)", banner), banner
@@ -201,7 +202,8 @@ def test_sourced_ros_agent_bridges_into_that_ros_and_builds_types_against_it(
         print("lazy build against the sourced ROS: %.1f s" % (time.monotonic() - started))
 
         listener = subprocess.Popen([str(sourced_ros.python), "-c", LISTENER], env=env, cwd=tmp_path,
-                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                    preexec_fn=restore_default_signals)
         first = listener.stdout.readline()
         assert first.startswith("rclpy %s" % (sourced_ros.site / "rclpy")), \
             first + listener.communicate(timeout=10)[0]

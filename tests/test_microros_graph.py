@@ -134,8 +134,8 @@ def test_graph_capture_replayed_gets_micro_ros_agents_graph(ros_peer, ros_domain
     else:
         assert not mismatched, "(object, status) micro_ros_agent vs ours: %r" % mismatched
 
-    their_graphs = [decode_graph(body) for body in theirs.samples(0, reader)]
-    our_graphs = [decode_graph(body) for body in ours.samples(0, reader)]
+    their_graphs = [decode_graph(body) for body in theirs.samples[(0, reader)]]
+    our_graphs = [decode_graph(body) for body in ours.samples[(0, reader)]]
     assert their_graphs and our_graphs, (len(their_graphs), len(our_graphs))
     their_view, our_view = _richest(their_graphs), _richest(our_graphs)
 

@@ -10,7 +10,7 @@ from geometry_msgs.msg import Twist
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-from agent_process import AgentProcess
+from agent_process import AgentProcess, restore_default_signals
 from procs import read_until
 from mp_harness import run_micropython
 from ros_helpers import ros_domain, ros_peer  # noqa: F401
@@ -122,7 +122,7 @@ class Namespace:
         # A session of its own: whatever the line starts can be killed with it (_kill).
         return subprocess.Popen(["nsenter", "--net=/proc/%d/ns/net" % self.holder.pid, "bash", "-c", line],
                                 cwd=README.parent, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True, start_new_session=True, **kwargs)
+                                text=True, start_new_session=True, preexec_fn=restore_default_signals, **kwargs)
 
     def close(self):
         self.holder.kill()

@@ -102,9 +102,13 @@ def test_output_buffers_are_sized_at_set_up_for_the_largest_sample():
     try:
         session = Session(transport, session_id=0x81, largest_sample=720)
         reliable, best_effort = session._outputs[session.reliable], session._outputs[session.best_effort]
-        # A 720-byte sample alone in a message: 4-byte header, subheader, request and object ids.
-        assert len(reliable.buf) == 4 + 4 + 4 + 720
-        assert len(best_effort.buf) == session.max_message  # never builds more than a message
+        # A 720-byte sample alone in a message: 4-byte header, subheader, request and object ids,
+        # in the reliable stream's large buffer; the history's buffers and the writer's are a
+        # message's (the fragments are built there), as the best-effort stream's (never more).
+        assert len(reliable.big) == 4 + 4 + 4 + 720
+        assert len(reliable.buf) == session.max_message
+        assert {len(buf) for buf in reliable.state.slots} == {session.max_message}
+        assert len(best_effort.buf) == session.max_message
         small = Session(transport, session_id=0x81)
         assert len(small._outputs[small.reliable].buf) == 64  # unsized: starts small and grows
         small.size_output_buffers(100)

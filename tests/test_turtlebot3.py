@@ -25,7 +25,7 @@ from nav_msgs.msg import Odometry as RosOdometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu as RosImu
 
-from agent_process import AgentProcess, child_pids
+from agent_process import AgentProcess, child_pids, restore_default_signals
 from mp_harness import run_micropython
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce.examples.turtlebot3 import ENCODER_TICKS_PER_REV, TurtleBot3
@@ -302,7 +302,8 @@ def pid_alive(pid):
 @pytest.mark.parametrize("serial", [False, True], ids=["udp", "serial"])
 def test_demo_prints_robot_topics_and_exits_cleanly_on_sigint(ros_domain, serial):  # noqa: F811
     command = [sys.executable, "-m", "xrce.agent", "demo"] + (["--serial"] if serial else [])
-    demo = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    demo = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=restore_default_signals)
     lines = []
     reader = threading.Thread(target=lambda: lines.extend(demo.stdout), daemon=True)
     reader.start()
@@ -348,3 +349,56 @@ def test_robot_pings_until_an_agent_appears_then_runs():
             robot.shutdown()
     finally:
         robot.transport.close()
+
+
+def _robot_process(port):
+    return subprocess.Popen([sys.executable, "-m", "xrce.examples.turtlebot3", "udp4", "-p", str(port)],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("with_agent", [False, True], ids=["waiting", "running"])
+def test_robot_command_line_ends_on_sigterm_and_sigint(signum, with_agent):
+    # Issue 32: SIGTERM was ignored while the robot still pinged for an agent (connect() forever).
+    # The real command line in a real process, the signal sent once it says where it is.
+    import socket
+    from contextlib import ExitStack
+
+    from procs import read_until
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with ExitStack() as stack:
+        if with_agent:
+            port = stack.enter_context(AgentProcess("udp4", "-m", "ced")).port
+        robot = _robot_process(port)
+        try:
+            marker = "turtlebot3: running" if with_agent else "waiting for the agent"
+            line, output = read_until(robot, lambda text: marker in text, 60)
+            assert line is not None, output
+            robot.send_signal(signum)
+            rest, _ = robot.communicate(timeout=20)
+        finally:
+            if robot.poll() is None:
+                robot.kill()
+                robot.communicate()
+        assert robot.returncode == 0, output + rest
+        assert "turtlebot3: at x=" in rest  # the clean exit's last status line
+
+
+def test_largest_sample_constant_is_the_largest_sample():
+    # LARGEST_SAMPLE sizes the session's buffers before the messages exist (issue 32): it must be
+    # what the largest of them serializes to, or /odom would grow a buffer in the loop.
+    from xrce.examples.turtlebot3 import LARGEST_SAMPLE
+
+    transport = UdpTransport("127.0.0.1", 9)
+    try:
+        robot = TurtleBot3(transport)
+        samples = (robot._sensor_state, robot._imu, robot._battery, robot._odom, robot._tf)
+        assert max(len(sample.to_bytes()) for sample in samples) == LARGEST_SAMPLE
+        reliable = robot.session._outputs[robot.session.reliable]
+        assert len(reliable.big) >= 4 + 8 + LARGEST_SAMPLE  # header, subheader and ids, the sample
+    finally:
+        transport.close()

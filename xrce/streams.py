@@ -77,27 +77,36 @@ class InputBestEffortStream:
 
 class OutputReliableStream:
     # Sent messages kept until acknowledged; at most ``history`` in flight.
+    #
+    # An agent ``commit``s each message as bytes, dropped once acknowledged. A client ``keep``s the
+    # buffer a message was built in with its length (``sizes``) and keeps the buffer once the
+    # message is acknowledged, to build a later one in (xrce.client.wire.Outbound._commit): no copy
+    # and no allocation per message, and ``on_acknack(..., session)`` sends retransmissions at once
+    # instead of returning a list.
 
     if not IS_MICROPYTHON:  # a board ignores __slots__ and would keep the tuple
-        __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "resent_at",
-                     "retransmissions", "suppressed", "stored_bytes")
+        __slots__ = ("stream_id", "history", "last_sent", "last_acknowledged", "slots", "sizes",
+                     "resent_at", "retransmissions", "suppressed", "stored_bytes")
 
     def __init__(self, stream_id, history):
         _check_history(history)
         self.stream_id = stream_id
         self.history = history
         self.slots = [None] * history
+        self.sizes = [0] * history  # keep(): the length of a slot's unacknowledged message, or 0
         self.resent_at = [None] * history
         self.retransmissions = 0
         self.suppressed = 0
         self.reset()
 
-    def reset(self):
+    def reset(self, keep_buffers=False):
         self.last_sent = _SEQ_INITIAL
         self.last_acknowledged = _SEQ_INITIAL
         self.stored_bytes = 0  # bytes of the messages kept for retransmission (an agent's budget)
         for i in range(self.history):
-            self.slots[i] = None
+            if not keep_buffers:
+                self.slots[i] = None
+            self.sizes[i] = 0
             self.resent_at[i] = None
 
     def in_flight(self):
@@ -121,6 +130,19 @@ class OutputReliableStream:
         self.last_sent = seq
         self.stored_bytes += len(message)
 
+    def keep(self, buf, length):
+        # ``buf[:length]`` is the next sequence number's message; returns the buffer the slot held.
+        if not self.has_room():
+            raise EncodeError("reliable stream out of order or full")
+        seq = seq_add(self.last_sent, 1)
+        slot = seq & (self.history - 1)
+        free = self.slots[slot]
+        self.slots[slot] = buf
+        self.sizes[slot] = length
+        self.resent_at[slot] = None
+        self.last_sent = seq
+        return free
+
     def pending(self):
         return self.last_sent != self.last_acknowledged
 
@@ -130,8 +152,9 @@ class OutputReliableStream:
             return None
         return seq_add(self.last_acknowledged, 1), self.last_sent
 
-    def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0):
-        # Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order.
+    def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0, session=None):
+        # Free what ``first_unacked`` acknowledges; return the messages to retransmit, in order
+        # (with ``session``, a client's: send them through its ``_send_from`` and return ()).
         #
         # A message is retransmitted at the first NACK that names it (so recovery is immediate, as
         # both eProsima peers do), but not again within ``holdoff_ms`` of that retransmission: a
@@ -142,26 +165,32 @@ class OutputReliableStream:
             while seq_less(self.last_acknowledged, seq_add(first_unacked, -1)):
                 self.last_acknowledged = seq_add(self.last_acknowledged, 1)
                 slot = self.last_acknowledged & (self.history - 1)
-                if self.slots[slot] is not None:
+                if self.sizes[slot]:
+                    self.sizes[slot] = 0  # a kept buffer (keep) stays for a later message
+                elif self.slots[slot] is not None:
                     self.stored_bytes -= len(self.slots[slot])
-                self.slots[slot] = None
-        resend = []
-        if nack_bitmap:
-            for i in range(_NACK_BITS):
-                if nack_bitmap & (1 << i):
-                    seq = seq_add(first_unacked, i)
-                    if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
-                        slot = seq & (self.history - 1)
-                        message = self.slots[slot]
-                        if message is None:
-                            continue
-                        last = self.resent_at[slot]
-                        if holdoff_ms and last is not None and ticks_diff(now_ms, last) < holdoff_ms:
-                            self.suppressed += 1
-                            continue
-                        self.resent_at[slot] = now_ms
+                    self.slots[slot] = None
+        if not nack_bitmap:
+            return ()
+        resend = [] if session is None else ()
+        for i in range(_NACK_BITS):
+            if nack_bitmap & (1 << i):
+                seq = seq_add(first_unacked, i)
+                if seq_less(self.last_acknowledged, seq) and not seq_less(self.last_sent, seq):
+                    slot = seq & (self.history - 1)
+                    message = self.slots[slot]
+                    if message is None or (session is not None and not self.sizes[slot]):
+                        continue
+                    last = self.resent_at[slot]
+                    if holdoff_ms and last is not None and ticks_diff(now_ms, last) < holdoff_ms:
+                        self.suppressed += 1
+                        continue
+                    self.resent_at[slot] = now_ms
+                    self.retransmissions += 1
+                    if session is None:
                         resend.append(message)
-        self.retransmissions += len(resend)
+                    else:
+                        session._send_from(message, self.sizes[slot])
         return resend
 
 class InputReliableStream:
@@ -204,6 +233,17 @@ class InputReliableStream:
         self._pop_consecutive(out)
         return out
 
+    def receive_next(self, seq):
+        # ``receive`` for the common case without its list: True, and ``seq`` handled, when it is the
+        # next in order and nothing is stored (the caller then processes that message itself);
+        # False otherwise, with nothing changed (call ``receive``).
+        if self.stored or seq != seq_add(self.last_handled, 1):
+            return False
+        self.last_handled = seq
+        if seq_less(self.last_announced, seq):
+            self.last_announced = seq
+        return True
+
     def _pop_consecutive(self, out):
         stored = self.stored
         while stored:
@@ -219,19 +259,24 @@ class InputReliableStream:
         # Note what the sender has sent; skip what it no longer holds. Returns deliverable messages.
         if seq_less(self.last_announced, last_unacked):
             self.last_announced = last_unacked
+        if not seq_less(seq_add(self.last_handled, 1), first_unacked):
+            return ()  # nothing skipped: no list (a client gets a HEARTBEAT every few messages)
+        # The sender gave up on messages before first_unacked: they will never come.
         out = []
-        if seq_less(seq_add(self.last_handled, 1), first_unacked):
-            # The sender gave up on messages before first_unacked: they will never come.
-            skip_to = seq_add(first_unacked, -1)
-            for seq in list(self.stored):
-                if not seq_less(skip_to, seq):
-                    self.stored_bytes -= len(self.stored.pop(seq))
-            self.last_handled = skip_to
-            self._pop_consecutive(out)
+        skip_to = seq_add(first_unacked, -1)
+        for seq in list(self.stored):
+            if not seq_less(skip_to, seq):
+                self.stored_bytes -= len(self.stored.pop(seq))
+        self.last_handled = skip_to
+        self._pop_consecutive(out)
         return out
 
     def acknack(self):
         # ``(first_unacked, nack_bitmap)`` for an ACKNACK of this stream.
+        return seq_add(self.last_handled, 1), self.nack_bitmap()
+
+    def nack_bitmap(self):
+        # The NACK bitmap of ``acknack`` alone: no tuple (first_unacked is last_handled + 1).
         first = seq_add(self.last_handled, 1)
         bitmap = 0
         for i in range(_NACK_BITS):
@@ -240,4 +285,4 @@ class InputReliableStream:
                 break
             if seq not in self.stored:
                 bitmap |= 1 << i
-        return first, bitmap
+        return bitmap

@@ -27,6 +27,7 @@ SOCK_STREAM is a real TCP connection in run.mjs' worker (nodeudp.open_tcp), read
 stream; ``readinto`` then returns 0 at the end of the stream, as the port's does.
 """
 
+import gc
 import io
 
 from uctypes import addressof
@@ -46,6 +47,11 @@ _EBADF = 9
 _MP_STREAM_POLL = 3
 _POLLIN = 1
 _POLLOUT = 4
+
+
+# Every byte recv() has allocated (gc.mem_alloc() growth inside it): the socket's own garbage, which
+# tests/micropython/session_alloc.py subtracts from what a session allocates.
+recv_allocated = 0
 
 
 def getaddrinfo(host, port, af=0, type=0, proto=0, flags=0):
@@ -102,12 +108,17 @@ class socket(io.IOBase):
         return count
 
     def recv(self, size):
+        global recv_allocated
         self._check()
+        before = gc.mem_alloc()
         buf = bytearray(size)  # the port's m_new(byte, size)
         count = self._read(addressof(buf), size, True)
         if count is None:
+            recv_allocated += gc.mem_alloc() - before
             raise OSError(_EAGAIN)
-        return bytes(memoryview(buf)[:count])
+        data = bytes(memoryview(buf)[:count])
+        recv_allocated += gc.mem_alloc() - before
+        return data
 
     def readinto(self, buf, nbytes=-1):
         self._check()

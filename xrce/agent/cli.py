@@ -368,8 +368,29 @@ register(Subcommand("demo", "run the agent, a simulated TurtleBot3 and a ROS nod
 _IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: this xrce, and the ROS 2 and RMW the agent would join, found without
+    importing rclpy (so it answers at once, and also where no rclpy can be had)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import platform
+
+        import xrce
+        from xrce.agent.middleware.ros import env as rosenv
+
+        sys.stdout.write("%s %s (DDS-XRCE 1.0, Python %s)\n%s\n" % (
+            PROG, xrce.__version__, platform.python_version(), rosenv.would_use()))
+        sys.stdout.flush()
+        parser.exit(0)
+
+
 def build_parser():
     parser = ArgumentParser(prog=PROG, description="Micro XRCE-DDS agent (MicroXRCEAgent-compatible)")
+    parser.add_argument("--version", action=_VersionAction,
+                        help="print xrce's version and the ROS 2 and RMW the agent would use")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
     for row in SUBCOMMANDS.values():
         child = sub.add_parser(row.name, help=row.help, description=row.help)
@@ -593,9 +614,9 @@ def main(argv=None):
             return 1
         from xrce.agent.middleware.ros import fastdds_profile, rclpy_services
         rclpy_services.defer_unused()  # before anything imports rclpy.node
-        if fastdds_profile.install():  # before any participant: Fast DDS reads it once
-            logging.getLogger("xrce.agent.rosenv").debug(
-                "Fast DDS participant profile: %s", fastdds_profile.PROFILE_PATH)
+        profile = fastdds_profile.install()  # before any participant: Fast DDS reads it once
+        if profile:
+            logging.getLogger("xrce.agent.rosenv").debug("Fast DDS participant profile: %s", profile)
     try:
         return asyncio.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown

@@ -290,7 +290,7 @@ def run(args):
         else:
             robot_link = ["udp4", "--agent", "127.0.0.1", "-p", re.search(r"on port (\d+)", banner).group(1)]
         robot = subprocess.Popen([sys.executable, "-m", "xrce.examples.turtlebot3", *robot_link,
-                                  "--domain", str(domain)],
+                                  "--domain", str(domain), "--ros-extras"],
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                  start_new_session=True, env=env)
         _forward_output(robot, "[robot] ")

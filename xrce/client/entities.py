@@ -268,18 +268,21 @@ def create_writer(session, participant_id, topic, msg_class, reliable=True, dept
 
 
 def create_reader(session, participant_id, topic, msg_class, callback, reliable=True, depth=10,
-                  transient_local=False, stream_id=None, data_stream_id=None):
+                  transient_local=False, stream_id=None, data_stream_id=None, into=None):
     # Topic + subscriber + datareader + READ_DATA (unlimited samples) for a ROS topic.
     #
     # ``callback(msg)`` gets decoded ``msg_class`` instances; DATA comes on the reliable input stream
     # for a reliable reader and on the best-effort one otherwise, unless ``data_stream_id`` says.
+    # ``into``: a ``msg_class`` instance every sample is decoded into in place and handed to the
+    # callback (the same object each time, valid until the next sample): a board then makes no
+    # message object per sample.
     topic_id = create_topic(session, participant_id, ros_topic_name(topic), msg_class.TYPE_NAME,
                             stream_id=stream_id)
     subscriber_id = create_subscriber(session, participant_id, stream_id=stream_id)
     reader_id = create_datareader(session, subscriber_id, topic_id,
                                   endpoint_qos(reliable, True, depth, transient_local),
                                   stream_id=stream_id)
-    set_reader_callback(session, reader_id, callback, msg_class)
+    set_reader_callback(session, reader_id, callback, msg_class if into is None else into)
     if data_stream_id is None:
         data_stream_id = session.reliable if reliable else session.best_effort
     read_data(session, reader_id, data_stream_id, stream_id=stream_id)
@@ -291,7 +294,8 @@ def create_reader(session, participant_id, topic, msg_class, callback, reliable=
 def set_reader_callback(session, reader_id, callback, msg_class=None):
     # ``callback(data)`` for every DATA of this reader/requester/replier.
     #
-    # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class.
+    # Datareader: ``data`` is ``msg_class`` decoded, or the raw sample bytes without a class; with
+    # an instance for ``msg_class``, that instance with the sample decoded into it.
     # Requester: ``callback(request_id, data)`` with the id ``send_request`` returned.
     # Replier: ``callback(sample_identity, data)``; answer with ``send_reply``.
     session._readers[reader_id] = (callback, msg_class)  # a tuple: no class for a board to load

@@ -17,37 +17,55 @@ def write_fragmented(session, out, mark, end):
     # (header, payload, padding to 4) into FRAGMENTs, each alone in a fresh reliable message of
     # ``out``. Its bytes do not depend on where it starts (a sample aligns from its own first byte,
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
+    # The submessage is in ``out.big`` (wire._Output: a sample too large for a message's buffer is
+    # written there), or in a buffer that grew to hold it, which then becomes ``out.big``; the
+    # fragments are built in the history's buffers (OutputReliableStream.keep): no copy of the sample, one
+    # view of each fragment's bytes.
     out.pos = end
     out.pad_to_4()
-    # One copy of the submessage (the fragments are written over it): slicing the memoryview copies
-    # nothing, where slicing the bytearray first would make a second, transient copy as large.
-    body = memoryview(bytes(memoryview(out.buf)[mark:out.pos]))
-    out.pos = mark
+    stop = out.pos
+    whole = out.buf
+    if whole is out.big:
+        out.buf = out.home  # still holds the open message up to ``mark``
+    else:
+        out.buf = bytearray(session.max_message)
+        if out.has_content:
+            out.buf[0:mark] = memoryview(whole)[0:mark]
+    out.home = None
+    out.pos = mark  # the open message, if any, ends where the submessage began
+    # Not written over while it is cut: a sample as large written by a callback while a fragment
+    # waits for room grows a buffer of its own instead.
+    out.big = None
+    body = memoryview(whole)
     chunk_size = session.max_message - session.header_size - _SUBHEADER_SIZE
-    total = len(body)
-    pos = 0
-    while pos < total:
+    pos = mark
+    ok = True
+    while pos < stop:
         end = pos + chunk_size
-        last = end >= total
+        last = end >= stop
+        if last:
+            end = stop
         while True:
             # A callback run while waiting for room may have opened a message: send it first.
             if out.has_content:
                 session._close_message(out)
             if not session._begin_with_room(out):
-                return False  # the remainder is lost; the agent discards the incomplete message
+                ok = False  # the remainder is lost; the agent discards the incomplete message
+                break
             if not out.has_content:
                 break
+        if not ok:
+            break
         w = out.begin_submessage(_FRAGMENT, _FLAG_LITTLE_ENDIAN | (_FLAG_LAST_FRAGMENT if last else 0))
         w.raw(body[pos:end])
         out.end_submessage()
-        out.has_content = True
-        message = out.getvalue()  # fragments are not padded (§2)
-        out.state.commit(out.state.next_seq(), message)
-        session._send(message)
-        out.has_content = False
+        session._commit(out)  # fragments are not padded (§2)
         pos = end
-    session._schedule_heartbeat(out.stream_id)
-    return True
+    if out.big is None:
+        out.big = whole
+    if ok:
+        session._schedule_heartbeat(out.stream_id)
+    return ok
 
 
 def reassemble(session, message):

@@ -9,6 +9,7 @@
 # CPython binds these functions on Session (xrce.client.entities.bind).
 
 from xrce import const, random_client_key, ticks_ms
+from xrce.cdr import CdrReader
 from xrce.client.wire import _Output
 from xrce.message import MessageWriter, header_size
 from xrce.streams import (
@@ -37,6 +38,10 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     if not 0x01 <= session_id <= 0xFF or session_id == 0x80:
         _error("session id must be 0x01..0x7F (keyed) or 0x81..0xFF")
     session.transport = transport
+    # Bound once here: the session sends the first bytes of its buffers through it (a board's
+    # UdpTransport writes them from the buffer), and looking it up per message would bind it anew.
+    session._transport_send_from = getattr(transport, "send_from", None)
+    session._sample_reader = CdrReader(b"")  # every sample is decoded through this one
     if key is None:
         key = random_client_key()
     elif isinstance(key, int):
@@ -70,7 +75,7 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
         outputs[sid] = _Output(sid, OutputReliableStream(sid, history), _FIRST_OUTPUT_BUFFER)
         inputs[sid] = InputReliableStream(sid, history)
     if largest_sample:
-        session.size_output_buffers(largest_sample)
+        size_output_buffers(session, largest_sample)
     session.best_effort = _BUILTIN_BEST_EFFORT if best_effort_streams else None
     session.reliable = _BUILTIN_RELIABLE if reliable_streams else None
 
@@ -109,6 +114,42 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session.dropped_writes = 0
 
 
+def size_output_buffers(session, largest_sample):
+    # Give every output stream, now, the buffers a sample of ``largest_sample`` serialized bytes
+    # needs, so that neither its first such sample nor its history grows one in the firmware's
+    # loop (growing takes a block twice the size in one piece while the old one is live; on a
+    # board the TurtleBot3's first /odom asked for 1024 bytes mid-run). A best-effort stream
+    # never builds more than a message. A reliable stream's history slots (streams.OutputReliableStream.keep) and the
+    # buffer messages are built in get a message's size, or the sample's if smaller; a sample
+    # larger than a message is written whole into one more buffer (``big``), which it is cut from
+    # into the slots as FRAGMENTs. A buffer never shrinks, and one too small still grows. A
+    # firmware calls it while its heap is still in one piece (the TurtleBot3 example: in its
+    # constructor), since these are blocks it keeps for good; here, in a set-up module, since it
+    # runs once.
+    whole = (session.header_size + 8 + largest_sample + 3) & ~3  # subheader, request, object ids
+    size = whole if whole < session.max_message else session.max_message
+    session.flush()  # nothing open is lost with the buffer it is in
+    outputs = session._outputs
+    for stream_id in outputs:
+        out = outputs[stream_id]
+        if len(out.buf) < size:
+            out.buf = bytearray(size)
+        if not out.reliable:
+            continue
+        if whole > size and (out.big is None or len(out.big) < whole):
+            out.big = bytearray(whole)
+        history = out.state
+        slots = history.slots
+        for i in range(history.history):
+            old = slots[i]
+            if old is None or len(old) < size:
+                new = bytearray(size)
+                length = history.sizes[i]
+                if length:  # still unacknowledged: a copy of it
+                    new[0:length] = memoryview(old)[0:length]
+                slots[i] = new
+
+
 def _error(message):
     from xrce.client.session import SessionError
 
@@ -133,7 +174,10 @@ def create(session, attempts=10, timeout_ms=1000):
 
 def _reset_streams(session):
     for out in session._outputs.values():
-        out.state.reset()
+        if out.reliable:
+            out.state.reset(True)  # the history's buffers stay for the new session's messages
+        else:
+            out.state.reset()
         out.has_content = False
     for stream in session._inputs.values():
         stream.reset()

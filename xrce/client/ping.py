@@ -37,7 +37,7 @@ def _is_pong(data):
             return False
         for sub_id, flags, s, e in iter_submessages(data, header_size(data[0])):
             if sub_id == _INFO:
-                availability = _agent_activity(data, flags, s, e)[1]
+                availability = _agent_activity(data, flags, s, e)
                 return availability is not None and availability > 0
     except DecodeError:
         pass

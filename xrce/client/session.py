@@ -37,7 +37,6 @@ import sys
 from xrce import DecodeError, IS_MICROPYTHON, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrReader
 from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
-from xrce.message import iter_submessages
 
 # Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
@@ -73,7 +72,7 @@ class Session(Outbound):
         # reliable_streams=1, heartbeat_ms=100, max_reassembly=None, on_topic=None,
         # auto_recover=True, liveliness_ms=500, on_link_state=None, largest_sample=0):
         # xrce.client.lifecycle.init, which CPython binds here. ``largest_sample`` (serialized
-        # bytes) sizes the output buffers at once: see wire.Outbound.size_output_buffers.
+        # bytes) sizes the output buffers at once: see lifecycle.size_output_buffers.
         _set_up_module("lifecycle").init(self, *args, **kwargs)
 
     # ------------------------------------------------------------------ session lifecycle
@@ -257,7 +256,12 @@ class Session(Outbound):
                 if stream is None:
                     self.dropped_messages += 1
                     return
-                ready = stream.receive(buf[2] | (buf[3] << 8), buf)
+                seq = buf[2] | (buf[3] << 8)
+                if stream.receive_next(seq):  # in order, nothing stored: no list of one
+                    self._send_acknack(stream)
+                    self._process_reliable(buf)
+                    return
+                ready = stream.receive(seq, buf)
                 self._send_acknack(stream)
                 for message in ready:
                     self._process_reliable(message)
@@ -265,9 +269,9 @@ class Session(Outbound):
             self.decode_errors += 1
 
     def _send_acknack(self, stream):
-        first, bitmap = stream.acknack()
+        bitmap = stream.nack_bitmap()  # acknack() without its tuple
         w = self._begin_control(_ACKNACK)
-        w.u16(first)
+        w.u16((stream.last_handled + 1) & 0xFFFF)
         w.u8(bitmap >> 8)
         w.u8(bitmap & 0xFF)
         w.u8(stream.stream_id)
@@ -283,8 +287,18 @@ class Session(Outbound):
 
     def _process(self, buf, end):
         # What a client receives (XRCE-WIRE.md §5), one branch per submessage: one method each
-        # would cost a board heap for its code object; anything else is ignored.
-        for sub_id, flags, s, e in iter_submessages(buf, self.header_size, end):
+        # would cost a board heap for its code object; anything else is ignored. The submessages
+        # are walked as xrce.message.iter_submessages does, inline: a generator and a tuple per
+        # submessage would be a board's garbage on every message received.
+        pos = self.header_size
+        while end - pos >= 4:
+            sub_id = buf[pos]
+            flags = buf[pos + 1]
+            s = pos + 4
+            e = s + (buf[pos + 2] | (buf[pos + 3] << 8))
+            if e > end:
+                raise DecodeError("submessage past the message end")
+            pos = (e + 3) & ~3
             if sub_id == _DATA:
                 if s == e:  # length 0: a sample > 64 KiB, to the end of the reassembled message
                     self._on_data(buf, flags, s, end)
@@ -302,9 +316,8 @@ class Session(Outbound):
                     # first unacknowledged, NACK bitmap (always big-endian) of one of our streams
                     out = self._outputs.get(stream_id)
                     if out is not None and out.reliable:
-                        for message in out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3],
-                                                            ticks_ms(), self.heartbeat_ms // 2):
-                            self._send(message)
+                        out.state.on_acknack(first, (buf[s + 2] << 8) | buf[s + 3], ticks_ms(),
+                                             self.heartbeat_ms // 2, self)
                 else:
                     # first and last sequence numbers the agent still holds for one of its streams
                     stream = self._inputs.get(stream_id)
@@ -322,9 +335,9 @@ class Session(Outbound):
                 elif rid in self._statuses:  # only requests someone waits for (not re-creations)
                     self._statuses[rid] = buf[s + 4]
             elif sub_id == _INFO:
-                impl_status, availability = _agent_activity(buf, flags, s, e)
+                availability = _agent_activity(buf, flags, s, e)
                 if availability is not None and availability > 0:
-                    if impl_status == 1:
+                    if buf[s + 5] == 1:  # implementation status
                         self._pong_in_session = True
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
@@ -345,21 +358,43 @@ class Session(Outbound):
         if rid in self._statuses:
             self._statuses[rid] = _STATUS_OK  # a DATA answers its READ_DATA (§5)
         reader = self._readers.get(oid)
-        data = memoryview(buf)[s + 4:e]
         if self.on_topic is not None:
-            self.on_topic(self, oid, rid, buf[1], data)
+            self.on_topic(self, oid, rid, buf[1], memoryview(buf)[s + 4:e])
         if reader is None:
             return
         callback, msg_class = reader
         if oid & 0x0F >= _OBJK_REQUESTER:
             from xrce.client.services import deliver
-            deliver(oid & 0x0F, callback, msg_class, data)
+            deliver(oid & 0x0F, callback, msg_class, memoryview(buf)[s + 4:e])
+        elif msg_class is None:
+            callback(bytes(memoryview(buf)[s + 4:e]))
         else:
-            callback(_decode_sample(msg_class, data))
+            # The session's one reader over the message itself: no view, no reader per sample.
+            r = self._sample_reader
+            r.buf = buf
+            r.pos = r.origin = s + 4
+            r.end = e
+            if type(msg_class) is type:
+                sample = msg_class.decode(r)
+            else:  # an instance (create_reader's ``into``): decoded in place
+                _decode_into(msg_class, r)
+                sample = msg_class
+            r.buf = b""  # the datagram is not kept alive until the next one
+            callback(sample)
 
 
 def _never():
     return False
+
+
+def _decode_into(msg, r):
+    # xrce.msgs._into.decode_into, imported by the first sample an ``into`` reader gets; then this
+    # name is that function (an import per sample would look the module up each time).
+    global _decode_into
+    from xrce.msgs._into import decode_into
+
+    _decode_into = decode_into
+    decode_into(msg, r)
 
 
 def _decode_sample(msg_class, data):
@@ -369,28 +404,38 @@ def _decode_sample(msg_class, data):
 
 
 def _agent_activity(buf, flags, s, e):
-    # ``(implementation status, availability or None)`` of an INFO payload in ``buf[s:e]``.
-    r = CdrReader(buf, s + 4, e, 0, bool(flags & 1))
-    r.u8()  # status
-    impl_status = r.u8()
-    if r.boolean():  # the agent's configuration: kind, cookie, version, vendor, properties
-        r.u8()
-        r.raw(8)
-        if r.boolean():  # properties: discovery's INFO reader skips them
+    # The availability (int16) an agent's INFO payload in ``buf[s:e]`` reports, or None (the
+    # implementation status is ``buf[s + 5]``). Read byte by byte: a reader, its bytes and a tuple
+    # would be a board's garbage on every ping answered.
+    p = s + 7  # related request (4), status, implementation status, then the optional config
+    if p > e or buf[p - 1] > 1:
+        raise DecodeError("bad INFO")
+    if buf[p - 1]:  # the agent's configuration: kind, cookie, version, vendor, properties
+        p += 10
+        if p > e or buf[p - 1] > 1:
+            raise DecodeError("bad INFO")
+        if buf[p - 1]:  # properties: discovery's INFO reader skips them
             from xrce.client.discovery import info_activity
 
-            return info_activity(buf, flags, s, e)
-    if not r.boolean():
-        return impl_status, None
-    if r.u8() != _OBJK_AGENT:
-        raise DecodeError("INFO activity is not an agent's")
-    return impl_status, r._get(0, 2)  # int16: the reader's i16 lives in xrce.cdr_more
+            return info_activity(buf, flags, s, e)[1]
+    if p >= e or buf[p] > 1:
+        raise DecodeError("bad INFO")
+    if not buf[p]:
+        return None
+    if p + 1 >= e or buf[p + 1] != _OBJK_AGENT:  # the activity of an agent
+        raise DecodeError("bad INFO")
+    p += 2
+    p += p & 1  # an int16, aligned from the message start
+    if p + 2 > e:
+        raise DecodeError("bad INFO")
+    value = (buf[p] | (buf[p + 1] << 8)) if flags & 1 else ((buf[p] << 8) | buf[p + 1])
+    return value - 0x10000 if value & 0x8000 else value
 
 
 # The session attributes xrce.client.lifecycle serves (a string looked up as " name ": on a board
 # each string of a tuple would be an object of its own). Told apart here, so that neither module
 # loads the other for a call.
-_LIFECYCLE = " create delete _reset_streams _restore "
+_LIFECYCLE = " create delete _reset_streams _restore size_output_buffers "
 # xrce.client.on_demand's own, which it then sets on the class: their first look-up (a firmware's
 # first time sync, typically before any entity) goes there without loading xrce.client.entities,
 # which passes on the names it does not serve (the services') itself.

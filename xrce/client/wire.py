@@ -17,6 +17,10 @@ _WRITE_DATA = const(7)
 _FLAG_LITTLE_ENDIAN = const(0x01)
 
 
+# One tuple for the module: written in put_request, it would be built anew for every sample.
+_BUFFERS = (bytes, bytearray, memoryview)
+
+
 class SessionError(XrceError):
     # The session is not usable for the requested operation (not created, window full, ...). Defined
     # here, below the session (xrce.client.session re-exports it), as the output path raises it too.
@@ -34,7 +38,7 @@ def put_request(w, request_id, object_id, body, prefix=None):
     w.u8(object_id & 0xFF)
     if prefix is not None:
         w.raw(prefix)
-    if isinstance(body, (bytes, bytearray, memoryview)):
+    if isinstance(body, _BUFFERS):
         w.raw(body)
     else:
         saved = w.origin
@@ -126,14 +130,31 @@ class Outbound:
             return
         out.pad_to_4()
         if out.reliable:
-            message = out.getvalue()
-            out.state.commit(out.state.next_seq(), message)
-            self._send(message)
+            self._commit(out)
             self._schedule_heartbeat(out.stream_id)
         else:
             out.set_seq(out.state.next_seq())
-            self._send(out.view())
+            self._send_from(out.buf, out.pos)
         out.has_content = False
+
+    def _commit(self, out):
+        # Send the reliable message built in ``out`` and keep it for retransmission: the history
+        # keeps the very buffer it was built in, and the writer goes on in the one that slot held
+        # (its message acknowledged). No copy, so nothing is allocated per message once every slot
+        # has its buffer (Session.size_output_buffers gives them theirs at set-up).
+        length = out.pos
+        buf = out.buf
+        if buf is out.big:
+            # Begun in the large buffer (a sample too big for a message came after other content)
+            # but cut back to one message: back to the buffer it was begun in (rare: 2 views).
+            buf = out.home
+            buf[0:length] = memoryview(out.big)[0:length]
+            out.home = None
+        free = out.state.keep(buf, length)
+        # A slot without a buffer yet (the history not sized): one the size of this message, which
+        # the next one grows if it must.
+        out.buf = free if free is not None else bytearray(length)
+        self._send_from(buf, length)
 
     def flush(self):
         # Send every stream's open message. (Over the keys: on a board .values() would allocate a
@@ -143,24 +164,6 @@ class Outbound:
             out = outputs[stream_id]
             if out.has_content:
                 self._close_message(out)
-
-    def size_output_buffers(self, largest_sample):
-        # Give every output stream, now, the buffer a sample of ``largest_sample`` serialized bytes
-        # needs, so that the first such sample does not grow it in the firmware's loop (growing
-        # takes a block twice the size in one piece while the old one is live: on a board, the
-        # TurtleBot3's first /odom asked for 1024 bytes mid-run). A reliable stream writes a sample
-        # whole before cutting it into fragments, so its buffer takes the whole sample in a message
-        # of its own (as after a flush: rmw and the TurtleBot3 flush after every write); a
-        # best-effort stream never builds more than a message. A buffer never shrinks, and one too
-        # small still grows. Here, not in a set-up module: a firmware calls it at the end of
-        # set-up, when loading a module's code may no longer find room.
-        whole = (self.header_size + 8 + largest_sample + 3) & ~3  # subheader, request and object ids
-        outputs = self._outputs
-        for stream_id in outputs:
-            out = outputs[stream_id]
-            size = whole if out.reliable or whole < self.max_message else self.max_message
-            if len(out.buf) < size:
-                out.buf = bytearray(size)
 
     def _begin_control(self, sub_id, session_id=None, key=None):
         # Start a stream-0 message with one submessage; returns the writer for its payload.
@@ -174,9 +177,20 @@ class Outbound:
         self.messages_out += 1
         self.transport.send(message)
 
+    def _send_from(self, buf, length):
+        # Send ``buf[:length]``: through the transport's send_from when it has one (UdpTransport: a
+        # board's socket writes the bytes from the buffer itself), else through a view of them.
+        self.messages_out += 1
+        send_from = self._transport_send_from
+        if send_from is not None:
+            send_from(buf, length)
+        else:
+            self.transport.send(memoryview(buf)[:length])
+
     def _send_control(self):
-        self._control.end_submessage()
-        self._send(self._control.view())
+        control = self._control
+        control.end_submessage()
+        self._send_from(control.buf, control.pos)
 
     def _schedule_heartbeat(self, stream_id):
         if stream_id not in self._next_heartbeat:
@@ -194,3 +208,20 @@ class _Output(MessageWriter):
         self.state = state
         self.reliable = stream_id >= 0x80
         self.has_content = False
+        self.big = None  # a reliable stream's buffer for a sample larger than a message
+        self.home = None  # the buffer a message moved to ``big`` from was begun in
+
+    def reserve(self, n):
+        # A sample that does not fit a message's buffer goes on in ``big`` (the message so far
+        # copied there, the buffer kept to come back to) rather than growing a buffer the history
+        # would keep (xrce.client.fragments cuts it from ``big``); anything else grows as a
+        # CdrWriter's buffer does.
+        big = self.big
+        buf = self.buf
+        end = self.pos + n
+        if end > len(buf) and big is not None and buf is not big and end <= len(big):
+            big[0:self.pos] = memoryview(buf)[0:self.pos]
+            self.home = buf
+            self.buf = big
+        else:
+            MessageWriter.reserve(self, n)

@@ -18,9 +18,12 @@
 # ``/odom`` and ``/tf`` reliable. ``/odom`` is larger than one 512-byte message and is fragmented,
 # which only the reliable stream can do.
 
+import gc
 import math
+import sys
 
-from xrce import const, ticks_add, ticks_diff, ticks_ms
+from xrce import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
+from xrce.cdr import CdrWriter
 from xrce.client.session import Session, ping_agent
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
@@ -52,6 +55,9 @@ _POWER_SUPPLY_STATUS_DISCHARGING = const(2)
 _POWER_SUPPLY_HEALTH_GOOD = const(1)
 _POWER_SUPPLY_TECHNOLOGY_LIPO = const(3)
 
+# The serialized size of the largest sample (/odom: fixed frame ids, no sequences that grow), which
+# sizes the session's buffers before anything else is allocated; tests/test_turtlebot3.py checks it.
+LARGEST_SAMPLE = const(720)
 TIME_SYNC_PERIOD_MS = const(10000)
 FAILSAFE_MS = const(500)
 _PHASE_STEP_MS = const(17)  # offset between the topics' periods (ms)
@@ -59,6 +65,7 @@ _MAX_WAIT_MS = const(5)  # the loop's longest sleep: bounds fail-safe and schedu
 _MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishing on time
 
 _NS_PER_S = const(1000000000)
+_GC_THRESHOLD = const(4096)
 _STATUS_OK = const(0x00)  # the XRCE STATUS values (xrce.constants)
 _STATUS_OK_MATCHED = const(0x01)
 _STATUS_NONE = const(0xFF)  # not answered yet
@@ -82,6 +89,20 @@ def _set_yaw(quaternion, yaw):
     quaternion.y = 0.0
     quaternion.z = math.sin(yaw * 0.5)
     quaternion.w = math.cos(yaw * 0.5)
+
+
+def _collect():
+    # On a board, collect the garbage now, and from now on every _GC_THRESHOLD bytes allocated
+    # rather than only once an allocation fails: what is kept for good (set-up's objects) and what
+    # the loop allocates (its floats, a message's new values, a datagram received) then stay in the
+    # free space nearest what is already kept, and the rest of the heap stays in one piece for a
+    # datagram's block. Filled to the top before each collection, the heap was cut into pieces
+    # too small for a 513-byte datagram with 20 KB free (issue 32).
+    # (Not on the WebAssembly port, whose collector cannot run while Python code does: it
+    # collects when the host's call into Python returns, and grows the heap meanwhile.)
+    if IS_MICROPYTHON and sys.platform != "webassembly":
+        gc.collect()
+        gc.threshold(_GC_THRESHOLD)
 
 
 class _Periodic:
@@ -115,7 +136,9 @@ class TurtleBot3:
 
     def __init__(self, transport, domain_id=0, node_name=NODE_NAME, cmd_vel_reliable=True,
                  periods_ms=None, failsafe_ms=FAILSAFE_MS, time_sync_period_ms=TIME_SYNC_PERIOD_MS,
-                 key=None, log=print):
+                 key=None, log=print, ros_extras=False):
+        # ``ros_extras``: calibration parameters and the /patrol action as well
+        # (xrce.examples.turtlebot3_extras, loaded only then).
         self.transport = transport
         self.domain_id = domain_id
         self.node_name = node_name
@@ -128,7 +151,13 @@ class TurtleBot3:
         self.failsafe_ms = failsafe_ms
         self.time_sync_period_ms = time_sync_period_ms
         self.log = log
-        self.session = Session(transport, key=key, history=16)
+        _collect()  # the imports' garbage (loading .mpy code), before anything the robot keeps
+        # The session's buffers first, while the heap is in one piece: blocks a board keeps for
+        # good, sized for the largest sample (/odom: fragmented), so that no sample grows one in
+        # the loop (on a board: a 1 KB block in one piece, when the heap is the most cut up).
+        # History 4: /odom (two fragments) and /tf at 10 Hz wait about a heartbeat period (100 ms)
+        # for the agent's acknowledgement; each slot is a message buffer.
+        self.session = Session(transport, key=key, history=4, largest_sample=LARGEST_SAMPLE)
 
         self.commands_received = 0
         self.last_command = None
@@ -136,6 +165,8 @@ class TurtleBot3:
         self.time_syncs = 0
         self.published = {}
         self.failed_topics = []
+        self.ros_extras = ros_extras
+        self.extras = None
         self._writers = {}
         self._schedule = []
         self._sync_timer = None
@@ -202,18 +233,21 @@ class TurtleBot3:
         # (or collects its garbage) in between: yields None after each stage, then True or False.
         # A type's first encode builds its plan, which the message runtime then keeps: built here,
         # one type per stage, the loop's first passes neither wait for it nor carry what building
-        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap.
-        # The largest (/odom, 0.7 KB: fragmented) sizes the session's output buffers at the end of
-        # set-up, so that its first publication does not grow the reliable stream's buffer mid-run
-        # (on a board a 1 KB block in one piece, when the loop's heap is the most fragmented). At
-        # the end: the entities' creations, set-up's largest steps, do not carry them too.
+        # it allocates (on a board: up to ~5 KB for Odometry) on top of the settled heap. Into the
+        # session's buffer for a sample too large for a message (to_bytes would grow a writer per
+        # sample and copy each out); the largest must fit the buffers LARGEST_SAMPLE sized.
+        session = self.session
+        writer = CdrWriter(session._outputs[session.reliable].big or bytearray(64))
         largest = 0
         for sample in (self._sensor_state, self._imu, self._battery, self._odom, self._tf):
-            size = len(sample.to_bytes())
-            if size > largest:
-                largest = size
+            writer.reset()
+            sample.encode(writer)
+            if writer.pos > largest:
+                largest = writer.pos
             yield
-        session = self.session
+        writer = None
+        if largest > LARGEST_SAMPLE:
+            session.size_output_buffers(largest)  # a sample grown past what was planned for
         if not session.create(attempts=10, timeout_ms=1000):
             self.log("turtlebot3: the agent refused the session (status %r)" % (session.create_status,))
             yield False
@@ -249,9 +283,16 @@ class TurtleBot3:
         yield from self._add_writer(node, "battery_state", "/battery_state", BatteryState, False, timeout_ms)
         yield from self._add_writer(node, "odom", "/odom", Odometry, True, timeout_ms)
         yield from self._add_writer(node, "tf", "/tf", TFMessage, True, timeout_ms)
+        if self.ros_extras:
+            from xrce.examples.turtlebot3_extras import RobotExtras
+
+            self.extras = RobotExtras(self, node)
+            yield
+            if not (yield from self._statuses(timeout_ms)):
+                self.failed_topics.append("parameters/patrol")
         session.hold_set_up(False)
         yield
-        session.size_output_buffers(largest)
+        _collect()
         now = ticks_ms()
         self._last_motion_ms = now
         self._sync_timer = _Periodic(self.time_sync_period_ms, ticks_add(now, self.time_sync_period_ms))
@@ -337,8 +378,9 @@ class TurtleBot3:
         half_track = self.angular * _WHEEL_SEPARATION * 0.5
         left_speed = self.linear - half_track
         right_speed = self.linear + half_track
-        self.left_angle += left_speed * dt / _WHEEL_RADIUS
-        self.right_angle += right_speed * dt / _WHEEL_RADIUS
+        radius = _WHEEL_RADIUS if self.extras is None else self.extras.wheel_radius  # a parameter
+        self.left_angle += left_speed * dt / radius
+        self.right_angle += right_speed * dt / radius
         self.left_ticks = int(self.left_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         self.right_ticks = int(self.right_angle * ENCODER_TICKS_PER_REV / _TWO_PI)
         linear = (left_speed + right_speed) * 0.5
@@ -448,6 +490,8 @@ class TurtleBot3:
         if self._sync_timer is not None and self._sync_timer.take(now):
             self.sync_clock()
             yield
+        if self.extras is not None:
+            self.extras.step(now)
 
     def run(self, duration_ms=None, should_stop=None):
         # Loop ``step`` for ``duration_ms`` (None: forever) or until ``should_stop()`` is true.

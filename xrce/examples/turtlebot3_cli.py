@@ -57,6 +57,8 @@ def main(robot_class, argv=None):
                            help="print a status line every S seconds (0: never)")
         child.add_argument("--connect-attempts", type=int, default=0,
                            help="agent pings before giving up (0: forever)")
+        child.add_argument("--ros-extras", action="store_true",
+                           help="also serve calibration parameters and the /patrol action")
     args = parser.parse_args(argv)
     import os
     domain = args.domain
@@ -67,12 +69,22 @@ def main(robot_class, argv=None):
             parser.error("ROS_DOMAIN_ID=%s is not a number (unset it or pass --domain N)"
                          % os.environ["ROS_DOMAIN_ID"])
 
+    # SIGTERM ends the process as Ctrl-C does, at any time: while it waits for an agent or sets
+    # up, by raising KeyboardInterrupt there (connect() pings forever by default); once the loop
+    # runs, by ending it after the current step, so that no write is cut in half.
     stop = []
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    running = []
+
+    def on_sigterm(*_):
+        if not running:
+            raise KeyboardInterrupt
+        stop.append(True)
+
+    signal.signal(signal.SIGTERM, on_sigterm)
     log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
     transport = _make_transport(args)
     robot = robot_class(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
-                       log=log)
+                       log=log, ros_extras=args.ros_extras)
     try:
         if robot.connect(attempts=args.connect_attempts) is None:
             log("turtlebot3: no agent answered")
@@ -84,6 +96,7 @@ def main(robot_class, argv=None):
             % (robot.node_name, domain, failed))
         period = args.status_period
         status_due = time.monotonic() if period > 0 else None  # the first line at once
+        running.append(True)
         while not stop:
             robot.step()
             now = time.monotonic()
@@ -97,6 +110,7 @@ def main(robot_class, argv=None):
     except KeyboardInterrupt:
         return 0
     finally:
+        running.append(True)  # a second SIGTERM does not cut the logout short
         try:
             robot.shutdown()
         except Exception:  # the agent may be gone already; the process is ending anyway

@@ -66,6 +66,8 @@ def services_table(namespace):
     for class_name in namespace["_SERVICE_CLASSES"]:
         descriptor = getattr(_import(namespace["__name__"] + "._" + class_name), class_name)
         ros_type = descriptor.ROS_TYPE
+        if "/action/" in ros_type:
+            continue  # an action's descriptor (listed with the services: see msggen)
         table[ros_type[ros_type.rfind("/") + 1:]] = descriptor
     return table
 
@@ -80,10 +82,14 @@ def service_attr(namespace, name):
     cut = name.rfind("_")
     services = namespace["_SERVICE_CLASSES"]
     base = name[:cut]
+    action = name[:name.find("_")]
     if base in services:
         module = base
     elif base + "_Service" in services:
         module = base + "_Service"
+    elif action in services or action + "_Action" in services:
+        # An action's types (Name_Goal, Name_SendGoal_Request, ...) live in the action's module.
+        module = action if action in services else action + "_Action"
     try:
         return getattr(_import(namespace["__name__"] + "._" + module), name)
     except ImportError:

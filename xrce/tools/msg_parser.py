@@ -93,13 +93,60 @@ class MessageSpec:
     def ros_type(self):
         return "%s/%s/%s" % (self.package, self.kind, self.name)
 
+    @property
+    def ros_base(self):
+        """How a field names this type: "pkg/Name" (an action's parts are nested by that name too)."""
+        return "%s/%s" % (self.package, self.name)
+
 
 class ServiceSpec:
-    def __init__(self, package, name, request, response):
+    def __init__(self, package, name, request, response, kind="srv"):
         self.package = package
         self.name = name
         self.request = request
         self.response = response
+        self.kind = kind  # "srv", or "action" for an action's SendGoal/GetResult
+
+    @property
+    def ros_type(self):
+        return "%s/%s/%s" % (self.package, self.kind, self.name)
+
+
+class ActionSpec:
+    """An ``.action`` as rosidl expands it: its Goal, Result and Feedback messages, the SendGoal and
+    GetResult services and the FeedbackMessage topic type, all named ``<Action>_<Part>`` in
+    ``<package>::action::dds_`` (the cancel service and the status topic are action_msgs' own)."""
+
+    def __init__(self, package, name, goal, result, feedback):
+        self.package = package
+        self.name = name
+        self.goal = goal
+        self.result = result
+        self.feedback = feedback
+        uuid = FieldType("unique_identifier_msgs/UUID")
+        send_request = MessageSpec(package, name + "_SendGoal_Request", "action")
+        send_request.fields = [Field("goal_id", uuid), Field("goal", FieldType(goal.ros_base))]
+        send_response = MessageSpec(package, name + "_SendGoal_Response", "action")
+        send_response.fields = [Field("accepted", FieldType("bool")),
+                                Field("stamp", FieldType("builtin_interfaces/Time"))]
+        result_request = MessageSpec(package, name + "_GetResult_Request", "action")
+        result_request.fields = [Field("goal_id", uuid)]
+        result_response = MessageSpec(package, name + "_GetResult_Response", "action")
+        result_response.fields = [Field("status", FieldType("int8")),
+                                  Field("result", FieldType(result.ros_base))]
+        self.feedback_message = MessageSpec(package, name + "_FeedbackMessage", "action")
+        self.feedback_message.fields = [Field("goal_id", uuid),
+                                        Field("feedback", FieldType(feedback.ros_base))]
+        self.send_goal = ServiceSpec(package, name + "_SendGoal", send_request, send_response, "action")
+        self.get_result = ServiceSpec(package, name + "_GetResult", result_request, result_response,
+                                      "action")
+
+    @property
+    def messages(self):
+        """Every message type of the action, each after the types it nests."""
+        return [self.goal, self.result, self.feedback, self.send_goal.request,
+                self.send_goal.response, self.get_result.request, self.get_result.response,
+                self.feedback_message]
 
 
 def _parse_type(text, package, where):
@@ -271,6 +318,30 @@ def load_package(pkg_dir):
                 req = parse_message_text(halves[0], package, name + "_Request", "srv", where)
                 resp = parse_message_text(halves[1], package, name + "_Response", "srv", where)
                 services.append(ServiceSpec(package, name, req, resp))
-    if not messages and not services:
-        raise MsgGenError("%s: no msg/*.msg or srv/*.srv files" % pkg_dir)
+    if not messages and not services and not load_actions(pkg_dir):
+        raise MsgGenError("%s: no msg/*.msg, srv/*.srv or action/*.action files" % pkg_dir)
     return package, messages, services
+
+
+def load_actions(pkg_dir):
+    """The ActionSpec of each action/*.action of one package directory (Goal, Result and Feedback
+    separated by two '---' lines)."""
+    package = os.path.basename(os.path.normpath(pkg_dir))
+    actions = []
+    action_dir = os.path.join(pkg_dir, "action")
+    if not os.path.isdir(action_dir):
+        return actions
+    for fn in sorted(os.listdir(action_dir)):
+        if not fn.endswith(".action"):
+            continue
+        with open(os.path.join(action_dir, fn)) as f:
+            text = f.read()
+        parts = re.split(r"^---\s*$", text, flags=re.M)
+        where = "%s/action/%s" % (package, fn)
+        if len(parts) != 3:
+            raise MsgGenError("%s: expected exactly two '---' separators" % where)
+        name = fn[:-7]
+        goal, result, feedback = (parse_message_text(part, package, name + "_" + suffix, "action", where)
+                                  for part, suffix in zip(parts, ("Goal", "Result", "Feedback")))
+        actions.append(ActionSpec(package, name, goal, result, feedback))
+    return actions

@@ -113,18 +113,28 @@ class UdpTransport:
             self._sock = None
 
     def send(self, msg):
-        if len(msg) > self.mtu:
-            raise EncodeError("message of %d bytes exceeds the UDP MTU %d" % (len(msg), self.mtu))
+        return self.send_from(msg, len(msg))
+
+    def send_from(self, buf, length):
+        # send(buf[:length]) without making that slice: the session sends its messages from the
+        # buffers they were built in, and a board's socket writes them from there
+        # (stream.write(buf, off, n), which the lwIP and unix ports give their sockets: one
+        # datagram on a connected UDP socket, nothing allocated).
+        if length > self.mtu:
+            raise EncodeError("message of %d bytes exceeds the UDP MTU %d" % (length, self.mtu))
         if self._sock is None:
             raise TransportError("UDP transport is closed")
         try:
-            written = self._sock.send(msg)
+            if IS_MICROPYTHON:
+                written = self._sock.write(buf, 0, length)
+            else:
+                written = self._sock.send(buf if length == len(buf) else memoryview(buf)[:length])
         except OSError:
             # A connected UDP socket reports an earlier ICMP error on the next send; the message
             # is lost, as any datagram may be, and the session's retries deal with it.
             self.send_errors += 1
             return False
-        if written != len(msg):
+        if written != length:
             self.send_errors += 1
             return False
         self.sent += 1

@@ -33,6 +33,7 @@
 #include <errno.h>
 #include <netinet/in.h>
 #include <pthread.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/mman.h>
@@ -612,9 +613,75 @@ static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
 #endif
 }
 
+/* message_type_support(library, symbol): the capsule of a message's C type support (what a
+   generated message class's _TYPE_SUPPORT holds), from the package's lib*__rosidl_typesupport_c.so
+   alone, for the agent's raw message types (xrce.agent.middleware.ros.types). The package's Python
+   extension that also provides it links the package's and its dependencies' rosidl_generator_py
+   libraries: 2-3 ms and ~0.12 MB resident more per package, for conversions the agent never makes.
+   The library stays loaded: the capsule points into it. */
+static PyObject *message_type_support(PyObject *module, PyObject *args) {
+    const char *path, *symbol;
+    if (!PyArg_ParseTuple(args, "ss", &path, &symbol)) return NULL;
+    void *library;
+    Py_BEGIN_ALLOW_THREADS
+    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    Py_END_ALLOW_THREADS
+    if (library == NULL) {
+        PyErr_SetString(PyExc_ImportError, dlerror());
+        return NULL;
+    }
+    const void *(*get_handle)(void) = (const void *(*)(void))dlsym(library, symbol);
+    if (get_handle == NULL) {
+        PyErr_SetString(PyExc_ImportError, dlerror());
+        dlclose(library);
+        return NULL;
+    }
+    const void *handle = get_handle();
+    if (handle == NULL) {
+        PyErr_Format(PyExc_ImportError, "%s returned no type support", symbol);
+        return NULL;
+    }
+    return PyCapsule_New((void *)handle, NULL, NULL);
+}
+
+/* What a raw message type has for rclpy's four conversion functions (create, destroy, from and
+   to Python), which rclpy.type_support checks are set before it makes a publisher or
+   subscription: the agent only publishes and takes serialized bytes, so none may ever run. One
+   that is called anyway fails as a conversion does, with a Python error, never a crash. */
+static void *no_ros_message(void) {
+    return NULL;  /* rclpy raises MemoryError */
+}
+
+static void no_destroy(void *message) {
+    (void)message;
+}
+
+static bool no_convert_from_py(PyObject *object, void *message) {
+    (void)object;
+    (void)message;
+    PyErr_SetString(PyExc_TypeError, "the agent's raw message types take serialized bytes only");
+    return false;
+}
+
+static PyObject *no_convert_to_py(void *message) {
+    (void)message;
+    PyErr_SetString(PyExc_TypeError, "the agent's raw message types give serialized bytes only");
+    return NULL;
+}
+
+/* raw_type_conversions() -> (create, convert_from_py, convert_to_py, destroy) capsules. */
+static PyObject *raw_type_conversions(PyObject *module, PyObject *unused) {
+    return Py_BuildValue("(NNNN)", PyCapsule_New((void *)no_ros_message, NULL, NULL),
+                         PyCapsule_New((void *)no_convert_from_py, NULL, NULL),
+                         PyCapsule_New((void *)no_convert_to_py, NULL, NULL),
+                         PyCapsule_New((void *)no_destroy, NULL, NULL));
+}
+
 static PyMethodDef module_methods[] = {
+    {"raw_type_conversions", raw_type_conversions, METH_NOARGS, NULL},
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
     {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
+    {"message_type_support", message_type_support, METH_VARARGS, NULL},
     {NULL},
 };
 

@@ -32,6 +32,7 @@ from xrce.submessages import Fragment, Heartbeat, ReadData, encode_message
 
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
+C_DATAWRITER = C.OBJK_DATAWRITER
 # How long a READ_DATA with max_samples 0 waits for its first sample: eProsima's reader thread's
 # longest single read (see DataPath._read_data).
 ZERO_SAMPLES_FIRST_READ_S = 0.1
@@ -100,7 +101,7 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:])
-        if not stream_id & 0x80:
+        if not stream_id & 0x80 and entry.kind == C_DATAWRITER:
             fastpath = getattr(link, "fastpath", None)
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
                 fastpath.offer(client, stream_id, entry)
@@ -127,10 +128,20 @@ class DataPath:
             correlation_id = (entry.object_id << 16) + request_id
             return bool(self.middleware.write_request(key, correlation_id, data))
         if entry.kind == C.OBJK_REPLIER:
+            return entry.write(data)
+        return False
+
+    def _reply_writer(self, key):
+        """A replier's ``ObjectEntry.write``: its reply (sample identity, then the body) into the
+        middleware. Bound like a writer's so that ``_fast_write`` takes a firmware's replies (one
+        WRITE_DATA per message on its reliable stream) without the general path's decoding."""
+        write_reply = self.middleware.write_reply
+
+        def write(data: bytes) -> bool:
             if len(data) < 24:
                 return False
-            return bool(self.middleware.write_reply(key, data[:24], data[24:]))
-        return False
+            return bool(write_reply(key, data[:24], data[24:]))
+        return write
 
     def _sample_callback(self, client: ClientProxy, object_id: int):
         def on_data(sample: bytes) -> None:

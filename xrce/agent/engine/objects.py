@@ -196,6 +196,7 @@ class ObjectRegistry:
             else:
                 mw.create_replier(key, client.entity(entry.parent), spec, qos,
                                   self._request_callback(client, entry.object_id))
+                entry.write = self._reply_writer(key)
         return C.STATUS_OK
 
     @staticmethod

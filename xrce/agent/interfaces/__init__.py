@@ -1,5 +1,5 @@
-"""Build ROS 2 interface packages (``.msg``/``.srv``) against the ROS 2 xrce runs on: the PyPI
-wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see
+"""Build ROS 2 interface packages (``.msg``/``.srv``/``.action``) against the ROS 2 xrce runs on:
+the PyPI wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see
 xrce.agent.middleware.ros.env).
 
 ``xrce-agent build-interfaces [DIR ...]`` and the agent's lazy path (``ensure_package``), both here,

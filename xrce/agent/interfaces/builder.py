@@ -1,5 +1,5 @@
-"""Building ROS 2 interface packages (``.msg``/``.srv``) with plain cmake (no colcon) against the
-ROS 2 xrce runs on (see xrce.agent.interfaces for the whole).
+"""Building ROS 2 interface packages (``.msg``/``.srv``/``.action``) with plain cmake (no colcon)
+against the ROS 2 xrce runs on (see xrce.agent.interfaces for the whole).
 
 Every interface package found under the given directories is built in dependency order, each into
 its own install prefix ``<cache>/<hash>/`` where the hash covers the package's files, its in-tree

@@ -55,19 +55,20 @@ class _RegisteredInterfaceFinder:
     def update(self, entries):
         self.entries.update(entries)
 
-    def _preload(self, package, seen):
+    def _preload(self, package, seen, kinds=_LIBRARY_ORDER):
         if package in self._loaded or package in seen or package not in self.entries:
             return
         seen.add(package)
         entry = self.entries[package]
         for dependency in entry.get("depends", ()):
-            self._preload(dependency, seen)
+            self._preload(dependency, seen, kinds)
         libdir = os.path.join(entry["prefix"], "lib")
-        for kind in _LIBRARY_ORDER:
+        for kind in kinds:
             path = os.path.join(libdir, "lib%s__%s.so" % (package, kind))
             if os.path.exists(path):
                 _load_global(path)
-        self._loaded.add(package)
+        if kinds is _LIBRARY_ORDER:
+            self._loaded.add(package)
 
     def find_spec(self, fullname, path=None, target=None):
         if "." in fullname:
@@ -102,6 +103,18 @@ def is_registered(package):
     """True if ``package`` has a complete build registered (in this process's finder)."""
     entry = _FINDER.entries.get(package) if _FINDER is not None else None
     return entry is not None and os.path.exists(os.path.join(entry["prefix"], COMPLETE_MARKER))
+
+
+def c_typesupport_library(package):
+    """For a registered package, the path of its ``lib<package>__rosidl_typesupport_c.so``, its
+    and its registered dependencies' C libraries loaded as an import would load them, but not
+    their rosidl_generator_py ones (Python conversions; the agent's raw message types need none,
+    xrce.agent.middleware.ros.types); None for a package not registered."""
+    if not is_registered(package):
+        return None
+    _FINDER._preload(package, set(), _LIBRARY_ORDER[:-1])
+    return os.path.join(_FINDER.entries[package]["prefix"], "lib",
+                        "lib%s__rosidl_typesupport_c.so" % package)
 
 
 def activate_registry(registry_path):

@@ -4,7 +4,8 @@
 from xrce.msgs import _type_attr
 
 # Service descriptor classes; Name_Request/Name_Response live in the same module.
-_SERVICE_CLASSES = ('Dqn', 'Goal', 'Sound_Service', )
+# And action descriptor classes, whose modules hold every type of the action.
+_SERVICE_CLASSES = ('Dqn', 'Goal', 'Sound_Service', 'Patrol', )
 
 
 def __getattr__(name):

@@ -191,6 +191,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         if self._closed:
             raise MiddlewareError("middleware is closed")
         domain = self._domains.get(domain_id)
+        if domain is None and self.park_creation:
+            raise TypeNotReady("ROS domain %d is being joined" % domain_id,
+                               self._join_in_thread(domain_id))
         if domain is None:
             try:
                 domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
@@ -200,6 +203,42 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                 raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
             self._joined(domain_id, domain)
         return domain
+
+    def _join_in_thread(self, domain_id: int) -> asyncio.Future:
+        """Join ``domain_id`` off the loop (``park_creation``): its rclpy context, executor thread
+        and agent node, whose DDS participant takes milliseconds to make, while the loop serves
+        the other clients; the creating client is parked on the future this returns and its
+        retry finds the domain joined, or gets the failure."""
+        joining = self._joining.get(domain_id)
+        if joining is not None:
+            if not joining.done():
+                return joining
+            del self._joining[domain_id]  # a join that failed: this retry reports it
+            error = joining.exception()
+            raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, error)) from error
+
+        def join() -> DomainRuntime:
+            runtime = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
+            try:  # its first job makes the agent node, and with it the DDS participant
+                runtime.call(lambda: None, self.entity_timeout_s)
+            except MiddlewareError as exc:
+                log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
+            return runtime
+
+        def joined(future: asyncio.Future) -> None:  # loop thread
+            if future.cancelled() or future.exception() is not None:
+                return  # kept in _joining for the retry to report
+            del self._joining[domain_id]
+            runtime = future.result()
+            if self._closed or domain_id in self._domains:
+                threading.Thread(target=runtime.stop, args=(self.entity_timeout_s,),
+                                 name="xrce-leave-domain-%d" % domain_id, daemon=True).start()
+                return
+            self._joined(domain_id, runtime)
+
+        joining = self._joining[domain_id] = in_thread(self._get_loop(), join)
+        joining.add_done_callback(joined)
+        return joining
 
     def _joined(self, domain_id: int, runtime: DomainRuntime) -> None:
         self._domains[domain_id] = runtime
@@ -461,9 +500,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._close_requester(record)
         elif record.kind == "replier":
             record.closed = True
-            for _header, expiry in record.pending.values():
-                expiry.cancel()
-            record.pending.clear()
+            record.pending.clear()  # the reply sweep forgets the record (services.py)
 
     def delete(self, key: EntityKey) -> None:
         record = self._entities.get(key)

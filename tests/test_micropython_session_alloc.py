@@ -1,0 +1,40 @@
+"""What a set-up client session allocates per sample on a board, measured under real MicroPython
+1.27 (WebAssembly) against a real xrce-agent over the real UdpTransport and the harness' port-like
+socket (tests/micropython/session_alloc.py; issue 32).
+
+Nothing per sample published, best-effort or reliable (the reliable history keeps the buffer each
+message was built in, no copy), and nothing per sample received when the reader decodes into a
+preallocated message (create_reader's ``into``), acknowledgements and heartbeats included: the only
+garbage left is what the socket's recv allocates for each datagram, which the socket shim counts
+and the script subtracts. builtin_interfaces/Time is the sample: integers, which a 32-bit port
+holds without allocating (a float is an object of its own on a board, whoever decodes it).
+"""
+
+from pathlib import Path
+
+import pytest
+
+from agent_process import AgentProcess
+from mp_harness import run_micropython
+
+SCRIPT = Path(__file__).resolve().parent / "micropython" / "session_alloc.py"
+COUNT = 20
+
+
+@pytest.mark.timeout(240)
+def test_a_set_up_session_allocates_nothing_per_sample_published_or_received():
+    with AgentProcess("udp4", "-m", "ced") as agent:
+        result = run_micropython(SCRIPT, agent.port, COUNT, timeout=200)
+    assert result.returncode == 0, (result.stdout, result.stderr)
+    lines = dict(line.split(" ", 1) for line in result.stdout.splitlines() if " " in line)
+    print({key: value for key, value in lines.items() if key.endswith("_bytes")})
+    assert lines["create"] == lines["setup"] == lines["done"] == "True", result.stdout
+    for key in ("publish_best_effort", "publish_reliable", "receive_best_effort", "receive_reliable"):
+        assert int(lines[key + "_bytes"]) == 0, (key, result.stdout)
+    # The samples did go round (warm-up 8, then COUNT) and were decoded into the preallocated
+    # messages: the last one carried COUNT - 1.
+    assert lines["received"] == "%d %d" % (8 + COUNT, 8 + COUNT), result.stdout
+    assert lines["last"] == "%d %d" % (COUNT - 1, COUNT - 1), result.stdout
+    # The socket's own: at least one datagram per sample received (and the measurement is real).
+    assert int(lines["receive_reliable_socket_bytes"]) >= COUNT * 513, result.stdout
+    assert lines["dropped_writes"] == "0", result.stdout
