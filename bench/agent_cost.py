@@ -1,16 +1,17 @@
 """What the agent costs the robot's computer: CPU per message, idle CPU, robot load, memory, ping.
 
     .venv/bin/python bench/agent_cost.py [--quick] [--reference DIR] [--robot-only RUNS]
-        [--agent-cmd CMD]
+        [--reliable-only RUNS] [--agent-cmd CMD]
 
 Run as ``bench/run.py --only cost`` or alone. Every figure comes from ``/proc/<agent pid>/stat``
 (utime + stime of all its threads) or ``/proc/<agent pid>/status`` (VmRSS). ``--reference DIR``
 runs the same measurements, in the same run, against the agent of another source tree (e.g. an
 unpacked older commit): the figure is this tree's agent, the baseline that one's. Without it the
 baseline is the closest floor measured in the same run: bare rclpy ``publish(bytes)`` per message,
-a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only``)
-takes another agent started from a command line as the reference, e.g. eProsima's MicroXRCEAgent
-(``/work/peers/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
+a bare rclpy process idle, a Python UDP echo for ping. ``--agent-cmd CMD`` (with ``--robot-only`` or
+``--reliable-only``) takes another agent started from a command line as the reference, e.g.
+eProsima's MicroXRCEAgent
+(``$PEERS/agent.sh``, bench/peer_agent.py); measure such runs on a private loopback and
 /dev/shm (``unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && ...'``).
 
 - "CPU per delivered message": bench/xrce_flood.py offers Twist samples at a fixed rate
@@ -318,8 +319,7 @@ def robot_only(env, domain_id, runs, reference=None, tree=None, agent_cmd=None):
     whole bench's half hour); each run's figures, then the medians and ranges."""
     trees = [("here", tree or str(REPO))] + ([("reference", reference)] if reference else [])
     if agent_cmd:
-        trees.append(("reference", None))
-        reference = agent_cmd
+        trees.append(("command", None))
     results = {label: [] for label, _ in trees}
     for run in range(runs):
         for label, path in trees:
@@ -336,10 +336,10 @@ def robot_only(env, domain_id, runs, reference=None, tree=None, agent_cmd=None):
                   % (run + 1, label, 100 * cpu, rss, 100 * main_cpu, main_switches, 100 * all_cpu,
                      all_switches, 100 * dds_cpu, dds_switches, 100 * (all_cpu - main_cpu - dds_cpu),
                      all_switches - main_switches - dds_switches), flush=True)
-    here, there = results["here"], results.get("reference")
+    here = results["here"]
     median = lambda values: sorted(values)[len(values) // 2]  # noqa: E731
 
-    def figure(index, scale):
+    def figure(index, scale, there):
         values = [scale * r[index] for r in here]
         ref_values = [scale * r[index] for r in there] if there else None
         note = "median of %d runs, range %.2f-%.2f" % (runs, min(values), max(values))
@@ -347,11 +347,60 @@ def robot_only(env, domain_id, runs, reference=None, tree=None, agent_cmd=None):
             note += "; reference %.2f-%.2f" % (min(ref_values), max(ref_values))
         return median(values), median(ref_values) if ref_values else None, note
 
-    ref = "reference agent (%s)" % reference if reference else "-"
-    value, baseline, note = figure(1, 1.0)
-    record("agent RSS, TurtleBot3 load", value, "MB", baseline, ref, "<= 50 MB", note)
-    value, baseline, note = figure(0, 100.0)
-    record("agent CPU, TurtleBot3 load", value, "% core", baseline, ref, "<= 1 %", note)
+    references = [(label, reference if label == "reference" else agent_cmd)
+                  for label, _ in trees[1:]] or [(None, None)]
+    for label, source in references:
+        there = results.get(label)
+        ref = "reference agent (%s)" % source if source else "-"
+        value, baseline, note = figure(1, 1.0, there)
+        record("agent RSS, TurtleBot3 load", value, "MB", baseline, ref, "<= 50 MB", note)
+        value, baseline, note = figure(0, 100.0, there)
+        record("agent CPU, TurtleBot3 load", value, "% core", baseline, ref, "<= 1 %", note)
+
+
+RELIABLE_RATES = (1000, 5000)
+
+
+def reliable_only(env, domain_id, runs, reference=None, tree=None, agent_cmd=None, seconds=5.0):
+    """Only the CPU per reliable sample at a robot's rates (``RELIABLE_RATES``), ``runs`` times,
+    this tree and the reference (a tree, ``agent_cmd``, or both) taking turns in each run, a fresh
+    agent each time; each run's figures, then the medians and ranges."""
+    agents = [("here", tree or str(REPO), None)]
+    if reference:
+        agents.append(("reference", reference, None))
+    if agent_cmd:
+        agents.append(("command", None, agent_cmd))
+    results = {(label, rate): [] for label, _, _ in agents for rate in RELIABLE_RATES}
+    sink = Child(["bench/ros_peer.py"], env=env, ready="ready")
+    try:
+        for run in range(runs):
+            for label, path, command in agents:
+                agent = Agent(path, env) if command is None else OtherAgent(command, env)
+                try:
+                    time.sleep(SETTLE_SECONDS)
+                    for rate in RELIABLE_RATES:
+                        per, fraction, offered, count, sent = offered_load(
+                            agent, sink, env, domain_id, True, rate, seconds)
+                        results[(label, rate)].append(per)
+                        print("run %d %s: reliable %dk/s: %s us per sample, delivered %d of %d "
+                              "(offered %.0f msg/s)" % (run + 1, label, rate // 1000,
+                                                         "-" if per is None else "%.1f" % per,
+                                                         count, sent, offered), flush=True)
+                finally:
+                    agent.stop()
+    finally:
+        sink.close()
+    median = lambda values: sorted(values)[len(values) // 2]  # noqa: E731
+    for rate in RELIABLE_RATES:
+        here = [v for v in results[("here", rate)] if v is not None]
+        for label, _, command in agents[1:]:
+            there = [v for v in results[(label, rate)] if v is not None]
+            record("agent CPU per message, reliable %dk/s" % (rate // 1000),
+                   median(here) if here else None, "us", median(there) if there else None,
+                   "%s (%s)" % (label, command or reference), "<= 1.0x the reference",
+                   "medians of %d interleaved runs, range %s; reference %s"
+                   % (runs, "%.1f-%.1f" % (min(here), max(here)) if here else "-",
+                      "%.1f-%.1f" % (min(there), max(there)) if there else "-"))
 
 
 def cost_benchmarks(env, domain_id, quick=False, reference=None, tree=None):
@@ -465,17 +514,25 @@ def main(argv=None):
                         help="measure the agent of this source tree instead of this checkout's")
     parser.add_argument("--robot-only", type=int, metavar="RUNS",
                         help="only the TurtleBot3 load's CPU and RSS, RUNS times (medians)")
+    parser.add_argument("--reliable-only", type=int, metavar="RUNS",
+                        help="only the CPU per reliable sample at 1k and 5k msg/s, RUNS times "
+                             "(medians); takes --reference and --agent-cmd, both at once too")
     parser.add_argument("--agent-cmd", metavar="CMD",
-                        help="with --robot-only: another agent's command line (it gets "
-                             "'udp4 -p PORT') as the reference, e.g. /work/peers/agent.sh")
+                        help="with --robot-only or --reliable-only: another agent's command line "
+                             "(it gets 'udp4 -p PORT') as a reference, e.g. $PEERS/agent.sh, "
+                             "eProsima's agent built outside this repository; --reference may be "
+                             "given too, all three then take turns")
     args = parser.parse_args(argv)
-    if args.agent_cmd and (args.reference or not args.robot_only):
-        parser.error("--agent-cmd goes with --robot-only and without --reference")
+    if args.agent_cmd and not (args.robot_only or args.reliable_only):
+        parser.error("--agent-cmd goes with --robot-only or --reliable-only")
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
-        if args.robot_only:
+        if args.reliable_only:
+            reliable_only(env, lease.domain_id, args.reliable_only, args.reference, args.tree,
+                          args.agent_cmd)
+        elif args.robot_only:
             robot_only(env, lease.domain_id, args.robot_only, args.reference, args.tree,
                        args.agent_cmd)
         else:

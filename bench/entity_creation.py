@@ -151,7 +151,7 @@ def main(argv=None):
                         help="the firmware's node in the capture's domain 0, not the agent's own "
                         "(ROS_DOMAIN_ID): the agent then starts a DDS participant for it")
     parser.add_argument("--agent-cmd", metavar="CMD",
-                        help="another agent (e.g. /work/peers/agent.sh), measured in the same run")
+                        help="another agent (e.g. $PEERS/agent.sh, eProsima's agent built outside this repository), measured in the same run")
     args = parser.parse_args(argv)
     build_interfaces()
     lease = DomainLease()

@@ -1,5 +1,5 @@
 """Another agent for side-by-side figures: a command line such as eProsima's MicroXRCEAgent
-(built by ``../shared/tools/peers/build.sh``: ``--agent-cmd /work/peers/agent.sh``), started the way
+(built outside this repository, e.g. ``--agent-cmd $PEERS/agent.sh``), started the way
 its users start it, ``<command> udp4 -p <port>`` (its defaults otherwise, ``-m dds`` among them).
 
 Such an agent says nothing we could wait for, so it is ready when it answers a session-less
@@ -36,7 +36,7 @@ def answers_ping(port: int, timeout_s: float = 0.2) -> bool:
 
 
 class CommandAgent:
-    """``CommandAgent("/work/peers/agent.sh", env)``: ``port``, ``pid``, ``stop()``."""
+    """``CommandAgent("$PEERS/agent.sh", env)``: ``port``, ``pid``, ``stop()``."""
 
     def __init__(self, command: str, env: dict, start_timeout_s: float = 30.0):
         self.port = free_udp_port()

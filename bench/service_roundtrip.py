@@ -6,7 +6,7 @@ agent (eProsima's MicroXRCEAgent, ``--agent-cmd``) in the same run, rounds inter
 Measure on a private loopback and /dev/shm, so no other DDS participant of the machine joins in:
 
     unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && \\
-        .venv/bin/python bench/service_roundtrip.py --agent-cmd /work/peers/agent.sh'
+        .venv/bin/python bench/service_roundtrip.py --agent-cmd $PEERS/agent.sh'
 
 The firmware is the real one's set-up (tests/golden/microros/main.jsonl: rclc + rmw_microxrcedds
 creating its node, topics, the ``/add_two_ints`` replier and its READ_DATA, binary, REUSE|REPLACE)
@@ -228,7 +228,7 @@ def main(argv=None):
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--agent-cmd", metavar="CMD",
-                        help="another agent (e.g. /work/peers/agent.sh), measured in the same run")
+                        help="another agent (e.g. $PEERS/agent.sh, eProsima's agent built outside this repository), measured in the same run")
     args = parser.parse_args(argv)
     lease = DomainLease()
     domain_id = lease.domain_id

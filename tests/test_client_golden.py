@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from xrce import constants as C
 from xrce.client.session import Session, discover_agents, ping_agent
@@ -173,7 +175,7 @@ def test_time_sync(monkeypatch):
         # accepted and the arithmetic is checked exactly.
         t3 = reply.originate_ns + (reply.transmit_ns - reply.receive_ns) + 1000000
         stamps = iter([reply.originate_ns, t3])
-        monkeypatch.setattr(timesync, "epoch_ns", lambda: next(stamps))
+        monkeypatch.setattr(timesync, "_now", lambda demand: timesync._anchor_at(demand, next(stamps)))
         assert session.sync_time(timeout_ms=500)
         delta = (reply.originate_ns + t3) - (reply.receive_ns + reply.transmit_ns)
         assert session.time_offset_ns == int(delta / 2)
@@ -181,14 +183,43 @@ def test_time_sync(monkeypatch):
     assert_same_traffic(agent)
 
 
-def _timestamp_reply(session, originate_ns, received_ns, transmitted_ns, t3_ns, monkeypatch):
+def _timestamp_reply(session, originate_ns, received_ns, transmitted_ns, t3_ns, monkeypatch, little=True):
     import struct
     import xrce.client.on_demand as timesync
-    monkeypatch.setattr(timesync, "epoch_ns", lambda: t3_ns)
-    session._sync_originate = originate_ns
-    reply = struct.pack("<iIiIiI", *divmod(transmitted_ns, 10**9), *divmod(received_ns, 10**9),
-                        *divmod(originate_ns, 10**9))
-    timesync.on_timestamp_reply(session, reply, 1, 0, len(reply))
+    # The client's clock reads originate_ns for the stamp sent, then t3_ns on the reply.
+    monkeypatch.setattr(timesync, "_now", lambda demand: timesync._anchor_at(demand, originate_ns))
+    timesync._begin_exchange(session)
+    monkeypatch.setattr(timesync, "_now", lambda demand: timesync._anchor_at(demand, t3_ns))
+    reply = struct.pack("<iIiIiI" if little else ">iIiIiI", *divmod(transmitted_ns, 10**9),
+                        *divmod(received_ns, 10**9), *divmod(originate_ns, 10**9))
+    timesync.on_timestamp_reply(session, reply, 1 if little else 0, 0, len(reply))
+
+
+# Any stamp an int32 of seconds holds: a board without a clock (near 0) and an agent in 2026 differ
+# by more than a small integer of seconds on a 32-bit port.
+_STAMP_NS = st.integers(min_value=-(2**31) * 10**9, max_value=(2**31 - 4) * 10**9)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(exchanges=st.lists(st.tuples(_STAMP_NS, _STAMP_NS, st.integers(0, 1_500_000_000),
+                                    st.integers(-2_000_000_000, 3_000_000_000)), min_size=1, max_size=4),
+       little=st.booleans())
+def test_time_sync_offset_is_the_ns_formula_whatever_the_clocks(monkeypatch, exchanges, little):
+    # The session counts seconds from per-clock bases and keeps nanoseconds apart (no big integer on
+    # a board); its offset and round trip are still exactly the nanosecond formulas', rounded
+    # toward zero as the C client's int64 division, for any clocks and any order of exchanges.
+    session = Session(ScriptedAgent([]), auto_recover=False)
+    for originate, received, processing, elapsed in exchanges:
+        transmitted = min(received + processing, (2**31 - 1) * 10**9)
+        t3 = max(min(originate + elapsed, (2**31 - 1) * 10**9), -(2**31) * 10**9)
+        session.time_synced = False  # every exchange taken (the clock filter is tested above)
+        _timestamp_reply(session, originate, received, transmitted, t3, monkeypatch, little)
+        twice = (originate + t3) - (received + transmitted)
+        assert session.time_offset_ns == (-((-twice) // 2) if twice < 0 else twice // 2)
+        assert session.time_rtt_ns == max(0, (t3 - originate) - (transmitted - received))
+        assert session.time_synced and session.stale_timestamps == 0
+        # The agent's clock as the session gives it: its own clock (read at t3) less the offset.
+        assert session.epoch_ns() == t3 - session.time_offset_ns
 
 
 def test_time_sync_keeps_the_tightest_exchange_and_follows_drift(monkeypatch):
@@ -216,6 +247,16 @@ def test_stale_timestamp_reply_is_rejected():
     agent, session = new_session("timesync")
     assert not session.sync_time(timeout_ms=50)  # our originate differs from the captured one
     assert session.stale_timestamps >= 1 and not session.time_synced
+
+
+def test_timestamp_reply_nobody_asked_for_is_counted_not_decoded():
+    import xrce.client.on_demand as timesync
+    session = Session(ScriptedAgent([]), auto_recover=False)
+    reply = bytes(range(24))
+    session.handle_message(b"\x81\x00\x00\x00\x0f\x01\x18\x00" + reply)  # before any sync or ping
+    timesync._new_state(session)  # as a ping leaves it: no clock read yet
+    timesync.on_timestamp_reply(session, reply, 1, 0, len(reply))
+    assert session.stale_timestamps == 2 and not session.time_synced
 
 
 def test_xml_helloworld_publisher():

@@ -276,11 +276,13 @@ def test_discovery_reads_info_as_the_general_codec_writes_it(impl_status, config
 
 def test_on_demand_names_reach_their_module_without_the_entities_module(monkeypatch):
     # Session.__getattr__ sends xrce.client.on_demand's own names straight there: a firmware's
-    # first time sync (or ping, or link_state) must not load the entity-creation module on a board.
+    # first time sync (or ping, link_state, time_offset_ns) must not load the entity-creation
+    # module on a board.
     from xrce.client import on_demand
     from xrce.client import session as session_module
 
-    assert set(session_module._ON_DEMAND.split()) == set(on_demand._HERE.split()) | {"link_state"}
+    properties = {"link_state", "time_offset_ns"}
+    assert set(session_module._ON_DEMAND.split()) == set(on_demand._HERE.split()) | properties
     loaded = []
     real = session_module._set_up_module
     monkeypatch.setattr(session_module, "_set_up_module", lambda name: loaded.append(name) or real(name))

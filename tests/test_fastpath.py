@@ -222,6 +222,179 @@ def test_a_client_heard_only_through_the_compiled_path_stays_alive(ros_peer, ros
         assert "best-effort samples take the compiled path" in output
 
 
+def reliable_datagrams(session, writer, values):
+    """The exact datagrams of Twist(linear.x=value) on the session's built-in reliable stream,
+    each the next in order, not sent (the session counts them as sent)."""
+    transport = session.transport
+    transport.capture, transport.captured = True, []
+    try:
+        for value in values:
+            session.write(writer, Twist(linear=Vector3(x=float(value))), stream_id=session.reliable)
+            session.flush()
+    finally:
+        transport.capture = False
+    return transport.captured
+
+
+def acknacks_after(transport, stream_id, wait_s=0.3):
+    """(first_unacked, nack_bitmap) of each ACKNACK of ``stream_id`` the agent sends within
+    ``wait_s``."""
+    from xrce.submessages import AckNack, decode_message
+    out = []
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline:
+        data = transport.recv(max(1, int((deadline - time.monotonic()) * 1000)))
+        if data is None:
+            continue
+        for payload in decode_message(bytes(data))[1]:
+            if isinstance(payload, AckNack) and payload.stream_id == stream_id:
+                out.append((payload.first_unacked, payload.nack_bitmap))
+    return out
+
+
+def run_reliable_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
+    """One agent, one reliable stream: in order, a gap and the retransmission filling it, a
+    duplicate, in order again. Returns (values received in ROS, ACKNACKs per step, counter
+    deltas, agent output)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    received = []
+    ros_peer.node.create_subscription(Twist_ros(), topic, lambda m: received.append(m.linear.x),
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    with AgentProcess("udp4", "-m", "dds", "-v", "5", "--stats-port", "0", env=env) as agent:
+        port = stats_port(agent)
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=16)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="fastpath_reliable")
+            writer = session.create_writer(node, topic, Twist, reliable=True)
+            assert session.run_until_all_status(5000), session.last_statuses
+            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            before = fetch_stats(port)
+            frames = reliable_datagrams(session, writer, range(1, 11))
+            first = frames[0][2] | frames[0][3] << 8
+            inner = session.transport.inner
+            acks = []
+            # One datagram per step, its ACKNACKs collected before the next: the same steps give
+            # the same ACKNACKs whichever path handled them.
+            for index in (0, 1, 2, 4, 5, 3, 5, 6, 7, 8, 9):
+                inner.send(frames[index])
+                acks.append([((f - first) & 0xFFFF, bitmap)
+                             for f, bitmap in acknacks_after(inner, session.reliable)])
+            assert wait_until(lambda: len(received) >= 10, 10), received
+            time.sleep(FOLD_WAIT_S)
+            after = fetch_stats(port)
+        finally:
+            session.close()
+    deltas = {name: after["agent"][name] - before["agent"][name]
+              for name in ("messages_in", "bytes_in", "samples_in", "dropped", "duplicates",
+                           "acknacks_out", "decode_errors", "samples_compiled")}
+    row_before, row_after = client_row(before, session), client_row(after, session)
+    deltas["client_messages_in"] = row_after["messages_in"] - row_before["messages_in"]
+    deltas["client_bytes_in"] = row_after["bytes_in"] - row_before["bytes_in"]
+    topic_row = [t for t in after["topics"]
+                 if t["topic"].endswith(topic.lstrip("/")) and t["direction"] == "to_ros"]
+    deltas["topic_samples"] = topic_row[0]["samples"] if topic_row else None
+    return received, acks, deltas, "".join(agent.output)
+
+
+@needs_extension
+def test_reliable_stream_compiled_and_python_paths_deliver_acknowledge_and_count_the_same(
+        ros_peer, ros_domain):  # noqa: F811
+    compiled = run_reliable_scenario(ros_peer, ros_domain, "/fastpath_rel_on", {"XRCE_FASTPATH": "1"})
+    python = run_reliable_scenario(ros_peer, ros_domain, "/fastpath_rel_off", {"XRCE_FASTPATH": "0"})
+
+    assert python[0] == compiled[0] == [float(v) for v in range(1, 11)]
+    # Relative to the first sample's number: each in-order one acknowledged; the gap (4 and 5
+    # before 3) named missing; 3 fills it and all three go out; the duplicate acknowledged again.
+    expected = [[(1, 0)], [(2, 0)], [(3, 0)], [(3, 0b1)], [(3, 0b1)], [(6, 0)], [(6, 0)],
+                [(7, 0)], [(8, 0)], [(9, 0)], [(10, 0)]]
+    assert python[1] == expected, python[1]
+    assert compiled[1] == expected, compiled[1]
+    for deltas in (compiled[2], python[2]):
+        assert deltas["messages_in"] == 11 and deltas["client_messages_in"] == 11, deltas
+        assert deltas["samples_in"] == 10 and deltas["topic_samples"] == 10, deltas
+        assert deltas["duplicates"] == 1 and deltas["dropped"] == 0, deltas
+        assert deltas["acknacks_out"] == 11 and deltas["decode_errors"] == 0, deltas
+    assert compiled[2]["bytes_in"] == python[2]["bytes_in"] == compiled[2]["client_bytes_in"]
+    assert "reliable stream 0x80: samples in order take the compiled path" in compiled[3]
+    # The first goes through Python and registers the stream (the session's CREATEs came on it
+    # before); the gap, its filling and the duplicate too: 1, 2, 6, 7, 8 and 9 were published in C.
+    assert compiled[2]["samples_compiled"] == 6 and python[2]["samples_compiled"] == 0
+
+
+@needs_extension
+def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros_peer):  # noqa: F811
+    """A failed publish changes nothing here: the stream's numbers stay, nothing is counted or
+    owed an ACKNACK, and Python gets the datagram byte for byte as it came, so it decides (and
+    acknowledges) exactly as for any message it handles."""
+    import ctypes
+    import socket
+
+    from rclpy.qos import QoSProfile
+    publisher = ros_peer.node.create_publisher(Twist_ros(), "/fastpath_rel_fail", QoSProfile(depth=10))
+    invalid = ctypes.create_string_buffer(64)  # an rcl_publisher_t without its implementation
+    assert fastpath.resolve_rcl()
+    server = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    server.bind(("127.0.0.1", 0))
+    client.bind(("127.0.0.1", 0))
+    receiver = fastpath.Receiver(server.fileno())
+    try:
+        address = client.getsockname()
+        handle = receiver.add_client(0x01, KEY, address)
+        receiver.add_stream(handle, 0x80, 4, 4)
+        receiver.add_writer(handle, 0x0015, ctypes.addressof(invalid))
+        datagram = keyed_datagram(5, stream_id=0x80)
+        client.sendto(datagram, server.getsockname())
+        assert wait_until(lambda: select_readable(server), 5)
+        rest, _more = receiver.read()
+        assert rest == [(datagram, address)]
+        assert receiver.reliable_state(handle, 0x80) == (4, 4)
+        assert receiver.fold() == ((0, 0, 0, 0, 0, 0, 0), [], [], [])
+
+        receiver.add_writer(handle, 0x0015, publisher.handle.pointer)  # now it publishes
+        assert receiver.handle(datagram, address)
+        assert receiver.reliable_state(handle, 0x80) == (5, 5)
+        totals, clients, writers, acks = receiver.fold()
+        assert totals == (1, len(datagram), 1, 0, 0, 0, 0) and acks == [(handle, 0x80)]
+
+        # Read with Python's leave (no ACKNACK of its own queued): the one owed is sent here,
+        # byte for byte what Python sends, and counted; none is left for Python.
+        from xrce.submessages import AckNack, encode_message
+        receiver.set_reliable_state(handle, 0x80, 4, 4)
+        client.sendto(datagram, server.getsockname())
+        assert wait_until(lambda: select_readable(server), 5)
+        assert receiver.read(True) == ([], False)
+        acknack = encode_message(0x01, 0, 0, KEY, [AckNack(6, 0, 0x80)])
+        client.settimeout(5)
+        assert client.recv(64) == acknack
+        totals, clients, writers, acks = receiver.fold()
+        assert totals == (1, len(datagram), 1, 0, 0, 1, len(acknack)) and acks == []
+        assert clients[0][4:] == (1, len(acknack))
+        assert not receiver.handle(datagram, address)  # the duplicate is Python's to count
+        assert not receiver.handle(keyed_datagram(7, stream_id=0x80), address)  # a gap: Python's
+        receiver.set_reliable_state(handle, 0x80, 5, 7)  # Python holds 7, waits for 6
+        assert not receiver.handle(keyed_datagram(6, stream_id=0x80), address)
+        receiver.set_reliable_state(handle, 0x80, 7, 7)  # 6 and 7 delivered by Python
+        assert receiver.handle(keyed_datagram(8, stream_id=0x80), address)
+        assert receiver.handle(keyed_datagram(9, stream_id=0x80), address)
+        assert receiver.reliable_state(handle, 0x80) == (9, 9)
+        both = keyed_datagram(10, stream_id=0x80) + keyed_datagram(10)[8:]  # two WRITE_DATA
+        assert not receiver.handle(both, address)  # several submessages: Python's
+        assert receiver.reliable_state(handle, 0x80) == (9, 9)
+    finally:
+        receiver.remove_writer(handle, 0x0015)
+        ros_peer.node.destroy_publisher(publisher)
+        server.close()
+        client.close()
+
+
+def select_readable(sock):
+    import select
+    return bool(select.select([sock], [], [], 0)[0])
+
+
 # ------------------------------------------------------------------------ hostile input, C alone
 
 KEY = b"\x0a\x0b\x0c\x0d"
@@ -265,8 +438,8 @@ def test_hostile_datagrams_are_left_to_python_or_published(ros_peer):  # noqa: F
                 elif len(data) > 11:  # a length field claiming more or less than there is
                     data[10], data[11] = rng.randrange(256), rng.randrange(256)
             taken += receiver.handle(bytes(data), ADDRESS)
-        totals, clients, writers = receiver.fold()
-        messages, _size, samples, stale, errors = totals
+        totals, clients, writers, _acks = receiver.fold()
+        messages, _size, samples, stale, errors, _acknacks, _acknack_bytes = totals
         assert taken == messages == clients[0][1] and errors == 0
         assert samples == sum(row[2] for row in writers) and samples + stale >= taken > 1000
     finally:
@@ -298,8 +471,8 @@ def test_registration_sequence_numbers_and_removal(ros_peer):  # noqa: F811
         assert receiver.handle(keyed_datagram(2), ADDRESS)  # taken, as a repeat: dropped
         assert receiver.handle(keyed_datagram(1), ADDRESS)  # older: dropped
         assert receiver.stream_seq(handle, 0x01) == 2
-        totals, clients, writers = receiver.fold()
-        assert totals == (3, 3 * len(keyed_datagram(2)), 1, 2, 0)  # one published, two stale
+        totals, clients, writers, _acks = receiver.fold()
+        assert totals == (3, 3 * len(keyed_datagram(2)), 1, 2, 0, 0, 0)  # one published, two stale
         assert writers == [(handle, 0x0015, 1, 48)] and clients[0][:3] == (handle, 3, 3 * 64)
         receiver.set_client_enabled(handle, False)  # e.g. dead: Python must revive it
         assert not receiver.handle(keyed_datagram(3), ADDRESS)

@@ -96,6 +96,29 @@ def ping(_):
     state["session"].ping(timeout_ms=2000)
 
 
+def check_offset(session):
+    # One more exchange, taken whatever its round trip, with the reply datagram and the client's
+    # stamps printed for the test to redo the nanosecond arithmetic on CPython.
+    replies = []
+    handle = type(session).handle_message
+
+    def capture(data):
+        replies.append(bytes(data))
+        handle(session, data)
+
+    session.handle_message = capture
+    session.time_synced = False
+    print("offset_sync", session.sync_time(timeout_ms=2000))
+    del session.handle_message
+    demand = session._demand
+    base = demand[0] << 16  # xrce.client.on_demand's _BASE, _T0_S, _T0_NS, _NOW_S, _NOW_NS
+    print("offset_t0_ns", (base + demand[5]) * 1000000000 + demand[6])
+    print("offset_t3_ns", (base + demand[3]) * 1000000000 + demand[4])
+    print("offset_replies", " ".join(reply.hex() for reply in replies))
+    print("offset_ns", session.time_offset_ns)
+    print("offset_rtt_ns", session.time_rtt_ns)
+
+
 def main():
     port = int(sys.argv[1])
     count = int(sys.argv[2])
@@ -126,6 +149,7 @@ def main():
     measure_pair("reliable", publish_reliable, 1, count)
     measure("time_sync", sync, 0, count)
     measure("ping", ping, 0, count)
+    check_offset(session)
     print("received", state["counts"][0], state["counts"][1])
     print("last", state["last"][0], state["last"][1])
     print("time_synced", session.time_synced)

@@ -29,6 +29,8 @@ import sys
 import threading
 import time
 
+from xrce.tools.ros_cli import ros2_command
+
 PROG = "xrce-agent demo"
 SIDE_M = 0.5
 LINEAR_SPEED = 0.15  # nominal; the legs are fitted to whole command periods (_Square)
@@ -294,12 +296,16 @@ def run(args):
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                  start_new_session=True, env=env)
         _forward_output(robot, "[robot] ")
+        # ros2 where a ROS install put it on PATH, else this venv's xrce-ros (ros2cli has no
+        # PyPI wheels: after the README's install there is no ros2 to type).
+        ros2 = ros2_command()
         if localhost_only:
             _say("%s: watch it from another shell on this machine: ROS_DOMAIN_ID=%d "
-                 "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ros2 topic echo /odom" % (PROG, domain))
+                 "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST %s topic echo /odom"
+                 % (PROG, domain, ros2))
         else:
-            _say("%s: watch it from another shell: ROS_DOMAIN_ID=%d ros2 topic echo /odom"
-                 % (PROG, domain))
+            _say("%s: watch it from another shell: ROS_DOMAIN_ID=%d %s topic echo /odom"
+                 % (PROG, domain, ros2))
         _ros_side(domain, have_sensor_state, stop, args.duration)
         return EXIT_CODES[stopped_by[0]] if stopped_by else 0
     finally:

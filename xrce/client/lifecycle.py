@@ -87,7 +87,7 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     session.create_status = None
     session._pong_in_session = False
     session._delete_status = None
-    session._sync_originate = None
+    session._demand = None  # time sync's and the ping's state (xrce.client.on_demand)
     session._reassembly = None
     session._next_heartbeat = {}
     session._last_heard = ticks_ms()
@@ -100,8 +100,7 @@ def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4
     if auto_recover:
         from xrce.client.recovery import LinkMonitor
         session.link = LinkMonitor(session, liveliness_ms, on_state=on_link_state)
-    session.time_offset_ns = 0
-    session.time_rtt_ns = 0  # round trip of the exchange time_offset_ns came from
+    session.time_rtt_ns = 0  # round trip of the exchange time_offset_ns (a property) came from
     session.time_synced = False
     session.last_rtt_us = None
     session.last_statuses = {}

@@ -34,7 +34,7 @@
 
 import sys
 
-from xrce import DecodeError, IS_MICROPYTHON, const, epoch_ns, ticks_add, ticks_diff, ticks_ms
+from xrce import DecodeError, IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
 from xrce.cdr import CdrReader
 from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
 
@@ -224,12 +224,6 @@ class Session(Outbound):
                 ok = False
         return ok
 
-    # ------------------------------------------------------------------ time
-
-    def epoch_ns(self):
-        # Nanoseconds since the epoch on the agent's clock (after ``sync_time``).
-        return epoch_ns() - self.time_offset_ns
-
     # ------------------------------------------------------------------ input path
 
     def handle_message(self, buf):
@@ -342,9 +336,12 @@ class Session(Outbound):
                     elif self.connected:
                         self._session_unknown = True  # an agent answers, no longer knowing this session
             elif sub_id == _TIMESTAMP_REPLY:
-                from xrce.client.on_demand import on_timestamp_reply  # loaded by sync_time
-
-                on_timestamp_reply(self, buf, flags, s, e)
+                # xrce.client.on_demand's, which the first sync_time sets on the class (an import
+                # here would allocate per reply on a board).
+                if self._demand is None:
+                    self.stale_timestamps += 1
+                else:
+                    self._on_timestamp_reply(buf, flags, s, e)
             elif sub_id == _STATUS_AGENT:
                 if e - s < 1:
                     raise DecodeError("empty STATUS_AGENT")
@@ -439,7 +436,7 @@ _LIFECYCLE = " create delete _reset_streams _restore size_output_buffers "
 # xrce.client.on_demand's own, which it then sets on the class: their first look-up (a firmware's
 # first time sync, typically before any entity) goes there without loading xrce.client.entities,
 # which passes on the names it does not serve (the services') itself.
-_ON_DEMAND = " sync_time epoch_ms ping run_until_confirm_delivery link_state "
+_ON_DEMAND = " sync_time epoch_ns epoch_ms time_offset_ns ping run_until_confirm_delivery link_state "
 
 
 # xrce.client.<name> (entities, lifecycle) for one call: a board drops it again, as xrce.msgs drops

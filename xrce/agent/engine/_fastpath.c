@@ -1,12 +1,15 @@
-/* Optional compiled receive path of the UDP link: best-effort WRITE_DATA straight into rcl.
+/* Optional compiled receive path of the UDP link: WRITE_DATA straight into rcl.
  *
  * Why it exists: per datagram, the Python data path had reached its floor (bench/agent_cost.py);
  * what is left of the cost is Python work, not the kernel. Here the UDP link's read, on the asyncio
  * loop's thread as before, takes a batch of datagrams with recvmmsg and the GIL released. A datagram
  * whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered, on a
  * best-effort stream Python registered, is published with rcl_publish_serialized_message right
- * here. At the first datagram that is not (reliable streams, fragments, control, unknown clients,
- * anything malformed) the batch stops being handled here: it and every datagram behind it go back
+ * here. So is, on a reliable stream Python registered, a datagram holding one such WRITE_DATA that
+ * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
+ * end of the wake-up, or by Python (send_due_acknacks says when).
+ * At the first datagram that is neither (other reliable messages, fragments, control, unknown
+ * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
  * order. xrce/agent/engine/fastpath.py is the Python side.
  *
@@ -16,7 +19,9 @@
  *
  * Ownership: Python decides what is fast (clients, streams, writers and their rcl publishers) and
  * removes a writer before it destroys the publisher. This module owns the input sequence number of
- * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself.
+ * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself, and
+ * a registered reliable stream's two numbers (reliable_state, set_reliable_state) whenever its
+ * InputReliableStream reads or moves them (xrce.agent.engine.fastpath.CompiledReliableStream).
  * Counters accumulate here and Python folds them into its own (fold) after each read.
  *
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
@@ -46,6 +51,8 @@
 #define WRITE_DATA 0x07
 #define FORMAT_MASK 0x0E
 #define FORMAT_DATA 0x00
+#define ACKNACK 0x0A
+#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
 
 /* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
  * them; rmw reads only buffer and buffer_length of a message it publishes. */
@@ -72,7 +79,12 @@ typedef struct Writer {
 typedef struct Stream {
     struct Stream *next;
     uint8_t stream_id;
-    uint16_t last_seq;  /* the last accepted sequence number (XRCE-WIRE.md §1) */
+    uint16_t last_seq;  /* the last accepted (best-effort) or handled (reliable) sequence number */
+    /* Reliable streams only: the highest sequence number the client is known to have sent
+     * (xrce.streams.InputReliableStream.last_announced), and whether a message was handled here
+     * since the last fold (Python then sends the stream's ACKNACK). */
+    int reliable, ack_due;
+    uint16_t last_announced;
 } Stream;
 
 typedef struct Client {
@@ -89,7 +101,7 @@ typedef struct Client {
     socklen_t addr_len;
     Stream *streams;
     Writer *writers;
-    uint64_t messages, bytes;
+    uint64_t messages, bytes, messages_out, bytes_out;
     int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
 } Client;
 
@@ -103,7 +115,11 @@ typedef struct {
     long next_handle;
     int enabled;
     /* Agent-wide counters since the last fold. */
-    uint64_t messages, bytes, samples, stale, publish_errors;
+    uint64_t messages, bytes, samples, stale, publish_errors, acknacks, acknack_bytes;
+    /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found
+     * by fold's walk instead): read() acknowledges these without walking every client. */
+    struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
+    int pending_count;
     /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
     uint8_t (*buffers)[MAX_DATAGRAM];
     struct mmsghdr messages_hdr[BATCH];
@@ -157,15 +173,62 @@ static Stream *find_stream(Client *c, uint8_t stream_id) {
     return NULL;
 }
 
+/* A reliable stream's datagram: taken here only if it is the next message in order, with nothing
+ * held for the stream in Python, and its one submessage a WRITE_DATA to a registered writer that
+ * publishes. Everything else (a duplicate, a gap, a retransmission filling one, several
+ * submessages, a failed publish) goes to Python unchanged, which decides and acknowledges as it
+ * does for any reliable message; this path changes the stream only for a sample it delivered.
+ * Python keeps out-of-order messages with sequence numbers up to last_announced (its
+ * InputReliableStream invariant), so one not after seq means Python holds nothing to pop behind
+ * it. Called locked. */
+static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uint8_t *data,
+                             size_t length) {
+    uint16_t seq = data[2] | (data[3] << 8);
+    if (seq != (uint16_t)(stream->last_seq + 1) || seq_less(seq, stream->last_announced)) return 0;
+    size_t pos = data[0] < 0x80 ? 8 : 4;
+    if (pos + 8 > length) return 0;
+    size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
+    if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
+        sub_length < 4 || pos + 4 + sub_length != length)
+        return 0;
+    Writer *writer = find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7]));
+    if (writer == NULL) return 0;
+    uint8_t *body = data + pos + 4, ids[4];
+    memcpy(ids, body, 4);
+    body[0] = 0x00, body[1] = 0x01, body[2] = 0x00, body[3] = 0x00;
+    serialized_message_t message = {body, sub_length, sub_length, {0}};
+    if (rcl_publish_serialized(writer->publisher, &message, NULL) != 0) {
+        memcpy(body, ids, 4);  /* Python gets the datagram as it came */
+        return 0;
+    }
+    stream->last_seq = seq;
+    if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
+    if (!stream->ack_due && self->pending_count < PENDING_ACKS) {
+        self->pending[self->pending_count].client = client;
+        self->pending[self->pending_count++].stream = stream;
+    }
+    stream->ack_due = 1;
+    client->messages++;
+    client->bytes += length;
+    client->last_seen_ns = now_ns();
+    self->messages++;
+    self->bytes += length;
+    self->samples++;
+    writer->samples++;
+    writer->sample_bytes += sub_length - 4;
+    return 1;
+}
+
 /* Publish the datagram here if all of it is fast; 0 when Python must have it. Called locked. */
 static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
     if (!self->enabled || rcl_publish_serialized == NULL || length < 12) return 0;
     uint8_t session_id = data[0];
-    if ((session_id & 0x7F) == 0 || data[1] == 0 || data[1] >= 0x80) return 0;
+    if ((session_id & 0x7F) == 0 || data[1] == 0) return 0;
     Client *client = find_client(self, data, from);
     if (client == NULL || !client->enabled) return 0;
     Stream *stream = find_stream(client, data[1]);
     if (stream == NULL) return 0;
+    if (stream->reliable) return try_fast_reliable(self, client, stream, data, length);
     /* Every submessage must be a WRITE_DATA to a registered writer, or Python takes it all:
      * the same walk as xrce/message.py iter_submessages, every length checked. */
     size_t pos = session_id < 0x80 ? 8 : 4, count = 0;
@@ -210,6 +273,42 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
         pos = (pos + 4 + sub_length + 3) & ~(size_t)3;
     }
     return 1;
+}
+
+/* The ACKNACK each pending stream owes, sent here as xrce.agent.engine.liveliness._send_acknack
+ * would (the same bytes: a test holds them equal), when Python holds nothing out of order for it
+ * (last_announced is last_seq: the NACK bitmap is empty). A stream that does not qualify, or whose
+ * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch read() handled
+ * whole, on the last read of a wake-up, while Python has no ACKNACK of its own queued: so a
+ * stream gets one ACKNACK per wake-up, as on the Python path. */
+static void send_due_acknacks(Receiver *self) {
+    for (int i = 0; i < self->pending_count; i++) {
+        Client *c = self->pending[i].client;
+        Stream *s = self->pending[i].stream;
+        if (!s->ack_due || !c->enabled || s->last_announced != s->last_seq) continue;
+        uint8_t message[17];
+        size_t n = 0;
+        uint16_t first = (uint16_t)(s->last_seq + 1);
+        message[n++] = c->session_id;
+        message[n++] = 0, message[n++] = 0, message[n++] = 0;  /* stream none, sequence 0 */
+        if (c->session_id < 0x80) {
+            memcpy(message + n, c->key, 4);
+            n += 4;
+        }
+        message[n++] = ACKNACK, message[n++] = 0x01, message[n++] = 5, message[n++] = 0;
+        message[n++] = first & 0xFF, message[n++] = first >> 8;
+        message[n++] = 0, message[n++] = 0;  /* nothing missing */
+        message[n++] = s->stream_id;
+        if (sendto(self->sock, message, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
+                   c->addr_len) != (ssize_t)n)
+            continue;
+        s->ack_due = 0;
+        c->messages_out++;
+        c->bytes_out += n;
+        self->acknacks++;
+        self->acknack_bytes += n;
+    }
+    self->pending_count = 0;
 }
 
 /* ----------------------------------------------------------------------------- Python side */
@@ -281,11 +380,19 @@ static void Receiver_dealloc(Receiver *self) {
     Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-/* read() -> (datagrams for Python, more): one recvmmsg batch from the non-blocking socket, handled
- * here up to the first datagram that is not fast; that one and the rest come back as
- * [(bytes, address)], in order. more: the batch was full, the socket may hold more. */
-static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
-    (void)unused;
+/* read([may_acknowledge]) -> (datagrams for Python, more): one recvmmsg batch from the
+ * non-blocking socket, handled here up to the first datagram that is not fast; that one and the
+ * rest come back as [(bytes, address)], in order. more: the batch was full, the socket may hold
+ * more. may_acknowledge: Python has no ACKNACK queued, so this read, if it handles its whole batch
+ * and is the last of the wake-up, sends the ACKNACKs owed (send_due_acknacks). */
+static PyObject *Receiver_read(Receiver *self, PyObject *const *args, Py_ssize_t nargs) {
+    /* METH_FASTCALL: this runs once per wake-up of the loop, no argument tuple to build */
+    int may_acknowledge = 0;
+    if (nargs > 1) {
+        PyErr_SetString(PyExc_TypeError, "read() takes at most one argument");
+        return NULL;
+    }
+    if (nargs == 1 && (may_acknowledge = PyObject_IsTrue(args[0])) < 0) return NULL;
     if (self->buffers == NULL) {
         void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
                          MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
@@ -309,6 +416,8 @@ static PyObject *Receiver_read(Receiver *self, PyObject *unused) {
                                        self->messages_hdr[handled].msg_len,
                                        &self->sources[handled]))
         handled++;
+    if (may_acknowledge && self->enabled && handled == (count < 0 ? 0 : count) && count < BATCH)
+        send_due_acknacks(self);
     pthread_mutex_unlock(&self->mutex);
     Py_END_ALLOW_THREADS
     for (int i = 0; i < count; i++)  /* the kernel wrote the address lengths of these */
@@ -369,6 +478,10 @@ static PyObject *Receiver_remove_client(Receiver *self, PyObject *arg) {
         if ((*link)->handle == handle) {
             Client *c = *link;
             *link = c->next;
+            int kept = 0;
+            for (int i = 0; i < self->pending_count; i++)
+                if (self->pending[i].client != c) self->pending[kept++] = self->pending[i];
+            self->pending_count = kept;
             free_client(c);
             break;
         }
@@ -397,11 +510,13 @@ static PyObject *Receiver_set_enabled(Receiver *self, PyObject *arg) {
     Py_RETURN_NONE;
 }
 
-/* add_stream(handle, stream_id, last_seq): from now on the sequence number lives here. */
+/* add_stream(handle, stream_id, last_seq[, last_announced]): from now on the sequence number
+ * lives here; with last_announced, a reliable stream's (InputReliableStream's two numbers). */
 static PyObject *Receiver_add_stream(Receiver *self, PyObject *args) {
     long handle;
-    int stream_id, last_seq;
-    if (!PyArg_ParseTuple(args, "lii", &handle, &stream_id, &last_seq)) return NULL;
+    int stream_id, last_seq, last_announced = -1;
+    if (!PyArg_ParseTuple(args, "lii|i", &handle, &stream_id, &last_seq, &last_announced))
+        return NULL;
     pthread_mutex_lock(&self->mutex);
     Client *c = client_by_handle(self, handle);
     Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
@@ -410,10 +525,47 @@ static PyObject *Receiver_add_stream(Receiver *self, PyObject *args) {
         s->next = c->streams;
         c->streams = s;
     }
-    if (s) s->last_seq = (uint16_t)last_seq;
+    if (s) {
+        s->last_seq = (uint16_t)last_seq;
+        s->reliable = last_announced >= 0;
+        s->last_announced = s->reliable ? (uint16_t)last_announced : 0;
+        s->ack_due = 0;
+    }
     pthread_mutex_unlock(&self->mutex);
     if (c && s == NULL) return PyErr_NoMemory();
     return PyBool_FromLong(s != NULL);
+}
+
+/* reliable_state(handle, stream_id) -> (last_handled, last_announced) or None. */
+static PyObject *Receiver_reliable_state(Receiver *self, PyObject *args) {
+    long handle;
+    int stream_id;
+    if (!PyArg_ParseTuple(args, "li", &handle, &stream_id)) return NULL;
+    long last = -1, announced = 0;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
+    if (s && s->reliable) last = s->last_seq, announced = s->last_announced;
+    pthread_mutex_unlock(&self->mutex);
+    if (last < 0) Py_RETURN_NONE;
+    return Py_BuildValue("(ll)", last, announced);
+}
+
+/* set_reliable_state(handle, stream_id, last_handled, last_announced): Python's stream moved. */
+static PyObject *Receiver_set_reliable_state(Receiver *self, PyObject *args) {
+    long handle;
+    int stream_id, last, announced;
+    if (!PyArg_ParseTuple(args, "liii", &handle, &stream_id, &last, &announced)) return NULL;
+    int found = 0;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
+    if (s && s->reliable) {
+        s->last_seq = (uint16_t)last, s->last_announced = (uint16_t)announced;
+        found = 1;
+    }
+    pthread_mutex_unlock(&self->mutex);
+    return PyBool_FromLong(found);
 }
 
 /* stream_accept(handle, stream_id, seq): the best-effort check for a datagram Python handles. */
@@ -495,20 +647,25 @@ static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
 }
 
 /* fold(): the counters since the previous fold, reset here:
- * ((messages, bytes, samples, stale, publish_errors),
- *  [(handle, messages, bytes, last_seen_ns)], [(handle, object_id, samples, bytes)]) */
+ * ((messages, bytes, samples, stale, publish_errors, acknacks sent, their bytes),
+ *  [(handle, messages, bytes, last_seen_ns, messages_out, bytes_out)],
+ *  [(handle, object_id, samples, bytes)],
+ *  [(handle, stream_id)] of the reliable streams that handled a message: each owes an ACKNACK) */
 static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
-    PyObject *clients = PyList_New(0), *writers = PyList_New(0), *result = NULL;
-    if (clients == NULL || writers == NULL) goto done;
+    PyObject *clients = PyList_New(0), *writers = PyList_New(0), *acks = PyList_New(0);
+    PyObject *result = NULL;
+    if (clients == NULL || writers == NULL || acks == NULL) goto done;
     pthread_mutex_lock(&self->mutex);
     int failed = 0;
     for (Client *c = self->clients; c && !failed; c = c->next) {
-        if (c->messages) {
-            PyObject *row = Py_BuildValue("(lKKL)", c->handle, (unsigned long long)c->messages,
-                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns);
+        if (c->messages || c->messages_out) {
+            PyObject *row = Py_BuildValue("(lKKLKK)", c->handle, (unsigned long long)c->messages,
+                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns,
+                                          (unsigned long long)c->messages_out,
+                                          (unsigned long long)c->bytes_out);
             failed = row == NULL || PyList_Append(clients, row) < 0;
             Py_XDECREF(row);
-            c->messages = c->bytes = 0;
+            c->messages = c->bytes = c->messages_out = c->bytes_out = 0;
         }
         for (Writer *w = c->writers; w && !failed; w = w->next) {
             if (!w->samples) continue;
@@ -519,19 +676,31 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
             Py_XDECREF(row);
             w->samples = w->sample_bytes = 0;
         }
+        for (Stream *s = c->streams; s && !failed; s = s->next) {
+            if (!s->ack_due) continue;
+            PyObject *row = Py_BuildValue("(li)", c->handle, (int)s->stream_id);
+            failed = row == NULL || PyList_Append(acks, row) < 0;
+            Py_XDECREF(row);
+            s->ack_due = 0;
+        }
     }
-    PyObject *totals = Py_BuildValue("(KKKKK)", (unsigned long long)self->messages,
+    PyObject *totals = Py_BuildValue("(KKKKKKK)", (unsigned long long)self->messages,
                                      (unsigned long long)self->bytes,
                                      (unsigned long long)self->samples,
                                      (unsigned long long)self->stale,
-                                     (unsigned long long)self->publish_errors);
+                                     (unsigned long long)self->publish_errors,
+                                     (unsigned long long)self->acknacks,
+                                     (unsigned long long)self->acknack_bytes);
     self->messages = self->bytes = self->samples = self->stale = self->publish_errors = 0;
+    self->acknacks = self->acknack_bytes = 0;
+    self->pending_count = 0;  /* every ack_due was just handed to Python */
     pthread_mutex_unlock(&self->mutex);
-    if (!failed && totals) result = Py_BuildValue("(NOO)", totals, clients, writers);
+    if (!failed && totals) result = Py_BuildValue("(NOOO)", totals, clients, writers, acks);
     else Py_XDECREF(totals);
 done:
     Py_XDECREF(clients);
     Py_XDECREF(writers);
+    Py_XDECREF(acks);
     return result;
 }
 
@@ -563,7 +732,8 @@ static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
 }
 
 static PyMethodDef Receiver_methods[] = {
-    {"read", (PyCFunction)Receiver_read, METH_NOARGS, "([(datagram, address)] for Python, more)"},
+    {"read", (PyCFunction)(void (*)(void))Receiver_read, METH_FASTCALL,
+     "read([may_acknowledge]) -> ([(datagram, address)] for Python, more)"},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
     {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
     {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},
@@ -571,6 +741,8 @@ static PyMethodDef Receiver_methods[] = {
     {"add_stream", (PyCFunction)Receiver_add_stream, METH_VARARGS, NULL},
     {"stream_accept", (PyCFunction)Receiver_stream_accept, METH_VARARGS, NULL},
     {"stream_seq", (PyCFunction)Receiver_stream_seq, METH_VARARGS, NULL},
+    {"reliable_state", (PyCFunction)Receiver_reliable_state, METH_VARARGS, NULL},
+    {"set_reliable_state", (PyCFunction)Receiver_set_reliable_state, METH_VARARGS, NULL},
     {"add_writer", (PyCFunction)Receiver_add_writer, METH_VARARGS, NULL},
     {"remove_writer", (PyCFunction)Receiver_remove_writer, METH_VARARGS, NULL},
     {"fold", (PyCFunction)Receiver_fold, METH_NOARGS, NULL},

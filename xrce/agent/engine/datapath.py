@@ -10,9 +10,9 @@ here, so this module is the one to read and profile for throughput:
   ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``_send_on_stream`` numbers, stores (reliable) and fragments output.
 
-With the optional compiled UDP path (``xrce.agent.engine.fastpath``), best-effort WRITE_DATA of writers
-this path has handled once are published by the UDP link's read before they reach Python; what
-``_fast_write`` hands it (``offer``) is how it learns which ones.
+With the optional compiled UDP path (``xrce.agent.engine.fastpath``), WRITE_DATA of writers this path
+has handled once (best-effort, and reliable ones next in order) are published by the UDP link's read
+before they reach Python; what ``_fast_write`` hands it (``offer``) is how it learns which ones.
 """
 
 from __future__ import annotations
@@ -101,12 +101,13 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:])
-        if not stream_id & 0x80 and entry.kind == C_DATAWRITER:
+        if entry.kind == C_DATAWRITER:
             fastpath = getattr(link, "fastpath", None)
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
                 fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
-            self._acknack_soon(client, stream)
+            # offer() may have handed the stream's numbers to C: acknowledge the stream now held
+            self._acknack_soon(client, client.in_reliable.get(stream_id, stream))
         return True
 
     def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:

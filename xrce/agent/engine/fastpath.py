@@ -1,20 +1,25 @@
 """The UDP link's optional compiled receive path (``xrce/agent/engine/_fastpath.c``), Python side.
 
 When the extension is built and the middleware is rclpy, the UDP link's read goes through C: one
-``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl,
-and from the first datagram that needs Python on, the rest of the batch handed back unchanged and in
+``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl
+(and on reliable streams, a datagram of one WRITE_DATA that is the next in order), and from the first datagram that needs Python on, the rest of the batch handed back unchanged and in
 order to the link's usual ``_deliver``. Same thread, same wake-ups as the Python read.
 ``XRCE_FASTPATH=0`` (or a missing extension, or another middleware) leaves the pure Python path.
 
 What is fast is decided here, one piece at a time, when the Python path has just handled a
-best-effort sample (``DataPath._fast_write`` calls ``offer``): the client (by its source address
-and, for sessions with a key in the header, that key: a datagram from anywhere else is Python's to
-judge, e.g. against --allow-from), the stream (its sequence number moves into C;
-Python's stream object becomes a ``CompiledStream`` asking C) and the writer (its rcl publisher,
+best-effort or in-order reliable sample (``DataPath._fast_write`` calls ``offer``): the client (by
+its source address and, for sessions with a key in the header, that key: a datagram from anywhere
+else is Python's to judge, e.g. against --allow-from), the stream (its sequence numbers move into
+C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStream`` asking C, so
+the numbers have one owner) and the writer (its rcl publisher,
 which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
 pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
-counters are folded into the agent's, the link's, the clients' and the writers' after every read.
+counters are folded into the agent's, the link's, the clients' and the writers' after every read,
+and each reliable stream C delivered on gets its ACKNACK: from C at the end of the wake-up when
+Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
+C only moves a reliable stream for a sample it published: a failed publish, like every
+duplicate, gap or retransmission, reaches Python unchanged.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import time
 from typing import Dict, Optional
 
 from xrce.agent.engine.session import TRACE
-from xrce.streams import InputBestEffortStream
+from xrce.streams import InputBestEffortStream, InputReliableStream
 
 log = logging.getLogger("xrce.agent")
 
@@ -64,6 +69,62 @@ class CompiledStream:
         self._receiver.add_stream(self._handle, self.stream_id, 0xFFFF)
 
 
+class CompiledReliableStream(InputReliableStream):
+    """An ``InputReliableStream`` whose two sequence numbers (``last_handled``,
+    ``last_announced``) C owns: C delivers the next message in order when Python holds none
+    behind it, and Python's handling of everything else (duplicates, gaps, HEARTBEATs, the
+    ACKNACK's contents) reads and moves the same numbers. The out-of-order messages it keeps
+    (``stored``) stay Python's."""
+
+    __slots__ = ("_receiver", "_handle")
+
+    def __init__(self, receiver, handle: int, stream: InputReliableStream):
+        self._receiver = receiver
+        self._handle = handle
+        super().__init__(stream.stream_id, stream.window)  # reset() registers it in C
+        self.last_handled = stream.last_handled
+        self.last_announced = stream.last_announced
+        self.duplicates = stream.duplicates
+
+    def _state(self):
+        state = self._receiver.reliable_state(self._handle, self.stream_id)
+        return (0xFFFF, 0xFFFF) if state is None else state
+
+    @property
+    def last_handled(self) -> int:
+        return self._state()[0]
+
+    @last_handled.setter
+    def last_handled(self, seq: int) -> None:
+        self._set(seq, None)
+
+    @property
+    def last_announced(self) -> int:
+        return self._state()[1]
+
+    @last_announced.setter
+    def last_announced(self, seq: int) -> None:
+        self._set(None, seq)
+
+    def _set(self, last, announced) -> None:
+        state = self._receiver.reliable_state(self._handle, self.stream_id)
+        if state is None:  # reset() from the base class's __init__: not registered yet
+            self._receiver.add_stream(self._handle, self.stream_id, 0xFFFF, 0xFFFF)
+            state = (0xFFFF, 0xFFFF)
+        self._receiver.set_reliable_state(self._handle, self.stream_id,
+                                          state[0] if last is None else last,
+                                          state[1] if announced is None else announced)
+
+    def detached(self) -> InputReliableStream:
+        """A plain stream in this one's state, for when C forgets the client."""
+        stream = InputReliableStream(self.stream_id, self.window)
+        stream.last_handled, stream.last_announced = self._state()
+        stream.stored.update(self.stored)
+        stream.stored_bytes = self.stored_bytes
+        stream.duplicates = self.duplicates
+        return stream
+
+
 class CompiledClient:
     """What C knows of one client: its handle, streams and writers."""
 
@@ -93,7 +154,10 @@ class CompiledClient:
         for object_id in list(self.writers):
             self.forget_writer(client, object_id)
         for stream_id in self.streams:  # the sequence numbers come back to Python
-            if isinstance(client.in_best_effort.get(stream_id), CompiledStream):
+            reliable = client.in_reliable.get(stream_id)
+            if isinstance(reliable, CompiledReliableStream):
+                client.in_reliable[stream_id] = reliable.detached()
+            elif isinstance(client.in_best_effort.get(stream_id), CompiledStream):
                 stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
                 seq = path.receiver.stream_seq(self.handle, stream_id)
                 if seq is not None:
@@ -127,9 +191,12 @@ class FastPath:
         stats = link.stats
         read = self.receiver.read
         handed = False
+        agent = self.agent
         for _ in range(READ_ROUNDS):  # bounded: TCP and serial links share the loop
             try:
-                rest, more = read()
+                # With no ACKNACK of Python's queued, C sends those it owes itself at the end of
+                # the wake-up, saving a turn of the loop; otherwise they join Python's (fold).
+                rest, more = read(not agent._acks_due)
             except OSError as exc:
                 # ICMP errors (port unreachable after a client went away) arrive here on Linux.
                 log.debug("%s: socket error %s", link.name, exc)
@@ -155,8 +222,8 @@ class FastPath:
                                               client.key in agent.timelines.pending)
 
     def offer(self, client, stream_id: int, entry) -> None:
-        """The Python path just accepted a best-effort sample for ``entry`` on ``stream_id``:
-        make what is not compiled yet compiled, if the client qualifies."""
+        """The Python path just accepted a sample for ``entry`` on ``stream_id`` (best-effort,
+        or reliable in order): make what is not compiled yet compiled, if the client qualifies."""
         agent = self.agent
         if agent.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
             return
@@ -167,7 +234,16 @@ class FastPath:
             state = client.fast = CompiledClient(self, handle)
             self.clients[handle] = client
             log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
-        if stream_id not in state.streams:
+        if stream_id not in state.streams and stream_id & 0x80:
+            stream = client.in_reliable.get(stream_id)
+            if stream is None or stream.stored:
+                return
+            client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
+                                                                   stream)
+            state.streams.add(stream_id)
+            log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
+                      client.key.hex(), stream_id)
+        elif stream_id not in state.streams:
             stream = client.in_best_effort.get(stream_id)
             if stream is None:
                 return
@@ -197,12 +273,21 @@ class FastPath:
 
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
-        (messages, size, samples, stale, publish_errors), clients, writers = self.receiver.fold()
+        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes), clients, \
+            writers, acks = self.receiver.fold()
+        if acknacks:
+            stats = self.agent.stats
+            stats.acknacks_out += acknacks
+            stats.messages_out += acknacks
+            stats.bytes_out += acknack_bytes
+            self.link.stats.messages_out += acknacks
+            self.link.stats.bytes_out += acknack_bytes
         if messages:
             stats = self.agent.stats
             stats.messages_in += messages
             stats.bytes_in += size
             stats.samples_in += samples
+            stats.samples_compiled += samples
             stats.dropped += stale
             self.link.stats.messages_in += messages
             self.link.stats.bytes_in += size
@@ -211,9 +296,13 @@ class FastPath:
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
         offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
             else 0.0
-        for handle, count, size, seen_ns in clients:
+        for handle, count, size, seen_ns, count_out, size_out in clients:
             client = self.clients.get(handle)
             if client is None:
+                continue
+            client.messages_out += count_out
+            client.bytes_out += size_out
+            if not count:
                 continue
             client.messages_in += count
             client.bytes_in += size
@@ -227,6 +316,11 @@ class FastPath:
             if entry is not None:
                 entry.samples += count
                 entry.sample_bytes += size
+        for handle, stream_id in acks:  # as DataPath._fast_write after a reliable sample
+            client = self.clients.get(handle)
+            stream = client.in_reliable.get(stream_id) if client is not None else None
+            if stream is not None and client.alive:
+                self.agent._acknack_soon(client, stream)
 
 def stale_build(module) -> Optional[str]:
     """Why ``module`` (the built extension) is not what ``_fastpath.c`` beside it builds, or None.

@@ -78,6 +78,7 @@ class AgentStats:
     oversize_dropped: int = 0  # best-effort output larger than the client's mtu
     status_lost: int = 0  # STATUS that found the reliable window full (eProsima drops them too)
     samples_in: int = 0
+    samples_compiled: int = 0  # of samples_in, those the compiled UDP read published
     samples_out: int = 0
     samples_overwritten: int = 0  # reader queue full: oldest sample dropped
     clients_created: int = 0
