@@ -10,9 +10,14 @@ a serial pseudo-terminal) and answers as the firmware's client library does:
 - its reliable output is flow-controlled and retransmitted by the agent's ACKNACKs (the firmware
   waited for eProsima's; an agent that holds a message back, e.g. while a type builds, gets it
   again);
-- its ACKNACKs for the agent's reliable stream are rewritten to acknowledge what this agent sent,
-  and a HEARTBEAT from the agent is answered with one (the only bytes rewritten, as the README
-  says);
+- it receives the agent's reliable stream as its client library does: in order, duplicates
+  dropped, each reliable message and each HEARTBEAT answered with an ACKNACK naming the first
+  message missing and the gaps after it (the C client acknowledges every reliable message it
+  reads; the captures hold one ACKNACK per reliable message of eProsima's). The firmware's
+  recorded ACKNACKs are rewritten to that same state of this agent's stream (the only bytes
+  rewritten, as the README says). Acknowledging by count of what eProsima sent would leave an
+  agent that sends more (more or larger samples) waiting for acknowledgements, and
+  acknowledging up to the highest number seen would hide a lost message;
 - it waits where the firmware waited: for the STATUS of each CREATE/DELETE before the next
   message (rmw_microxrcedds creates and deletes synchronously), for the answer to a session-less
   message, and for the DATA answering a cancel READ_DATA (up to the firmware's 1 s, or longer).
@@ -22,6 +27,7 @@ What our agent answered is collected the same way as eProsima's, so a test compa
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import select
@@ -33,11 +39,13 @@ from pathlib import Path
 
 from xrce import constants as C
 from xrce.errors import DecodeError
+from xrce.streams import InputReliableStream
 from xrce.submessages import AckNack, decode_message, encode_message
 
 CAPTURES = Path(__file__).resolve().parent / "golden" / "microros"
 FIRMWARE_STREAM = 0x80  # the firmware's reliable output and the agent's reliable output to it
 WINDOW = 8  # reliable messages the replay keeps in flight (the C client's history is 16)
+INPUT_WINDOW = 64  # the agent's messages held ahead of a missing one (eProsima's sent 23 past one)
 
 
 def _submessages(data: bytes, start: int):
@@ -59,7 +67,8 @@ class Answers:
         self.status_agent = []  # (boot, status) per STATUS_AGENT
         self.infos = defaultdict(int)  # boot -> INFO count
         self.timestamp_replies = defaultdict(int)
-        self.last_reliable = {}  # boot -> highest sequence number on the agent's stream 0x80
+        # boot -> the agent's reliable stream 0x80 as the firmware receives it (in order)
+        self.reliable = defaultdict(lambda: InputReliableStream(FIRMWARE_STREAM, INPUT_WINDOW))
         self.acked = {}  # boot -> first sequence number of ours the agent has not acknowledged
         self.heartbeats = defaultdict(int)
         # (boot, object id) -> the samples of its DATA in order (a replier's begin with the
@@ -67,19 +76,22 @@ class Answers:
         self.samples = defaultdict(list)
         self._fragments = {}  # boot -> bytes of the FRAGMENTs of the message being reassembled
 
-    def note(self, boot: int, message: bytes) -> list:
-        """Record one message from the agent; the HEARTBEATs in it (to answer)."""
-        session, stream_id = message[0], message[1]
-        seq = message[2] | (message[3] << 8)
-        new = True
-        if stream_id == FIRMWARE_STREAM:
-            new = seq > self.last_reliable.get(boot, -1)
-            if new:
-                self.last_reliable[boot] = seq
-        heartbeats = []
-        start = 4 if session >= 0x80 else 8
+    def note(self, boot: int, message: bytes) -> bool:
+        """Record one message from the agent; whether it calls for an ACKNACK (a reliable
+        message or a HEARTBEAT, as the firmware's client library answers them)."""
+        stream_id = message[1]
+        if stream_id != FIRMWARE_STREAM:
+            return self._note_in_order(boot, message)
+        stream = self.reliable[boot]
+        for ordered in stream.receive(message[2] | (message[3] << 8), message):
+            self._note_in_order(boot, ordered)
+        return True
+
+    def _note_in_order(self, boot: int, message: bytes) -> bool:
+        heartbeat = False
+        start = 4 if message[0] >= 0x80 else 8
         for sub_id, flags, body in _submessages(message, start):
-            if sub_id == C.FRAGMENT and new:
+            if sub_id == C.FRAGMENT:
                 # A sample larger than the MTU (reliable stream only): its DATA once whole.
                 whole = self._fragments.pop(boot, b"") + body
                 if flags & C.FLAG_LAST_FRAGMENT:
@@ -103,8 +115,11 @@ class Answers:
                 self.acked[boot] = max(self.acked.get(boot, 0), first)
             elif sub_id == C.HEARTBEAT and len(body) >= 5 and body[4] == FIRMWARE_STREAM:
                 self.heartbeats[boot] += 1
-                heartbeats.append(body)
-        return heartbeats
+                heartbeat = True
+                for ordered in self.reliable[boot].on_heartbeat(body[0] | (body[1] << 8),
+                                                                body[2] | (body[3] << 8)):
+                    self._note_in_order(boot, ordered)
+        return heartbeat
 
     def _note_data(self, boot: int, body: bytes) -> None:
         self.data[(boot, (body[0] << 8) | body[1])] += 1
@@ -116,7 +131,10 @@ class Capture:
 
     def __init__(self, name: str):
         self.name = name
-        self.records = [json.loads(line) for line in (CAPTURES / (name + ".jsonl")).open()]
+        path = CAPTURES / (name + ".jsonl")
+        opened = path.open() if path.exists() else gzip.open(str(path) + ".gz", "rt")
+        with opened as lines:
+            self.records = [json.loads(line) for line in lines]
         self.steps = []  # (boot, bytes) of every c2a message
         self.times = []  # when each was sent, seconds into the recording
         self.eprosima = Answers()
@@ -267,20 +285,21 @@ class Replayer:
             except DecodeError as exc:
                 raise AssertionError("malformed message from the agent: %s (%s)"
                                      % (message.hex(), exc))
-            heartbeats = self.answers.note(boot, message)
+            answer = self.answers.note(boot, message)
             for key in (set(self.answers.statuses) | set(self.answers.data)) - before:
                 self.answered_at.setdefault(key, now)
-            for _heartbeat in heartbeats:
+            if answer:
                 self._acknack(boot)
             acked = self.answers.acked.get(boot, 0)
             for key in [k for k in self.unacked if k[0] == boot and k[1] < acked]:
                 del self.unacked[key]
 
     def _acknack(self, boot: int) -> None:
-        """Acknowledge everything the agent has sent on its reliable stream (first unacked next)."""
-        last = self.answers.last_reliable.get(boot, -1)
+        """Acknowledge what the firmware has of the agent's reliable stream: the first message
+        missing, and the gaps after it (what the agent retransmits)."""
+        first, bitmap = self.answers.reliable[boot].acknack()
         self.channel.send(boot, encode_message(0x81, 0, 0, None,
-                                               [AckNack((last + 1) & 0xFFFF, 0, FIRMWARE_STREAM)]))
+                                               [AckNack(first, bitmap, FIRMWARE_STREAM)]))
 
     def wait(self, predicate, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -488,3 +507,52 @@ class RosSideFeeder:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2)
+
+
+# ------------------------------------------------------------ micro-ROS' graph (graph capture)
+
+GRAPH_ENTITY_KINDS = ("publisher", "subscriber", "service server", "service client")
+
+
+def decode_graph(body: bytes) -> list:
+    """A ``micro_ros_msgs/msg/Graph`` CDR body as [(namespace, name, [(kind, entity name,
+    (types...)), ...]), ...], read as rmw_microxrcedds reads it (little endian, as both agents
+    send it)."""
+    from xrce.cdr import CdrReader
+
+    reader = CdrReader(body)
+    nodes = []
+    for _ in range(reader.u32()):
+        namespace, name = reader.string(), reader.string()
+        entities = []
+        for _ in range(reader.u32()):
+            kind, entity = reader.u8(), reader.string()
+            entities.append((GRAPH_ENTITY_KINDS[kind], entity,
+                             tuple(reader.string() for _ in range(reader.u32()))))
+        nodes.append((namespace, name, entities))
+    return nodes
+
+
+class BoardView:
+    """What rmw_microxrcedds answers from one Graph: ``rcl_get_node_names``,
+    ``rcl_get_topic_names_and_types`` (publishers' and subscribers' names with their types),
+    ``rcl_count_publishers/subscribers`` (entities of that kind and name over all nodes) and the
+    service names and types."""
+
+    def __init__(self, graph: list):
+        self.nodes = sorted((namespace.rstrip("/") + "/" + name) for namespace, name, _ in graph)
+        self.topics = defaultdict(set)
+        self.services = defaultdict(set)
+        self.counts = defaultdict(int)  # (kind, name) -> entities
+        self.by_node = {}
+        for namespace, name, entities in graph:
+            self.by_node[namespace.rstrip("/") + "/" + name] = entities
+            for kind, entity, types in entities:
+                self.counts[(kind, entity)] += 1
+                target = self.topics if kind in ("publisher", "subscriber") else self.services
+                target[entity].update(types)
+
+    def node_topics(self, node: str) -> set:
+        """(kind, topic, types) of one node's publishers and subscribers."""
+        return {(kind, entity, types) for kind, entity, types in self.by_node.get(node, ())
+                if kind in ("publisher", "subscriber")}

@@ -118,7 +118,9 @@ def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
     nothing can change their parameters, and that publisher's history cost memory."""
     def publishers():
         try:
-            return dict(ros_peer.node.get_publisher_names_and_types_by_node("xrce_agent", "/"))
+            # no_demangle: the wake topic is a DDS-level one, which ROS listings leave out.
+            return dict(ros_peer.node.get_publisher_names_and_types_by_node("_xrce_agent", "/",
+                                                                             no_demangle=True))
         except Exception:  # the node is not discovered yet
             return {}
 
@@ -126,7 +128,7 @@ def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
         # Its wake topic's publisher seen: the node's publishers have been discovered.
         assert wait_until(lambda: any("/_xrce_agent/wake_" in name for name in publishers()),
                           timeout_s=20), publishers()
-        assert "/parameter_events" not in publishers()
+        assert "rt/parameter_events" not in publishers()
 
 
 def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_domain):  # noqa: F811

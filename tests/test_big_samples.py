@@ -14,7 +14,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String as RosString
 
 from agent_process import AgentProcess
-from engine_peer import Link, Peer, talker_and_listener
+from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
@@ -22,7 +22,9 @@ from xrce.agent.engine.dispatch import Agent
 from xrce.client.session import Session
 from xrce.message import iter_submessages
 from xrce.msgs.std_msgs import String
-from xrce.submessages import AckNack, DeliveryControl, Fragment, Heartbeat, decode_message, encode_message
+from xrce.submessages import (
+    AckNack, Create, DeliveryControl, Fragment, Heartbeat, decode_message, encode_message,
+)
 from xrce.transports.udp import UdpTransport
 
 BIG = 256 * 1024
@@ -160,3 +162,32 @@ def test_length_0_write_data_in_a_long_chain_and_output_beyond_the_window(ced_ag
     assert agent.stats.handler_errors == 0
     client = agent.clients[listener.key]
     assert not client.out_pending  # everything went out
+
+
+def test_a_status_waits_for_room_when_readers_samples_fill_the_window(ced_agent):
+    """A board's CREATE while the samples of one of its readers fill its reliable output window
+    (micro-ROS' Graph, fragmented, to a graph-enabled board): the CREATE is acknowledged, so its
+    STATUS must reach the board once an ACKNACK frees room, ahead of the samples still queued.
+    rmw_microxrcedds waits for that STATUS; it was dropped (the graph replay stalled)."""
+    from xrce.objects import PubSubBin
+
+    agent, link = ced_agent
+    talker, listener = talker_and_listener(agent, link, listener_depth=64)
+    listener.read(0x80, DeliveryControl(0xFFFF, 0, 0, 0))
+    listener.ack_all()
+    listener.take()
+    for index in range(24):  # more than the 16-message window
+        talker.write(b"\x05\x00\x00\x00s%03d\x00" % index)
+    client = agent.clients[listener.key]
+    assert not client.out_reliable[0x80].has_room()
+    request_id = listener.next_request()
+    listener.send(0x80, Create(request_id, 0x0024, C.OBJK_PUBLISHER, BIN, PubSubBin(), 0x0011, 1))
+    first = listener.take()
+    assert len(data_of(first)) == 16 and not [p for _, ps in first for p in ps
+                                               if p.ID == C.STATUS and p.request_id == request_id]
+    listener.ack_all()  # what the board's client library sends for what it received
+    after = [p for _, ps in listener.take() for p in ps if p.ID in (C.STATUS, C.DATA)]
+    assert after[0].ID == C.STATUS and after[0].request_id == request_id, after[:2]
+    assert after[0].status == C.STATUS_OK
+    assert len([p for p in after if p.ID == C.DATA]) == 8  # the rest follow, none lost
+    assert agent.stats.status_lost == 0

@@ -403,7 +403,15 @@ class DataPath:
         if len(message) <= client.mtu:
             seq = stream.next_seq()
             if seq is None:
-                return False
+                if payload is None:
+                    return False  # a reader's DATA stays in its queue (blocked_readers)
+                # A reply (a STATUS) answers a request already acknowledged: dropping it would
+                # leave the client waiting for ever (rmw_microxrcedds blocks on each CREATE's
+                # STATUS) while readers' samples fill the window. It waits for room, ahead of
+                # the readers, which only get room once what is pending has gone.
+                client.out_pending[stream_id] = deque((message,))
+                self._charge(client, len(message))
+                return True
             message = _with_seq(message, seq)
             stream.commit(seq, message)
             self._charge(client, len(message))

@@ -76,7 +76,7 @@ class AgentStats:
     fragments_out: int = 0
     reassembly_overflows: int = 0
     oversize_dropped: int = 0  # best-effort output larger than the client's mtu
-    status_lost: int = 0  # STATUS that found the reliable window full (eProsima drops them too)
+    status_lost: int = 0  # STATUS not sent (none since a reply waits for room in a full window)
     samples_in: int = 0
     samples_compiled: int = 0  # of samples_in, those the compiled UDP read published
     samples_out: int = 0

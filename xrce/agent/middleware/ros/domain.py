@@ -21,7 +21,11 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   rclpy guard conditions are "not supported" by it, and a future completed from another thread
   never ends its spin), so each domain's agent node subscribes to a private wake topic and
   ``post``/``call`` publish one empty sample to it: its callback runs the queued jobs on the
-  executor thread (measured 29 µs p50, 67 µs p99 from post to job). Between events the thread
+  executor thread (measured 29 µs p50, 67 µs p99 from post to job). The wake topic is a
+  DDS-level one (``avoid_ros_namespace_conventions``), as a ROS topic it showed in every ROS
+  topic listing, and transient local, as it moves between nodes (``DomainRuntime.host``);
+  bench/domain_wake.py measures it beside the former volatile ROS topic in one run: 110 vs
+  107 µs p50 on the loaded 2-core machine, medians of 5 runs of 2000 jobs. Between events the thread
   waits in rclpy with a long timeout: 0.0 % of a core idle, where the former 2 ms spin slices
   cost about 2 % (and ``spin()`` without a timeout busy-loops in this rclpy). The
   SingleThreadedExecutor is woken by a guard condition of the agent node whose callback runs the
@@ -51,7 +55,7 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from xrce.agent.middleware import DataCallback, MiddlewareError
@@ -76,6 +80,12 @@ NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # How long the executor thread waits in rclpy when nothing happens; it only bounds how late a
 # stop request is seen if its wake-up sample were lost, nothing else runs on this period.
 IDLE_WAIT_S = 5.0
+
+AGENT_NODE_NAME = "_xrce_agent"
+# The wake topic outside the ROS graph, transient local (_Wake); bench/domain_wake.py sets
+# them to the former ROS topic, volatile, for its baseline.
+WAKE_DDS_LEVEL = True
+WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL
 
 EXECUTOR_EVENTS = "events"
 EXECUTOR_SINGLE = "single"
@@ -110,6 +120,60 @@ class AgentNode(Node):
         return super().create_publisher(msg_type, topic, *args, **kwargs)
 
 
+class _Wake:
+    """What wakes a domain's executor thread for a job (module docstring), hosted on the node
+    ``DomainRuntime.host`` gives it."""
+
+    def __init__(self, runtime: "DomainRuntime"):
+        self.runtime = runtime
+        # Unique per process and domain, so that no other agent's wake-ups reach this one.
+        self.topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
+        self.entities = ()
+        self.generation = 0  # which attach() a callback comes from
+
+    def attach(self, node: Node) -> None:
+        runtime = self.runtime
+        self.generation += 1
+        generation = self.generation
+
+        def on_wake(_sample=None) -> None:
+            runtime._on_wake(generation)
+        if runtime._events:
+            # Reliable depth 1: one pending wake-up is enough; transient local: one sent before
+            # a moved pair has matched still arrives. A DDS-level topic (no rt/ prefix): ROS
+            # graph tools never list it, even with hidden topics shown.
+            profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 history=HistoryPolicy.KEEP_LAST,
+                                 durability=WAKE_DURABILITY,
+                                 avoid_ros_namespace_conventions=WAKE_DDS_LEVEL)
+            wake_type = raw_message_type(_WAKE_TYPE)
+            subscription = node.create_subscription(wake_type, self.topic, on_wake, profile,
+                                                    raw=True)
+            publisher = node.create_publisher(wake_type, self.topic, profile)
+            publish = publisher.publish
+            runtime._wake_publisher = lambda: publish(_WAKE_SAMPLE)
+            self.entities = (node.destroy_subscription, subscription), \
+                (node.destroy_publisher, publisher)
+        else:
+            # Not executor.wake(): that trigger only makes spin_once rebuild its wait set and wait
+            # again for the rest of its timeout when no callback is ready (the jobs then waited up
+            # to 5 s, about 1 call in 6 under load). A guard condition with a callback is work the
+            # executor runs, so spin_once returns after it.
+            guard = runtime._wake_guard = node.create_guard_condition(on_wake)
+            self.entities = ((node.destroy_guard_condition, guard),)
+
+    def move(self, _old: Node, new: Node) -> None:
+        runtime = self.runtime
+        old_entities = self.entities
+        self.attach(new)
+        # This runs as a job, most often from the old entity's own callback: destroying it now
+        # crashes the EventsExecutor (a segfault, seen when a board's last node went). It is
+        # destroyed from the first callback of the new one, which a wake-up now brings.
+        runtime.retire(lambda: [destroy(entity) for destroy, entity in old_entities])
+        runtime._wake_pending = False
+        runtime._wake()
+
+
 class DomainRuntime:
     """One rclpy context and its executor thread; runs entity jobs on that thread."""
 
@@ -136,8 +200,15 @@ class DomainRuntime:
         self._wake_publisher = None
         self._wake_pending = False  # a wake-up sample is on its way: later posts need none
         self.nodes: set[Node] = set()
-        # The agent's own node ``xrce_agent``: hosts the wake topic and RosMiddleware.agent_publisher.
+        self.client_nodes: list[Node] = []  # in the order they came
+        # The node hosting the agent's own entities (the wake topic, RosMiddleware's agent
+        # publishers, the graph topic's writer): a client's, or the anchor (host()).
         self.agent_node: Node | None = None
+        self._anchor: Node | None = None  # the hidden ``_xrce_agent``, only while no client's
+        self._hosted: list = []  # moved with the host (DDS-level)
+        self._pinned: list = []  # on the anchor for good (ROS topics)
+        self._wake_item: _Wake | None = None
+        self._retired: list = []  # destroyers waiting for a safe callback (retire())
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
         self.thread.start()
@@ -151,32 +222,104 @@ class DomainRuntime:
                          start_parameter_services=False, enable_rosout=False,
                          use_global_arguments=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
 
+    # -- the node that hosts the agent's own entities --------------------------------------------
+    #
+    # The wake topic (or guard condition) and the graph topic's writer need a node, and a node
+    # shows in every ROS node listing, which micro_ros_agent's never do (its graph participant
+    # has no node). Both are DDS-level, outside ROS listings: they live on a client's node while
+    # the domain has one, and on the hidden anchor node ``_xrce_agent`` while it has none, which
+    # keeps the domain's DDS participant (rmw creates it with a context's first node and
+    # destroys it with its last) and the wake-up alive between clients. Moving them is
+    # create-then-destroy, on this thread: nothing is ever without its entity. What the agent
+    # publishes as a ROS topic (RosMiddleware.agent_publisher: /diagnostics) stays on the anchor
+    # (``visible``): it is the agent's, and under a client's node a board would list it as its
+    # own; so with /diagnostics on, the anchor stays too.
+
     def _make_agent_node(self) -> None:
-        node = self.make_node("xrce_agent")
+        self.agent_node = self._raise_anchor()
+        self._wake_item = _Wake(self)
+        self.host(self._wake_item)
+
+    def _raise_anchor(self) -> Node:
+        # Hidden (rclpy.node.HIDDEN_NODE_PREFIX): even while it exists, ros2 node list leaves it
+        # out.
+        node = self._anchor = self.make_node(AGENT_NODE_NAME)
         self.executor.add_node(node)
         self.nodes.add(node)
-        self.agent_node = node
-        if self._events:
-            # Hidden (leading underscore) and unique per process and domain, so that no other
-            # agent's wake-ups reach this one; reliable depth 1: one pending wake-up is enough.
-            topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
-            profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                 history=HistoryPolicy.KEEP_LAST)
-            wake_type = raw_message_type(_WAKE_TYPE)
-            node.create_subscription(wake_type, topic, self._on_wake, profile, raw=True)
-            publisher = node.create_publisher(wake_type, topic, profile)
-            publish = publisher.publish
-            self._wake_publisher = lambda: publish(_WAKE_SAMPLE)
-        else:
-            # Not executor.wake(): that trigger only makes spin_once rebuild its wait set and wait
-            # again for the rest of its timeout when no callback is ready (the jobs then waited up
-            # to 5 s, about 1 call in 6 under load). A guard condition with a callback is work the
-            # executor runs, so spin_once returns after it.
-            self._wake_guard = node.create_guard_condition(self._on_wake)
+        return node
 
-    def _on_wake(self, _sample) -> None:
-        """Wake topic callback (executor thread)."""
+    def host(self, item, visible: bool = False) -> None:
+        """Executor thread: ``item.attach(node)`` now, on the hosting node, and
+        ``item.move(old, new)`` whenever the host changes; ``unhost`` ends it. A ``visible``
+        item (a ROS topic's endpoint) is attached to the anchor, for good."""
+        if visible:
+            if self._anchor is None:
+                self._raise_anchor()
+            item.attach(self._anchor)
+            self._pinned.append(item)
+            return
+        item.attach(self.agent_node)
+        self._hosted.append(item)
+
+    def unhost(self, item) -> None:
+        """Executor thread: ``item`` is no longer moved (it destroyed its entities itself)."""
+        if item in self._hosted:
+            self._hosted.remove(item)
+
+    def _move_host(self, new: Node) -> None:
+        old, self.agent_node = self.agent_node, new
+        for item in list(self._hosted):
+            try:
+                item.move(old, new)
+            except Exception:
+                log.exception("domain %d: cannot move %r to another node", self.domain_id, item)
+
+    def add_client_node(self, node: Node) -> None:
+        """Executor thread: a client's node joins the executor; the agent's entities move onto
+        it from the anchor, which goes."""
+        self.executor.add_node(node)
+        self.nodes.add(node)
+        self.client_nodes.append(node)
+        anchor = self._anchor
+        if anchor is not None and self.agent_node is anchor:
+            self._move_host(node)
+            if not self._pinned:
+                self._anchor = None
+                self.retire(lambda: self._destroy_node(anchor))  # it hosted the wake-up
+
+    def remove_client_node(self, node: Node) -> None:
+        """Executor thread: destroy a client's node, the agent's entities moved off it first
+        (to another client's node, else to the anchor)."""
+        if node in self.client_nodes:
+            self.client_nodes.remove(node)
+        if self.agent_node is node:
+            self._move_host(self.client_nodes[0] if self.client_nodes else
+                            self._anchor or self._raise_anchor())
+            self.retire(lambda: self._destroy_node(node))  # it hosted the wake-up (_Wake.move)
+            return
+        self._destroy_node(node)
+
+    def _destroy_node(self, node: Node) -> None:
+        self.executor.remove_node(node)
+        self.nodes.discard(node)
+        node.destroy_node()
+
+    def retire(self, destroy) -> None:
+        """Executor thread: ``destroy()`` from the next wake-up callback of the current wake
+        entity, when no callback of what it destroys can be running."""
+        self._retired.append(destroy)
+
+    def _on_wake(self, generation: int) -> None:
+        """Wake-up callback (executor thread) of the ``generation``-th wake entity."""
         self._wake_pending = False  # before draining: a job posted from now on wakes us again
+        if self._retired and self._wake_item is not None and \
+                generation == self._wake_item.generation:
+            retired, self._retired = self._retired, []
+            for destroy in retired:
+                try:
+                    destroy()
+                except Exception:
+                    log.exception("domain %d: destroying a moved entity failed", self.domain_id)
         self._run_jobs()
 
     def _wake(self) -> None:
@@ -185,7 +328,10 @@ class DomainRuntime:
         elif self._wake_publisher is not None:
             if not self._wake_pending:
                 self._wake_pending = True
-                self._wake_publisher()
+                try:
+                    self._wake_publisher()
+                except Exception:  # the topic moved (_Wake.move) as it was read: the new one
+                    self._wake_publisher()
         # Before the first job the thread blocks on the queue itself: no wake-up needed.
 
     def _run_jobs(self) -> None:
@@ -268,11 +414,15 @@ class DomainRuntime:
     def _destroy_all_nodes(self) -> None:
         self._wake_publisher = None  # its node goes too
         self._wake_guard = None
+        self._hosted.clear()
+        self._pinned.clear()
+        self._retired.clear()  # their nodes are all destroyed below
         for node in list(self.nodes):
             self.executor.remove_node(node)
             node.destroy_node()
         self.nodes.clear()
-        self.agent_node = None
+        self.client_nodes.clear()
+        self.agent_node = self._anchor = None
 
     def _finish(self) -> None:
         try:

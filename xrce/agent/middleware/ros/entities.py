@@ -37,6 +37,7 @@ from xrce.agent.middleware.ros.domain import (
 )
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
+from xrce.agent.middleware.ros.graph import GRAPH_TOPIC, GRAPH_TYPE, GraphFeed
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.types import (
     dds_topic_to_ros,
@@ -56,13 +57,16 @@ class _ParticipantRecord:
 
 
 class _TopicRecord:
-    __slots__ = ("participant", "ros_name", "msg_class")
+    __slots__ = ("participant", "ros_name", "msg_class", "dds_level", "spec")
     kind = "topic"
 
-    def __init__(self, participant: EntityKey, ros_name: str, msg_class):
+    def __init__(self, participant: EntityKey, ros_name: str, msg_class, dds_level: bool = False,
+                 spec: TopicSpec | None = None):
         self.participant = participant
         self.ros_name = ros_name
         self.msg_class = msg_class
+        self.dds_level = dds_level  # no ROS prefix: a DDS-level topic (types.dds_topic_to_ros)
+        self.spec = spec
 
 
 class _GroupRecord:
@@ -85,23 +89,33 @@ class _WriterRecord:
 
 
 class _ReaderRecord:
-    __slots__ = ("participant", "subscription", "handoff")
+    __slots__ = ("participant", "subscription", "handoff", "graph_domain")
     kind = "datareader"
 
     def __init__(self, participant: EntityKey, handoff: ReaderHandoff):
         self.participant = participant
         self.subscription = None
         self.handoff = handoff
+        self.graph_domain = None  # a reader of micro-ROS' graph topic: its domain id
+
+
+# What rmw_microxrcedds' graph reader names (xrce.agent.middleware.ros.graph).
+GRAPH_SPEC = TopicSpec(GRAPH_TOPIC, GRAPH_TYPE)
 
 
 class AgentPublisher:
-    """A publisher of the agent's own node that takes CDR bodies (no encapsulation header)."""
+    """A publisher of the agent's own that takes CDR bodies (no encapsulation header), on the
+    agent's hidden node (``DomainRuntime.host``, visible)."""
 
-    __slots__ = ("publisher", "matched_events")
+    __slots__ = ("publisher", "matched_events", "_make")
 
-    def __init__(self, publisher, matched_events: bool = False):
-        self.publisher = publisher
-        self.matched_events = matched_events
+    def __init__(self, make):
+        self._make = make  # node -> (rclpy publisher, matched events or not)
+        self.publisher = None
+        self.matched_events = False
+
+    def attach(self, node) -> None:
+        self.publisher, self.matched_events = self._make(node)
 
     def write(self, body: bytes) -> None:
         self.publisher.publish(ENCAPSULATION_LE + body)
@@ -162,6 +176,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         # key -> Creation: entities being created on an executor thread while their client is
         # parked, taken by the CREATE when the engine retries it (xrce.agent.middleware.ros.creation).
         self._creating: dict = {}
+        # domain id -> (GraphFeed, number of client readers of the graph topic there): the graph
+        # is published only where a client asked for it (xrce.agent.middleware.ros.graph).
+        self._graph_feeds: dict[int, list] = {}
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -279,14 +296,11 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
         def make_node():
             node = domain.make_node(node_name, namespace)
-            domain.executor.add_node(node)
-            domain.nodes.add(node)
+            domain.add_client_node(node)
             return node
 
         def destroy_node(node):
-            domain.executor.remove_node(node)
-            domain.nodes.discard(node)
-            node.destroy_node()
+            domain.remove_client_node(node)
 
         try:
             node, _ = self._create_on_executor(key, _ParticipantRecord(domain, None), make_node,
@@ -296,13 +310,15 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         except Exception as exc:
             raise MiddlewareError("cannot create node %r: %s" % (name, exc)) from exc
         self._entities[key] = _ParticipantRecord(domain, node)
+        self._graph_changed(domain)
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
         self._record(participant, ("participant",))
         kind, ros_name = dds_topic_to_ros(topic.name)
-        if kind != "topic":
+        if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
-        self._add(key, _TopicRecord(participant, ros_name, raw_message_type(topic.type_name)))
+        self._add(key, _TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
+                                    kind == "dds", topic))
 
     def create_publisher(self, key: EntityKey, participant: EntityKey) -> None:
         self._record(participant, ("participant",))
@@ -318,11 +334,12 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         topic_record = self._record(topic, ("topic",))
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
-        profile = qos_profile(qos)
+        profile = qos_profile(qos, topic_record.dds_level)
         node = participant.node
         ros_publisher, _ = self._create_on_executor(key, participant, lambda: node.create_publisher(
             topic_record.msg_class, topic_record.ros_name, profile), node.destroy_publisher)
         self._entities[key] = _WriterRecord(owner, ros_publisher)
+        self._graph_changed(participant.domain)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
                           qos: EndpointQosSpec, on_data: DataCallback) -> None:
@@ -330,7 +347,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         topic_record = self._record(topic, ("topic",))
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
-        profile = qos_profile(qos)
+        profile = qos_profile(qos, topic_record.dds_level)
         creation = self._creating.get(key)
         record = creation.context if creation is not None else _ReaderRecord(
             owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
@@ -340,6 +357,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                 topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile,
                 raw=True), node.destroy_subscription, record)
         self._entities[key] = record
+        if topic_record.spec == GRAPH_SPEC:
+            self._graph_reader_added(key, participant.domain)
+        self._graph_changed(participant.domain)
 
     # -- data ---------------------------------------------------------------------------------
 
@@ -397,7 +417,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
     def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
                         on_matched=None):
-        """An ``AgentPublisher`` of the agent's own node ``xrce_agent`` in a domain already
+        """An ``AgentPublisher`` of the agent's own (``DomainRuntime.host``) in a domain already
         joined, made on first use and destroyed with the domain; None when the agent has not
         joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
         (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
@@ -418,20 +438,55 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             except RuntimeError:  # the loop has closed: the agent is gone
                 pass
 
-        def make_publisher():
+        def make_publisher(node):
             if on_matched is not None:
                 from rclpy.event_handler import PublisherEventCallbacks
                 try:
-                    return domain.agent_node.create_publisher(
+                    return node.create_publisher(
                         message_type, topic, depth,
                         event_callbacks=PublisherEventCallbacks(matched=matched)), True
                 except Exception as exc:  # an RMW without the matched event
                     log.debug("%s: no matched events (%s)", topic, exc)
-            return domain.agent_node.create_publisher(message_type, topic, depth), False
+            return node.create_publisher(message_type, topic, depth), False
 
-        publisher = AgentPublisher(*domain.call(make_publisher, self.entity_timeout_s))
+        publisher = AgentPublisher(make_publisher)
+        domain.call(lambda: domain.host(publisher, visible=True), self.entity_timeout_s)
         self._agent_publishers[(domain_id, topic)] = publisher
         return publisher
+
+    # -- micro-ROS' graph topic -----------------------------------------------------------------
+
+    def _graph_reader_added(self, key: EntityKey, domain: DomainRuntime) -> None:
+        record = self._entities[key]
+        if record.graph_domain is not None:
+            return
+        record.graph_domain = domain.domain_id
+        entry = self._graph_feeds.get(domain.domain_id)
+        if entry is None or entry[0].domain is not domain:
+            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._get_loop())
+            entry = self._graph_feeds[domain.domain_id] = [feed, 0]
+            feed.start()
+        entry[1] += 1
+
+    def _graph_reader_gone(self, record) -> None:
+        domain_id, record.graph_domain = record.graph_domain, None
+        entry = self._graph_feeds.get(domain_id)
+        if entry is None:
+            return
+        entry[1] -= 1
+        if entry[1] <= 0:
+            del self._graph_feeds[domain_id]
+            entry[0].stop()
+
+    def _graph_changed(self, domain: DomainRuntime) -> None:
+        entry = self._graph_feeds.get(domain.domain_id)
+        if entry is not None:
+            entry[0].changed()
+
+    def graph_feed(self, domain_id: int) -> GraphFeed | None:
+        """The graph publication of a domain, None where no client asked for it."""
+        entry = self._graph_feeds.get(domain_id)
+        return entry[0] if entry is not None else None
 
     # -- deletion -----------------------------------------------------------------------------
 
@@ -440,6 +495,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         if record.kind == "datareader":
             record.handoff.closed = True
             record.handoff.queue.clear()
+            self._graph_reader_gone(record)
         elif record.kind == "requester":
             self._close_requester(record)
         elif record.kind == "replier":
@@ -458,12 +514,11 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             domain, node = record.domain, record.node
 
             def destroy_node():
-                domain.executor.remove_node(node)
-                domain.nodes.discard(node)
-                node.destroy_node()
+                domain.remove_client_node(node)
 
             del self._entities[key]
             self._on_executor(record, destroy_node)
+            self._graph_changed(domain)
             self._leave_if_unused(domain)
             return
         del self._entities[key]
@@ -480,6 +535,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._on_executor(participant, lambda: node.destroy_client(record.client))
         elif record.kind == "replier":
             self._on_executor(participant, lambda: node.destroy_service(record.service))
+        self._graph_changed(participant.domain)
 
     def _leave_if_unused(self, domain: DomainRuntime) -> None:
         """Tear a domain down with its last client participant: its DDS participant, context and
@@ -495,6 +551,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                 or any(c.domain is domain for c in self._creating.values()):
             return
         del self._domains[domain_id]
+        feed = self._graph_feeds.pop(domain_id, None)
+        if feed is not None:
+            feed[0].stop()  # its periodic check; its writer goes with the domain's nodes
         for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
             del self._agent_publishers[publisher_key]
         log.debug("ROS domain %d has no participant left: leaving it", domain_id)
@@ -545,6 +604,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             return
         self._closed = True
         self._agent_publishers.clear()
+        for feed, _readers in self._graph_feeds.values():
+            feed.stop()
+        self._graph_feeds.clear()
         self._domain_listeners.clear()
         for record in self._entities.values():
             if record.kind != "participant":

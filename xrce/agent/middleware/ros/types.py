@@ -72,10 +72,15 @@ def _full_name(name: str) -> str:
 
 
 def dds_topic_to_ros(dds_name: str) -> tuple[str, str]:
-    """Return (kind, fully qualified ROS name); kind is "topic", "request" or "reply".
+    """Return (kind, fully qualified ROS name); kind is "topic", "request", "reply", or "dds".
 
-    Names without a ROS prefix are used as they are (with a leading "/"), so plain DDS topic
-    names from XRCE clients that do not follow the ROS convention still reach ROS when valid.
+    "dds": a name without a ROS prefix (micro-ROS' ``ros_to_microros_graph``, a plain XRCE
+    client's ``HelloWorldTopic``) is a DDS-level topic, not a ROS one: eProsima's agents create it
+    under that very name, where ROS graph tools do not list it. rclpy reaches such a topic only
+    with ``avoid_ros_namespace_conventions`` (``qos_profile(..., dds_level=True)``), and rcl makes
+    every name absolute first, so the DDS topic is ``/name``: still outside the ROS graph, and
+    the same topic for every client of this agent, but not the exact DDS name eProsima's agent
+    would use (rclpy has no way to create a DDS topic name without the leading slash).
     """
     if dds_name.startswith(_TOPIC_PREFIX):
         return "topic", _full_name(dds_name[len(_TOPIC_PREFIX):])
@@ -83,7 +88,7 @@ def dds_topic_to_ros(dds_name: str) -> tuple[str, str]:
         return "request", _full_name(dds_name[len(_REQUEST_PREFIX):-len("Request")])
     if dds_name.startswith(_REPLY_PREFIX) and dds_name.endswith("Reply"):
         return "reply", _full_name(dds_name[len(_REPLY_PREFIX):-len("Reply")])
-    return "topic", _full_name(dds_name)
+    return "dds", _full_name(dds_name)
 
 
 def service_ros_name(service_name: str, request_topic: str | None = None) -> str:
@@ -433,7 +438,10 @@ _DURABILITY = {
 }
 
 
-def qos_profile(qos: EndpointQosSpec) -> QoSProfile:
+def qos_profile(qos: EndpointQosSpec, dds_level: bool = False) -> QoSProfile:
+    """The rclpy profile of an XRCE endpoint; ``dds_level`` for a topic without a ROS prefix
+    (``dds_topic_to_ros`` kind "dds"): rmw then adds no ``rt/``, and ROS graph tools leave it
+    out as they do the DDS-level topics eProsima's agents create."""
     durability = _DURABILITY.get(qos.durability)
     if durability is None:
         raise MiddlewareError("unknown durability %r" % (qos.durability,))
@@ -442,4 +450,5 @@ def qos_profile(qos: EndpointQosSpec) -> QoSProfile:
         depth=max(1, int(qos.depth)),
         reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=durability,
+        avoid_ros_namespace_conventions=dds_level,
     )
