@@ -106,7 +106,7 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
     assert cold.returncode == 0, cold.stdout
     lines = dict((m.group(2), m) for m in re.finditer(r"^(built|cached) (\S+) (\S+) ([\d.]+)s$",
                                                       cold.stdout, re.M))
-    assert set(lines) == {"tf2_msgs", "turtlebot3_msgs"}, cold.stdout
+    assert set(lines) == {"micro_ros_msgs", "tf2_msgs", "turtlebot3_msgs"}, cold.stdout
     for match in lines.values():
         assert match.group(1) == "built"
         assert Path(match.group(3)).parent == cache
@@ -131,7 +131,7 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
     warm_cpu_s = (cpu_after.ru_utime - cpu_before.ru_utime) + (cpu_after.ru_stime - cpu_before.ru_stime)
     assert warm.returncode == 0, warm.stdout
     assert re.findall(r"^(built|cached) (\S+)", warm.stdout, re.M) == [
-        ("cached", "tf2_msgs"), ("cached", "turtlebot3_msgs")]
+        ("cached", "micro_ros_msgs"), ("cached", "tf2_msgs"), ("cached", "turtlebot3_msgs")]
     print("build-interfaces cold %.1f s, cached %.2f s (whole process, %.2f s CPU)"
           % (cold_s, warm_s, warm_cpu_s))
     assert warm_cpu_s < 0.5 + 0.5  # < 0.5 s of work, plus the wheels' one re-exec of the interpreter
