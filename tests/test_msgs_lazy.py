@@ -87,7 +87,7 @@ def _heap(statement, **mount):
 
 
 def _assert_resolves(**mount):
-    result = run_micropython(RESOLUTION_SCRIPT, heap=4 * 1024 * 1024, timeout=60, **mount)
+    result = run_micropython(RESOLUTION_SCRIPT, heap=4 * 1024 * 1024, timeout=180, **mount)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "RESOLVED" in result.stdout
     loaded = result.stdout.split("LOADED ")[1].splitlines()[0].split()
