@@ -16,7 +16,7 @@ import pytest
 
 from agent_process import restore_default_signals
 from xrce import constants as C
-from xrce.agent.cli import load_refs
+from xrce.agent.cli.startup import load_refs
 from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
 from xrce.transports.crc import get_crc
 from xrce.transports.framing import (

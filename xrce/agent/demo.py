@@ -13,7 +13,7 @@ domain of its own (the first free one of ``PRIVATE_DOMAINS``, held through an ab
 name, so no lock file is left anywhere) with localhost-only discovery, and the banner says how to
 watch it from another shell. ``--domain N`` or ``--lan`` (the user's ``ROS_DOMAIN_ID``) publish
 with the usual discovery range, after a warning line. Its options are declared in
-``xrce.agent.cli``, which imports this module only when the demo runs.
+``xrce.agent.cli.subcommands``, which imports this module only when the demo runs.
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ from xrce import constants as C
 from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
 # In this module's __all__ too, as before they had a module of their own.
 from xrce.agent.observe.names import client_pseudonym, client_tag, endpoint_text  # noqa: F401
-# The `xrce-agent stats` subcommand is registered (xrce/agent/cli.py) through this module.
+# The `xrce-agent stats` subcommand is registered (xrce/agent/cli/subcommands.py) through this module.
 
 log = logging.getLogger("xrce.agent.observability")
 

@@ -1,0 +1,245 @@
+"""Start-up and run of the agent once its command line is parsed: the checks that still end in
+a bad-argument line (``check``), then ``run``: logging, the ROS environment, the engine, the
+links, the banner and the stats signal, until SIGINT/SIGTERM.
+
+Once every link is open, one banner line goes to stdout (flushed) — tests wait for it. A port that
+cannot be opened gives one line naming it and exit code 1; SIGINT/SIGTERM close the agent cleanly
+and exit 0 (as eProsima's agent).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+import os
+import signal
+import sys
+
+from xrce.agent.cli.arguments import PROG, VERBOSITY_LEVELS, CliError
+from xrce.agent.cli.subcommands import SUBCOMMANDS
+from xrce.agent.cli.transports import IP_SUBCOMMANDS
+from xrce.agent.observe import observability
+
+
+def check(args):
+    """What parsing alone cannot check, before anything starts; the refs (``-r``) loaded.
+    Raises CliError."""
+    if getattr(args, "allow_from", None) and args.subcommand not in IP_SUBCOMMANDS:
+        raise CliError("--allow-from needs an IP link (udp4, udp6, tcp4, tcp6), not %s"
+                       % args.subcommand)
+    check_paths(args)
+    return load_refs(args.refs) if args.refs else None
+
+
+# ----------------------------------------------------------------------------- refs and middleware
+
+def _local_name(tag):
+    return tag.rsplit("}", 1)[-1]
+
+
+def _strip_namespaces(element):
+    for node in element.iter():
+        if isinstance(node.tag, str):
+            node.tag = _local_name(node.tag)
+
+
+def load_refs(path):
+    """``{profile_name: xml}`` for every element carrying a ``profile_name`` in a Fast DDS XML
+    profiles file; the XML of each is that element alone, namespaces removed."""
+    import xml.etree.ElementTree as ElementTree  # only with -r: see xrce.agent.engine.xmlrep._parse
+
+    try:
+        tree = ElementTree.parse(path)
+    except OSError as exc:
+        raise CliError("cannot read refs file %s: %s" % (path, exc.strerror or exc))
+    except ElementTree.ParseError as exc:
+        raise CliError("refs file %s is not valid XML: %s" % (path, exc))
+    root = tree.getroot()
+    _strip_namespaces(root)
+    refs = {}
+    for element in root.iter():
+        name = element.get("profile_name")
+        if name:
+            element.tail = None
+            refs[name] = ElementTree.tostring(element, encoding="unicode")
+    return refs
+
+
+def check_paths(args):
+    """Paths named on the command line, checked before anything starts, so a typo is one line
+    naming the flag (exit 2) rather than an errno once the agent is half up, or silence."""
+    for directory in getattr(args, "interfaces", ()):
+        if not os.path.isdir(directory):
+            what = "does not exist" if not os.path.exists(directory) else "is not a directory"
+            raise CliError("argument --interfaces: %s %s (give a directory holding interface "
+                           "packages, each with its package.xml)" % (directory, what))
+    capture = getattr(args, "capture", None)
+    if capture:
+        parent = os.path.dirname(os.path.abspath(capture))
+        if os.path.isdir(capture):
+            raise CliError("argument --capture: %s is a directory (give a file name)" % capture)
+        if not os.path.isdir(parent):
+            raise CliError("argument --capture: directory %s does not exist (create it or "
+                           "write the capture elsewhere)" % parent)
+        if not os.access(parent, os.W_OK) or (os.path.exists(capture)
+                                              and not os.access(capture, os.W_OK)):
+            raise CliError("argument --capture: %s is not writable (write the capture "
+                           "elsewhere)" % capture)
+    stats_port = getattr(args, "stats_port", None)
+    if stats_port is not None and not 0 <= stats_port <= 65535:
+        raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
+
+
+def make_middleware(name):
+    # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
+    if name == "ced":
+        from xrce.agent.middleware.ced import CedMiddleware
+        return CedMiddleware()
+    from xrce.agent.middleware.ros.entities import RosMiddleware
+    return RosMiddleware(park_creation=True)
+
+
+def configure_logging(verbosity):
+    level = VERBOSITY_LEVELS[verbosity]
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+
+
+# ----------------------------------------------------------------------------- running
+
+async def serve(args, refs):
+    """Run the agent on the links of ``args.subcommand`` until SIGINT/SIGTERM; the exit code."""
+    from xrce.agent.engine.dispatch import Agent
+
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+
+    middleware = make_middleware(args.middleware)
+    agent = Agent(middleware, refs=refs, loop=loop,
+                  client_dead_time=args.client_dead_time / 1000.0,
+                  client_expire_time=args.client_expire_time / 1000.0,
+                  max_clients=args.max_clients, max_objects_per_client=args.max_objects,
+                  max_reassembly_bytes=args.max_reassembly,
+                  max_output_queue_bytes=args.max_output_queue,
+                  max_client_bytes=args.max_client_memory, max_total_bytes=args.max_memory)
+    from xrce.agent.engine.admission import AdmissionPolicy
+    agent.admission = AdmissionPolicy.from_args(args)
+    if agent.admission is not None:
+        logging.getLogger("xrce.agent.admission").info("admission: %s", agent.admission.describe())
+    links = SUBCOMMANDS[args.subcommand].make_links(args, agent)
+    started = []
+    run_task = None
+    observe = None
+    try:
+        # The middleware starts (the default ROS domain joined, the agent's node in it) before
+        # any link opens: no client is answered while rclpy builds, and a restarted agent's DDS
+        # participant is already being discovered when its clients come back.
+        await agent.start()
+        run_task = asyncio.ensure_future(agent.run())
+        try:
+            for link in links:
+                await link.start()
+                started.append(link)
+            if getattr(args, "discovery", None) is not None:  # an IP link's option
+                from xrce.agent.links import udp
+                discovery = udp.DiscoveryServer(links[0].port, args.discovery)
+                await discovery.start()
+                started.append(discovery)
+            observe = observability.Observability.from_args(args, agent, started, middleware)
+            await observe.start()
+        except OSError as exc:
+            sys.stderr.write("%s: error: %s\n" % (PROG, _open_error(args, links, started, exc)))
+            sys.stderr.flush()
+            return 1
+        banner = "; ".join(link.describe() for link in started)
+        if observe.describe():
+            banner += "; " + observe.describe()
+        sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
+        sys.stdout.flush()
+        loop.add_signal_handler(signal.SIGUSR1, _print_stats, agent, started)
+        stopped = asyncio.ensure_future(stop.wait())
+        done, _ = await asyncio.wait({run_task, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        if run_task in done and run_task.exception() is not None:
+            logging.getLogger("xrce.agent").error("agent stopped: %r", run_task.exception())
+            stopped.cancel()
+            return 1
+        stopped.cancel()
+        return 0
+    finally:
+        if run_task is not None and not run_task.done():
+            run_task.cancel()
+            try:
+                await run_task
+            except asyncio.CancelledError:
+                pass
+        # The engine first, so DELETE-time replies can still go out through the open links.
+        await agent.close()
+        if observe is not None:  # after the engine, so a capture ends with the DELETE replies
+            await observe.close()
+        for link in reversed(started):
+            await link.close()
+        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
+            loop.remove_signal_handler(signum)
+
+
+def _open_error(args, links, started, exc):
+    """What could not be opened, by flag and port: the errno alone does not say which."""
+    # asyncio's servers wrap the errno in their own sentence; the errno's own words are enough.
+    reason = os.strerror(exc.errno) if exc.errno else (exc.strerror or str(exc))
+    if getattr(exc, "filename", None):  # a file, not a socket
+        return "cannot open %s: %s" % (exc.filename, reason)
+    pending = [link for link in links if link not in started]
+    if pending:
+        link = pending[0]
+        port = getattr(link, "requested_port", None)
+        if port is not None:
+            hint = " (another agent there? choose another -p)" if exc.errno == errno.EADDRINUSE else ""
+            return "cannot open %s port %d (-p): %s%s" % (link.name, port, reason, hint)
+        return "cannot open %s: %s" % (link.describe(), reason)
+    if getattr(args, "discovery", None) is not None:
+        from xrce.agent.links import udp
+        if not any(isinstance(link, udp.DiscoveryServer) for link in started):
+            return "cannot open discovery port %d (-d): %s" % (args.discovery, reason)
+    if getattr(args, "stats_port", None) is not None:
+        return "cannot open stats port %d (--stats-port): %s" % (args.stats_port, reason)
+    return reason
+
+
+def _print_stats(agent, links):
+    """SIGUSR1: one ``xrce-agent: stats {json}`` line on stdout with the engine's and every link's
+    counters, for scripts and tests watching a running agent."""
+    import json
+
+    report = {"engine": agent.stats.as_dict(), "clients": len(agent.clients),
+              "links": {link.name: link.stats.as_dict() for link in links}}
+    sys.stdout.write("%s: stats %s\n" % (PROG, json.dumps(report, sort_keys=True)))
+    sys.stdout.flush()
+
+
+def run(args, refs):
+    """The agent of ``args`` until SIGINT/SIGTERM; the exit code."""
+    configure_logging(args.verbose)
+    if args.interfaces:  # the build code loads only when there is something to tell it
+        from xrce.agent import interfaces
+        interfaces.add_search_dirs(args.interfaces)
+    if args.middleware == "dds":
+        from xrce.agent.middleware.ros import env as rosenv
+        try:  # the one line saying which ROS 2, rclpy and RMW this agent joins
+            rosenv.log_ros_in_use(logging.getLogger("xrce.agent.rosenv"))
+        except rosenv.RosUnavailable as exc:
+            sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+            sys.stderr.flush()
+            return 1
+        from xrce.agent.middleware.ros import fastdds_profile, rclpy_services
+        rclpy_services.defer_unused()  # before anything imports rclpy.node
+        profile = fastdds_profile.install()  # before any participant: Fast DDS reads it once
+        if profile:
+            logging.getLogger("xrce.agent.rosenv").debug("Fast DDS participant profile: %s", profile)
+    try:
+        return asyncio.run(serve(args, refs))
+    except KeyboardInterrupt:  # a second Ctrl-C during shutdown
+        return 130

@@ -1,0 +1,181 @@
+"""The agent's transport subcommands (udp4/udp6, tcp4/tcp6, serial, multiserial,
+pseudoterminal): the options each takes, those every agent takes, and the links each opens.
+
+Only the chosen subcommand's options are built (xrce.agent.cli.subcommands), and the TCP and
+serial link modules are imported only by the subcommands that serve them.
+"""
+
+from __future__ import annotations
+
+import socket
+
+from xrce.agent import links
+from xrce.agent.cli.arguments import allow_list, baudrate, milliseconds, port, positive, verbosity
+
+IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
+
+
+# ----------------------------------------------------------------------------- options every agent takes
+
+def _add_session_options(parser):
+    from xrce.agent.engine import dispatch  # no rclpy behind it; the defaults are documented there
+
+    group = parser.add_argument_group("client liveliness and per-client quotas")
+    group.add_argument("--client-dead-time", type=milliseconds, metavar="MS",
+                       default=int(dispatch.CLIENT_DEAD_TIME * 1000),
+                       help="a client silent this long is dead: no more HEARTBEATs to it, entities "
+                            "kept, any message revives it (default %(default)s, as eProsima)")
+    group.add_argument("--client-expire-time", type=milliseconds, metavar="MS",
+                       default=int(dispatch.CLIENT_EXPIRE_TIME * 1000),
+                       help="a client silent this long (since its last message) is deleted with "
+                            "all its ROS entities; 0 = never (default, as eProsima without uxr_hl)")
+    group.add_argument("--max-clients", type=positive, metavar="N", default=dispatch.MAX_CLIENTS,
+                       help="sessions at once; a new one evicts the longest-dead client or is "
+                            "refused with ERR_RESOURCES (default %(default)s)")
+    group.add_argument("--max-objects", type=positive, metavar="N",
+                       default=dispatch.MAX_OBJECTS_PER_CLIENT,
+                       help="XRCE objects per client; beyond, CREATE gets ERR_RESOURCES "
+                            "(default %(default)s)")
+    group.add_argument("--max-reassembly", type=positive, metavar="BYTES",
+                       default=dispatch.MAX_REASSEMBLY,
+                       help="largest fragmented message per client and stream (default %(default)s)")
+    group.add_argument("--max-output-queue", type=positive, metavar="BYTES",
+                       default=dispatch.MAX_OUTPUT_QUEUE_BYTES,
+                       help="sample bytes queued towards one client; the oldest are dropped "
+                            "beyond (default %(default)s)")
+    group.add_argument("--max-client-memory", type=positive, metavar="BYTES",
+                       default=dispatch.MAX_CLIENT_BYTES,
+                       help="bytes one client's buffers may hold (out-of-order input, reassembly, "
+                            "parked messages, output queues and windows); beyond, its reliable "
+                            "input waits unacknowledged and its output is dropped "
+                            "(default %(default)s)")
+    group.add_argument("--max-memory", type=positive, metavar="BYTES",
+                       default=dispatch.MAX_TOTAL_BYTES,
+                       help="the same, all clients together (default %(default)s)")
+
+
+def _add_admission_options(parser):
+    from xrce.agent.engine import admission
+
+    group = parser.add_argument_group("admission (XRCE has no authentication: see README)")
+    group.add_argument("--allow-keys", type=allow_list(admission.parse_keys),
+                       metavar="KEY[,KEY...]",
+                       help="open sessions only for these client keys (hex, e.g. 0xAABBCCDD); "
+                            "others get ERR_DENIED and a (rate-limited) log line")
+    group.add_argument("--allow-from", type=allow_list(admission.parse_networks),
+                       metavar="CIDR[,CIDR...]",
+                       help="open sessions only for clients from these addresses/networks "
+                            "(udp4/udp6/tcp4/tcp6)")
+
+
+def add_common_options(parser):
+    from xrce.agent.observe import observability
+
+    parser.add_argument("-v", "--verbose", type=verbosity, default=4, metavar="LEVEL",
+                        help="log level 0 (off) .. 4 (info, default) .. 5 (debug) .. 6 (trace)")
+    _add_session_options(parser)
+    _add_admission_options(parser)
+    parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
+                        help="dds: ROS 2 through rclpy (default); ced: route between clients only")
+    parser.add_argument("-r", "--refs", metavar="FILE",
+                        help="Fast DDS XML profiles file for objects created by reference")
+    parser.add_argument("--interfaces", action="append", default=[], metavar="DIR",
+                        help="also look here for interface packages to build when a client names "
+                             "a type that is not installed (repeatable; the packages shipped with "
+                             "xrce are always searched)")
+    observability.add_agent_options(parser)
+
+
+# ----------------------------------------------------------------------------- per transport
+
+def add_ip_options(parser):
+    from xrce.agent.links import udp
+
+    parser.add_argument("-p", "--port", type=port, required=True,
+                        help="UDP/TCP port to serve (0: any free port, shown in the banner)")
+    parser.add_argument("-d", "--discovery", type=port, nargs="?", const=udp.DISCOVERY_PORT,
+                        metavar="PORT", help="answer discovery requests on PORT (default 7400)")
+
+
+def add_tcp_options(parser):
+    add_ip_options(parser)
+    parser.add_argument("--max-connections", type=int,
+                        default=links.DEFAULT_TCP_MAX_CONNECTIONS, metavar="N",
+                        help="simultaneous TCP connections (default 100)")
+
+
+def _add_crc_option(parser):
+    parser.add_argument("--crc", choices=("arc", "ccitt"), default="arc",
+                        help="frame checksum: CRC-16/ARC (default, as eProsima) or CRC-16/X.25")
+
+
+def _add_baudrate_option(parser):
+    parser.add_argument("-b", "--baudrate", type=baudrate, default=links.DEFAULT_BAUDRATE,
+                        metavar="BAUD", help="line speed; the board must use the same "
+                                             "(default %(default)s, as eProsima)")
+
+
+def add_serial_options(parser):
+    parser.add_argument("-D", "--dev", required=True, metavar="DEVICE",
+                        help="serial device or glob (waited for until it appears; reopened when "
+                             "it comes back after vanishing)")
+    _add_baudrate_option(parser)
+    _add_crc_option(parser)
+
+
+def add_multiserial_options(parser):
+    parser.add_argument("--devs", required=True, metavar='"DEV1 DEV2 ..."',
+                        help="space-separated serial devices")
+    _add_baudrate_option(parser)
+    _add_crc_option(parser)
+
+
+def add_pty_options(parser):
+    parser.add_argument("-D", "--dev", metavar="PATH",
+                        help="also make PATH a symbolic link to the pseudoterminal")
+    _add_crc_option(parser)
+
+
+# ----------------------------------------------------------------------------- link factories
+
+def udp_links(family):
+    def make_links(args, agent):
+        from xrce.agent.links import udp
+        return [udp.UdpServer(agent, args.port, family=family)]
+    return make_links
+
+
+def tcp_links(family):
+    def make_links(args, agent):
+        from xrce.agent.links import tcp
+        return [tcp.TcpServer(agent, args.port, family=family,
+                              max_connections=args.max_connections)]
+    return make_links
+
+
+def serial_links(args, agent):
+    from xrce.agent.links import serial
+    return [serial.SerialServer(agent, [args.dev], baudrate=args.baudrate, crc=args.crc)]
+
+
+def multiserial_links(args, agent):
+    from xrce.agent.links import serial
+    devices = args.devs.split()
+    return [serial.SerialServer(agent, devices, baudrate=args.baudrate, crc=args.crc)]
+
+
+def pty_links(args, agent):
+    from xrce.agent.links import serial
+    return [serial.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
+
+
+# (name, help, add_options, make_links) of every transport, in the order --help lists them.
+TRANSPORTS = (
+    ("udp4", "serve UDP over IPv4", add_ip_options, udp_links(socket.AF_INET)),
+    ("udp6", "serve UDP over IPv6", add_ip_options, udp_links(socket.AF_INET6)),
+    ("tcp4", "serve TCP over IPv4", add_tcp_options, tcp_links(socket.AF_INET)),
+    ("tcp6", "serve TCP over IPv6", add_tcp_options, tcp_links(socket.AF_INET6)),
+    ("serial", "serve one serial device", add_serial_options, serial_links),
+    ("multiserial", "serve several serial devices", add_multiserial_options, multiserial_links),
+    ("pseudoterminal", "create a pseudoterminal and serve it", add_pty_options, pty_links),
+)
