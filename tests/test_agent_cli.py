@@ -197,6 +197,50 @@ def test_help_lists_every_subcommand():
     assert code == 0 and "--baudrate" in out and "--crc" in out
 
 
+_MODULES_AFTER_THE_COMMAND = r"""
+import sys
+from xrce.agent.launcher import main
+try:
+    main(sys.argv[1:])
+finally:
+    sys.stderr.write("MODULES " + " ".join(sorted(sys.modules)) + "\n")
+"""
+
+
+def _modules_after(*args):
+    """The modules a command that exits at once (--version, -h) imported, and its stdout."""
+    done = subprocess.run([sys.executable, "-c", _MODULES_AFTER_THE_COMMAND, *args], cwd=REPO,
+                          env=_env(), capture_output=True, text=True, timeout=START_TIMEOUT)
+    line = [text for text in done.stderr.splitlines() if text.startswith("MODULES ")]
+    assert done.returncode == 0 and line, done.stdout + done.stderr
+    return set(line[0].split()[1:]), done.stdout
+
+
+# The parser holds only the named subcommand's options (xrce/agent/cli/subcommands.py): what the
+# others' options and defaults need stays unloaded.
+# (xrce.agent.interfaces itself is no tool's alone: once a build has run, the registry's .pth
+# hook imports it in every interpreter of the venv.)
+_AGENT = {"xrce.agent.engine.dispatch", "xrce.agent.observe.observability", "xrce.agent.links.udp"}
+_TOOLS = {"xrce.tools.cli_types", "xrce.agent.demo", "xrce.agent.interfaces.builder",
+          "xrce.agent.observe.stats_view"}
+
+
+def test_version_and_help_load_no_agent_and_no_tool():
+    modules, out = _modules_after("--version")
+    assert out.startswith("xrce-agent ") and not modules & (_AGENT | _TOOLS)
+    modules, out = _modules_after("-h")
+    assert "pseudoterminal" in out and not modules & (_AGENT | _TOOLS)
+
+
+def test_a_transport_help_loads_only_what_its_options_name():
+    modules, out = _modules_after("udp4", "-h")
+    assert "--max-clients" in out and _AGENT <= modules and not modules & _TOOLS
+    modules, out = _modules_after("serial", "-h")
+    assert "--baudrate" in out and "xrce.agent.links.udp" not in modules
+    modules, out = _modules_after("demo", "-h")
+    assert "--lan" in out and "xrce.agent.engine.dispatch" not in modules
+
+
 def test_refs_file_gives_one_xml_per_profile(tmp_path):
     refs_file = tmp_path / "refs.xml"
     refs_file.write_text(
