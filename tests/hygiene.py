@@ -15,6 +15,10 @@ shared-memory segments in /dev/shm.
   participants go with it) and children still stopping; their segments are dead only after the
   run (1-3 were left per run). A small detached process waits for the test process to end and
   then removes them, for a few seconds while late children finish.
+- lttng-ust's rendezvous files: every process that loads rcl or the rmw (the wheels link
+  lttng-ust for ROS's tracepoints) creates ``/dev/shm/lttng-ust-wait-<abi>`` and
+  ``...-<abi>-<uid>`` when no LTTng session daemon has, and no environment variable stops it. Those
+  that appeared during the run are removed after it when no process maps them any more.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ SHM_DIR = "/dev/shm"
 _SEGMENT_LOCK = re.compile(r"^(fastrtps|fastdds)_[0-9a-z]{16}(_el|_sl)$")
 _PORT_LOCK = re.compile(r"^(fastrtps|fastdds)_port\d{1,5}(_el|_sl)$")
 _PORT = re.compile(r"^(fastrtps|fastdds)_port\d{1,5}$")
+_LTTNG_WAIT = re.compile(r"^lttng-ust-wait-\d+(-\d+)?$")
 MIN_AGE_S = 2.0
 
 
@@ -90,6 +95,40 @@ def remove_dead_fastdds_segments(before: set, min_age_s: float = MIN_AGE_S) -> l
     return removed
 
 
+def _mapped_by_any_process(paths: set) -> set:
+    """Which of ``paths`` some live process has mapped. A file is known by its device and inode:
+    a process in another mount namespace shows its own /dev/shm's files under the same names."""
+    wanted = {}
+    for path in paths:
+        try:
+            status = os.stat(path)
+        except OSError:
+            continue
+        wanted[("%02x:%02x" % (os.major(status.st_dev), os.minor(status.st_dev)),
+                str(status.st_ino))] = path
+    mapped = set()
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open("/proc/%s/maps" % pid, errors="replace") as maps:
+                for line in maps:
+                    fields = line.split(None, 5)
+                    if len(fields) == 6 and (fields[3], fields[4]) in wanted:
+                        mapped.add(wanted[fields[3], fields[4]])
+        except OSError:
+            continue
+    return mapped
+
+
+def remove_unused_lttng_wait_files(before: set) -> list:
+    """Remove the lttng-ust rendezvous files created since ``before`` that no process maps."""
+    created = {os.path.join(SHM_DIR, name) for name in shm_names() - before
+               if _LTTNG_WAIT.match(name)}
+    if not created:
+        return []
+    unused = created - _mapped_by_any_process(created)
+    return _remove(sorted(os.path.basename(path) for path in unused))
+
+
 def _remove(names) -> list:
     removed = []
     for name in names:
@@ -116,6 +155,7 @@ def _clean_after(pid: int, before: set, linger_s: float = 5.0) -> None:
     while True:
         remove_dead_fastdds_segments(before, min_age_s=0.5)
         if time.monotonic() >= end:
+            remove_unused_lttng_wait_files(before)
             return
         time.sleep(0.5)
 
