@@ -56,7 +56,7 @@ static array_fini_fn array_fini;
 static reset_error_fn reset_error;
 
 #define ENCAPSULATION 4  /* the CDR encapsulation header, which XRCE samples do not carry */
-#define INITIAL_CAPACITY 256
+#define INITIAL_CAPACITY 1024
 
 /* Looked up through librcl: a handle's lookup covers the libraries it depends on, so this finds
  * rmw's functions in whichever rmw library rcl is linked to (librmw_implementation where ROS
@@ -104,8 +104,19 @@ static PyObject *request_to_cdr(int slot, void *message) {
         reset_error();
         return PyErr_NoMemory();
     }
+    /* Fast CDR leaves alignment padding as it finds the buffer: zeroed here, the padding goes
+     * out as zeros (serialize_message's went out as whatever its heap held). rmw resizes the
+     * buffer only when it is too small; then it is zeroed whole and the request serialized
+     * again. */
+    memset(cdr.buffer, 0, cdr.buffer_capacity);
     PyObject *result = NULL;
-    if (rmw_serialize(message, request_types[slot], &cdr) != 0) {
+    int failed = rmw_serialize(message, request_types[slot], &cdr) != 0;
+    if (!failed && cdr.buffer_capacity > INITIAL_CAPACITY) {
+        memset(cdr.buffer, 0, cdr.buffer_capacity);
+        cdr.buffer_length = 0;
+        failed = rmw_serialize(message, request_types[slot], &cdr) != 0;
+    }
+    if (failed) {
         reset_error();
         PyErr_SetString(PyExc_RuntimeError, "the request could not be serialized");
     } else if (cdr.buffer_length < ENCAPSULATION) {
