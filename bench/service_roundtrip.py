@@ -214,6 +214,29 @@ class RosClient:
         self._thread.join(2)
 
 
+class ReferenceAgent:
+    """This agent's CLI from another checkout (``--reference``): started as bench/agent_cost.py
+    starts one, so that the other tree's code is the one imported (this venv's editable install
+    imports its own checkout's xrce at start-up)."""
+
+    def __init__(self, tree, env):
+        self.tree = tree
+        self.env = env
+        self.agent = None
+        self.port = None
+
+    def __enter__(self):
+        from agent_cost import Agent
+
+        self.agent = Agent(self.tree, self.env, "-m", "dds", "-v", "0", "--interfaces",
+                           str(INTERFACES))
+        self.port = self.agent.port
+        return self
+
+    def __exit__(self, *exc):
+        self.agent.stop()
+
+
 def one_round(start_agent, ros, domain_id, calls):
     with start_agent() as agent:
         firmware = FirmwareReplier(agent.port, domain_id)
@@ -245,9 +268,7 @@ def main(argv=None):
     agents = [("xrce", lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
                                             str(INTERFACES), env=env))]
     if args.reference:
-        agents.append(("reference", lambda: AgentProcess(
-            "udp4", "-m", "dds", "-v", "0", "--interfaces", str(INTERFACES), env=env,
-            cwd=args.reference)))
+        agents.append(("reference", lambda: ReferenceAgent(args.reference, env)))
     if args.agent_cmd:
         agents.append(("other", lambda: CommandAgent(args.agent_cmd, env)))
     ros = RosClient(domain_id)
