@@ -394,6 +394,33 @@ async def test_replier_reply_that_does_not_deserialize_is_refused(middleware, ro
     client.remove_pending_request(first)
 
 
+async def test_replier_reply_to_a_ros_client_gone_mid_request(middleware, ros_domain,
+                                                               ros_peer):  # noqa: F811
+    """The ROS client that asked is destroyed before the XRCE client's reply: the reply goes
+    nowhere without an error, and the next client is answered."""
+    participant = make_participant(middleware, ros_domain)
+    replier = key(0x08)
+    requests = []
+    middleware.create_replier(replier, participant,
+                              ServiceSpec("/basic_gone", BASIC_REQ_T, BASIC_REP_T), QOS,
+                              lambda identity, body: requests.append(identity))
+    gone = ros_peer.node.create_client(BasicTypes, "/basic_gone")
+    assert await async_wait_until(gone.service_is_ready)
+    _call(gone, BasicTypes.Request(int64_value=1))
+    assert await async_wait_until(lambda: len(requests) == 1)
+    ros_peer.node.destroy_client(gone)
+    middleware.write_reply(replier, requests[0], body_of(BasicTypes.Response(int64_value=2)))
+    assert middleware.write_reply(replier, requests[0], body_of(BasicTypes.Response())) is False
+    client = ros_peer.node.create_client(BasicTypes, "/basic_gone")
+    assert await async_wait_until(client.service_is_ready)
+    future, done = _call(client, BasicTypes.Request(int64_value=3))
+    assert await async_wait_until(lambda: len(requests) == 2)
+    assert middleware.write_reply(replier, requests[1], body_of(BasicTypes.Response(
+        int64_value=4)))
+    assert await async_wait_until(done.is_set)
+    assert future.result().int64_value == 4
+
+
 async def test_replier_without_the_compiled_conversions_uses_python_messages(
         middleware, ros_domain, ros_peer, monkeypatch):  # noqa: F811
     """Where the helper has no conversion for the type (not built, or its table of request
@@ -431,6 +458,8 @@ async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer): 
         pending = []
         mw.create_replier(replier, participant, ServiceSpec("slow", BASIC_REQ_T, BASIC_REP_T), QOS,
                           lambda identity, body: pending.append(identity))
+        if has_raw_services():
+            assert mw._entities[replier].raw_reply is not None
         client = ros_peer.node.create_client(BasicTypes, "/slow")
         assert await async_wait_until(client.service_is_ready)
         ignored = client.call_async(BasicTypes.Request(int64_value=1))
