@@ -859,7 +859,7 @@ static PyMethodDef module_methods[] = {
     {NULL},
 };
 
-/* CRC-32 of the module's sources, given by setup.py (xrce.agent.engine.fastpath compares it with the file). */
+/* CRC-32 of the module's sources, given by setup.py (xrce.agent.engine.fastpath compares it with them). */
 #ifndef XRCE_FASTPATH_SOURCE_CRC
 #define XRCE_FASTPATH_SOURCE_CRC "unknown"
 #endif
