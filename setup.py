@@ -32,12 +32,21 @@ except ValueError as exc:
 
 _extensions = []
 if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
-    # The source's CRC goes into the module: fastpath.attach() leaves a module built from another
-    # version of _fastpath.c unused (an editable install's .so outlives edits to the .c).
-    with open(os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                           "xrce", "agent", "engine", "_fastpath.c"), "rb") as _source:
-        _source_crc = "%08x" % binascii.crc32(_source.read())
-    _extensions.append(Extension("xrce.agent.engine._fastpath", ["xrce/agent/engine/_fastpath.c"],
+    # The sources' CRC goes into the module: fastpath.attach() leaves a module built from another
+    # version of them unused (an editable install's .so outlives edits to the .c).
+    # xrce.agent.engine.fastpath.SOURCES lists the same files in the same order.
+    _sources = ["_fastpath.c", "_services.c", "_services.h"]
+    _crc = 0
+    for _name in _sources:
+        with open(os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                               "xrce", "agent", "engine", _name), "rb") as _source:
+            _crc = binascii.crc32(_source.read(), _crc)
+    _source_crc = "%08x" % _crc
+    _extensions.append(Extension("xrce.agent.engine._fastpath",
+                                 ["xrce/agent/engine/" + name for name in _sources
+                                  if name.endswith(".c")],
+                                 depends=["xrce/agent/engine/" + name for name in _sources
+                                          if name.endswith(".h")],
                                  define_macros=[("XRCE_FASTPATH_SOURCE_CRC", '"%s"' % _source_crc)],
                                  extra_compile_args=["-O2"], optional=True))
 

@@ -1,7 +1,7 @@
 """Service round trip from ROS to a micro-ROS firmware's replier through the agent, beside another
 agent (eProsima's MicroXRCEAgent, ``--agent-cmd``) in the same run, rounds interleaved.
 
-    .venv/bin/python bench/service_roundtrip.py [--rounds 3] [--calls 20] [--agent-cmd CMD]
+    .venv/bin/python bench/service_roundtrip.py [--rounds 3] [--calls 20] [--agent-cmd CMD] [--reference DIR]
 
 Measure on a private loopback and /dev/shm, so no other DDS participant of the machine joins in:
 
@@ -36,15 +36,15 @@ sys.path.insert(0, str(REPO / "tests"))
 from agent_process import AgentProcess  # noqa: E402
 from figures import record  # noqa: E402
 from microros_replay import (  # noqa: E402
-    FIRMWARE_STREAM, Capture, Replayer, UdpChannel, _submessages,
+    FIRMWARE_STREAM, Capture, Replayer, UdpChannel,
 )
 from peer_agent import CommandAgent  # noqa: E402
 
 from xrce import constants as C  # noqa: E402
 
 INTERFACES = REPO / "tests" / "interfaces"
-REPLIER_READ = 0x0013  # the request id of the firmware's READ_DATA on its replier (0x0008)
 REPLIER_OBJECT = b"\x00\x08"
+REPLIER_ID = 0x0008  # its object id, which the DATA of its requests carries
 
 
 def _first_sample(capture):
@@ -78,6 +78,7 @@ class FirmwareReplier:
         self.template, self.body = _reply_template(self.capture)
         self.request_id = 0x0100
         self.answered = 0
+        self.requests_seen = 0  # of answers.samples[(0, REPLIER_ID)]
         self.requested_at = {}  # a -> perf_counter when its request's DATA arrived
         self.replied_at = {}  # a -> perf_counter when its reply left
         self._stop = threading.Event()
@@ -103,18 +104,22 @@ class FirmwareReplier:
         resend_at = time.monotonic() + 0.2
         while not self._stop.is_set():
             for boot, message in self.channel.receive(0.05):
-                for _heartbeat in replay.answers.note(boot, message):
+                # The agent's reliable stream in order, as the firmware's client library
+                # receives it (tests/microros_replay.Answers), acknowledged as it does.
+                if replay.answers.note(boot, message):
                     replay._acknack(boot)
                 acked = replay.answers.acked.get(boot, 0)
                 for key in [k for k in replay.unacked if k[1] < acked]:
                     del replay.unacked[key]
-                start = 4 if message[0] >= 0x80 else 8
-                for sub_id, _flags, body in _submessages(message, start):
-                    if sub_id == C.DATA and len(body) >= 44 and \
-                            (body[0] << 8 | body[1]) == REPLIER_READ:
-                        a, b = struct.unpack_from("<qq", body, 28)
-                        self.requested_at[a] = time.perf_counter()
-                        self._reply(bytes(body[4:28]), a, b)
+                samples = replay.answers.samples[(0, REPLIER_ID)]
+                while self.requests_seen < len(samples):
+                    sample = samples[self.requests_seen]
+                    self.requests_seen += 1
+                    if len(sample) < 40:
+                        continue
+                    a, b = struct.unpack_from("<qq", sample, 24)
+                    self.requested_at[a] = time.perf_counter()
+                    self._reply(bytes(sample[:24]), a, b)
             now = time.monotonic()
             if now >= resend_at:  # what the firmware's client does for unacknowledged messages
                 for (boot, _seq), data in sorted(replay.unacked.items()):
@@ -209,6 +214,29 @@ class RosClient:
         self._thread.join(2)
 
 
+class ReferenceAgent:
+    """This agent's CLI from another checkout (``--reference``): started as bench/agent_cost.py
+    starts one, so that the other tree's code is the one imported (this venv's editable install
+    imports its own checkout's xrce at start-up)."""
+
+    def __init__(self, tree, env):
+        self.tree = tree
+        self.env = env
+        self.agent = None
+        self.port = None
+
+    def __enter__(self):
+        from agent_cost import Agent
+
+        self.agent = Agent(self.tree, self.env, "-m", "dds", "-v", "0", "--interfaces",
+                           str(INTERFACES))
+        self.port = self.agent.port
+        return self
+
+    def __exit__(self, *exc):
+        self.agent.stop()
+
+
 def one_round(start_agent, ros, domain_id, calls):
     with start_agent() as agent:
         firmware = FirmwareReplier(agent.port, domain_id)
@@ -229,6 +257,8 @@ def main(argv=None):
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--agent-cmd", metavar="CMD",
                         help="another agent (e.g. $PEERS/agent.sh, eProsima's agent built outside this repository), measured in the same run")
+    parser.add_argument("--reference", metavar="DIR",
+                        help="another checkout of xrce (e.g. main) whose agent is measured in the same run")
     args = parser.parse_args(argv)
     lease = DomainLease()
     domain_id = lease.domain_id
@@ -237,6 +267,8 @@ def main(argv=None):
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     agents = [("xrce", lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
                                             str(INTERFACES), env=env))]
+    if args.reference:
+        agents.append(("reference", lambda: ReferenceAgent(args.reference, env)))
     if args.agent_cmd:
         agents.append(("other", lambda: CommandAgent(args.agent_cmd, env)))
     ros = RosClient(domain_id)
@@ -257,6 +289,12 @@ def main(argv=None):
         lease.release()
     ours = results["xrce"]
     other = results.get("other")
+    reference = results.get("reference")
+    if reference:
+        record("service round trip, this checkout against --reference",
+               statistics.median(ours), "ms", statistics.median(reference), args.reference,
+               "-", "round medians %s; reference %s" % (
+                   ", ".join("%.3f" % v for v in ours), ", ".join("%.3f" % v for v in reference)))
     record("service round trip, ROS -> firmware replier -> ROS (median of %d rounds of %d calls)"
            % (args.rounds, args.calls), statistics.median(ours), "ms",
            statistics.median(other) if other else None,

@@ -8,7 +8,9 @@
 - ``datapath``: the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
 - ``liveliness``: ACKNACK/HEARTBEAT and the timed work per client; ``timeline``: where the time
   goes when a client comes back;
-- ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path.
+- ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path; the same
+  extension's ``_services.c`` converts a replier's requests and replies between rclpy's C
+  messages and CDR bytes (``xrce.agent.middleware.ros.types.raw_service_type``).
 """
 
 from xrce.agent import _moved

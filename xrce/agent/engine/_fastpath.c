@@ -46,6 +46,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "_services.h"
+
 #define BATCH 64            /* datagrams per recvmmsg */
 #define MAX_DATAGRAM 65536  /* UDP's limit: nothing is ever truncated */
 #define WRITE_DATA 0x07
@@ -857,7 +859,7 @@ static PyMethodDef module_methods[] = {
     {NULL},
 };
 
-/* CRC-32 of this file, given by setup.py (xrce.agent.engine.fastpath compares it with the file). */
+/* CRC-32 of the module's sources, given by setup.py (xrce.agent.engine.fastpath compares it with them). */
 #ifndef XRCE_FASTPATH_SOURCE_CRC
 #define XRCE_FASTPATH_SOURCE_CRC "unknown"
 #endif
@@ -876,7 +878,8 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
         Py_DECREF(m);
         return NULL;
     }
-    if (PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_FASTPATH_SOURCE_CRC) < 0) {
+    if (xrce_services_add(m) < 0 ||
+        PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_FASTPATH_SOURCE_CRC) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -40,6 +40,8 @@ try:
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
+# The files the extension is built from, in setup.py's order: their CRC-32 is its SOURCE_CRC.
+SOURCES = ("_fastpath.c", "_services.c", "_services.h")
 READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
 
 
@@ -323,16 +325,18 @@ class FastPath:
                 self.agent._acknack_soon(client, stream)
 
 def stale_build(module) -> Optional[str]:
-    """Why ``module`` (the built extension) is not what ``_fastpath.c`` beside it builds, or None.
+    """Why ``module`` (the built extension) is not what the ``SOURCES`` beside it build, or None.
 
     An editable install keeps the .so it built while the .c changes under it; a stale receive
     path would publish by the old rules. A wheel ships no .c: nothing to compare, None."""
-    source = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_fastpath.c")
-    try:
-        with open(source, "rb") as handle:
-            crc = "%08x" % binascii.crc32(handle.read())  # binascii: hashlib would load OpenSSL
-    except OSError:
-        return None
+    crc = 0
+    for name in SOURCES:
+        try:
+            with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), name), "rb") as handle:
+                crc = binascii.crc32(handle.read(), crc)  # binascii: hashlib would load OpenSSL
+        except OSError:
+            return None
+    crc = "%08x" % crc
     built = getattr(module, "SOURCE_CRC", "unknown")
     if built != crc:
         return "built from another _fastpath.c (CRC %s, the file's is %s)" % (built, crc)

@@ -36,7 +36,9 @@ from xrce.agent.middleware import (
 )
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
-from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
+from xrce.agent.middleware.ros.types import (
+    qos_profile, raw_service_type, service_class, service_ros_name,
+)
 
 
 class _TakenRequest:
@@ -104,7 +106,7 @@ class _ReplierRecord:
 
     __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
                  "identity_prefix", "sequence", "loop", "middleware", "expires",
-                 "in_transit")
+                 "in_transit", "raw_reply")
     kind = "replier"
 
     def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
@@ -126,12 +128,18 @@ class _ReplierRecord:
         # Requests handed to the loop and not delivered yet (the engine's lock was taken): later
         # ones follow them through the loop rather than overtake them.
         self.in_transit: collections.deque = collections.deque()
+        # The raw reply class when the service exchanges CDR bytes with rclpy
+        # (types.raw_service_type), else None: Python messages.
+        self.raw_reply = None
 
     def take(self, request, _unused_response) -> _TakenRequest:
-        """Service callback (executor thread)."""
+        """Service callback (executor thread): ``request`` is its CDR bytes (a raw service
+        type), or a Python message."""
         self.sequence += 1
         identity = self.identity_prefix + struct.pack("<iI", self.sequence >> 32,
                                                       self.sequence & 0xFFFFFFFF)
+        if request.__class__ is bytes:
+            return _TakenRequest(identity, request)
         return _TakenRequest(identity, serialize_message(request)[ENCAPSULATION_SIZE:])
 
     def capture(self, taken, header) -> None:
@@ -216,6 +224,10 @@ class RosServices:
         def make_service():
             ros_service = node.create_service(srv, service_name, record.take, qos_profile=profile)
             ros_service.send_response = record.capture
+            raw = raw_service_type(srv)
+            if raw is not None:  # requests and replies cross as CDR bytes
+                ros_service.srv_type = raw
+                record.raw_reply = raw.Response
             return ros_service
 
         record.service, _ = self._create_on_executor(key, participant_record, make_service,
@@ -485,7 +497,11 @@ class RosServices:
             return False
         header = entry[0]
         try:
-            response = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Response)
+            if record.raw_reply is not None:
+                response = record.raw_reply(ENCAPSULATION_LE + bytes(sample))
+            else:
+                response = deserialize_message(ENCAPSULATION_LE + bytes(sample),
+                                               record.srv.Response)
             Service.send_response(record.service, response, header)
         except Exception as exc:
             log.warning("reply on %r failed: %s", replier, exc)

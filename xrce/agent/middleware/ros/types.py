@@ -354,6 +354,70 @@ def raw_message_type(dds_type: str):
     return handle
 
 
+class RawReply:
+    """A service reply as its CDR bytes (``cdr``, encapsulation first) for rclpy's
+    ``send_response``: the compiled helper's conversion (``_fastpath.raw_reply_conversion``)
+    deserializes them straight into the C message rclpy sends."""
+
+    __slots__ = ("cdr",)
+
+    def __init__(self, cdr: bytes = b""):
+        self.cdr = cdr
+
+
+_raw_services: dict = {}  # service class -> its raw stand-in, or None where there is none
+
+
+def _raw_class(message_class, name: str, conversions, bases: tuple):
+    """A class standing in for ``message_class`` whose conversions are ``conversions`` (to
+    Python, from Python) and whose C message, created and destroyed by the real type's
+    functions, is the real one's."""
+    real = type(message_class)
+    if real._TYPE_SUPPORT is None:
+        real.__import_type_support__()
+    to_py, from_py = conversions
+    meta = type("Metaclass_" + name, (_RawTypeMeta,), {
+        "_TYPE_SUPPORT": real._TYPE_SUPPORT, "_CREATE_ROS_MESSAGE": real._CREATE_ROS_MESSAGE,
+        "_DESTROY_ROS_MESSAGE": real._DESTROY_ROS_MESSAGE, "_CONVERT_TO_PY": to_py,
+        "_CONVERT_FROM_PY": from_py})
+    return meta(name, bases, {"__module__": message_class.__module__, "__slots__": ()})
+
+
+def raw_service_type(srv):
+    """What a replier's rclpy ``Service`` takes as its ``srv_type`` to exchange CDR bytes
+    instead of Python messages: ``Request`` makes rclpy's ``service_take_request`` give the
+    request's CDR bytes behind the encapsulation, as ``serialize_message(request)[4:]`` would;
+    ``Response`` is a ``RawReply`` that ``send_response`` deserializes in C. None where the
+    compiled helper or rmw is missing, or its table of request types is full: the Python
+    messages serve then.
+
+    Saves a replier two conversions through Python objects per request (taking the request,
+    then serializing it; deserializing the reply, then converting it for rcl), measured with
+    bench/service_roundtrip.py."""
+    if srv in _raw_services:
+        return _raw_services[srv]
+    stand_in = None
+    try:
+        from xrce.agent.engine import _fastpath
+    except ImportError:
+        _fastpath = None
+    request_conversion = getattr(_fastpath, "raw_request_conversion", None)
+    reply_conversion = getattr(_fastpath, "raw_reply_conversion", None)
+    if request_conversion is not None and reply_conversion is not None:
+        request_meta = type(srv.Request)
+        if request_meta._TYPE_SUPPORT is None:
+            request_meta.__import_type_support__()
+        to_request = request_conversion(request_meta._TYPE_SUPPORT)
+        to_reply = reply_conversion()
+        if to_request is not None and to_reply is not None:
+            stand_in = types.SimpleNamespace(
+                __name__=srv.__name__,
+                Request=_raw_class(srv.Request, srv.Request.__name__, to_request, ()),
+                Response=_raw_class(srv.Response, srv.Response.__name__, to_reply, (RawReply,)))
+    _raw_services[srv] = stand_in
+    return stand_in
+
+
 class _NumpyOnFirstUse(types.ModuleType):
     """What ``service_msgs.msg`` gets for ``numpy`` (see ``_import_service_event_info``)."""
 
