@@ -319,6 +319,14 @@ class DataPath:
                                 stream_id)
             return False
         self.stats.fragments_in += 1
+        # While the compiled UDP path owns the stream it holds the reassembly (it takes in-order
+        # fragments itself): taken for this fragment, and what is left unfinished goes back.
+        compiled = client.in_reliable.get(stream_id)
+        take_partial = getattr(compiled, "take_partial", None)
+        if take_partial is not None:
+            partial = take_partial()
+            if partial is not None:
+                client.reassembly[stream_id] = bytearray(partial)  # already charged
         buffer = client.reassembly.get(stream_id)
         if buffer is None:
             buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
@@ -333,6 +341,10 @@ class DataPath:
             return False
         buffer += data[start:end]
         self._charge(client, end - start)
+        if take_partial is not None and not flags & C.FLAG_LAST_FRAGMENT and \
+                compiled.put_partial(buffer):
+            del client.reassembly[stream_id]
+            return True
         if flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
             self._charge(client, -len(buffer))
