@@ -351,7 +351,21 @@ class DataPath:
             message = Reassembled(buffer)
             del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
+            fastpath = getattr(client.link, "fastpath", None)
+            if fastpath is not None and client.alive:
+                self._offer_reassembled(fastpath, client, stream_id, message)
         return True
+
+    @staticmethod
+    def _offer_reassembled(fastpath, client: ClientProxy, stream_id: int, message: bytes) -> None:
+        """A message put together from FRAGMENTs was one WRITE_DATA of a writer: the next ones
+        of its stream may not need Python (xrce.agent.engine.fastpath reassembles in C)."""
+        start = header_size(message[0])
+        if len(message) < start + 8 or message[start] != C_WRITE_DATA:
+            return
+        entry = client.objects.get((message[start + 6] << 8) | message[start + 7])
+        if entry is not None and entry.kind == C_DATAWRITER and entry.write is not None:
+            fastpath.offer(client, stream_id, entry)
 
     # ------------------------------------------------------------------ output --
 
