@@ -67,10 +67,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     uint16_t seq = data[2] | (data[3] << 8);
     if (seq != (uint16_t)(stream->last_seq + 1) || seq_less(seq, stream->last_announced)) return 0;
     size_t pos = data[0] < 0x80 ? 8 : 4;
-    if (pos + 8 > length) return 0;
-    size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
+    size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);  /* try_fast: length >= 12 */
     if (data[pos] == FRAGMENT && pos + 4 + sub_length == length)  /* _reliable_in.c */
         return try_fast_fragment(self, client, stream, data, length, pos, sub_length);
+    if (pos + 8 > length) return 0;
     if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
         sub_length < 4 || pos + 4 + sub_length != length)
         return 0;

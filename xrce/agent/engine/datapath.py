@@ -341,9 +341,11 @@ class DataPath:
             return False
         buffer += data[start:end]
         self._charge(client, end - start)
-        if take_partial is not None and not flags & C.FLAG_LAST_FRAGMENT and \
-                compiled.put_partial(buffer):
+        if take_partial is not None and not flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
+            if not compiled.put_partial(buffer):  # no memory there: everything back to Python
+                client.reassembly[stream_id] = buffer
+                client.fast.drop(client)
             return True
         if flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]

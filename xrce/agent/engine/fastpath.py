@@ -253,15 +253,12 @@ class FastPath:
             log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
         if stream_id not in state.streams and stream_id & 0x80:
             stream = client.in_reliable.get(stream_id)
-            if stream is None or stream.stored:
-                return
-            compiled = client.in_reliable[stream_id] = CompiledReliableStream(
-                self.receiver, state.handle, stream)
+            if stream is None or stream.stored or stream_id in client.reassembly:
+                return  # (the reassembly has one holder: Python's ends before C's may begin)
+            client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
+                                                                   stream)
             state.streams.add(stream_id)
             state.reliable = True
-            partial = client.reassembly.pop(stream_id, None)
-            if partial is not None:  # the reassembly has one holder: C, while it owns the stream
-                compiled.put_partial(partial)
             self.receiver.set_room(state.handle, self.room(client))
             log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
                       client.key.hex(), stream_id)
