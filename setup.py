@@ -33,20 +33,18 @@ except ValueError as exc:
 _extensions = []
 if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
     # The sources' CRC goes into the module: fastpath.attach() leaves a module built from another
-    # version of them unused (an editable install's .so outlives edits to the .c).
-    # xrce.agent.engine.fastpath.SOURCES lists the same files in the same order.
-    _sources = ["_fastpath.c", "_services.c", "_services.h"]
-    _crc = 0
-    for _name in _sources:
-        with open(os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                               "xrce", "agent", "engine", _name), "rb") as _source:
-            _crc = binascii.crc32(_source.read(), _crc)
-    _source_crc = "%08x" % _crc
+    # version of them unused (an editable install's .so outlives edits to the .c). Every .c and .h
+    # of the engine's folder, by name: the same list fastpath.stale_build reads.
+    _engine = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xrce", "agent", "engine")
+    _names = sorted(n for n in os.listdir(_engine) if n.endswith((".c", ".h")))
+    _source_crc = 0
+    for _name in _names:
+        with open(os.path.join(_engine, _name), "rb") as _source:
+            _source_crc = binascii.crc32(_source.read(), _source_crc)
+    _source_crc = "%08x" % _source_crc
     _extensions.append(Extension("xrce.agent.engine._fastpath",
-                                 ["xrce/agent/engine/" + name for name in _sources
-                                  if name.endswith(".c")],
-                                 depends=["xrce/agent/engine/" + name for name in _sources
-                                          if name.endswith(".h")],
+                                 ["xrce/agent/engine/" + n for n in _names if n.endswith(".c")],
+                                 depends=["xrce/agent/engine/" + n for n in _names if n.endswith(".h")],
                                  define_macros=[("XRCE_FASTPATH_SOURCE_CRC", '"%s"' % _source_crc)],
                                  extra_compile_args=["-O2"], optional=True))
 

@@ -550,7 +550,7 @@ def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled)
 
 
 def test_a_build_from_another_source_is_left_unused():
-    """The installed extension is built from the _fastpath.c beside it (the suite's own install
+    """The installed extension is built from the C sources beside it (the suite's own install
     rebuilt it); a module built from another version of that file is told apart, and attach()
     leaves it unused, logging why, instead of publishing by the old rules."""
     import types
@@ -561,8 +561,8 @@ def test_a_build_from_another_source_is_left_unused():
         pytest.fail("the compiled receive path is not built: the suite's install compiles it")
     assert fastpath.stale_build(fastpath._fastpath) is None, fastpath.stale_build(fastpath._fastpath)
     older = types.SimpleNamespace(SOURCE_CRC="00000000")
-    assert "built from another _fastpath.c" in fastpath.stale_build(older)
-    assert "built from another _fastpath.c" in fastpath.stale_build(types.SimpleNamespace())
+    assert "built from other C sources" in fastpath.stale_build(older)
+    assert "built from other C sources" in fastpath.stale_build(types.SimpleNamespace())
 
 
 def test_attach_leaves_a_stale_build_unused(monkeypatch, caplog):
@@ -577,4 +577,4 @@ def test_attach_leaves_a_stale_build_unused(monkeypatch, caplog):
     link = types.SimpleNamespace(name="udp", receiver=types.SimpleNamespace())
     with caplog.at_level("WARNING", logger="xrce.agent"):
         assert fastpath.attach(link, sock=None) is None
-    assert "built from another _fastpath.c" in caplog.text and "pip install -e ." in caplog.text
+    assert "built from other C sources" in caplog.text and "pip install -e ." in caplog.text

@@ -7,8 +7,9 @@
  * best-effort stream Python registered, is published with rcl_publish_serialized_message right
  * here. So is, on a reliable stream Python registered, a datagram holding one such WRITE_DATA that
  * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
- * end of the wake-up, or by Python (send_due_acknacks says when).
- * At the first datagram that is neither (other reliable messages, fragments, control, unknown
+ * end of the wake-up, or by Python (send_due_acknacks says when). FRAGMENTs of such a stream and
+ * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat).
+ * At the first datagram that is none of these (other reliable messages, control, unknown
  * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
  * order. xrce/agent/engine/fastpath.py is the Python side.
@@ -27,119 +28,11 @@
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
  * builds with no ROS headers, and without rclpy loaded the Python path simply stays in charge.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-
-#include <arpa/inet.h>
-#include <dlfcn.h>
-#if defined(__GLIBC__)
-#include <malloc.h>
-#endif
-#include <errno.h>
-#include <netinet/in.h>
-#include <pthread.h>
-#include <stdbool.h>
-#include <stdint.h>
-#include <string.h>
-#include <sys/mman.h>
-#include <sys/socket.h>
-#include <time.h>
-#include <unistd.h>
+#include "_fastpath.h"
 
 #include "_services.h"
 
-#define BATCH 64            /* datagrams per recvmmsg */
-#define MAX_DATAGRAM 65536  /* UDP's limit: nothing is ever truncated */
-#define WRITE_DATA 0x07
-#define FORMAT_MASK 0x0E
-#define FORMAT_DATA 0x00
-#define ACKNACK 0x0A
-#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
-
-/* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
- * them; rmw reads only buffer and buffer_length of a message it publishes. */
-typedef struct {
-    void *allocate, *deallocate, *reallocate, *zero_allocate, *state;
-} rcutils_allocator_t;
-typedef struct {
-    uint8_t *buffer;
-    size_t buffer_length;
-    size_t buffer_capacity;
-    rcutils_allocator_t allocator;
-} serialized_message_t;
-typedef int (*publish_serialized_fn)(const void *publisher, const serialized_message_t *message,
-                                     void *allocation);
-static publish_serialized_fn rcl_publish_serialized;
-
-typedef struct Writer {
-    struct Writer *next;
-    uint16_t object_id;
-    const void *publisher;  /* rcl_publisher_t *, valid while registered */
-    uint64_t samples, sample_bytes;
-} Writer;
-
-typedef struct Stream {
-    struct Stream *next;
-    uint8_t stream_id;
-    uint16_t last_seq;  /* the last accepted (best-effort) or handled (reliable) sequence number */
-    /* Reliable streams only: the highest sequence number the client is known to have sent
-     * (xrce.streams.InputReliableStream.last_announced), and whether a message was handled here
-     * since the last fold (Python then sends the stream's ACKNACK). */
-    int reliable, ack_due;
-    uint16_t last_announced;
-} Stream;
-
-typedef struct Client {
-    struct Client *next;
-    long handle;
-    int enabled;  /* Python clears it while the client needs its attention (dead, parked, ...) */
-    uint8_t session_id;
-    uint8_t key[4];                /* sessions with the key in the header (id < 0x80) */
-    /* Sessions without a key are identified by the source address. Those with one are taken
-     * here only from it too, the address Python admitted the session on: any other source (a
-     * board's second socket, or a stranger outside --allow-from who knows the key) goes to
-     * Python, which decides; this path never enforces or bypasses a policy. */
-    struct sockaddr_storage addr;
-    socklen_t addr_len;
-    Stream *streams;
-    Writer *writers;
-    uint64_t messages, bytes, messages_out, bytes_out;
-    int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
-} Client;
-
-typedef struct {
-    PyObject_HEAD
-    int sock;
-    /* Registration runs on the loop's thread, which is also the one reading; the mutex keeps any
-     * other thread that calls in from seeing the tables half changed while the GIL is released. */
-    pthread_mutex_t mutex;
-    Client *clients;
-    long next_handle;
-    int enabled;
-    /* Agent-wide counters since the last fold. */
-    uint64_t messages, bytes, samples, stale, publish_errors, acknacks, acknack_bytes;
-    /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found
-     * by fold's walk instead): read() acknowledges these without walking every client. */
-    struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
-    int pending_count;
-    /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
-    uint8_t (*buffers)[MAX_DATAGRAM];
-    struct mmsghdr messages_hdr[BATCH];
-    struct iovec vectors[BATCH];
-    struct sockaddr_storage sources[BATCH];
-} Receiver;
-
-static int64_t now_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
-/* 16-bit serial-number order (xrce/streams.py seq_less). */
-static int seq_less(uint16_t a, uint16_t b) {
-    if (a == b) return 0;
-    return (a < b && b - a < 0x8000) || (a > b && a - b > 0x8000);
-}
+publish_serialized_fn rcl_publish_serialized;
 
 static int same_address(const struct sockaddr_storage *a, const struct sockaddr_storage *b) {
     if (a->ss_family != b->ss_family) return 0;
@@ -163,18 +56,6 @@ static Client *find_client(Receiver *self, const uint8_t *data, const struct soc
     return NULL;
 }
 
-static Writer *find_writer(Client *c, uint16_t object_id) {
-    for (Writer *w = c->writers; w; w = w->next)
-        if (w->object_id == object_id) return w;
-    return NULL;
-}
-
-static Stream *find_stream(Client *c, uint8_t stream_id) {
-    for (Stream *s = c->streams; s; s = s->next)
-        if (s->stream_id == stream_id) return s;
-    return NULL;
-}
-
 /* A reliable stream's datagram: taken here only if it is the next message in order, with nothing
  * held for the stream in Python, and its one submessage a WRITE_DATA to a registered writer that
  * publishes. Everything else (a duplicate, a gap, a retransmission filling one, several
@@ -188,8 +69,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     uint16_t seq = data[2] | (data[3] << 8);
     if (seq != (uint16_t)(stream->last_seq + 1) || seq_less(seq, stream->last_announced)) return 0;
     size_t pos = data[0] < 0x80 ? 8 : 4;
+    size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);  /* try_fast: length >= 12 */
+    if (data[pos] == FRAGMENT && pos + 4 + sub_length == length)  /* _reliable_in.c */
+        return try_fast_fragment(self, client, stream, data, length, pos, sub_length);
     if (pos + 8 > length) return 0;
-    size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);
     if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
         sub_length < 4 || pos + 4 + sub_length != length)
         return 0;
@@ -225,9 +108,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
 static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
     if (!self->enabled || rcl_publish_serialized == NULL || length < 12) return 0;
     uint8_t session_id = data[0];
-    if ((session_id & 0x7F) == 0 || data[1] == 0) return 0;
+    if ((session_id & 0x7F) == 0) return 0;
     Client *client = find_client(self, data, from);
     if (client == NULL || !client->enabled) return 0;
+    if (data[1] == 0) return try_fast_heartbeat(self, client, data, length);  /* _reliable_in.c */
     Stream *stream = find_stream(client, data[1]);
     if (stream == NULL) return 0;
     if (stream->reliable) return try_fast_reliable(self, client, stream, data, length);
@@ -354,15 +238,9 @@ static int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_
     return -1;
 }
 
-static Client *client_by_handle(Receiver *self, long handle) {
-    for (Client *c = self->clients; c; c = c->next)
-        if (c->handle == handle) return c;
-    return NULL;
-}
-
 static void free_client(Client *c) {
     for (Writer *w = c->writers, *n; w; w = n) { n = w->next; free(w); }
-    for (Stream *s = c->streams, *n; s; s = n) { n = s->next; free(s); }
+    for (Stream *s = c->streams, *n; s; s = n) { n = s->next; free_reassembly(s); free(s); }
     free(c);
 }
 
@@ -749,6 +627,12 @@ static PyMethodDef Receiver_methods[] = {
     {"remove_writer", (PyCFunction)Receiver_remove_writer, METH_VARARGS, NULL},
     {"fold", (PyCFunction)Receiver_fold, METH_NOARGS, NULL},
     {"handle", (PyCFunction)Receiver_handle, METH_VARARGS, NULL},
+    /* _reliable_in.c */
+    {"take_partial", (PyCFunction)Receiver_take_partial, METH_VARARGS, NULL},
+    {"put_partial", (PyCFunction)Receiver_put_partial, METH_VARARGS, NULL},
+    {"set_room", (PyCFunction)Receiver_set_room, METH_VARARGS, NULL},
+    {"set_reassembly_limit", (PyCFunction)Receiver_set_reassembly_limit, METH_O, NULL},
+    {"fold_reliable", (PyCFunction)Receiver_fold_reliable, METH_NOARGS, NULL},
     {NULL},
 };
 

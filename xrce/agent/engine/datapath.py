@@ -319,6 +319,14 @@ class DataPath:
                                 stream_id)
             return False
         self.stats.fragments_in += 1
+        # While the compiled UDP path owns the stream it holds the reassembly (it takes in-order
+        # fragments itself): taken for this fragment, and what is left unfinished goes back.
+        compiled = client.in_reliable.get(stream_id)
+        take_partial = getattr(compiled, "take_partial", None)
+        if take_partial is not None:
+            partial = take_partial()
+            if partial is not None:
+                client.reassembly[stream_id] = bytearray(partial)  # already charged
         buffer = client.reassembly.get(stream_id)
         if buffer is None:
             buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
@@ -333,13 +341,33 @@ class DataPath:
             return False
         buffer += data[start:end]
         self._charge(client, end - start)
+        if take_partial is not None and not flags & C.FLAG_LAST_FRAGMENT:
+            del client.reassembly[stream_id]
+            if not compiled.put_partial(buffer):  # no memory there: everything back to Python
+                client.reassembly[stream_id] = buffer
+                client.fast.drop(client)
+            return True
         if flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
             self._charge(client, -len(buffer))
             message = Reassembled(buffer)
             del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
+            fastpath = getattr(client.link, "fastpath", None)
+            if fastpath is not None and client.alive:
+                self._offer_reassembled(fastpath, client, stream_id, message)
         return True
+
+    @staticmethod
+    def _offer_reassembled(fastpath, client: ClientProxy, stream_id: int, message: bytes) -> None:
+        """A message put together from FRAGMENTs was one WRITE_DATA of a writer: the next ones
+        of its stream may not need Python (xrce.agent.engine.fastpath reassembles in C)."""
+        start = header_size(message[0])
+        if len(message) < start + 8 or message[start] != C_WRITE_DATA:
+            return
+        entry = client.objects.get((message[start + 6] << 8) | message[start + 7])
+        if entry is not None and entry.kind == C_DATAWRITER and entry.write is not None:
+            fastpath.offer(client, stream_id, entry)
 
     # ------------------------------------------------------------------ output --
 

@@ -351,7 +351,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self.stats.duplicates += stream.duplicates - duplicates
             client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
-                self._acknack_soon(client, stream)
+                # (a reassembled sample may have handed the stream to the compiled path)
+                self._acknack_soon(client, client.in_reliable.get(stream_id, stream))
 
     def _hold_back(self, client: ClientProxy, stream: InputReliableStream, seq: int,
                    data: bytes) -> bool:

@@ -30,7 +30,7 @@ import os
 import time
 from typing import Dict, Optional
 
-from xrce.agent.engine.session import TRACE
+from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
 from xrce.streams import InputBestEffortStream, InputReliableStream
 
 log = logging.getLogger("xrce.agent")
@@ -40,8 +40,6 @@ try:
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
-# The files the extension is built from, in setup.py's order: their CRC-32 is its SOURCE_CRC.
-SOURCES = ("_fastpath.c", "_services.c", "_services.h")
 READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
 
 
@@ -117,6 +115,14 @@ class CompiledReliableStream(InputReliableStream):
                                           state[0] if last is None else last,
                                           state[1] if announced is None else announced)
 
+    def take_partial(self) -> Optional[bytes]:
+        """The message C was putting together from FRAGMENTs, now Python's to continue (None:
+        none). What Python leaves unfinished goes back with ``put_partial``."""
+        return self._receiver.take_partial(self._handle, self.stream_id)
+
+    def put_partial(self, buffer) -> bool:
+        return self._receiver.put_partial(self._handle, self.stream_id, buffer)
+
     def detached(self) -> InputReliableStream:
         """A plain stream in this one's state, for when C forgets the client."""
         stream = InputReliableStream(self.stream_id, self.window)
@@ -130,7 +136,7 @@ class CompiledReliableStream(InputReliableStream):
 class CompiledClient:
     """What C knows of one client: its handle, streams and writers."""
 
-    __slots__ = ("path", "handle", "streams", "writers", "enabled")
+    __slots__ = ("path", "handle", "streams", "writers", "enabled", "reliable")
 
     def __init__(self, path: "FastPath", handle: int):
         self.path = path
@@ -138,6 +144,7 @@ class CompiledClient:
         self.streams: set = set()
         self.writers: set = set()
         self.enabled = True
+        self.reliable = False  # a reliable stream is registered: C needs the budget's room
 
     def forget_writer(self, client, object_id: int) -> None:
         """Before the writer's publisher is destroyed: C holds no pointer to it afterwards."""
@@ -158,6 +165,9 @@ class CompiledClient:
         for stream_id in self.streams:  # the sequence numbers come back to Python
             reliable = client.in_reliable.get(stream_id)
             if isinstance(reliable, CompiledReliableStream):
+                partial = reliable.take_partial()  # so does a reassembly under way
+                if partial is not None:
+                    client.reassembly[stream_id] = bytearray(partial)
                 client.in_reliable[stream_id] = reliable.detached()
             elif isinstance(client.in_best_effort.get(stream_id), CompiledStream):
                 stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
@@ -176,6 +186,7 @@ class FastPath:
         self.link = link
         self.agent = agent
         self.receiver = _fastpath.Receiver(sock.fileno())
+        self.receiver.set_reassembly_limit(agent.max_reassembly_bytes or MAX_REASSEMBLY)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
         agent.fastpaths.append(self)
 
@@ -203,6 +214,10 @@ class FastPath:
                 # ICMP errors (port unreachable after a client went away) arrive here on Linux.
                 log.debug("%s: socket error %s", link.name, exc)
                 continue
+            if rest and self.clients:
+                # What C did before the first datagram it left counts before Python handles that
+                # one: a reassembly's bytes (the client's budget) and the stream's ACKNACK.
+                self.fold()
             for data, addr in rest:
                 stats.bytes_in += len(data)
                 link._deliver(addr, data)
@@ -238,11 +253,13 @@ class FastPath:
             log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
         if stream_id not in state.streams and stream_id & 0x80:
             stream = client.in_reliable.get(stream_id)
-            if stream is None or stream.stored:
-                return
+            if stream is None or stream.stored or stream_id in client.reassembly:
+                return  # (the reassembly has one holder: Python's ends before C's may begin)
             client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
                                                                    stream)
             state.streams.add(stream_id)
+            state.reliable = True
+            self.receiver.set_room(state.handle, self.room(client))
             log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
                       client.key.hex(), stream_id)
         elif stream_id not in state.streams:
@@ -270,6 +287,16 @@ class FastPath:
             if eligible != state.enabled:
                 state.enabled = eligible
                 self.receiver.set_client_enabled(state.handle, eligible)
+            if eligible and state.reliable:
+                self.receiver.set_room(state.handle, self.room(client))
+
+    def room(self, client) -> int:
+        """What the client's byte budget leaves (``Agent._over_budget``): C stores a FRAGMENT
+        only within it, as Python's ``_hold_back`` refuses one beyond it. Refreshed whenever
+        Python has handled a datagram; between, C counts down what it adds itself."""
+        agent = self.agent
+        return min(agent.max_client_bytes - client.buffered - client.queued_bytes,
+                   agent.max_total_bytes - agent.buffered_total - agent.queued_total)
 
     # -- counters -------------------------------------------------------------------------
 
@@ -293,6 +320,14 @@ class FastPath:
             stats.dropped += stale
             self.link.stats.messages_in += messages
             self.link.stats.bytes_in += size
+        reliable = self.receiver.fold_reliable()
+        if reliable is not None:
+            fragments, charges = reliable
+            self.agent.stats.fragments_in += fragments
+            for handle, size in charges:  # reassembly C holds counts against the client's budget
+                client = self.clients.get(handle)
+                if client is not None:
+                    self.agent._charge(client, size)
         if publish_errors:
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
@@ -325,21 +360,26 @@ class FastPath:
                 self.agent._acknack_soon(client, stream)
 
 def stale_build(module) -> Optional[str]:
-    """Why ``module`` (the built extension) is not what the ``SOURCES`` beside it build, or None.
+    """Why ``module`` (the built extension) is not what the C sources beside it build, or None.
 
     An editable install keeps the .so it built while the .c changes under it; a stale receive
-    path would publish by the old rules. A wheel ships no .c: nothing to compare, None."""
-    crc = 0
-    for name in SOURCES:
-        try:
-            with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), name), "rb") as handle:
-                crc = binascii.crc32(handle.read(), crc)  # binascii: hashlib would load OpenSSL
-        except OSError:
+    path would publish by the old rules. The CRC runs over every .c and .h of this folder by name,
+    as setup.py computes it. A wheel ships no .c: nothing to compare, None."""
+    folder = os.path.dirname(os.path.abspath(__file__))
+    try:
+        names = sorted(n for n in os.listdir(folder) if n.endswith((".c", ".h")))
+        if "_fastpath.c" not in names:
             return None
+        crc = 0
+        for name in names:
+            with open(os.path.join(folder, name), "rb") as handle:
+                crc = binascii.crc32(handle.read(), crc)  # binascii: hashlib would load OpenSSL
+    except OSError:
+        return None
     crc = "%08x" % crc
     built = getattr(module, "SOURCE_CRC", "unknown")
     if built != crc:
-        return "built from another _fastpath.c (CRC %s, the file's is %s)" % (built, crc)
+        return "built from other C sources (CRC %s, the files' is %s)" % (built, crc)
     return None
 
 

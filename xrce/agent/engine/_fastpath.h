@@ -1,0 +1,164 @@
+/* What the compiled receive path's C files share (_fastpath.c: the read, best-effort and in-order
+ * WRITE_DATA, registration; _reliable_in.c: FRAGMENTs and HEARTBEATs of reliable input): the
+ * tables Python registers into and the helpers that walk them. Every function here is called with
+ * the Receiver's mutex held. */
+#ifndef XRCE_FASTPATH_H
+#define XRCE_FASTPATH_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <arpa/inet.h>
+#include <dlfcn.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+#include <errno.h>
+#include <netinet/in.h>
+#include <pthread.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#define BATCH 64            /* datagrams per recvmmsg */
+#define MAX_DATAGRAM 65536  /* UDP's limit: nothing is ever truncated */
+#define WRITE_DATA 0x07
+#define FORMAT_MASK 0x0E
+#define FORMAT_DATA 0x00
+#define ACKNACK 0x0A
+#define HEARTBEAT 0x0B
+#define FRAGMENT 0x0D
+#define FLAG_LAST_FRAGMENT 0x02
+#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
+
+/* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
+ * them; rmw reads only buffer and buffer_length of a message it publishes. */
+typedef struct {
+    void *allocate, *deallocate, *reallocate, *zero_allocate, *state;
+} rcutils_allocator_t;
+typedef struct {
+    uint8_t *buffer;
+    size_t buffer_length;
+    size_t buffer_capacity;
+    rcutils_allocator_t allocator;
+} serialized_message_t;
+typedef int (*publish_serialized_fn)(const void *publisher, const serialized_message_t *message,
+                                     void *allocation);
+extern publish_serialized_fn rcl_publish_serialized;  /* _fastpath.c: resolve_rcl */
+
+typedef struct Writer {
+    struct Writer *next;
+    uint16_t object_id;
+    const void *publisher;  /* rcl_publisher_t *, valid while registered */
+    uint64_t samples, sample_bytes;
+} Writer;
+
+typedef struct Stream {
+    struct Stream *next;
+    uint8_t stream_id;
+    uint16_t last_seq;  /* the last accepted (best-effort) or handled (reliable) sequence number */
+    /* Reliable streams only: the highest sequence number the client is known to have sent
+     * (xrce.streams.InputReliableStream.last_announced), and whether a message was handled here
+     * since the last fold (Python then sends the stream's ACKNACK). */
+    int reliable, ack_due;
+    uint16_t last_announced;
+    /* Reliable streams only: the message being put together from FRAGMENTs (_reliable_in.c), as
+     * Python's ClientProxy.reassembly holds it: the first fragment's message header, then the
+     * chunks. The one copy of it while the stream is registered: Python takes it for the
+     * fragments it handles itself and puts back what is left (take_partial, put_partial). */
+    uint8_t *frag;
+    size_t frag_len, frag_cap;
+} Stream;
+
+typedef struct Client {
+    struct Client *next;
+    long handle;
+    int enabled;  /* Python clears it while the client needs its attention (dead, parked, ...) */
+    uint8_t session_id;
+    uint8_t key[4];                /* sessions with the key in the header (id < 0x80) */
+    /* Sessions without a key are identified by the source address. Those with one are taken
+     * here only from it too, the address Python admitted the session on: any other source (a
+     * board's second socket, or a stranger outside --allow-from who knows the key) goes to
+     * Python, which decides; this path never enforces or bypasses a policy. */
+    struct sockaddr_storage addr;
+    socklen_t addr_len;
+    Stream *streams;
+    Writer *writers;
+    uint64_t messages, bytes, messages_out, bytes_out;
+    int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
+    /* What the client's byte budget (Agent._over_budget) leaves for reassembly here, as Python
+     * last set it (set_room), less what was added since; and the bytes of reassembly added (or,
+     * negative, given back) since the last fold, which Python charges to the client. */
+    int64_t room, frag_charged;
+} Client;
+
+typedef struct {
+    PyObject_HEAD
+    int sock;
+    /* Registration runs on the loop's thread, which is also the one reading; the mutex keeps any
+     * other thread that calls in from seeing the tables half changed while the GIL is released. */
+    pthread_mutex_t mutex;
+    Client *clients;
+    long next_handle;
+    int enabled;
+    /* Agent-wide counters since the last fold. */
+    uint64_t messages, bytes, samples, stale, publish_errors, acknacks, acknack_bytes;
+    uint64_t fragments_in;
+    size_t reassembly_limit;  /* Agent.max_reassembly_bytes; 0 (not set): no reassembly here */
+    /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found
+     * by fold's walk instead): read() acknowledges these without walking every client. */
+    struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
+    int pending_count;
+    /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
+    uint8_t (*buffers)[MAX_DATAGRAM];
+    struct mmsghdr messages_hdr[BATCH];
+    struct iovec vectors[BATCH];
+    struct sockaddr_storage sources[BATCH];
+} Receiver;
+
+static inline int64_t now_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+/* 16-bit serial-number order (xrce/streams.py seq_less). */
+static inline int seq_less(uint16_t a, uint16_t b) {
+    if (a == b) return 0;
+    return (a < b && b - a < 0x8000) || (a > b && a - b > 0x8000);
+}
+
+static inline Writer *find_writer(Client *c, uint16_t object_id) {
+    for (Writer *w = c->writers; w; w = w->next)
+        if (w->object_id == object_id) return w;
+    return NULL;
+}
+
+static inline Stream *find_stream(Client *c, uint8_t stream_id) {
+    for (Stream *s = c->streams; s; s = s->next)
+        if (s->stream_id == stream_id) return s;
+    return NULL;
+}
+
+static inline Client *client_by_handle(Receiver *self, long handle) {
+    for (Client *c = self->clients; c; c = c->next)
+        if (c->handle == handle) return c;
+    return NULL;
+}
+
+/* _reliable_in.c */
+int try_fast_fragment(Receiver *self, Client *client, Stream *stream, uint8_t *data,
+                      size_t length, size_t pos, size_t sub_length);
+int try_fast_heartbeat(Receiver *self, Client *client, const uint8_t *data, size_t length);
+void free_reassembly(Stream *stream);
+PyObject *Receiver_take_partial(Receiver *self, PyObject *args);
+PyObject *Receiver_put_partial(Receiver *self, PyObject *args);
+PyObject *Receiver_set_room(Receiver *self, PyObject *args);
+PyObject *Receiver_set_reassembly_limit(Receiver *self, PyObject *arg);
+PyObject *Receiver_fold_reliable(Receiver *self, PyObject *unused);
+
+#endif
