@@ -3,6 +3,7 @@
 import importlib.util
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -85,6 +86,7 @@ def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_doma
 
 _NODE_WITH_PARAMETER_SERVICES = """
 import sys
+import time
 import rclpy
 from xrce.agent.middleware.ros import rclpy_services
 rclpy_services.defer_unused()
@@ -211,3 +213,33 @@ def _glibc():
     import platform
 
     return platform.libc_ver()[0] == "glibc"
+
+
+def test_interface_jobs_run_one_at_a_time_on_threads_that_end():
+    """The lazy listing and builds of xrce.agent.interfaces leave no idle worker behind (a pool's
+    stayed for the agent's whole life, with its stack and malloc arena)."""
+    import threading
+
+    from xrce.agent import interfaces
+
+    running, most = [0], [0]
+    lock = threading.Lock()
+
+    def job(value):
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        time.sleep(0.05)
+        with lock:
+            running[0] -= 1
+        if value == "bad":
+            raise ValueError(value)
+        return value * 2
+
+    futures = [interfaces._submit(job, value) for value in (1, 2, "bad", 3)]
+    assert [f.result(timeout=30) for f in futures if f is not futures[2]] == [2, 4, 6]
+    with pytest.raises(ValueError):
+        futures[2].result(timeout=30)
+    assert most[0] == 1
+    assert wait_until(lambda: not any(t.name.startswith("xrce-interfaces") for t in threading.enumerate()),
+                      timeout_s=10)
