@@ -41,7 +41,8 @@ HEAP_MAX = 64 << 20  # glibc's thread arena reservation (64-bit)
 LIBRARY_GROUPS = (
     ("Fast DDS (libfastrtps/libfastdds, libfastcdr)", re.compile(r"/libfast(rtps|dds|cdr)\.so")),
     ("libpython", re.compile(r"/libpython3")),
-    ("libc, libstdc++, libm, libgcc, ld.so", re.compile(r"/(libc|libstdc\+\+|libm|libgcc_s|ld-linux[^/]*)\.so")),
+    ("libc, libstdc++, libm, libgcc, ld.so",
+     re.compile(r"/(libc|libstdc\+\+|libm|libgcc_s|ld-linux[^/]*)\.so")),
     ("rclpy's extension", re.compile(r"/rclpy/_rclpy_pybind11")),
     ("Fast DDS shared-memory segments", re.compile(r"^/dev/shm/")),
 )
@@ -55,7 +56,8 @@ def rclpy_linked_type_supports():
     except ImportError:
         return set()
     names = set()
-    for extension in glob.glob(os.path.join(os.path.dirname(rclpy.__file__), "_rclpy_pybind11*.so")):
+    folder = os.path.dirname(rclpy.__file__)
+    for extension in glob.glob(os.path.join(folder, "_rclpy_pybind11*.so")):
         listing = subprocess.run(["ldd", extension], capture_output=True, text=True).stdout
         names.update(line.split()[0] for line in listing.splitlines() if "__rosidl_" in line)
     return names
@@ -83,8 +85,8 @@ def smaps_groups(pid, rclpy_linked):
             previous = mappings[index - 1] if index else None
             if low % HEAP_MAX == 0 and (high - low == HEAP_MAX or low + HEAP_MAX in ends):
                 kind = "thread malloc arenas"
-            elif previous and previous[2] == "---p" and previous[1] == low and high - low >= (1 << 20) \
-                    and previous[1] - previous[0] <= 64 << 10:
+            elif (previous and previous[2] == "---p" and previous[1] == low
+                  and high - low >= (1 << 20) and previous[1] - previous[0] <= 64 << 10):
                 kind = "thread stacks"
             else:
                 kind = "anonymous (Python's object arenas, C++ mappings)"
@@ -117,7 +119,8 @@ def main(argv=None):
 
     def rss_and_smaps(pid):
         captured["rss"] = read_rss(pid)
-        captured["groups"], captured["packages"], captured["others"] = smaps_groups(pid, rclpy_linked)
+        groups, packages, others = smaps_groups(pid, rclpy_linked)
+        captured.update(groups=groups, packages=packages, others=others)
         return captured["rss"]
 
     agent_cost.rss_mb = rss_and_smaps

@@ -163,7 +163,7 @@ import sys, threading
 if sys.argv[1] == "limited":
     from xrce.agent.launcher import _limit_malloc_arenas
     _limit_malloc_arenas()
-HEAP = 64 << 20  # glibc's HEAP_MAX_SIZE (64-bit): a thread arena's heap is a 64 MB-aligned reservation
+HEAP = 64 << 20  # glibc's HEAP_MAX_SIZE (64-bit): a thread arena is a 64 MB-aligned reservation
 held, ready, done = [], threading.Barrier(9), threading.Event()
 
 
@@ -241,5 +241,5 @@ def test_interface_jobs_run_one_at_a_time_on_threads_that_end():
     with pytest.raises(ValueError):
         futures[2].result(timeout=30)
     assert most[0] == 1
-    assert wait_until(lambda: not any(t.name.startswith("xrce-interfaces") for t in threading.enumerate()),
-                      timeout_s=10)
+    assert wait_until(lambda: not any(thread.name.startswith("xrce-interfaces")
+                                      for thread in threading.enumerate()), timeout_s=10)
