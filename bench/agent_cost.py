@@ -86,11 +86,21 @@ class Agent:
 
     def __init__(self, tree, env, *args):
         # An editable install's .pth imports this checkout's xrce before sys.path applies, so the
-        # other tree's agent is started by a bootstrap that drops those modules first.
-        bootstrap = ("import runpy, sys\n"
+        # other tree's agent is started by a bootstrap that drops those modules first. The .pth
+        # hook of the built interface packages (xrce.agent.interfaces.registry) ran in the dropped
+        # modules, so the bootstrap activates the registry again in the tree's own: else the
+        # agent would list and build turtlebot3_msgs again as on its first run (1 MB more RSS, a
+        # cost an installed agent does not have).
+        bootstrap = ("import os, runpy, site, sys\n"
                      "for name in [m for m in sys.modules if m == 'xrce' or m.startswith('xrce.')]:\n"
                      "    del sys.modules[name]\n"
+                     "sys.meta_path[:] = [f for f in sys.meta_path\n"
+                     "                    if type(f).__name__ != '_RegisteredInterfaceFinder']\n"
                      "sys.path.insert(0, %r)\n"
+                     "from xrce.agent.interfaces import registry\n"
+                     "for folder in site.getsitepackages():\n"
+                     "    if os.path.exists(os.path.join(folder, registry.REGISTRY_NAME)):\n"
+                     "        registry.activate_registry(os.path.join(folder, registry.REGISTRY_NAME))\n"
                      "sys.argv[0] = 'xrce-agent'\n"
                      "runpy.run_module('xrce.agent', run_name='__main__', alter_sys=True)\n" % tree)
         self.proc = subprocess.Popen([PYTHON, "-c", bootstrap, "udp4", "-p", "0", *args],

@@ -45,20 +45,34 @@ def __getattr__(name):
 # CREATE parked on them always comes back.
 _lazy_lock = threading.Lock()
 _lazy_builds = {}  # package -> concurrent.futures.Future of its build (one per agent run)
-_lazy_executor = None
+_job_lock = threading.Lock()  # listings and builds run one at a time
 _search_index = None  # Future of the frozenset of package names in the interface directories
 LAZY_BUILD_TIMEOUT_S = 600.0
 SEARCH_INDEX_TIMEOUT_S = 60.0
 
 
 def _submit(function, *args):
-    global _lazy_executor
+    """The future of ``function(*args)``, run on a thread of its own that ends with it; one such
+    job at a time, in no promised order (a build waits for the listing's future, not for its turn).
+    Not a one-worker pool: its worker, idle after the agent's first build, would stay for the
+    agent's whole life with its stack and malloc arena (1.0 MB under the TurtleBot3 load)."""
     import concurrent.futures
 
-    if _lazy_executor is None:
-        _lazy_executor = concurrent.futures.ThreadPoolExecutor(
-            max_workers=1, thread_name_prefix="xrce-interfaces")
-    return _lazy_executor.submit(function, *args)
+    future = concurrent.futures.Future()
+
+    def run():
+        with _job_lock:
+            if not future.set_running_or_notify_cancel():
+                return
+            try:
+                result = function(*args)
+            except BaseException as exc:  # handed to whoever waits on the future
+                future.set_exception(exc)
+            else:
+                future.set_result(result)
+
+    threading.Thread(target=run, name="xrce-interfaces").start()
+    return future
 
 
 def search_index():
@@ -126,7 +140,7 @@ def start_package_build(package_name):
     cached) and importable, False when the search path has no such package; it raises
     InterfaceBuildError when the build failed.
 
-    Builds run one at a time on a worker thread.
+    Builds run one at a time, each on a thread that ends with it.
     """
     with _lazy_lock:
         future = _lazy_builds.get(package_name)
