@@ -158,63 +158,6 @@ def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_doma
         rclpy.shutdown(context=context)
 
 
-_THREAD_ARENAS = r"""
-import sys, threading
-if sys.argv[1] == "limited":
-    from xrce.agent.launcher import _limit_malloc_arenas
-    _limit_malloc_arenas()
-HEAP = 64 << 20  # glibc's HEAP_MAX_SIZE (64-bit): a thread arena is a 64 MB-aligned reservation
-held, ready, done = [], threading.Barrier(9), threading.Event()
-
-
-def work():
-    held.append(bytearray(100000))  # under the mmap threshold: from this thread's arena
-    ready.wait()
-    done.wait()
-
-
-threads = [threading.Thread(target=work) for _ in range(8)]
-for thread in threads:
-    thread.start()
-ready.wait()
-starts, ends = set(), set()
-with open("/proc/self/maps") as maps:
-    for line in maps:
-        low, high = (int(x, 16) for x in line.split()[0].split("-"))
-        starts.add(low)
-        ends.add(high)
-print(sum(1 for start in starts if start % HEAP == 0 and start + HEAP in ends))
-done.set()
-"""
-
-
-def test_threads_share_the_agents_malloc_arenas():
-    """xrce/agent/launcher.py caps glibc's arenas before any thread starts: eight threads that
-    each allocate share one arena beside the main one, where glibc would give each its own."""
-    if importlib.util.find_spec("xrce.agent.engine._fastpath") is None:
-        pytest.skip("SKIPPED LOUDLY: xrce.agent.engine._fastpath is not built, the arena cap "
-                    "goes through it")
-    if not sys.platform.startswith("linux") or not _glibc():
-        pytest.skip("SKIPPED LOUDLY: malloc arenas are glibc's")
-
-    def thread_arenas(mode):
-        run = subprocess.run([sys.executable, "-c", _THREAD_ARENAS, mode], cwd=REPO,
-                             capture_output=True, text=True, timeout=60)
-        assert run.returncode == 0, run.stderr
-        return int(run.stdout)
-
-    from xrce.agent.launcher import MALLOC_ARENAS
-
-    assert thread_arenas("limited") <= MALLOC_ARENAS - 1
-    assert thread_arenas("default") > MALLOC_ARENAS  # the probe sees what the cap removes
-
-
-def _glibc():
-    import platform
-
-    return platform.libc_ver()[0] == "glibc"
-
-
 def test_interface_jobs_run_one_at_a_time_on_threads_that_end():
     """The lazy listing and builds of xrce.agent.interfaces leave no idle worker behind (a pool's
     stayed for the agent's whole life, with its stack and malloc arena)."""

@@ -671,19 +671,6 @@ static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
 #endif
 }
 
-/* limit_malloc_arenas(count): mallopt(M_ARENA_MAX, count), called by xrce.agent.launcher before any
-   thread starts. glibc gives each new thread its own arena up to 8 per core; each keeps its free
-   pages resident (docs/PERFORMANCE.md, issue 31). */
-static PyObject *limit_malloc_arenas(PyObject *self, PyObject *count) {
-#if defined(__GLIBC__)
-    long value = PyLong_AsLong(count);
-    if (value == -1 && PyErr_Occurred()) return NULL;
-    return PyBool_FromLong(mallopt(M_ARENA_MAX, (int)value) == 1);
-#else
-    Py_RETURN_FALSE;
-#endif
-}
-
 /* message_type_support(library, symbol): the capsule of a message's C type support (what a
    generated message class's _TYPE_SUPPORT holds), from the package's lib*__rosidl_typesupport_c.so
    alone, for the agent's raw message types (xrce.agent.middleware.ros.types). The package's Python
@@ -752,7 +739,6 @@ static PyMethodDef module_methods[] = {
     {"raw_type_conversions", raw_type_conversions, METH_NOARGS, NULL},
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
     {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
-    {"limit_malloc_arenas", limit_malloc_arenas, METH_O, NULL},
     {"message_type_support", message_type_support, METH_VARARGS, NULL},
     {NULL},
 };
