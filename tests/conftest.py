@@ -40,6 +40,27 @@ def pytest_unconfigure(config):
         shutil.rmtree(basetemp, ignore_errors=True)
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups into the tests' ids
+def pytest_collection_modifyitems(config, items):
+    """README's command runs the suite on pytest-xdist workers (``-n 2 --dist loadgroup``). Tests
+    that share an expensive fixture of this tree go to one worker, so that it is built once: those
+    of a module-scoped fixture (an agent and its ROS graph, an mpy build), and those of the session
+    fixtures of tests/install_env.py, which also keeps two ~250 MB installs of ROS wheels from
+    running at once. Other tests are spread one by one."""
+    for item in items:
+        groups = set()
+        for name, definitions in getattr(item, "_fixtureinfo").name2fixturedefs.items():
+            definition = definitions[-1]  # the one this test gets
+            if not definition.baseid:  # pytest's and plugins' own (tmp_path_factory, event loops)
+                continue
+            if definition.scope == "session":
+                groups.add("session-fixtures")
+            elif definition.scope in ("package", "module", "class"):
+                groups.add(definition.baseid)
+        if groups:
+            item.add_marker(pytest.mark.xdist_group("+".join(sorted(groups))))
+
+
 @pytest.fixture
 def pty_pair():
     """Opens raw pseudo-terminal pairs on demand: ``make()`` -> (master fd, slave path)."""
