@@ -40,6 +40,45 @@ def pytest_unconfigure(config):
         shutil.rmtree(basetemp, ignore_errors=True)
 
 
+# The longest single tests (20-60 s each, `--durations` of a serial run, docs/PERFORMANCE.md "CI
+# time"): on xdist workers they start first, so that none of them is the last test of a worker while
+# the other worker has finished. A test missing from here only runs in its usual place.
+LONG_TESTS_FIRST = (
+    "tests/test_turtlebot3_heap.py::test_turtlebot3_runs_a_minute_in_a_capped_heap",
+    "tests/test_microros_graph.py::test_graph_capture_replayed_gets_micro_ros_agents_graph",
+    "tests/test_microros_replay.py::test_rclc_actions_and_parameters_replayed_into_ros",
+    "tests/test_hostile_network.py::test_memory_budget_holds_under_a_mixed_flood",
+    "tests/test_readme_example.py::test_every_readme_shell_line_runs_as_written",
+)
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups into the tests' ids
+def pytest_collection_modifyitems(config, items):
+    """README's command runs the suite on pytest-xdist workers (``-n 2 --dist loadgroup``). Tests
+    that share an expensive fixture of this tree go to one worker, so that it is built once: those
+    of a module-scoped fixture (an agent and its ROS graph, an mpy build), and those of the session
+    fixtures of tests/install_env.py, which also keeps two ~250 MB installs of ROS wheels from
+    running at once. Other tests are spread one by one, the longest first."""
+    for item in items:
+        groups = set()
+        fixture_info = getattr(item, "_fixtureinfo", None)
+        for definitions in (fixture_info.name2fixturedefs.values() if fixture_info else ()):
+            definition = definitions[-1]  # the one this test gets
+            if not definition.baseid:  # pytest's and plugins' own (tmp_path_factory, event loops)
+                continue
+            if definition.scope == "session":
+                groups.add("session-fixtures")
+            elif definition.scope in ("package", "module", "class"):
+                groups.add(definition.baseid)
+        if groups:
+            item.add_marker(pytest.mark.xdist_group("+".join(sorted(groups))))
+    if getattr(config.option, "loadgroup", False):  # set on xdist's workers, which all sort alike
+        def rank(item):
+            return next((i for i, prefix in enumerate(LONG_TESTS_FIRST) if item.nodeid.startswith(prefix)),
+                        len(LONG_TESTS_FIRST))
+        items.sort(key=rank)
+
+
 @pytest.fixture
 def pty_pair():
     """Opens raw pseudo-terminal pairs on demand: ``make()`` -> (master fd, slave path)."""
