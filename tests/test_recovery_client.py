@@ -110,7 +110,9 @@ def test_reader_and_writer_resume_after_agent_restart_without_ros():
         assert exchange("before", 5)
         agent.stop()
         agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
-        assert exchange("after", 5)
+        # The clients notice the restart, recover and exchange again: seconds on a loaded machine
+        # (5 s was passed once in a suite beside other work); the bound is a hang's, not speed's.
+        assert exchange("after", 20)
         assert writer_session.link.recoveries == 1 and reader_session.link.recoveries == 1
         writer_session.close()
         reader_session.close()
