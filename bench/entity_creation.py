@@ -31,6 +31,20 @@ from peer_agent import CommandAgent  # noqa: E402
 from xrce import constants as C  # noqa: E402
 
 INTERFACES = REPO / "tests" / "interfaces"
+# The agent of another checkout (--reference): an editable install's .pth imports this checkout's
+# xrce before sys.path applies, so those modules are dropped first (as bench/agent_cost.py does),
+# and the venv's built interface packages registered again with the other tree's registry (the
+# .pth hook of build-interfaces), or its agent would look for them on first use (~0.1 s).
+_TREE_BOOTSTRAP = ("import os, runpy, site, sys\n"
+                   "for name in [m for m in sys.modules if m == 'xrce' or m.startswith('xrce.')]:\n"
+                   "    del sys.modules[name]\n"
+                   "sys.path.insert(0, %r)\n"
+                   "for folder in site.getsitepackages():\n"
+                   "    hook = os.path.join(folder, 'xrce_interfaces.pth')\n"
+                   "    if os.path.exists(hook):\n"
+                   "        exec(open(hook).read())\n"
+                   "sys.argv[0] = 'xrce-agent'\n"
+                   "runpy.run_module('xrce.agent', run_name='__main__', alter_sys=True)\n")
 PARTICIPANT, FIFTH, REPLIER = 0x000A, 0x000E, 0x0012
 FIRST_TOPICS = (0x000B, 0x000E)  # SensorState, Twist
 
@@ -98,12 +112,12 @@ def measure(env, runs, agent_cmd=None, domain_id=None, reference=None):
     capture = Capture("main")
     until, creates = _set_up(capture)
 
-    def xrce_agent(tree):
-        return lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
-                                    str(INTERFACES), env=env, cwd=tree)
-    starts = [("xrce", xrce_agent(REPO))]
+    options = ("-m", "dds", "-v", "0", "--interfaces", str(INTERFACES))
+    starts = [("xrce", lambda: AgentProcess("udp4", *options, env=env))]
     if reference:
-        starts.append(("reference", xrce_agent(Path(reference).resolve())))
+        tree = str(Path(reference).resolve())
+        starts.append(("reference", lambda: CommandAgent(
+            [sys.executable, "-c", _TREE_BOOTSTRAP % tree], env, options=options, cwd=tree)))
     if agent_cmd:
         starts.append(("other", lambda: CommandAgent(agent_cmd, env)))
     results = {name: ([], []) for name, _ in starts}
@@ -149,10 +163,14 @@ def report(record_, env, runs=5, agent_cmd=None, domain_id=None, reference=None)
             + reference_note([v * 1000 for v in reference_whole]))
 
 
-def build_interfaces():
-    for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped with xrce
-        subprocess.run([sys.executable, "-m", "xrce.agent", "build-interfaces", *args], cwd=REPO,
-                       check=True, stdout=subprocess.DEVNULL)
+def build_interfaces(reference=None):
+    """Here and in the ``reference`` tree, whose agent finds its shipped packages' builds apart."""
+    trees = [None] + ([str(Path(reference).resolve())] if reference else [])
+    for tree in trees:
+        start = [sys.executable] + (["-c", _TREE_BOOTSTRAP % tree] if tree else ["-m", "xrce.agent"])
+        for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped with xrce
+            subprocess.run(start + ["build-interfaces", *args], cwd=tree or REPO, check=True,
+                           stdout=subprocess.DEVNULL)
 
 
 def main(argv=None):
@@ -171,7 +189,7 @@ def main(argv=None):
                         help="another checkout of this repository (e.g. main before a change) "
                         "whose agent takes turns with this one in each run")
     args = parser.parse_args(argv)
-    build_interfaces()
+    build_interfaces(args.reference)
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
