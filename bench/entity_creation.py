@@ -167,8 +167,9 @@ def build_interfaces(reference=None):
     """Here and in the ``reference`` tree, whose agent finds its shipped packages' builds apart."""
     trees = [None] + ([str(Path(reference).resolve())] if reference else [])
     for tree in trees:
-        start = [sys.executable] + (["-c", _TREE_BOOTSTRAP % tree] if tree else ["-m", "xrce.agent"])
-        for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped with xrce
+        start = [sys.executable] + (["-c", _TREE_BOOTSTRAP % tree] if tree else
+                                    ["-m", "xrce.agent"])
+        for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped
             subprocess.run(start + ["build-interfaces", *args], cwd=tree or REPO, check=True,
                            stdout=subprocess.DEVNULL)
 
