@@ -668,3 +668,37 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
         peer.close()
         await agent.close()
         lease.release()
+
+
+async def test_a_domain_whose_context_cannot_start_fails_its_create_and_is_tried_again(
+        ros_domain, monkeypatch):  # noqa: F811
+    """The context of a domain is made on its own thread: when that fails, the CREATE waiting for
+    it gets the reason (not a timeout), the domain is not listed as joined, and the next CREATE
+    for it starts the domain again."""
+    from ros_helpers import DomainLease
+    from xrce.agent.middleware.ros.domain import DomainRuntime
+
+    lease = DomainLease()
+    mw = RosMiddleware()
+    await mw.start()
+    start = DomainRuntime._start
+    attempts = []
+
+    def fails_once(runtime):
+        attempts.append(runtime.domain_id)
+        if len(attempts) == 1:
+            raise RuntimeError("no context this time")
+        start(runtime)
+
+    monkeypatch.setattr(DomainRuntime, "_start", fails_once)
+    try:
+        with pytest.raises(MiddlewareError, match="no context this time"):
+            mw.create_participant(key(0x01), lease.domain_id, "refused")
+        assert lease.domain_id not in mw.domain_ids() and key(0x01) not in mw._entities
+        mw.create_participant(key(0x11), lease.domain_id, "accepted")
+        assert attempts == [lease.domain_id, lease.domain_id]
+        assert lease.domain_id in mw.domain_ids()
+        assert mw._entities[key(0x11)].node.get_name() == "accepted"
+    finally:
+        await mw.close()
+        lease.release()

@@ -376,7 +376,7 @@ class DomainRuntime:
                     self._wake_publisher()
                 except Exception:  # the topic moved (_Wake.move) as it was read: the new one
                     self._wake_publisher()
-        # Before the first job the thread blocks on the queue itself: no wake-up needed.
+        # Until the wake-up exists (the first burst) the thread blocks on the queue itself.
 
     def _run_jobs(self) -> None:
         while True:
