@@ -706,13 +706,13 @@ async def test_a_domain_whose_context_cannot_start_fails_its_create_and_is_tried
 
 async def test_a_new_domains_participant_is_made_by_a_placeholder_that_then_goes(ros_domain):  # noqa: F811
     """The first node of a domain makes its DDS participant with the GIL released: an rmw node
-    made through ctypes (xrce.agent.middleware.ros.participant), available with this rclpy, then
+    made through the compiled helper (xrce.agent.middleware.ros.participant), then
     destroyed once the client's rclpy node has joined the participant. The domain's graph then
     lists the client's node and nothing of the agent's."""
     from ros_helpers import DomainLease, RosPeer, wait_until
     from xrce.agent.middleware.ros import participant
 
-    assert participant.available(), "rmw_create_node through ctypes is not available here"
+    assert participant.available(), "the compiled helper's participant_node is not available here"
     lease = DomainLease()
     mw = RosMiddleware()
     await mw.start()

@@ -182,18 +182,15 @@ class _Wake:
 class DomainRuntime:
     """One rclpy context and its executor thread; runs entity jobs on that thread."""
 
-    def __init__(self, domain_id: int, executor_kind: str, idle_wait_s: float = IDLE_WAIT_S,
-                 participant_without_gil: bool = True):
+    def __init__(self, domain_id: int, executor_kind: str, idle_wait_s: float = IDLE_WAIT_S):
         """Only starts the thread: the rclpy context and executor are made on it (``_start``),
         so that joining a domain never holds up the caller (the loop) beyond a thread start.
         Jobs submitted meanwhile queue up; if the context cannot start they fail with the
-        reason, and ``failed`` holds it. ``participant_without_gil``: the first node's DDS
-        participant is made with the GIL released (``xrce.agent.middleware.ros.participant``)."""
+        reason, and ``failed`` holds it."""
         if executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (executor_kind,))
         self.domain_id = domain_id
         self.executor_kind = executor_kind
-        self.participant_without_gil = participant_without_gil
         self.context: Context | None = None
         self.executor = None
         self.failed: BaseException | None = None  # why the context or executor did not start
@@ -245,8 +242,7 @@ class DomainRuntime:
         service or /parameter_events publisher (``AgentNode``): each costs DDS endpoints, memory
         and discovery traffic, and an agent may host hundreds of nodes."""
         # The context's first node makes the DDS participant: with the GIL released (participant).
-        placeholder = participant.open_participant(self.context) \
-            if self.participant_without_gil and not self.joined else None
+        placeholder = None if self.joined else participant.open_participant(self.context)
         try:
             node = AgentNode(name, namespace=namespace, context=self.context,
                              start_parameter_services=False, enable_rosout=False,

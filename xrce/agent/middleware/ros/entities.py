@@ -188,11 +188,11 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._loop = asyncio.get_running_loop()
         return self._loop
 
-    def _domain(self, domain_id: int, serving: bool = True) -> tuple[DomainRuntime, bool]:
+    def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
         """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
         its thread, which makes the rclpy context and executor while the loop goes on: jobs queue
-        up behind that (``DomainRuntime``), so a client joining a new domain holds up no other;
-        while the agent is ``serving``, its DDS participant is made with the GIL released too.
+        up behind that (``DomainRuntime``), so a client joining a new domain holds up no other
+        (its DDS participant is made with the GIL released too, ``ros.participant``).
         A domain whose context could not start is started again on the next call."""
         if self._closed:
             raise MiddlewareError("middleware is closed")
@@ -202,8 +202,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         if domain is not None:
             del self._domains[domain_id]
         try:
-            domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s,
-                                   participant_without_gil=serving)
+            domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
         except MiddlewareError:
             raise
         except Exception as exc:
@@ -562,7 +561,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         domain_id = self._home_domain
         runtime = None
         try:
-            runtime, _started = self._domain(domain_id, serving=False)
+            runtime, _started = self._domain(domain_id)
             await asyncio.wait_for(asyncio.wrap_future(runtime.submit(runtime.make_wake)),
                                    self.entity_timeout_s)
         except (MiddlewareError, asyncio.TimeoutError) as exc:
