@@ -34,7 +34,7 @@ def post_to_job_us(dds_level: bool, jobs: int) -> list:
         DurabilityPolicy.VOLATILE
     runtime = ros_domain.DomainRuntime(random.randrange(150, 200), ros_domain.EXECUTOR_EVENTS)
     try:
-        runtime.call(lambda: None, 10.0)  # the agent node and its wake topic exist from here
+        runtime.call(runtime.make_wake, 10.0)  # the agent node and its wake topic exist from here
         delays = []
         ran = threading.Event()
         posted = [0.0]

@@ -5,7 +5,7 @@ CREATE waiting for its STATUS) replayed against ``xrce-agent -m dds`` over UDP, 
 agent (the first topic of each type is first for it). Beside each figure, eProsima's
 MicroXRCEAgent 2.4.3 answering the same CREATEs, from the capture's timestamps.
 
-    .venv/bin/python bench/entity_creation.py [--runs N]
+    .venv/bin/python bench/entity_creation.py [--runs N] [--reference DIR] [--agent-cmd CMD]
 
 Figures: node + 4 entities (participant CREATE sent -> STATUS of the 5th CREATE, the /cmd_vel
 topic), the replier, the first TOPIC of a type (SensorState, Twist; median of both), and the
@@ -31,6 +31,20 @@ from peer_agent import CommandAgent  # noqa: E402
 from xrce import constants as C  # noqa: E402
 
 INTERFACES = REPO / "tests" / "interfaces"
+# The agent of another checkout (--reference): an editable install's .pth imports this checkout's
+# xrce before sys.path applies, so those modules are dropped first (as bench/agent_cost.py does),
+# and the venv's built interface packages registered again with the other tree's registry (the
+# .pth hook of build-interfaces), or its agent would look for them on first use (~0.1 s).
+_TREE_BOOTSTRAP = ("import os, runpy, site, sys\n"
+                   "for name in [m for m in sys.modules if m == 'xrce' or m.startswith('xrce.')]:\n"
+                   "    del sys.modules[name]\n"
+                   "sys.path.insert(0, %r)\n"
+                   "for folder in site.getsitepackages():\n"
+                   "    hook = os.path.join(folder, 'xrce_interfaces.pth')\n"
+                   "    if os.path.exists(hook):\n"
+                   "        exec(open(hook).read())\n"
+                   "sys.argv[0] = 'xrce-agent'\n"
+                   "runpy.run_module('xrce.agent', run_name='__main__', alter_sys=True)\n")
 PARTICIPANT, FIFTH, REPLIER = 0x000A, 0x000E, 0x0012
 FIRST_TOPICS = (0x000B, 0x000E)  # SensorState, Twist
 
@@ -90,14 +104,20 @@ def _replay_set_up(agent, capture, until, creates, domain_id=None):
             {rid: t for (_b, rid), t in replay.answered_at.items()})
 
 
-def measure(env, runs, agent_cmd=None, domain_id=None):
-    """(each run's figures, each run's whole set-up) for this agent and for the other one (live
-    with ``agent_cmd``, else once from the capture), the capture, the set-up's request ids. The
-    firmware's participant asks for ``domain_id`` (None: the capture's domain 0)."""
+def measure(env, runs, agent_cmd=None, domain_id=None, reference=None):
+    """(each run's figures, each run's whole set-up) for this agent, the ``reference`` tree's
+    (another checkout, e.g. main before a change) and the other one (live with ``agent_cmd``,
+    else once from the capture), taking turns in each run; the capture, the set-up's request
+    ids. The firmware's participant asks for ``domain_id`` (None: the capture's domain 0)."""
     capture = Capture("main")
     until, creates = _set_up(capture)
-    starts = [("xrce", lambda: AgentProcess("udp4", "-m", "dds", "-v", "0", "--interfaces",
-                                            str(INTERFACES), env=env))]
+
+    options = ("-m", "dds", "-v", "0", "--interfaces", str(INTERFACES))
+    starts = [("xrce", lambda: AgentProcess("udp4", *options, env=env))]
+    if reference:
+        tree = str(Path(reference).resolve())
+        starts.append(("reference", lambda: CommandAgent(
+            [sys.executable, "-c", _TREE_BOOTSTRAP % tree], env, options=options, cwd=tree)))
     if agent_cmd:
         starts.append(("other", lambda: CommandAgent(agent_cmd, env)))
     results = {name: ([], []) for name, _ in starts}
@@ -114,9 +134,16 @@ def measure(env, runs, agent_cmd=None, domain_id=None):
     return results, creates
 
 
-def report(record_, env, runs=5, agent_cmd=None, domain_id=None):
-    results, creates = measure(env, runs, agent_cmd, domain_id)
+def report(record_, env, runs=5, agent_cmd=None, domain_id=None, reference=None):
+    results, creates = measure(env, runs, agent_cmd, domain_id, reference)
     (runs_figures, whole), (other_figures, other_whole) = results["xrce"], results["other"]
+    reference_figures, reference_whole = results.get("reference", ([], []))
+
+    def reference_note(values):
+        if not values:
+            return ""
+        return "; reference %s: median %.1f, runs %s" % (
+            reference, statistics.median(values), ", ".join("%.1f" % v for v in values))
     baseline_name = ("%s, same CREATEs, live, median of %d" % (agent_cmd, runs) if agent_cmd
                      else "eProsima MicroXRCEAgent 2.4.3, same CREATEs (capture)")
     for name in runs_figures[0]:
@@ -126,18 +153,25 @@ def report(record_, env, runs=5, agent_cmd=None, domain_id=None):
                 statistics.median(values), "ms", statistics.median(others), baseline_name,
                 "<= 2x eProsima" if name != "participant (node)" else "",
                 "runs: %s; other: %s" % (", ".join("%.1f" % v for v in values),
-                                         ", ".join("%.1f" % v for v in others)))
+                                         ", ".join("%.1f" % v for v in others))
+                + reference_note([figures[name] * 1000 for figures in reference_figures]))
     record_("entity creation: the firmware's whole set-up, %d CREATEs (median)" % len(creates),
             statistics.median(whole) * 1000, "ms", statistics.median(other_whole) * 1000,
             baseline_name, "",
             "runs: %s; other: %s" % (", ".join("%.1f" % (v * 1000) for v in whole),
-                                     ", ".join("%.1f" % (v * 1000) for v in other_whole)))
+                                     ", ".join("%.1f" % (v * 1000) for v in other_whole))
+            + reference_note([v * 1000 for v in reference_whole]))
 
 
-def build_interfaces():
-    for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped with xrce
-        subprocess.run([sys.executable, "-m", "xrce.agent", "build-interfaces", *args], cwd=REPO,
-                       check=True, stdout=subprocess.DEVNULL)
+def build_interfaces(reference=None):
+    """Here and in the ``reference`` tree, whose agent finds its shipped packages' builds apart."""
+    trees = [None] + ([str(Path(reference).resolve())] if reference else [])
+    for tree in trees:
+        start = [sys.executable] + (["-c", _TREE_BOOTSTRAP % tree] if tree else
+                                    ["-m", "xrce.agent"])
+        for args in ([str(INTERFACES)], []):  # example_interfaces; turtlebot3_msgs shipped
+            subprocess.run(start + ["build-interfaces", *args], cwd=tree or REPO, check=True,
+                           stdout=subprocess.DEVNULL)
 
 
 def main(argv=None):
@@ -152,14 +186,17 @@ def main(argv=None):
                         "(ROS_DOMAIN_ID): the agent then starts a DDS participant for it")
     parser.add_argument("--agent-cmd", metavar="CMD",
                         help="another agent (e.g. $PEERS/agent.sh, eProsima's agent built outside this repository), measured in the same run")
+    parser.add_argument("--reference", metavar="DIR",
+                        help="another checkout of this repository (e.g. main before a change) "
+                        "whose agent takes turns with this one in each run")
     args = parser.parse_args(argv)
-    build_interfaces()
+    build_interfaces(args.reference)
     lease = DomainLease()
     env = dict(os.environ, ROS_DOMAIN_ID=str(lease.domain_id),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     try:
         report(record, env, args.runs, args.agent_cmd,
-               None if args.other_domain else lease.domain_id)
+               None if args.other_domain else lease.domain_id, args.reference)
     finally:
         lease.release()
     from figures import print_table

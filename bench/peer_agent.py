@@ -38,9 +38,11 @@ def answers_ping(port: int, timeout_s: float = 0.2) -> bool:
 class CommandAgent:
     """``CommandAgent("$PEERS/agent.sh", env)``: ``port``, ``pid``, ``stop()``."""
 
-    def __init__(self, command: str, env: dict, start_timeout_s: float = 30.0):
+    def __init__(self, command, env: dict, start_timeout_s: float = 30.0, options=(), cwd=None):
+        """``command``: a command line, or its argv; ``options`` come after ``udp4 -p PORT``."""
         self.port = free_udp_port()
-        self.proc = subprocess.Popen(shlex.split(command) + ["udp4", "-p", str(self.port)],
+        argv = shlex.split(command) if isinstance(command, str) else list(command)
+        self.proc = subprocess.Popen(argv + ["udp4", "-p", str(self.port), *options], cwd=cwd,
                                      env=env, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL)
         self.pid = self.proc.pid  # the wrapper execs the agent: this is the agent's pid

@@ -693,3 +693,161 @@ async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  #
     finally:
         await agent.close()
         lease.release()
+
+
+async def test_a_new_domains_first_client_is_answered_before_the_agents_own_entities(
+        ros_domain, monkeypatch):  # noqa: F811
+    """In a domain the agent joins for a client, that client's node is made first and answered:
+    the wake-up, the hidden anchor and /diagnostics (a domain listener's publisher, as
+    observability adds it) come after its first burst of CREATEs, which a second client of the
+    same domain joins. Then they all work: the wake-up lives on the first client's node and runs
+    jobs, /diagnostics reaches an rclpy subscriber, and the second client's reader gets data."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import QoSProfile
+
+    import xrce.agent.middleware.ros.domain as ros_domain_module
+    from engine_peer import BIN, Link, Peer, data_of
+    from ros_helpers import DomainLease, RosPeer
+    from xrce import constants as C
+    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.observe.diagnostics import diagnostic_array_type
+    from xrce.objects import DataReaderBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.submessages import Create
+
+    # A first burst that outlasts any loop delay of a loaded machine: the order is then certain.
+    monkeypatch.setattr(ros_domain_module, "FIRST_BURST_IDLE_S", 3.0)
+    monkeypatch.setattr(ros_domain_module, "FIRST_BURST_MAX_S", 6.0)
+    lease = DomainLease()
+    mw = RosMiddleware(park_creation=True)
+    agent = Agent(mw)
+    await agent.start()
+    publishers = {}
+    mw.add_domain_listener(lambda domain_id: publishers.setdefault(domain_id, mw.agent_publisher(
+        domain_id, diagnostic_array_type(), "/diagnostics", on_matched=lambda: None)))
+    link = Link()
+    first = Peer(agent, link, ("h", 1))
+    second = Peer(agent, link, ("h", 2), key=b"\x01\x02\x03\x04")
+    peer = RosPeer(lease.domain_id)
+    try:
+        assert first.connect()[1] == C.STATUS_OK and second.connect()[1] == C.STATUS_OK
+        seen_at_status = {}
+
+        async def create(client, object_id, kind, representation, tail):
+            request = client.next_request()
+            client.send(0x80, Create(request, object_id, kind, BIN, representation, tail))
+            answers = {}
+
+            def answered():
+                for _, rid, status in client.statuses():
+                    answers[rid] = status
+                    domain = mw._domains.get(lease.domain_id)
+                    seen_at_status.setdefault((client.key, rid), (
+                        domain._wake_item, domain._anchor, publishers[lease.domain_id].publisher))
+                return request in answers
+            assert await async_wait_until(answered, 20.0)
+            assert answers[request] == C.STATUS_OK
+            return seen_at_status[(client.key, request)]
+
+        # Nothing of the agent's own at either STATUS: both nodes came first.
+        assert await create(first, 0x0011, C.OBJK_PARTICIPANT, ParticipantBin("first"),
+                            lease.domain_id) == (None, None, None)
+        assert await create(second, 0x0011, C.OBJK_PARTICIPANT, ParticipantBin("second"),
+                            lease.domain_id) == (None, None, None)
+        await create(second, 0x0012, C.OBJK_TOPIC, TopicBin("rt/joined", STRING_T), 0x0011)
+        await create(second, 0x0014, C.OBJK_SUBSCRIBER, PubSubBin(), 0x0011)
+        await create(second, 0x0016, C.OBJK_DATAREADER, DataReaderBin(
+            0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 10)), 0x0014)
+
+        domain = mw._domains[lease.domain_id]
+        diagnostics = publishers[lease.domain_id]
+        assert await async_wait_until(
+            lambda: domain._wake_item is not None and diagnostics.publisher is not None, 20.0)
+        first_node = mw._entities[(agent.clients[first.key].key_int, 0x0011)].node
+        assert domain.agent_node is first_node  # the wake-up, on the first client's node
+        assert domain._anchor is not None  # /diagnostics is the agent's: on its hidden node
+        assert domain.call(lambda: 42, 10.0) == 42  # through the wake topic now
+
+        received = []
+        subscription = peer.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                                     received.append, QoSProfile(depth=10))
+        body = body_of(DiagnosticArray())
+        assert await async_wait_until(lambda: diagnostics.subscriber_count() > 0, 20.0)
+        deadline = time.monotonic() + 20.0
+        while not received and time.monotonic() < deadline:
+            diagnostics.write(body)
+            await asyncio.sleep(0.05)
+        assert received, "/diagnostics written after the first burst never reached ROS"
+        peer.node.destroy_subscription(subscription)
+
+        second.ack_all()
+        second.read(delivery=None)  # READ_DATA until cancelled: each sample is sent on
+        publisher = peer.node.create_publisher(String, "/joined", 10)
+        got = []
+        deadline = time.monotonic() + 20.0
+        while not got and time.monotonic() < deadline:
+            publisher.publish(String(data="to the second client"))
+            await asyncio.sleep(0.1)
+            got += data_of(second.take())
+        assert got and got[0] == body_of(String(data="to the second client"))
+    finally:
+        peer.close()
+        await agent.close()
+        lease.release()
+
+
+async def test_a_domain_whose_context_cannot_start_fails_its_create_and_is_tried_again(
+        ros_domain, monkeypatch):  # noqa: F811
+    """The context of a domain is made on its own thread: when that fails, the CREATE waiting for
+    it gets the reason (not a timeout), the domain is not listed as joined, and the next CREATE
+    for it starts the domain again."""
+    from ros_helpers import DomainLease
+    from xrce.agent.middleware.ros.domain import DomainRuntime
+
+    lease = DomainLease()
+    mw = RosMiddleware()
+    await mw.start()
+    start = DomainRuntime._start
+    attempts = []
+
+    def fails_once(runtime):
+        attempts.append(runtime.domain_id)
+        if len(attempts) == 1:
+            raise RuntimeError("no context this time")
+        start(runtime)
+
+    monkeypatch.setattr(DomainRuntime, "_start", fails_once)
+    try:
+        with pytest.raises(MiddlewareError, match="no context this time"):
+            mw.create_participant(key(0x01), lease.domain_id, "refused")
+        assert lease.domain_id not in mw.domain_ids() and key(0x01) not in mw._entities
+        mw.create_participant(key(0x11), lease.domain_id, "accepted")
+        assert attempts == [lease.domain_id, lease.domain_id]
+        assert lease.domain_id in mw.domain_ids()
+        assert mw._entities[key(0x11)].node.get_name() == "accepted"
+    finally:
+        await mw.close()
+        lease.release()
+
+
+async def test_a_new_domains_participant_is_made_by_a_placeholder_that_then_goes(ros_domain):  # noqa: F811
+    """The first node of a domain makes its DDS participant with the GIL released: an rmw node
+    made through the compiled helper (xrce.agent.middleware.ros.participant), then
+    destroyed once the client's rclpy node has joined the participant. The domain's graph then
+    lists the client's node and nothing of the agent's."""
+    from ros_helpers import DomainLease, RosPeer, wait_until
+    from xrce.agent.middleware.ros import participant
+
+    assert participant.available(), "the compiled helper's participant_node is not available here"
+    lease = DomainLease()
+    mw = RosMiddleware()
+    await mw.start()
+    peer = RosPeer(lease.domain_id)
+    try:
+        mw.create_participant(key(0x01), lease.domain_id, "joined")
+        expected = {("joined", "/")}
+        assert wait_until(lambda: set(peer.node_names()) == expected, 20.0), peer.node_names()
+        assert mw._domains[lease.domain_id].agent_node is mw._entities[key(0x01)].node
+    finally:
+        peer.close()
+        await mw.close()
+        lease.release()

@@ -727,6 +727,59 @@ static PyObject *no_convert_to_py(void *message) {
     return NULL;
 }
 
+/* participant_node(context, name) -> address or None; participant_node_destroy(address) -> bool.
+   An rmw node of an rcl context (the rcl_context_t address, rclpy's Context.handle.pointer), made
+   with the GIL released: rmw makes a context's DDS participant with its first node, and rclpy's
+   own node creation holds the GIL for all of it (xrce.agent.middleware.ros.participant). The
+   three-argument rmw_create_node is Humble's and later; rmw is found through rcl, already loaded. */
+typedef void *(*rmw_context_fn)(void *);
+typedef void *(*rmw_create_node_fn)(void *, const char *, const char *);
+typedef int (*rmw_destroy_node_fn)(void *);
+typedef void (*reset_error_fn)(void);
+
+static void *rcl_symbol(const char *name) {
+    void *library = dlopen("librcl.so", RTLD_NOW | RTLD_NOLOAD);
+    if (library == NULL) return NULL;
+    void *symbol = dlsym(library, name);  /* librcl's dependencies too: rmw, rcutils */
+    dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
+    return symbol;
+}
+
+static PyObject *participant_node(PyObject *module, PyObject *args) {
+    unsigned long long context;
+    const char *name;
+    if (!PyArg_ParseTuple(args, "Ks", &context, &name)) return NULL;
+    rmw_context_fn get_rmw_context = (rmw_context_fn)rcl_symbol("rcl_context_get_rmw_context");
+    rmw_create_node_fn create = (rmw_create_node_fn)rcl_symbol("rmw_create_node");
+    reset_error_fn reset_error = (reset_error_fn)rcl_symbol("rcutils_reset_error");
+    if (get_rmw_context == NULL || create == NULL || reset_error == NULL) Py_RETURN_NONE;
+    void *node = NULL;
+    Py_BEGIN_ALLOW_THREADS
+    void *rmw_context = get_rmw_context((void *)(uintptr_t)context);
+    if (rmw_context != NULL) node = create(rmw_context, name, "/");
+    if (node == NULL) reset_error();  /* the rclpy node's own error, if it fails too, is reported */
+    Py_END_ALLOW_THREADS
+    if (node == NULL) Py_RETURN_NONE;
+    return PyLong_FromVoidPtr(node);
+}
+
+static PyObject *participant_node_destroy(PyObject *module, PyObject *address) {
+    void *node = PyLong_AsVoidPtr(address);
+    if (node == NULL) {
+        if (PyErr_Occurred()) return NULL;
+        Py_RETURN_FALSE;
+    }
+    rmw_destroy_node_fn destroy = (rmw_destroy_node_fn)rcl_symbol("rmw_destroy_node");
+    reset_error_fn reset_error = (reset_error_fn)rcl_symbol("rcutils_reset_error");
+    if (destroy == NULL || reset_error == NULL) Py_RETURN_FALSE;
+    int ret;
+    Py_BEGIN_ALLOW_THREADS
+    ret = destroy(node);
+    if (ret != 0) reset_error();
+    Py_END_ALLOW_THREADS
+    return PyBool_FromLong(ret == 0);
+}
+
 /* raw_type_conversions() -> (create, convert_from_py, convert_to_py, destroy) capsules. */
 static PyObject *raw_type_conversions(PyObject *module, PyObject *unused) {
     return Py_BuildValue("(NNNN)", PyCapsule_New((void *)no_ros_message, NULL, NULL),
@@ -740,6 +793,8 @@ static PyMethodDef module_methods[] = {
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
     {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
     {"message_type_support", message_type_support, METH_VARARGS, NULL},
+    {"participant_node", participant_node, METH_VARARGS, NULL},
+    {"participant_node_destroy", participant_node_destroy, METH_O, NULL},
     {NULL},
 };
 

@@ -306,11 +306,13 @@ class Observability:
         if publisher is None:
             return
         self._diagnostics_publishers.append(publisher)
-        if not publisher.matched_events:
-            self._diagnostics_unmatched_events = True
         self._update_rounds()
 
     def _rounds_needed(self) -> bool:
+        # A publisher's matched_events is known once it is made (after the domain's first
+        # client, whose node goes first), and it calls _update_rounds then.
+        if any(not publisher.matched_events for publisher in self._diagnostics_publishers):
+            self._diagnostics_unmatched_events = True
         if self._always or self._diagnostics_unmatched_events:
             return True
         for publisher in list(self._diagnostics_publishers):

@@ -1,5 +1,6 @@
 """The threads behind ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``): one rclpy context and executor thread
-per ROS domain, the jobs the asyncio loop hands to it, and the samples it hands back to the loop.
+per ROS domain, the jobs the asyncio loop hands to it; the samples it hands back to the loop are
+``xrce.agent.middleware.ros.handoff``'s.
 
 Threading model (measured on the 2-core dev machine, Twist, peer in another process):
 
@@ -7,8 +8,9 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   msg/s, SingleThreadedExecutor 5-6k msg/s; write() -> rclpy subscriber 74-95k calls/s either way;
   200 clients (node + writer + reader) created in 3.9 s (5.5 ms median per create) vs 7.0 s.
 
-- One rclpy ``Context`` per ROS domain, created when the first participant of that domain appears,
-  each with one executor thread.
+- One rclpy ``Context`` per ROS domain, created on its executor thread when the first participant
+  of that domain appears; that participant's node is the thread's first job, the wake-up and the
+  agent's own entities come after the client's first burst (``DomainRuntime._serve_first_burst``).
 - Every call that touches the executor's entity set (creating/destroying nodes, publishers,
   subscriptions, clients, services; ``call_async``) runs ON that executor thread: the engine's
   thread submits a job and, for creation, waits for its result. The reason is the rclpy 7.1
@@ -41,13 +43,12 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
 
 from __future__ import annotations
 
-import asyncio
-import collections
 import concurrent.futures
 import logging
 import os
 import queue
 import threading
+import time
 
 import rclpy
 import rclpy.task
@@ -58,7 +59,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from xrce.agent.middleware import DataCallback, MiddlewareError
+from xrce.agent.middleware import MiddlewareError
+from xrce.agent.middleware.ros import participant
 from xrce.agent.middleware.ros.types import raw_message_type
 
 # The whole ROS bridge logs under one name, the one it had as a single module, so that existing
@@ -80,6 +82,9 @@ NO_TYPE_DESCRIPTION = Parameter("start_type_description_service", value=False)
 # How long the executor thread waits in rclpy when nothing happens; it only bounds how late a
 # stop request is seen if its wake-up sample were lost, nothing else runs on this period.
 IDLE_WAIT_S = 5.0
+# A domain's first burst of jobs (DomainRuntime._serve_first_burst).
+FIRST_BURST_IDLE_S = 0.05
+FIRST_BURST_MAX_S = 0.25
 
 AGENT_NODE_NAME = "_xrce_agent"
 # The wake topic outside the ROS graph, transient local (_Wake); bench/domain_wake.py sets
@@ -178,17 +183,19 @@ class DomainRuntime:
     """One rclpy context and its executor thread; runs entity jobs on that thread."""
 
     def __init__(self, domain_id: int, executor_kind: str, idle_wait_s: float = IDLE_WAIT_S):
-        self.domain_id = domain_id
-        self.context = Context()
-        rclpy.init(args=ROS_ARGS, context=self.context, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        if executor_kind == EXECUTOR_EVENTS:
-            from rclpy.experimental import EventsExecutor
-            self.executor = EventsExecutor(context=self.context)
-        elif executor_kind == EXECUTOR_SINGLE:
-            self.executor = SingleThreadedExecutor(context=self.context)
-        else:
+        """Only starts the thread: the rclpy context and executor are made on it (``_start``),
+        so that joining a domain never holds up the caller (the loop) beyond a thread start.
+        Jobs submitted meanwhile queue up; if the context cannot start they fail with the
+        reason, and ``failed`` holds it."""
+        if executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (executor_kind,))
+        self.domain_id = domain_id
+        self.executor_kind = executor_kind
+        self.context: Context | None = None
+        self.executor = None
+        self.failed: BaseException | None = None  # why the context or executor did not start
+        # The domain's DDS participant exists: rmw_fastrtps made it with the first node.
+        self.joined = False
         # SingleThreadedExecutor is woken through a guard condition with a callback; the events
         # executor only through the wake topic (see module docstring).
         self._wake_guard = None
@@ -209,18 +216,43 @@ class DomainRuntime:
         self._pinned: list = []  # on the anchor for good (ROS topics)
         self._wake_item: _Wake | None = None
         self._retired: list = []  # destroyers waiting for a safe callback (retire())
+        self._start_lock = threading.Lock()
+        self._started_up = False  # the first burst is over (post_after_start)
+        self._after_start: list = []  # jobs posted for then
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
         self.thread.start()
+
+    def _start(self) -> None:
+        """Executor thread, first thing: the domain's rclpy context and executor. No DDS
+        participant yet: rmw_fastrtps makes it with the context's first node."""
+        context = Context()
+        rclpy.init(args=ROS_ARGS, context=context, domain_id=self.domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.context = context
+        if self._events:
+            from rclpy.experimental import EventsExecutor
+            self.executor = EventsExecutor(context=context)
+        else:
+            self.executor = SingleThreadedExecutor(context=context)
 
     def make_node(self, name: str, namespace: str | None = None) -> Node:
         """A node of this domain as the agent needs it, not yet in the executor (call on the
         executor thread). Without parameter services, /rosout publisher, type description
         service or /parameter_events publisher (``AgentNode``): each costs DDS endpoints, memory
         and discovery traffic, and an agent may host hundreds of nodes."""
-        return AgentNode(name, namespace=namespace, context=self.context,
-                         start_parameter_services=False, enable_rosout=False,
-                         use_global_arguments=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
+        # The context's first node makes the DDS participant: with the GIL released (participant).
+        placeholder = None if self.joined else participant.open_participant(self.context)
+        try:
+            node = AgentNode(name, namespace=namespace, context=self.context,
+                             start_parameter_services=False, enable_rosout=False,
+                             use_global_arguments=False,
+                             parameter_overrides=[NO_TYPE_DESCRIPTION])
+        finally:
+            if placeholder is not None:
+                participant.close_participant(placeholder)
+        self.joined = True
+        return node
 
     # -- the node that hosts the agent's own entities --------------------------------------------
     #
@@ -235,10 +267,27 @@ class DomainRuntime:
     # (``visible``): it is the agent's, and under a client's node a board would list it as its
     # own; so with /diagnostics on, the anchor stays too.
 
-    def _make_agent_node(self) -> None:
-        self.agent_node = self._raise_anchor()
+    def make_wake(self) -> None:
+        """Executor thread: the wake-up, on the first client's node when the domain has one,
+        else on the anchor; from then on the thread spins. ``_run`` makes it after the domain's
+        first burst of jobs; RosMiddleware.start asks for it at once in its own domain."""
+        if self._wake_item is not None:
+            return
+        if self.agent_node is None:
+            self.agent_node = self.client_nodes[0] if self.client_nodes else \
+                self._anchor or self._raise_anchor()
         self._wake_item = _Wake(self)
         self.host(self._wake_item)
+
+    def post_after_start(self, job) -> None:
+        """Run ``job`` on the executor thread after the domain's first burst of jobs (see
+        ``_serve_first_burst``): for the agent's own entities, which a client joining this
+        domain should not wait behind."""
+        with self._start_lock:
+            if not self._started_up:
+                self._after_start.append(job)
+                return
+        self.post(job)
 
     def _raise_anchor(self) -> Node:
         # Hidden (rclpy.node.HIDDEN_NODE_PREFIX): even while it exists, ros2 node list leaves it
@@ -280,6 +329,9 @@ class DomainRuntime:
         self.executor.add_node(node)
         self.nodes.add(node)
         self.client_nodes.append(node)
+        if self.agent_node is None:  # the domain's first burst: its wake-up comes onto this one
+            self.agent_node = node
+            return
         anchor = self._anchor
         if anchor is not None and self.agent_node is anchor:
             self._move_host(node)
@@ -332,7 +384,7 @@ class DomainRuntime:
                     self._wake_publisher()
                 except Exception:  # the topic moved (_Wake.move) as it was read: the new one
                     self._wake_publisher()
-        # Before the first job the thread blocks on the queue itself: no wake-up needed.
+        # Until the wake-up exists (the first burst) the thread blocks on the queue itself.
 
     def _run_jobs(self) -> None:
         while True:
@@ -361,17 +413,59 @@ class DomainRuntime:
         if not self._stopped.done():
             self._stopped.set_result(True)
 
-    def _run(self) -> None:
-        # Until the first job there is nothing to spin for: wait on the queue. The agent node and
-        # its wake topic are made then; RosMiddleware.start gives the default domain that job
-        # before the agent serves anyone, other domains get it with their first client's CREATE.
-        result, job = self._jobs.get()
-        if job != self._finish:
+    def _fail_queued(self) -> None:
+        """The context did not start: every job queued fails with the reason."""
+        error = MiddlewareError("cannot start ROS domain %d: %s" % (self.domain_id, self.failed))
+        while True:
             try:
-                self._make_agent_node()
+                result, _job = self._jobs.get_nowait()
+            except queue.Empty:
+                return
+            if result is not None and result.set_running_or_notify_cancel():
+                result.set_exception(error)
+
+    def _serve_first_burst(self) -> None:
+        """Until the wake-up exists, serve the queue directly, blocking on it: from the first
+        job (a client's node, in a domain a client joins) until no job has come for
+        ``FIRST_BURST_IDLE_S`` (a client's set-up CREATEs come closer together), at most
+        ``FIRST_BURST_MAX_S``. So the wake-up and the agent's own entities (the anchor,
+        /diagnostics) are made after that client's set-up, not between its node and its STATUS
+        (the rclpy calls hold the GIL the loop needs to answer: the STATUS came 2-3 ms after
+        the node when the wake-up was made right after it). Subscriptions made meanwhile
+        deliver once the thread spins, at most ``FIRST_BURST_MAX_S`` later."""
+        result, job = self._jobs.get()
+        self._run_job(result, job)
+        deadline = time.monotonic() + FIRST_BURST_MAX_S
+        while self._running and self._wake_item is None:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            try:
+                result, job = self._jobs.get(timeout=min(FIRST_BURST_IDLE_S, remaining))
+            except queue.Empty:
+                return
+            self._run_job(result, job)
+
+    def _run(self) -> None:
+        try:
+            self._start()
+        except BaseException as exc:  # handed to every job, never lost
+            log.error("cannot start ROS domain %d: %s", self.domain_id, exc)
+            self.failed = exc
+            self._fail_queued()
+            return
+        self._serve_first_burst()
+        if self._running:
+            try:
+                self.make_wake()
             except Exception:  # jobs are then only seen when each wait times out
                 log.exception("cannot create the agent node of ROS domain %d", self.domain_id)
-        self._run_job(result, job)
+        with self._start_lock:
+            self._started_up = True
+            after_start, self._after_start = self._after_start, []
+        for job in after_start:
+            if self._running:
+                self._run_job(None, job)
         while self._running:
             self._run_jobs()
             try:
@@ -394,10 +488,14 @@ class DomainRuntime:
 
     def submit(self, job) -> concurrent.futures.Future:
         """Run ``job`` on the executor thread; the future of its result."""
+        if self.failed is not None:
+            raise MiddlewareError("cannot start ROS domain %d: %s" % (self.domain_id, self.failed))
         if not self.thread.is_alive():
             raise MiddlewareError("ROS executor of domain %d is not running" % self.domain_id)
         result: concurrent.futures.Future = concurrent.futures.Future()
         self._jobs.put((result, job))
+        if self.failed is not None:  # the thread failed as this was queued: it may not see it
+            self._fail_queued()
         self._wake()
         return result
 
@@ -443,109 +541,7 @@ class DomainRuntime:
             log.error("ROS executor thread of domain %d did not stop", self.domain_id)
             return
         self._destroy_all_nodes()
-        self.executor.shutdown()
-        self.context.try_shutdown()
-
-
-class ReaderHandoff:
-    """Samples from the executor thread to ``on_data``: right there under the engine's lock when
-    that lock is free and nothing is queued, else on the loop, bounded, drop-oldest."""
-
-    __slots__ = ("loop", "on_data", "lock", "queue", "scheduled", "closed", "delivered",
-                 "dropped")
-
-    def __init__(self, loop: asyncio.AbstractEventLoop, on_data: DataCallback, depth: int,
-                 lock=None):
-        self.loop = loop
-        self.on_data = on_data
-        self.lock = lock  # the engine's (Middleware.engine_lock); None: always through the loop
-        self.queue: collections.deque = collections.deque(maxlen=depth)
-        self.scheduled = False
-        self.closed = False
-        self.delivered = 0
-        self.dropped = 0
-
-    def push(self, raw: bytes) -> None:
-        """Subscription callback (executor thread)."""
-        if self.closed:
-            return
-        pending = self.queue
-        # Never wait for the lock: the loop holds it while it waits for this thread (entity
-        # creation). Not while samples are queued either, or this one would overtake them.
-        lock = self.lock
-        if lock is not None and not self.scheduled and not pending and \
-                lock.acquire(blocking=False):
-            try:
-                self.delivered += 1
-                self.on_data(raw[ENCAPSULATION_SIZE:])
-            except Exception:
-                log.exception("on_data failed")
-            finally:
-                lock.release()
-            return
-        if len(pending) == pending.maxlen:
-            self.dropped += 1
-        pending.append(raw[ENCAPSULATION_SIZE:])
-        # Ordering with drain(): drain clears the flag before popping, so a sample appended
-        # while it runs is either popped by it or schedules a new drain.
-        if not self.scheduled:
-            self.scheduled = True
-            try:
-                self.loop.call_soon_threadsafe(self.drain)
-            except RuntimeError:  # loop closed: the agent is going away
-                self.closed = True
-
-    def drain(self) -> None:
-        """Loop thread: deliver at most one queue's worth, then yield to other loop work. Under
-        the engine's lock throughout, so that push() cannot deliver a sample between two of
-        these."""
-        if self.lock is None:
-            self._drain()
-            return
-        with self.lock:
-            self._drain()
-
-    def _drain(self) -> None:
-        self.scheduled = False
-        pending = self.queue
-        budget = pending.maxlen
-        while pending and not self.closed:
-            if budget == 0:
-                self.scheduled = True
-                self.loop.call_soon(self.drain)
-                return
-            budget -= 1
-            body = pending.popleft()
-            self.delivered += 1
-            try:
-                self.on_data(body)
-            except Exception:
-                log.exception("on_data failed")
-
-
-def in_thread(loop: asyncio.AbstractEventLoop, function, *args) -> asyncio.Future:
-    """``function(*args)`` on a thread of its own that ends with it. For the blocking start-up
-    steps: ``run_in_executor`` would leave the loop's default pool thread behind for the agent's
-    whole life (its stack and malloc arena stay resident)."""
-    future = loop.create_future()
-
-    def settle(value, error) -> None:
-        if future.cancelled():
-            return
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(value)
-
-    def run() -> None:
-        try:
-            value, error = function(*args), None
-        except BaseException as exc:  # handed to the awaiting coroutine
-            value, error = None, exc
-        try:
-            loop.call_soon_threadsafe(settle, value, error)
-        except RuntimeError:  # the loop is closed: nobody waits any more
-            pass
-
-    threading.Thread(target=run, name="xrce-start", daemon=True).start()
-    return future
+        if self.executor is not None:
+            self.executor.shutdown()
+        if self.context is not None:
+            self.context.try_shutdown()

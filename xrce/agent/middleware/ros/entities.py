@@ -31,10 +31,9 @@ from xrce.agent.middleware.ros.domain import (
     EXECUTOR_SINGLE,
     IDLE_WAIT_S,
     DomainRuntime,
-    ReaderHandoff,
-    in_thread,
     log,
 )
+from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
 from xrce.agent.middleware.ros.graph import GRAPH_TOPIC, GRAPH_TYPE, GraphFeed
@@ -105,23 +104,27 @@ GRAPH_SPEC = TopicSpec(GRAPH_TOPIC, GRAPH_TYPE)
 
 class AgentPublisher:
     """A publisher of the agent's own that takes CDR bodies (no encapsulation header), on the
-    agent's hidden node (``DomainRuntime.host``, visible)."""
+    agent's hidden node (``DomainRuntime.host``, visible). Made by a job the loop does not wait
+    for: until then it has no reader and writes nothing."""
 
     __slots__ = ("publisher", "matched_events", "_make")
 
-    def __init__(self, make):
+    def __init__(self, make, matched_events: bool):
         self._make = make  # node -> (rclpy publisher, matched events or not)
         self.publisher = None
-        self.matched_events = False
+        self.matched_events = matched_events  # as asked for, until the RMW has said
 
     def attach(self, node) -> None:
         self.publisher, self.matched_events = self._make(node)
 
     def write(self, body: bytes) -> None:
-        self.publisher.publish(ENCAPSULATION_LE + body)
+        publisher = self.publisher
+        if publisher is not None:
+            publisher.publish(ENCAPSULATION_LE + body)
 
     def subscriber_count(self) -> int:
-        return self.publisher.get_subscription_count()
+        publisher = self.publisher
+        return 0 if publisher is None else publisher.get_subscription_count()
 
 
 def _default_domain_id() -> int:
@@ -167,8 +170,6 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         self._closed = False
         # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
         self._agent_publishers: dict[tuple, object] = {}
-        # Domains being joined at start-up (asyncio futures of their DomainRuntime).
-        self._joining: dict[int, asyncio.Future] = {}
         self._domain_listeners: list = []  # called with each domain id joined (loop thread)
         self._home_domain = _default_domain_id()  # joined at start, kept (_leave_if_unused)
         self._leaving: list = []  # threads stopping domains whose last participant went
@@ -187,61 +188,31 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._loop = asyncio.get_running_loop()
         return self._loop
 
-    def _domain(self, domain_id: int) -> DomainRuntime:
+    def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
+        """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
+        its thread, which makes the rclpy context and executor while the loop goes on: jobs queue
+        up behind that (``DomainRuntime``), so a client joining a new domain holds up no other
+        (its DDS participant is made with the GIL released too, ``ros.participant``).
+        A domain whose context could not start is started again on the next call."""
         if self._closed:
             raise MiddlewareError("middleware is closed")
         domain = self._domains.get(domain_id)
-        if domain is None and self.park_creation:
-            raise TypeNotReady("ROS domain %d is being joined" % domain_id,
-                               self._join_in_thread(domain_id))
-        if domain is None:
-            try:
-                domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
-            except MiddlewareError:
-                raise
-            except Exception as exc:
-                raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
-            self._joined(domain_id, domain)
-        return domain
+        if domain is not None and domain.failed is None:
+            return domain, False
+        if domain is not None:
+            del self._domains[domain_id]
+        try:
+            domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
+        except MiddlewareError:
+            raise
+        except Exception as exc:
+            raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
+        self._domains[domain_id] = domain
+        return domain, True
 
-    def _join_in_thread(self, domain_id: int) -> asyncio.Future:
-        """Join ``domain_id`` off the loop (``park_creation``): its rclpy context, executor thread
-        and agent node, whose DDS participant takes milliseconds to make, while the loop serves
-        the other clients; the creating client is parked on the future this returns and its
-        retry finds the domain joined, or gets the failure."""
-        joining = self._joining.get(domain_id)
-        if joining is not None:
-            if not joining.done():
-                return joining
-            del self._joining[domain_id]  # a join that failed: this retry reports it
-            error = joining.exception()
-            raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, error)) from error
-
-        def join() -> DomainRuntime:
-            runtime = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
-            try:  # its first job makes the agent node, and with it the DDS participant
-                runtime.call(lambda: None, self.entity_timeout_s)
-            except MiddlewareError as exc:
-                log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
-            return runtime
-
-        def joined(future: asyncio.Future) -> None:  # loop thread
-            if future.cancelled() or future.exception() is not None:
-                return  # kept in _joining for the retry to report
-            del self._joining[domain_id]
-            runtime = future.result()
-            if self._closed or domain_id in self._domains:
-                threading.Thread(target=runtime.stop, args=(self.entity_timeout_s,),
-                                 name="xrce-leave-domain-%d" % domain_id, daemon=True).start()
-                return
-            self._joined(domain_id, runtime)
-
-        joining = self._joining[domain_id] = in_thread(self._get_loop(), join)
-        joining.add_done_callback(joined)
-        return joining
-
-    def _joined(self, domain_id: int, runtime: DomainRuntime) -> None:
-        self._domains[domain_id] = runtime
+    def _joined(self, domain_id: int) -> None:
+        """Tell the listeners (the agent's own publishers there): their jobs queue behind what
+        was submitted before, the first client's node in a new domain."""
         for listener in list(self._domain_listeners):
             try:
                 listener(domain_id)
@@ -285,10 +256,10 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         self._get_loop()
-        joining = self._joining.get(domain_id)
-        if joining is not None and not joining.done():
-            raise TypeNotReady("ROS domain %d is being joined" % domain_id, joining)
-        domain = self._domain(domain_id)
+        creation = self._creating.get(key)
+        # A retry takes its node from the domain it was submitted to.
+        domain, started = (creation.domain, False) if creation is not None else \
+            self._domain(domain_id)
         # The whole ROS domain reads node names: a client's tag, never its key (observability).
         fallback = "xrce_%s_%04x" % (client_tag((key[0] & 0xFFFFFFFF).to_bytes(4, "big")),
                                      key[1] & 0xFFFF)
@@ -309,6 +280,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             raise
         except Exception as exc:
             raise MiddlewareError("cannot create node %r: %s" % (name, exc)) from exc
+        finally:
+            if started:  # after the node's job: the agent's own entities come after its STATUS
+                self._joined(domain_id)
         self._entities[key] = _ParticipantRecord(domain, node)
         self._graph_changed(domain)
 
@@ -412,8 +386,9 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         return record.handoff.delivered, record.handoff.dropped
 
     def domain_ids(self) -> list[int]:
-        """The ROS domains the agent has joined (one per domain its clients asked for)."""
-        return list(self._domains)
+        """The ROS domains the agent has joined (one per domain its clients asked for), from when
+        its DDS participant there exists."""
+        return [domain_id for domain_id, domain in self._domains.items() if domain.joined]
 
     def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
                         on_matched=None):
@@ -449,8 +424,15 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
                     log.debug("%s: no matched events (%s)", topic, exc)
             return node.create_publisher(message_type, topic, depth), False
 
-        publisher = AgentPublisher(make_publisher)
-        domain.call(lambda: domain.host(publisher, visible=True), self.entity_timeout_s)
+        def attach() -> None:
+            domain.host(publisher, visible=True)
+            if on_matched is not None:  # it may have readers already, or no matched events
+                matched(None)
+
+        # Not waited for: the loop goes on serving, and in a domain a client has just joined it
+        # comes after that client's set-up.
+        publisher = AgentPublisher(make_publisher, on_matched is not None)
+        domain.post_after_start(attach)
         self._agent_publishers[(domain_id, topic)] = publisher
         return publisher
 
@@ -566,38 +548,36 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
 
     async def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        # Join the default ROS domain now, with the agent's own node in it (DomainRuntime makes
-        # it): rmw_fastrtps creates the DDS participant with a context's first node, not with the
-        # context. A client that connects (or reconnects after an agent restart) then only adds a
-        # node to a participant its peers already discovered, instead of waiting for a new
-        # participant to be discovered.
+        # Join the default ROS domain now, with the agent's own node in it (the wake-up's anchor,
+        # made by the first job): rmw_fastrtps creates the DDS participant with a context's
+        # first node, not with the context. A client that connects (or reconnects after an agent
+        # restart) then only adds a node to a participant its peers already discovered, instead
+        # of waiting for a new participant to be discovered; one that reconnects the moment the
+        # agent is back finds the domain in ``_domains`` and queues behind this (measured with
+        # bench/restart_gap.py, a cold start with the client already waiting: 2.4-3.3 s to the
+        # first sample in ROS before, 0.4-0.5 s after). The CLI opens its links only after
+        # this, so building the node never competes with answering a client (a robot's first
+        # time sync over a pty came out up to 2 ms off when it did).
         domain_id = self._home_domain
-        joining = in_thread(self._loop, DomainRuntime, domain_id, self.executor_kind,
-                             self.idle_wait_s)
-        # A client that reconnects the moment the agent is back must not start a second context
-        # for this domain meanwhile: create_participant parks it until this join is done
-        # (measured with bench/restart_gap.py, a cold start with the client already waiting:
-        # 2.4-3.3 s to the first sample in ROS before, 0.4-0.5 s after).
-        self._joining[domain_id] = joining
+        runtime = None
         try:
-            runtime = await joining
-        except Exception as exc:  # the agent still serves; the domain starts on first use
-            log.warning("could not join ROS domain %d at start-up: %s", domain_id, exc)
-            return
-        finally:
-            self._joining.pop(domain_id, None)
-        if self._closed or domain_id in self._domains:
-            await self._loop.run_in_executor(None, runtime.stop, self.entity_timeout_s)
-            return
-        # The runtime makes its agent node with its first job; make it now, so the DDS
-        # participant exists (and is being discovered) before any client is served. The CLI opens
-        # its links only after this, so building the node never competes with answering a
-        # client (a robot's first time sync over a pty came out up to 2 ms off when it did).
+            runtime, _started = self._domain(domain_id)
+            await asyncio.wait_for(asyncio.wrap_future(runtime.submit(runtime.make_wake)),
+                                   self.entity_timeout_s)
+        except (MiddlewareError, asyncio.TimeoutError) as exc:
+            # The agent still serves; a domain that failed is started again on first use.
+            log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id,
+                        exc or "timed out")
+            if runtime is None or runtime.failed is not None:
+                return
+        self._joined(domain_id)
+        # The listeners' entities (/diagnostics) too, before any client is served: they would
+        # hold up the first client's node (by 3-10 ms, measured, bench/entity_creation.py).
         try:
-            await in_thread(self._loop, runtime.call, lambda: None, self.entity_timeout_s)
-        except MiddlewareError as exc:
-            log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id, exc)
-        self._joined(domain_id, runtime)
+            await asyncio.wait_for(asyncio.wrap_future(runtime.submit(lambda: None)),
+                                   self.entity_timeout_s)
+        except (MiddlewareError, asyncio.TimeoutError):
+            log.warning("ROS domain %d: the agent's own entities are not up yet", domain_id)
 
     async def close(self) -> None:
         if self._closed:
