@@ -133,6 +133,16 @@ async def test_unknown_type_names_the_package(middleware, ros_domain):  # noqa: 
     service = ServiceSpec("svc", "nope_srvs::srv::dds_::X_Request_", "nope_srvs::srv::dds_::X_Response_")
     with pytest.raises(UnknownTypeError, match="nope_srvs::srv::dds_::X_Request_"):
         middleware.create_requester(key(0x07), participant, service, QOS, lambda c, b: None)
+    # A replier's type is looked for in the package's C libraries first: a name the package does
+    # not have gets the same answer, and is not remembered (a client's made-up names fill nothing).
+    from xrce.agent.middleware.ros import raw_types
+
+    made_up = "test_msgs::srv::dds_::NoSuchService_Request_"
+    with pytest.raises(UnknownTypeError, match="test_msgs.srv has no interface NoSuchService"):
+        middleware.create_replier(key(0x08), participant, ServiceSpec(
+            "svc2", made_up, "test_msgs::srv::dds_::NoSuchService_Response_"), QOS,
+            lambda i, b: None)
+    assert made_up not in raw_types._library_services
 
 
 @pytest.mark.parametrize("executor", ["events", "single"])
@@ -321,11 +331,15 @@ async def test_replier_answers_an_rclpy_client(middleware, ros_domain, ros_peer)
     assert await async_wait_until(lambda: all(f.done() for f in futures))
     results = [f.result() for f in futures]
     assert [(r.int64_value, r.string_value) for r in results] == [(11, "re:q10"), (21, "re:q20")]
-    # Requests and replies crossed rclpy as CDR bytes (types.raw_service_type): the request's
+    # Requests and replies crossed rclpy as CDR bytes (raw_types.raw_service_type): the request's
     # bytes are serialize_message's, but for the alignment padding, zeros here (the Python
     # conversion's padding is whatever its heap held).
     if has_raw_services():
+        from xrce.agent.middleware.ros.raw_types import _RawServiceMeta
+
         assert middleware._entities[replier].raw_reply is not None
+        # made from test_msgs' C libraries, not from its Python classes
+        assert isinstance(middleware._entities[replier].srv, _RawServiceMeta)
     assert [decode(body, BasicTypes.Request) for body in bodies] == \
         [BasicTypes.Request(int64_value=i, string_value="q%d" % i) for i in (10, 20)]
     assert [len(body) for body in bodies] == [len(body_of(BasicTypes.Request(string_value="q10")))] * 2
@@ -428,6 +442,7 @@ async def test_replier_without_the_compiled_conversions_uses_python_messages(
     from xrce.agent.middleware.ros import services
 
     monkeypatch.setattr(services, "raw_service_type", lambda srv: None)
+    monkeypatch.setattr(services, "library_service_type", lambda request_type: None)
     participant = make_participant(middleware, ros_domain)
     replier = key(0x08)
     bodies = []
@@ -560,6 +575,8 @@ async def main():
         spec = ServiceSpec("footprint_service", "lifecycle_msgs::srv::dds_::GetState_Request_",
                            "lifecycle_msgs::srv::dds_::GetState_Response_")
         mw.create_replier((1, 0x18), (1, 1), spec, EndpointQosSpec(), lambda *args: None)
+        # The replier's type came from the package's C libraries (raw_types.library_service_type).
+        print("service module after the replier:", "lifecycle_msgs.srv" in sys.modules)
         mw.create_requester((1, 0x27), (1, 1), spec, EndpointQosSpec(), lambda *args: None)
         print("numpy after creation:", "numpy" in sys.modules)
         from service_msgs.msg import ServiceEventInfo
@@ -578,7 +595,9 @@ def test_a_replier_imports_numpy_only_for_an_introspection_event(ros_domain):  #
     done = subprocess.run([sys.executable, "-c", _REPLIER_SCRIPT, str(ros_domain)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.splitlines()[-2:] == ["numpy after creation: False",
+    assert done.stdout.splitlines()[-3:] == ["service module after the replier: %s"
+                                             % (not has_raw_services()),
+                                             "numpy after creation: False",
                                              "event gid: %s True" % ([0] * 16)], done.stdout
 
 

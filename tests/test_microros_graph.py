@@ -78,7 +78,7 @@ def _ros_types():
 def _action_types_bridged() -> bool:
     """Whether this agent bridges action types (issue #29 item 1, done apart from this one)."""
     from xrce.agent.middleware import MiddlewareError
-    from xrce.agent.middleware.ros.types import raw_message_type
+    from xrce.agent.middleware.ros.raw_types import raw_message_type
 
     try:
         raw_message_type("action_msgs::msg::dds_::GoalStatusArray_")  # a msg: always bridged

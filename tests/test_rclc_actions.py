@@ -270,7 +270,8 @@ def test_action_parts_map_onto_rclpys_action_classes():
     from test_msgs.action import Fibonacci
 
     from xrce.agent.middleware import UnknownTypeError
-    from xrce.agent.middleware.ros.types import message_class, raw_message_type, service_class
+    from xrce.agent.middleware.ros.raw_types import raw_message_type
+    from xrce.agent.middleware.ros.types import message_class, service_class
 
     impl = Fibonacci.Impl
     assert service_class(FIBONACCI + "SendGoal_Request_") is impl.SendGoalService

@@ -221,7 +221,36 @@ static PyObject *raw_reply_conversion(PyObject *module, PyObject *unused) {
                          PyCapsule_New((void *)reply_from_py, NULL, NULL));
 }
 
+/* ------------------------------------------------- a service type without its Python package */
+
+/* library_function(path, symbol) -> a capsule of the function ``symbol`` of the library at
+ * ``path``, not called: a generated message's ``<pkg>__srv__<Name>_Request__create`` and
+ * ``__destroy`` (rosidl_generator_c) have the signatures rclpy calls through a message class's
+ * ``_CREATE_ROS_MESSAGE`` and ``_DESTROY_ROS_MESSAGE`` (no argument, returns the message; takes
+ * the message). The library stays loaded, as the type support libraries it goes with. */
+static PyObject *library_function(PyObject *module, PyObject *args) {
+    (void)module;
+    const char *path, *symbol;
+    if (!PyArg_ParseTuple(args, "ss", &path, &symbol)) return NULL;
+    void *library;
+    Py_BEGIN_ALLOW_THREADS
+    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    Py_END_ALLOW_THREADS
+    if (library == NULL) {
+        PyErr_SetString(PyExc_ImportError, dlerror());
+        return NULL;
+    }
+    void *function = dlsym(library, symbol);
+    if (function == NULL) {
+        PyErr_SetString(PyExc_ImportError, dlerror());
+        dlclose(library);
+        return NULL;
+    }
+    return PyCapsule_New(function, NULL, NULL);
+}
+
 static PyMethodDef service_methods[] = {
+    {"library_function", library_function, METH_VARARGS, NULL},
     {"raw_request_conversion", raw_request_conversion, METH_O, NULL},
     {"raw_reply_conversion", raw_reply_conversion, METH_NOARGS, NULL},
     {NULL},

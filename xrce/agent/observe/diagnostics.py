@@ -24,7 +24,7 @@ DIAGNOSTIC_WARN = 1
 def diagnostic_array_type():
     """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed."""
     try:
-        from xrce.agent.middleware.ros.types import raw_message_type
+        from xrce.agent.middleware.ros.raw_types import raw_message_type
         return raw_message_type(DIAGNOSTIC_ARRAY_TYPE)
     except Exception as exc:  # no rclpy or no diagnostic_msgs: the agent runs without
         log.debug("no /diagnostics: %s", exc)

@@ -61,7 +61,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from xrce.agent.middleware import MiddlewareError
 from xrce.agent.middleware.ros import participant
-from xrce.agent.middleware.ros.types import raw_message_type
+from xrce.agent.middleware.ros.raw_types import raw_message_type
 
 # The whole ROS bridge logs under one name, the one it had as a single module, so that existing
 # log filters keep matching.

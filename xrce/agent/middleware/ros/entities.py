@@ -38,12 +38,8 @@ from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
 from xrce.agent.middleware.ros.graph import GRAPH_TOPIC, GRAPH_TYPE, GraphFeed
 from xrce.agent.middleware.ros.services import RosServices
-from xrce.agent.middleware.ros.types import (
-    dds_topic_to_ros,
-    node_name_and_namespace,
-    qos_profile,
-    raw_message_type,
-)
+from xrce.agent.middleware.ros.raw_types import raw_message_type
+from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, qos_profile
 
 
 class _ParticipantRecord:

@@ -131,7 +131,7 @@ class GraphFeed:
     def __init__(self, domain: DomainRuntime, message_type, loop,
                  period_s: float = CHECK_PERIOD_S):
         self.domain = domain
-        self.message_type = message_type  # types.raw_message_type(GRAPH_TYPE)
+        self.message_type = message_type  # raw_types.raw_message_type(GRAPH_TYPE)
         self.loop = loop
         self.period_s = period_s
         self.publisher = None

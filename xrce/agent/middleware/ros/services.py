@@ -36,9 +36,8 @@ from xrce.agent.middleware import (
 )
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
-from xrce.agent.middleware.ros.types import (
-    qos_profile, raw_service_type, service_class, service_ros_name,
-)
+from xrce.agent.middleware.ros.raw_types import RawReply, library_service_type, raw_service_type
+from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
 
 
 class _TakenRequest:
@@ -129,7 +128,7 @@ class _ReplierRecord:
         # ones follow them through the loop rather than overtake them.
         self.in_transit: collections.deque = collections.deque()
         # The raw reply class when the service exchanges CDR bytes with rclpy
-        # (types.raw_service_type), else None: Python messages.
+        # (raw_types.raw_service_type), else None: Python messages.
         self.raw_reply = None
 
     def take(self, request, _unused_response) -> _TakenRequest:
@@ -182,13 +181,13 @@ class RosServices:
     # -- creation -----------------------------------------------------------------------------
 
     def _service_endpoint(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
-                          qos: EndpointQosSpec):
+                          qos: EndpointQosSpec, service_type=service_class):
         """What a requester and a replier both resolve first: (owner key, participant record,
-        service class, ROS service name, QoS profile)."""
+        service class as ``service_type`` gives it, ROS service name, QoS profile)."""
         owner, participant_record = self._participant_of(participant, ("participant",))
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
-        return (owner, participant_record, service_class(service.request_type),
+        return (owner, participant_record, service_type(service.request_type),
                 service_ros_name(service.service_name, service.request_topic), qos_profile(qos))
 
     def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
@@ -206,8 +205,11 @@ class RosServices:
 
     def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                        qos: EndpointQosSpec, on_request: RequestCallback) -> None:
+        # The service type from the package's C libraries where it can be (CDR bytes both ways,
+        # no Python package imported), else its Python classes.
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
-            key, participant, service, qos)
+            key, participant, service, qos,
+            lambda name: library_service_type(name) or service_class(name))
         creation = self._creating.get(key)
         if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
             record = creation.context
@@ -224,7 +226,8 @@ class RosServices:
         def make_service():
             ros_service = node.create_service(srv, service_name, record.take, qos_profile=profile)
             ros_service.send_response = record.capture
-            raw = raw_service_type(srv)
+            raw = srv if isinstance(srv.Response, type) and issubclass(srv.Response, RawReply) \
+                else raw_service_type(srv)
             if raw is not None:  # requests and replies cross as CDR bytes
                 ros_service.srv_type = raw
                 record.raw_reply = raw.Response
