@@ -26,7 +26,12 @@ def pytest_configure(config):
         # /tmp/pytest-of-USER/pytest-N: its "remove when done" (retention "none") takes no lock, so
         # any other pytest run ending meanwhile on the machine deleted this run's tmp_path trees.
         config.option.basetemp = _run["basetemp"] = tempfile.mkdtemp(prefix="xrce-tests-")
-    _run["shm_before"] = shm_names()
+    # One clean-up of /dev/shm per run, the controller's once its workers are gone: a worker's at
+    # its own end would probe the lock files of the other worker's live participants (hygiene.py
+    # takes a lock to see whether anyone holds it), and a Fast DDS process opening one right then
+    # fails its open_and_lock_file.
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        _run["shm_before"] = shm_names()
 
 
 def pytest_unconfigure(config):
