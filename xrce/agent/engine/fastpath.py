@@ -152,7 +152,7 @@ class CompiledOutputStream(OutputReliableStream):
     def __init__(self, receiver, handle: int, stream: OutputReliableStream, probing: bool):
         self._receiver = receiver
         self._handle = handle
-        self._sent = self._released = stream.last_acknowledged
+        self._sent, self._released = stream.last_sent, stream.last_acknowledged
         self._freed = 0
         receiver.add_out_stream(handle, stream.stream_id, stream.history, stream.last_sent,
                                 stream.last_acknowledged)
