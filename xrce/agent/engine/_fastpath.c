@@ -8,7 +8,8 @@
  * here. So is, on a reliable stream Python registered, a datagram holding one such WRITE_DATA that
  * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
  * end of the wake-up, or by Python (send_due_acknacks says when). FRAGMENTs of such a stream and
- * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat).
+ * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat),
+ * the client's plain ACKNACKs for the agent's reliable output streams _reliable_out.c's.
  * At the first datagram that is none of these (other reliable messages, control, unknown
  * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
@@ -111,7 +112,9 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
     if ((session_id & 0x7F) == 0) return 0;
     Client *client = find_client(self, data, from);
     if (client == NULL || !client->enabled) return 0;
-    if (data[1] == 0) return try_fast_heartbeat(self, client, data, length);  /* _reliable_in.c */
+    if (data[1] == 0)  /* _reliable_in.c, _reliable_out.c */
+        return try_fast_heartbeat(self, client, data, length) ||
+               try_fast_acknack(self, client, data, length);
     Stream *stream = find_stream(client, data[1]);
     if (stream == NULL) return 0;
     if (stream->reliable) return try_fast_reliable(self, client, stream, data, length);
@@ -241,6 +244,7 @@ static int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_
 static void free_client(Client *c) {
     for (Writer *w = c->writers, *n; w; w = n) { n = w->next; free(w); }
     for (Stream *s = c->streams, *n; s; s = n) { n = s->next; free_reassembly(s); free(s); }
+    free_out_streams(c);
     free(c);
 }
 
@@ -627,6 +631,11 @@ static PyMethodDef Receiver_methods[] = {
     {"remove_writer", (PyCFunction)Receiver_remove_writer, METH_VARARGS, NULL},
     {"fold", (PyCFunction)Receiver_fold, METH_NOARGS, NULL},
     {"handle", (PyCFunction)Receiver_handle, METH_VARARGS, NULL},
+    /* _reliable_out.c */
+    {"add_out_stream", (PyCFunction)Receiver_add_out_stream, METH_VARARGS, NULL},
+    {"out_acknowledged", (PyCFunction)Receiver_out_acknowledged, METH_VARARGS, NULL},
+    {"set_out_state", (PyCFunction)Receiver_set_out_state, METH_VARARGS, NULL},
+    {"set_probing", (PyCFunction)Receiver_set_probing, METH_VARARGS, NULL},
     /* _reliable_in.c */
     {"take_partial", (PyCFunction)Receiver_take_partial, METH_VARARGS, NULL},
     {"put_partial", (PyCFunction)Receiver_put_partial, METH_VARARGS, NULL},

@@ -74,6 +74,16 @@ typedef struct Stream {
     size_t frag_len, frag_cap;
 } Stream;
 
+/* The agent's reliable output stream to a client (xrce.streams.OutputReliableStream), as far as
+ * an ACKNACK needs it (_reliable_out.c): Python writes last_sent (its only writer, under the
+ * engine's lock) and frees the history; the acknowledged point lives only here. */
+typedef struct OutStream {
+    struct OutStream *next;
+    uint8_t stream_id;
+    uint16_t history;  /* the window, a power of two */
+    uint16_t last_sent, last_acknowledged;
+} OutStream;
+
 typedef struct Client {
     struct Client *next;
     long handle;
@@ -88,6 +98,10 @@ typedef struct Client {
     socklen_t addr_len;
     Stream *streams;
     Writer *writers;
+    OutStream *out_streams;
+    /* Python sent a HEARTBEAT and times the ACKNACK that answers it (ClientProxy.rtt_s): every
+     * ACKNACK is Python's until it clears this. */
+    int probing;
     uint64_t messages, bytes, messages_out, bytes_out;
     int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
     /* What the client's byte budget (Agent._over_budget) leaves for reassembly here, as Python
@@ -149,6 +163,14 @@ static inline Client *client_by_handle(Receiver *self, long handle) {
         if (c->handle == handle) return c;
     return NULL;
 }
+
+/* _reliable_out.c */
+int try_fast_acknack(Receiver *self, Client *client, const uint8_t *data, size_t length);
+void free_out_streams(Client *client);
+PyObject *Receiver_add_out_stream(Receiver *self, PyObject *args);
+PyObject *Receiver_out_acknowledged(Receiver *self, PyObject *args);
+PyObject *Receiver_set_out_state(Receiver *self, PyObject *args);
+PyObject *Receiver_set_probing(Receiver *self, PyObject *args);
 
 /* _reliable_in.c */
 int try_fast_fragment(Receiver *self, Client *client, Stream *stream, uint8_t *data,

@@ -431,6 +431,8 @@ class DataPath:
         if len(message) <= client.mtu:
             seq = stream.next_seq()
             if seq is None:
+                if stream.__class__ is not OutputReliableStream:
+                    self._release_acknowledged(client, stream)
                 if payload is None:
                     return False  # a reader's DATA stays in its queue (blocked_readers)
                 # A reply (a STATUS) answers a request already acknowledged: dropping it would
@@ -443,10 +445,19 @@ class DataPath:
             message = _with_seq(message, seq)
             stream.commit(seq, message)
             self._charge(client, len(message))
+            if stream.__class__ is not OutputReliableStream:
+                self._release_acknowledged(client, stream)
             self._send_client(client, message)
             self._heartbeat_soon()
             return True
         return self._send_fragmented(client, stream, message)
+
+    def _release_acknowledged(self, client: ClientProxy, stream) -> None:
+        """Give the bytes of the history the compiled path acknowledged back to the client's
+        budget (``fastpath.CompiledOutputStream``: freed as the window is looked at)."""
+        freed = stream.release()
+        if freed:
+            self._charge(client, -freed)
 
     def _send_fragmented(self, client: ClientProxy, stream: OutputReliableStream,
                          message: bytes) -> bool:
@@ -485,6 +496,8 @@ class DataPath:
             stream.commit(seq, message)  # its bytes move from the queue to the window
             self._send_client(client, message)
             sent = True
+        if stream.__class__ is not OutputReliableStream:
+            self._release_acknowledged(client, stream)
         if not pending:
             del client.out_pending[stream.stream_id]
         elif sent:

@@ -20,6 +20,10 @@ and each reliable stream C delivered on gets its ACKNACK: from C at the end of t
 Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
+The board's ACKNACKs for the agent's reliable output streams are taken in C too when they only
+move the acknowledged point (no NACK, the window not full, no HEARTBEAT being timed): the stream
+becomes a ``CompiledOutputStream`` whose acknowledged point C owns, and whose history Python frees
+as it next looks at the window (``_reliable_out.c`` says why that keeps every rule).
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ import time
 from typing import Dict, Optional
 
 from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
-from xrce.streams import InputBestEffortStream, InputReliableStream
+from xrce.streams import InputBestEffortStream, InputReliableStream, OutputReliableStream, \
+    seq_add, seq_less, seq_sub
 
 log = logging.getLogger("xrce.agent")
 
@@ -133,10 +138,101 @@ class CompiledReliableStream(InputReliableStream):
         return stream
 
 
+class CompiledOutputStream(OutputReliableStream):
+    """An ``OutputReliableStream`` whose acknowledged point C owns (``_reliable_out.c``): C moves
+    it for the client's plain ACKNACKs while the window has room, Python reads and moves it
+    through C for everything else (NACKs, a full window, HEARTBEATs). ``last_sent`` stays
+    Python's, told to C as it moves. The history slots and their bytes stay Python's: every
+    look at the window (``in_flight``) first frees the slots C acknowledged, so a slot is never
+    reused before it is freed, and the window Python sees is one C had (full for both, or not).
+    The bytes so freed are given back to the client's budget by the engine (``release``)."""
+
+    __slots__ = ("_receiver", "_handle", "_sent", "_released", "_freed")
+
+    def __init__(self, receiver, handle: int, stream: OutputReliableStream, probing: bool):
+        self._receiver = receiver
+        self._handle = handle
+        self._sent, self._released = stream.last_sent, stream.last_acknowledged
+        self._freed = 0
+        receiver.add_out_stream(handle, stream.stream_id, stream.history, stream.last_sent,
+                                stream.last_acknowledged)
+        receiver.set_probing(handle, probing)
+        super().__init__(stream.stream_id, stream.history)  # reset() writes through to C
+        _copy_output(stream, self)
+
+    @property
+    def last_sent(self) -> int:
+        return self._sent
+
+    @last_sent.setter
+    def last_sent(self, seq: int) -> None:
+        self._sent = seq
+        self._receiver.set_out_state(self._handle, self.stream_id, seq, -1)
+
+    @property
+    def last_acknowledged(self) -> int:
+        seq = self._receiver.out_acknowledged(self._handle, self.stream_id)
+        return self._released if seq is None else seq
+
+    @last_acknowledged.setter
+    def last_acknowledged(self, seq: int) -> None:
+        self._released = seq  # Python moves it only with the slot it frees (on_acknack, reset)
+        self._receiver.set_out_state(self._handle, self.stream_id, -1, seq)
+
+    def _release(self) -> None:
+        acknowledged = self.last_acknowledged
+        freed = 0
+        mask = self.history - 1
+        while seq_less(self._released, acknowledged):
+            self._released = seq_add(self._released, 1)
+            slot = self._released & mask
+            if self.sizes[slot]:
+                self.sizes[slot] = 0
+            elif self.slots[slot] is not None:
+                freed += len(self.slots[slot])
+                self.slots[slot] = None
+        self.stored_bytes -= freed
+        self._freed += freed
+
+    def in_flight(self) -> int:
+        self._release()
+        return seq_sub(self._sent, self._released)
+
+    def release(self) -> int:
+        """Free the history C acknowledged; the bytes freed since the last call (the engine
+        gives them back to the client's budget)."""
+        self._release()
+        freed, self._freed = self._freed, 0
+        return freed
+
+    def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0, session=None):
+        freed = self._freed
+        self._release()
+        self._freed = freed  # the caller charges the change of stored_bytes across this call
+        return super().on_acknack(first_unacked, nack_bitmap, now_ms, holdoff_ms, session)
+
+    def detached(self) -> OutputReliableStream:
+        """A plain stream in this one's state (after ``release``), for when C forgets it."""
+        stream = OutputReliableStream(self.stream_id, self.history)
+        _copy_output(self, stream)
+        return stream
+
+
+def _copy_output(source: OutputReliableStream, target: OutputReliableStream) -> None:
+    target.slots[:] = source.slots
+    target.sizes[:] = source.sizes
+    target.resent_at[:] = source.resent_at
+    target.retransmissions = source.retransmissions
+    target.suppressed = source.suppressed
+    target.stored_bytes = source.stored_bytes
+    target.last_sent = source.last_sent
+    target.last_acknowledged = source.last_acknowledged
+
+
 class CompiledClient:
     """What C knows of one client: its handle, streams and writers."""
 
-    __slots__ = ("path", "handle", "streams", "writers", "enabled", "reliable")
+    __slots__ = ("path", "handle", "streams", "writers", "enabled", "reliable", "out_streams")
 
     def __init__(self, path: "FastPath", handle: int):
         self.path = path
@@ -145,6 +241,24 @@ class CompiledClient:
         self.writers: set = set()
         self.enabled = True
         self.reliable = False  # a reliable stream is registered: C needs the budget's room
+        self.out_streams: set = set()  # the agent's reliable output streams whose ACKNACKs C takes
+
+    def compile_output(self, client) -> None:
+        """Hand the acknowledged point of every reliable output stream not yet compiled to C
+        (under the engine's lock: ``_send_on_stream`` uses the streams on other threads)."""
+        for stream_id, stream in list(client.out_reliable.items()):
+            if stream_id not in self.out_streams:
+                client.out_reliable[stream_id] = CompiledOutputStream(
+                    self.path.receiver, self.handle, stream, client.heartbeat_sent_at is not None)
+                self.out_streams.add(stream_id)
+                log.debug("client %s: reliable output stream 0x%02X: plain ACKNACKs take the "
+                          "compiled path", client.key.hex(), stream_id)
+
+    def probing(self, probing: bool) -> None:
+        """Python sends a HEARTBEAT and times the ACKNACK answering it: every ACKNACK is
+        Python's meanwhile."""
+        if self.out_streams:
+            self.path.receiver.set_probing(self.handle, probing)
 
     def forget_writer(self, client, object_id: int) -> None:
         """Before the writer's publisher is destroyed: C holds no pointer to it afterwards."""
@@ -174,6 +288,11 @@ class CompiledClient:
                 seq = path.receiver.stream_seq(self.handle, stream_id)
                 if seq is not None:
                     stream.last_handled = seq
+        for stream_id in self.out_streams:  # the acknowledged points come back to Python
+            stream = client.out_reliable.get(stream_id)
+            if isinstance(stream, CompiledOutputStream):
+                path.agent._charge(client, -stream.release())
+                client.out_reliable[stream_id] = stream.detached()
         path.receiver.remove_client(self.handle)
         path.clients.pop(self.handle, None)
         client.fast = None
@@ -251,6 +370,8 @@ class FastPath:
             state = client.fast = CompiledClient(self, handle)
             self.clients[handle] = client
             log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
+        if len(client.out_reliable) != len(state.out_streams):
+            state.compile_output(client)
         if stream_id not in state.streams and stream_id & 0x80:
             stream = client.in_reliable.get(stream_id)
             if stream is None or stream.stored or stream_id in client.reassembly:
@@ -289,6 +410,10 @@ class FastPath:
                 self.receiver.set_client_enabled(state.handle, eligible)
             if eligible and state.reliable:
                 self.receiver.set_room(state.handle, self.room(client))
+            if eligible and len(client.out_reliable) != len(state.out_streams):
+                with self.agent.lock:  # a stream created since: its ACKNACKs reached Python
+                    if client.fast is state:
+                        state.compile_output(client)
 
     def room(self, client) -> int:
         """What the client's byte budget leaves (``Agent._over_budget``): C stores a FRAGMENT

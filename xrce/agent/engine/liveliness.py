@@ -20,7 +20,7 @@ import math
 
 from xrce import constants as C
 from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
-from xrce.streams import InputReliableStream, is_reliable
+from xrce.streams import InputReliableStream, OutputReliableStream, is_reliable
 from xrce.submessages import AckNack, GetInfo, Heartbeat
 
 log = logging.getLogger("xrce.agent")
@@ -76,6 +76,8 @@ class Liveliness:
         if client.heartbeat_sent_at is not None:
             client.rtt_s = now - client.heartbeat_sent_at
             client.heartbeat_sent_at = None
+            if client.fast is not None:  # the compiled path may take ACKNACKs again
+                client.fast.probing(False)
         now_ms = int(now * 1000)
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
         stored = stream.stored_bytes
@@ -179,9 +181,13 @@ class Liveliness:
         due = client.last_seen + dead_time
         soon = now + self.heartbeat_period
         for stream in list(client.out_reliable.values()):
+            if stream.__class__ is not OutputReliableStream:
+                self._release_acknowledged(client, stream)  # nothing may be sent for a while
             span = stream.heartbeat()
             if span is not None:
                 self.stats.heartbeats_out += 1
+                if client.heartbeat_sent_at is None and client.fast is not None:
+                    client.fast.probing(True)  # this ACKNACK is Python's to time
                 client.heartbeat_sent_at = now
                 self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
                 due = soon

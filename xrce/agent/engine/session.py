@@ -338,6 +338,8 @@ class SessionTable:
             del self.endpoints[(client.link, client.endpoint)]
 
     def _reset_streams(self, client: ClientProxy) -> None:
+        if client.fast is not None:  # first: it frees (and uncharges) what C acknowledged
+            client.fast.drop(client)
         self._charge(client, -client.stream_bytes())
         client.reset_streams()
 
