@@ -9,7 +9,9 @@
  * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
  * end of the wake-up, or by Python (send_due_acknacks says when). FRAGMENTs of such a stream and
  * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat),
- * the client's plain ACKNACKs for the agent's reliable output streams _reliable_out.c's.
+ * the client's plain ACKNACKs for the agent's reliable output streams _reliable_out.c's. The
+ * tables Python fills (clients, streams, writers) are _receiver_tables.c's; the extension's ROS
+ * helpers beside the receive path are _ros_support.c's and _services.c's.
  * At the first datagram that is none of these (other reliable messages, control, unknown
  * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
  * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
@@ -57,6 +59,23 @@ static Client *find_client(Receiver *self, const uint8_t *data, const struct soc
     return NULL;
 }
 
+/* The reliable stream handled message ``seq`` (``length`` bytes) here: it moves, owes an ACKNACK
+ * (sent at the end of the wake-up) and counts the message as Python would. Called locked. */
+void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t seq, size_t length) {
+    stream->last_seq = seq;
+    if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
+    if (!stream->ack_due && self->pending_count < PENDING_ACKS) {
+        self->pending[self->pending_count].client = client;
+        self->pending[self->pending_count++].stream = stream;
+    }
+    stream->ack_due = 1;
+    client->messages++;
+    client->bytes += length;
+    client->last_seen_ns = now_ns();
+    self->messages++;
+    self->bytes += length;
+}
+
 /* A reliable stream's datagram: taken here only if it is the next message in order, with nothing
  * held for the stream in Python, and its one submessage a WRITE_DATA to a registered writer that
  * publishes. Everything else (a duplicate, a gap, a retransmission filling one, several
@@ -87,18 +106,7 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
         memcpy(body, ids, 4);  /* Python gets the datagram as it came */
         return 0;
     }
-    stream->last_seq = seq;
-    if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
-    if (!stream->ack_due && self->pending_count < PENDING_ACKS) {
-        self->pending[self->pending_count].client = client;
-        self->pending[self->pending_count++].stream = stream;
-    }
-    stream->ack_due = 1;
-    client->messages++;
-    client->bytes += length;
-    client->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    stream_delivered(self, client, stream, seq, length);
     self->samples++;
     writer->samples++;
     writer->sample_bytes += sub_length - 4;
@@ -215,39 +223,6 @@ static PyObject *address_tuple(const struct sockaddr_storage *addr) {
                          a->sin6_scope_id);
 }
 
-static int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_t *len) {
-    const char *host;
-    int port;
-    unsigned int flowinfo = 0, scope_id = 0;
-    memset(out, 0, sizeof *out);
-    if (!PyArg_ParseTuple(tuple, "si|II", &host, &port, &flowinfo, &scope_id)) return -1;
-    struct sockaddr_in *v4 = (void *)out;
-    struct sockaddr_in6 *v6 = (void *)out;
-    if (inet_pton(AF_INET, host, &v4->sin_addr) == 1) {
-        v4->sin_family = AF_INET;
-        v4->sin_port = htons(port);
-        *len = sizeof *v4;
-        return 0;
-    }
-    if (inet_pton(AF_INET6, host, &v6->sin6_addr) == 1) {
-        v6->sin6_family = AF_INET6;
-        v6->sin6_port = htons(port);
-        v6->sin6_flowinfo = htonl(flowinfo);
-        v6->sin6_scope_id = scope_id;
-        *len = sizeof *v6;
-        return 0;
-    }
-    PyErr_Format(PyExc_ValueError, "not a numeric address: %s", host);
-    return -1;
-}
-
-static void free_client(Client *c) {
-    for (Writer *w = c->writers, *n; w; w = n) { n = w->next; free(w); }
-    for (Stream *s = c->streams, *n; s; s = n) { n = s->next; free_reassembly(s); free(s); }
-    free_out_streams(c);
-    free(c);
-}
-
 static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
     static char *names[] = {"sock", NULL};
     if (!PyArg_ParseTupleAndKeywords(args, kwargs, "i", names, &self->sock)) return -1;
@@ -326,208 +301,6 @@ static PyObject *Receiver_read(Receiver *self, PyObject *const *args, Py_ssize_t
         PyList_SET_ITEM(rest, i - handled, item);
     }
     return Py_BuildValue("(NO)", rest, count == BATCH ? Py_True : Py_False);
-}
-
-static PyObject *Receiver_add_client(Receiver *self, PyObject *args) {
-    int session_id;
-    Py_buffer key = {0};
-    PyObject *address;
-    if (!PyArg_ParseTuple(args, "iy*O", &session_id, &key, &address)) return NULL;
-    Client *c = calloc(1, sizeof *c);
-    if (c == NULL) {
-        PyBuffer_Release(&key);
-        return PyErr_NoMemory();
-    }
-    c->session_id = (uint8_t)session_id;
-    memcpy(c->key, key.buf, key.len < 4 ? key.len : 4);
-    PyBuffer_Release(&key);
-    if (parse_address(address, &c->addr, &c->addr_len) < 0) {
-        free(c);
-        return NULL;
-    }
-    c->enabled = 1;
-    pthread_mutex_lock(&self->mutex);
-    c->handle = self->next_handle++;
-    c->next = self->clients;
-    self->clients = c;
-    pthread_mutex_unlock(&self->mutex);
-    return PyLong_FromLong(c->handle);
-}
-
-static PyObject *Receiver_remove_client(Receiver *self, PyObject *arg) {
-    long handle = PyLong_AsLong(arg);
-    if (handle == -1 && PyErr_Occurred()) return NULL;
-    pthread_mutex_lock(&self->mutex);
-    for (Client **link = &self->clients; *link; link = &(*link)->next) {
-        if ((*link)->handle == handle) {
-            Client *c = *link;
-            *link = c->next;
-            int kept = 0;
-            for (int i = 0; i < self->pending_count; i++)
-                if (self->pending[i].client != c) self->pending[kept++] = self->pending[i];
-            self->pending_count = kept;
-            free_client(c);
-            break;
-        }
-    }
-    pthread_mutex_unlock(&self->mutex);
-    Py_RETURN_NONE;
-}
-
-static PyObject *Receiver_set_client_enabled(Receiver *self, PyObject *args) {
-    long handle;
-    int enabled;
-    if (!PyArg_ParseTuple(args, "lp", &handle, &enabled)) return NULL;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    if (c) c->enabled = enabled;
-    pthread_mutex_unlock(&self->mutex);
-    Py_RETURN_NONE;
-}
-
-static PyObject *Receiver_set_enabled(Receiver *self, PyObject *arg) {
-    int enabled = PyObject_IsTrue(arg);
-    if (enabled < 0) return NULL;
-    pthread_mutex_lock(&self->mutex);
-    self->enabled = enabled;
-    pthread_mutex_unlock(&self->mutex);
-    Py_RETURN_NONE;
-}
-
-/* add_stream(handle, stream_id, last_seq[, last_announced]): from now on the sequence number
- * lives here; with last_announced, a reliable stream's (InputReliableStream's two numbers). */
-static PyObject *Receiver_add_stream(Receiver *self, PyObject *args) {
-    long handle;
-    int stream_id, last_seq, last_announced = -1;
-    if (!PyArg_ParseTuple(args, "lii|i", &handle, &stream_id, &last_seq, &last_announced))
-        return NULL;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
-    if (c && s == NULL && (s = calloc(1, sizeof *s)) != NULL) {
-        s->stream_id = (uint8_t)stream_id;
-        s->next = c->streams;
-        c->streams = s;
-    }
-    if (s) {
-        s->last_seq = (uint16_t)last_seq;
-        s->reliable = last_announced >= 0;
-        s->last_announced = s->reliable ? (uint16_t)last_announced : 0;
-        s->ack_due = 0;
-    }
-    pthread_mutex_unlock(&self->mutex);
-    if (c && s == NULL) return PyErr_NoMemory();
-    return PyBool_FromLong(s != NULL);
-}
-
-/* reliable_state(handle, stream_id) -> (last_handled, last_announced) or None. */
-static PyObject *Receiver_reliable_state(Receiver *self, PyObject *args) {
-    long handle;
-    int stream_id;
-    if (!PyArg_ParseTuple(args, "li", &handle, &stream_id)) return NULL;
-    long last = -1, announced = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
-    if (s && s->reliable) last = s->last_seq, announced = s->last_announced;
-    pthread_mutex_unlock(&self->mutex);
-    if (last < 0) Py_RETURN_NONE;
-    return Py_BuildValue("(ll)", last, announced);
-}
-
-/* set_reliable_state(handle, stream_id, last_handled, last_announced): Python's stream moved. */
-static PyObject *Receiver_set_reliable_state(Receiver *self, PyObject *args) {
-    long handle;
-    int stream_id, last, announced;
-    if (!PyArg_ParseTuple(args, "liii", &handle, &stream_id, &last, &announced)) return NULL;
-    int found = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
-    if (s && s->reliable) {
-        s->last_seq = (uint16_t)last, s->last_announced = (uint16_t)announced;
-        found = 1;
-    }
-    pthread_mutex_unlock(&self->mutex);
-    return PyBool_FromLong(found);
-}
-
-/* stream_accept(handle, stream_id, seq): the best-effort check for a datagram Python handles. */
-static PyObject *Receiver_stream_accept(Receiver *self, PyObject *args) {
-    long handle;
-    int stream_id, seq;
-    if (!PyArg_ParseTuple(args, "lii", &handle, &stream_id, &seq)) return NULL;
-    int accepted = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
-    if (s && seq_less(s->last_seq, (uint16_t)seq)) {
-        s->last_seq = (uint16_t)seq;
-        accepted = 1;
-    }
-    pthread_mutex_unlock(&self->mutex);
-    return PyBool_FromLong(accepted);
-}
-
-static PyObject *Receiver_stream_seq(Receiver *self, PyObject *args) {
-    long handle;
-    int stream_id;
-    if (!PyArg_ParseTuple(args, "li", &handle, &stream_id)) return NULL;
-    long seq = -1;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Stream *s = c ? find_stream(c, (uint8_t)stream_id) : NULL;
-    if (s) seq = s->last_seq;
-    pthread_mutex_unlock(&self->mutex);
-    if (seq < 0) Py_RETURN_NONE;
-    return PyLong_FromLong(seq);
-}
-
-/* add_writer(handle, object_id, publisher_address): the address of an rcl_publisher_t that Python
- * keeps alive until remove_writer has returned. */
-static PyObject *Receiver_add_writer(Receiver *self, PyObject *args) {
-    long handle;
-    int object_id;
-    unsigned long long address;
-    if (!PyArg_ParseTuple(args, "liK", &handle, &object_id, &address)) return NULL;
-    if (address == 0) {
-        PyErr_SetString(PyExc_ValueError, "null publisher");
-        return NULL;
-    }
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    Writer *w = c ? find_writer(c, (uint16_t)object_id) : NULL;
-    if (c && w == NULL && (w = calloc(1, sizeof *w)) != NULL) {
-        w->object_id = (uint16_t)object_id;
-        w->next = c->writers;
-        c->writers = w;
-    }
-    if (w) w->publisher = (const void *)(uintptr_t)address;
-    pthread_mutex_unlock(&self->mutex);
-    if (c && w == NULL) return PyErr_NoMemory();
-    return PyBool_FromLong(w != NULL);
-}
-
-/* remove_writer(handle, object_id): returns (samples, bytes) not folded yet. Once it returns,
- * nothing here refers to the publisher any more (the mutex covers every publish). */
-static PyObject *Receiver_remove_writer(Receiver *self, PyObject *args) {
-    long handle;
-    int object_id;
-    if (!PyArg_ParseTuple(args, "li", &handle, &object_id)) return NULL;
-    uint64_t samples = 0, bytes = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    for (Writer **link = c ? &c->writers : NULL; link && *link; link = &(*link)->next) {
-        if ((*link)->object_id == (uint16_t)object_id) {
-            Writer *w = *link;
-            *link = w->next;
-            samples = w->samples, bytes = w->sample_bytes;
-            free(w);
-            break;
-        }
-    }
-    pthread_mutex_unlock(&self->mutex);
-    return Py_BuildValue("(KK)", (unsigned long long)samples, (unsigned long long)bytes);
 }
 
 /* fold(): the counters since the previous fold, reset here:
@@ -669,141 +442,8 @@ static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
     return PyBool_FromLong(rcl_publish_serialized != NULL);
 }
 
-/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through ctypes:
-   the ctypes package, once imported, stays in the process (0.57 MB of classes). */
-static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
-#if defined(__GLIBC__)
-    malloc_trim(0);
-    Py_RETURN_TRUE;
-#else
-    Py_RETURN_FALSE;
-#endif
-}
-
-/* message_type_support(library, symbol): the capsule of a message's C type support (what a
-   generated message class's _TYPE_SUPPORT holds), from the package's lib*__rosidl_typesupport_c.so
-   alone, for the agent's raw message types (xrce.agent.middleware.ros.types). The package's Python
-   extension that also provides it links the package's and its dependencies' rosidl_generator_py
-   libraries: 2-3 ms and ~0.12 MB resident more per package, for conversions the agent never makes.
-   The library stays loaded: the capsule points into it. */
-static PyObject *message_type_support(PyObject *module, PyObject *args) {
-    const char *path, *symbol;
-    if (!PyArg_ParseTuple(args, "ss", &path, &symbol)) return NULL;
-    void *library;
-    Py_BEGIN_ALLOW_THREADS
-    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    Py_END_ALLOW_THREADS
-    if (library == NULL) {
-        PyErr_SetString(PyExc_ImportError, dlerror());
-        return NULL;
-    }
-    const void *(*get_handle)(void) = (const void *(*)(void))dlsym(library, symbol);
-    if (get_handle == NULL) {
-        PyErr_SetString(PyExc_ImportError, dlerror());
-        dlclose(library);
-        return NULL;
-    }
-    const void *handle = get_handle();
-    if (handle == NULL) {
-        PyErr_Format(PyExc_ImportError, "%s returned no type support", symbol);
-        return NULL;
-    }
-    return PyCapsule_New((void *)handle, NULL, NULL);
-}
-
-/* What a raw message type has for rclpy's four conversion functions (create, destroy, from and
-   to Python), which rclpy.type_support checks are set before it makes a publisher or
-   subscription: the agent only publishes and takes serialized bytes, so none may ever run. One
-   that is called anyway fails as a conversion does, with a Python error, never a crash. */
-static void *no_ros_message(void) {
-    return NULL;  /* rclpy raises MemoryError */
-}
-
-static void no_destroy(void *message) {
-    (void)message;
-}
-
-static bool no_convert_from_py(PyObject *object, void *message) {
-    (void)object;
-    (void)message;
-    PyErr_SetString(PyExc_TypeError, "the agent's raw message types take serialized bytes only");
-    return false;
-}
-
-static PyObject *no_convert_to_py(void *message) {
-    (void)message;
-    PyErr_SetString(PyExc_TypeError, "the agent's raw message types give serialized bytes only");
-    return NULL;
-}
-
-/* participant_node(context, name) -> address or None; participant_node_destroy(address) -> bool.
-   An rmw node of an rcl context (the rcl_context_t address, rclpy's Context.handle.pointer), made
-   with the GIL released: rmw makes a context's DDS participant with its first node, and rclpy's
-   own node creation holds the GIL for all of it (xrce.agent.middleware.ros.participant). The
-   three-argument rmw_create_node is Humble's and later; rmw is found through rcl, already loaded. */
-typedef void *(*rmw_context_fn)(void *);
-typedef void *(*rmw_create_node_fn)(void *, const char *, const char *);
-typedef int (*rmw_destroy_node_fn)(void *);
-typedef void (*reset_error_fn)(void);
-
-static void *rcl_symbol(const char *name) {
-    void *library = dlopen("librcl.so", RTLD_NOW | RTLD_NOLOAD);
-    if (library == NULL) return NULL;
-    void *symbol = dlsym(library, name);  /* librcl's dependencies too: rmw, rcutils */
-    dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
-    return symbol;
-}
-
-static PyObject *participant_node(PyObject *module, PyObject *args) {
-    unsigned long long context;
-    const char *name;
-    if (!PyArg_ParseTuple(args, "Ks", &context, &name)) return NULL;
-    rmw_context_fn get_rmw_context = (rmw_context_fn)rcl_symbol("rcl_context_get_rmw_context");
-    rmw_create_node_fn create = (rmw_create_node_fn)rcl_symbol("rmw_create_node");
-    reset_error_fn reset_error = (reset_error_fn)rcl_symbol("rcutils_reset_error");
-    if (get_rmw_context == NULL || create == NULL || reset_error == NULL) Py_RETURN_NONE;
-    void *node = NULL;
-    Py_BEGIN_ALLOW_THREADS
-    void *rmw_context = get_rmw_context((void *)(uintptr_t)context);
-    if (rmw_context != NULL) node = create(rmw_context, name, "/");
-    if (node == NULL) reset_error();  /* the rclpy node's own error, if it fails too, is reported */
-    Py_END_ALLOW_THREADS
-    if (node == NULL) Py_RETURN_NONE;
-    return PyLong_FromVoidPtr(node);
-}
-
-static PyObject *participant_node_destroy(PyObject *module, PyObject *address) {
-    void *node = PyLong_AsVoidPtr(address);
-    if (node == NULL) {
-        if (PyErr_Occurred()) return NULL;
-        Py_RETURN_FALSE;
-    }
-    rmw_destroy_node_fn destroy = (rmw_destroy_node_fn)rcl_symbol("rmw_destroy_node");
-    reset_error_fn reset_error = (reset_error_fn)rcl_symbol("rcutils_reset_error");
-    if (destroy == NULL || reset_error == NULL) Py_RETURN_FALSE;
-    int ret;
-    Py_BEGIN_ALLOW_THREADS
-    ret = destroy(node);
-    if (ret != 0) reset_error();
-    Py_END_ALLOW_THREADS
-    return PyBool_FromLong(ret == 0);
-}
-
-/* raw_type_conversions() -> (create, convert_from_py, convert_to_py, destroy) capsules. */
-static PyObject *raw_type_conversions(PyObject *module, PyObject *unused) {
-    return Py_BuildValue("(NNNN)", PyCapsule_New((void *)no_ros_message, NULL, NULL),
-                         PyCapsule_New((void *)no_convert_from_py, NULL, NULL),
-                         PyCapsule_New((void *)no_convert_to_py, NULL, NULL),
-                         PyCapsule_New((void *)no_destroy, NULL, NULL));
-}
-
 static PyMethodDef module_methods[] = {
-    {"raw_type_conversions", raw_type_conversions, METH_NOARGS, NULL},
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
-    {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
-    {"message_type_support", message_type_support, METH_VARARGS, NULL},
-    {"participant_node", participant_node, METH_VARARGS, NULL},
-    {"participant_node_destroy", participant_node_destroy, METH_O, NULL},
     {NULL},
 };
 
@@ -826,7 +466,7 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
         Py_DECREF(m);
         return NULL;
     }
-    if (xrce_services_add(m) < 0 ||
+    if (xrce_services_add(m) < 0 || xrce_ros_support_add(m) < 0 ||
         PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_FASTPATH_SOURCE_CRC) < 0) {
         Py_DECREF(m);
         return NULL;

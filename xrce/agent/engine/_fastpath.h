@@ -165,6 +165,21 @@ static inline Client *client_by_handle(Receiver *self, long handle) {
 }
 
 /* _reliable_out.c */
+/* _receiver_tables.c */
+void free_client(Client *client);
+int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_t *len);
+PyObject *Receiver_add_client(Receiver *self, PyObject *args);
+PyObject *Receiver_remove_client(Receiver *self, PyObject *args);
+PyObject *Receiver_set_client_enabled(Receiver *self, PyObject *args);
+PyObject *Receiver_set_enabled(Receiver *self, PyObject *args);
+PyObject *Receiver_add_stream(Receiver *self, PyObject *args);
+PyObject *Receiver_reliable_state(Receiver *self, PyObject *args);
+PyObject *Receiver_set_reliable_state(Receiver *self, PyObject *args);
+PyObject *Receiver_stream_accept(Receiver *self, PyObject *args);
+PyObject *Receiver_stream_seq(Receiver *self, PyObject *args);
+PyObject *Receiver_add_writer(Receiver *self, PyObject *args);
+PyObject *Receiver_remove_writer(Receiver *self, PyObject *args);
+
 int try_fast_acknack(Receiver *self, Client *client, const uint8_t *data, size_t length);
 void free_out_streams(Client *client);
 PyObject *Receiver_add_out_stream(Receiver *self, PyObject *args);
@@ -177,6 +192,7 @@ int try_fast_fragment(Receiver *self, Client *client, Stream *stream, uint8_t *d
                       size_t length, size_t pos, size_t sub_length);
 int try_fast_heartbeat(Receiver *self, Client *client, const uint8_t *data, size_t length);
 void free_reassembly(Stream *stream);
+void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t seq, size_t length);
 PyObject *Receiver_take_partial(Receiver *self, PyObject *args);
 PyObject *Receiver_put_partial(Receiver *self, PyObject *args);
 PyObject *Receiver_set_room(Receiver *self, PyObject *args);

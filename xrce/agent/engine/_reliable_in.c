@@ -39,20 +39,9 @@ static int reserve(Stream *s, size_t needed, size_t limit) {
     return 1;
 }
 
-/* The stream handled seq here: what try_fast_reliable does after a publish. */
+/* The stream handled fragment seq here (stream_delivered), counted as a fragment. */
 static void delivered(Receiver *self, Client *c, Stream *s, uint16_t seq, size_t length) {
-    s->last_seq = seq;
-    if (seq_less(s->last_announced, seq)) s->last_announced = seq;
-    if (!s->ack_due && self->pending_count < PENDING_ACKS) {
-        self->pending[self->pending_count].client = c;
-        self->pending[self->pending_count++].stream = s;
-    }
-    s->ack_due = 1;
-    c->messages++;
-    c->bytes += length;
-    c->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    stream_delivered(self, c, s, seq, length);
     self->fragments_in++;
 }
 

@@ -46,7 +46,6 @@ typedef int (*deserialize_fn)(const byte_array_t *in, const void *type_support, 
 typedef allocator_t (*default_allocator_fn)(void);
 typedef int (*array_init_fn)(byte_array_t *array, size_t capacity, const allocator_t *allocator);
 typedef int (*array_fini_fn)(byte_array_t *array);
-typedef void (*reset_error_fn)(void);
 
 static serialize_fn rmw_serialize;
 static deserialize_fn rmw_deserialize;
@@ -58,27 +57,16 @@ static reset_error_fn reset_error;
 #define ENCAPSULATION 4  /* the CDR encapsulation header, which XRCE samples do not carry */
 #define INITIAL_CAPACITY 1024
 
-/* Looked up through librcl: a handle's lookup covers the libraries it depends on, so this finds
- * rmw's functions in whichever rmw library rcl is linked to (librmw_implementation where ROS
- * dispatches at run time, the rmw of the ROS wheels directly) and rcutils'. */
-static void *symbol_of(const char *name) {
-    void *library = dlopen("librcl.so", RTLD_NOW | RTLD_NOLOAD);
-    if (library == NULL) return NULL;
-    void *found = dlsym(library, name);
-    dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
-    return found;
-}
-
 static bool resolved(void) {
     if (rmw_serialize && rmw_deserialize && default_allocator && array_init && array_fini &&
         reset_error)
         return true;
-    rmw_serialize = (serialize_fn)symbol_of("rmw_serialize");
-    rmw_deserialize = (deserialize_fn)symbol_of("rmw_deserialize");
-    default_allocator = (default_allocator_fn)symbol_of("rcutils_get_default_allocator");
-    array_init = (array_init_fn)symbol_of("rcutils_uint8_array_init");
-    array_fini = (array_fini_fn)symbol_of("rcutils_uint8_array_fini");
-    reset_error = (reset_error_fn)symbol_of("rcutils_reset_error");
+    rmw_serialize = (serialize_fn)xrce_rcl_symbol("rmw_serialize");
+    rmw_deserialize = (deserialize_fn)xrce_rcl_symbol("rmw_deserialize");
+    default_allocator = (default_allocator_fn)xrce_rcl_symbol("rcutils_get_default_allocator");
+    array_init = (array_init_fn)xrce_rcl_symbol("rcutils_uint8_array_init");
+    array_fini = (array_fini_fn)xrce_rcl_symbol("rcutils_uint8_array_fini");
+    reset_error = (reset_error_fn)xrce_rcl_symbol("rcutils_reset_error");
     return rmw_serialize && rmw_deserialize && default_allocator && array_init && array_fini &&
            reset_error;
 }
@@ -221,36 +209,7 @@ static PyObject *raw_reply_conversion(PyObject *module, PyObject *unused) {
                          PyCapsule_New((void *)reply_from_py, NULL, NULL));
 }
 
-/* ------------------------------------------------- a service type without its Python package */
-
-/* library_function(path, symbol) -> a capsule of the function ``symbol`` of the library at
- * ``path``, not called: a generated message's ``<pkg>__srv__<Name>_Request__create`` and
- * ``__destroy`` (rosidl_generator_c) have the signatures rclpy calls through a message class's
- * ``_CREATE_ROS_MESSAGE`` and ``_DESTROY_ROS_MESSAGE`` (no argument, returns the message; takes
- * the message). The library stays loaded, as the type support libraries it goes with. */
-static PyObject *library_function(PyObject *module, PyObject *args) {
-    (void)module;
-    const char *path, *symbol;
-    if (!PyArg_ParseTuple(args, "ss", &path, &symbol)) return NULL;
-    void *library;
-    Py_BEGIN_ALLOW_THREADS
-    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    Py_END_ALLOW_THREADS
-    if (library == NULL) {
-        PyErr_SetString(PyExc_ImportError, dlerror());
-        return NULL;
-    }
-    void *function = dlsym(library, symbol);
-    if (function == NULL) {
-        PyErr_SetString(PyExc_ImportError, dlerror());
-        dlclose(library);
-        return NULL;
-    }
-    return PyCapsule_New(function, NULL, NULL);
-}
-
 static PyMethodDef service_methods[] = {
-    {"library_function", library_function, METH_VARARGS, NULL},
     {"raw_request_conversion", raw_request_conversion, METH_O, NULL},
     {"raw_reply_conversion", raw_reply_conversion, METH_NOARGS, NULL},
     {NULL},
