@@ -236,9 +236,9 @@ def reliable_datagrams(session, writer, values):
     return transport.captured
 
 
-def acknacks_after(transport, stream_id, wait_s=0.3):
-    """(first_unacked, nack_bitmap) of each ACKNACK of ``stream_id`` the agent sends within
-    ``wait_s``."""
+def acknack_messages(transport, stream_id, wait_s=0.3):
+    """(first_unacked, nack_bitmap, the message's bytes) of each ACKNACK of ``stream_id`` the
+    agent sends within ``wait_s``."""
     from xrce.submessages import AckNack, decode_message
     out = []
     deadline = time.monotonic() + wait_s
@@ -248,8 +248,14 @@ def acknacks_after(transport, stream_id, wait_s=0.3):
             continue
         for payload in decode_message(bytes(data))[1]:
             if isinstance(payload, AckNack) and payload.stream_id == stream_id:
-                out.append((payload.first_unacked, payload.nack_bitmap))
+                out.append((payload.first_unacked, payload.nack_bitmap, bytes(data)))
     return out
+
+
+def acknacks_after(transport, stream_id, wait_s=0.3):
+    """(first_unacked, nack_bitmap) of each ACKNACK of ``stream_id`` the agent sends within
+    ``wait_s``."""
+    return [(first, bitmap) for first, bitmap, _ in acknack_messages(transport, stream_id, wait_s)]
 
 
 def run_reliable_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811

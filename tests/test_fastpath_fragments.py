@@ -15,8 +15,8 @@ import pytest
 
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from test_fastpath import (FOLD_WAIT_S, KEY, CapturingTransport, Twist_ros, needs_extension,
-                           reliable_datagrams, select_readable)
+from test_fastpath import (FOLD_WAIT_S, KEY, CapturingTransport, Twist_ros, acknack_messages,
+                           needs_extension, reliable_datagrams, select_readable)
 from test_observability import stats_port
 from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
@@ -57,19 +57,8 @@ def heartbeat(datagram, first, last, stream_id=0x80):
 
 
 def acknacks(transport, wait_s=0.3):
-    """(first_unacked, nack_bitmap, the message's bytes) of each ACKNACK of stream 0x80 the agent
-    sends within ``wait_s``."""
-    from xrce.submessages import AckNack, decode_message
-    out = []
-    deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline:
-        data = transport.recv(max(1, int((deadline - time.monotonic()) * 1000)))
-        if data is None:
-            continue
-        for payload in decode_message(bytes(data))[1]:
-            if isinstance(payload, AckNack) and payload.stream_id == 0x80:
-                out.append((payload.first_unacked, payload.nack_bitmap, bytes(data)))
-    return out
+    """(first_unacked, nack_bitmap, the message's bytes) of each ACKNACK of stream 0x80."""
+    return acknack_messages(transport, 0x80, wait_s)
 
 
 def new_session(agent, ros_domain, topic, name, **kwargs):  # noqa: F811
