@@ -69,11 +69,7 @@ void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t s
         self->pending[self->pending_count++].stream = stream;
     }
     stream->ack_due = 1;
-    client->messages++;
-    client->bytes += length;
-    client->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    count_message(self, client, length);
 }
 
 /* A reliable stream's datagram: taken here only if it is the next message in order, with nothing
@@ -141,11 +137,7 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
     }
     if (count == 0) return 0;
     uint16_t seq = data[2] | (data[3] << 8);
-    client->messages++;
-    client->bytes += length;
-    client->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    count_message(self, client, length);
     if (!seq_less(stream->last_seq, seq)) {
         self->stale++;  /* older or repeated: a best-effort stream drops it */
         return 1;
@@ -172,6 +164,33 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
     return 1;
 }
 
+/* The ACKNACK xrce.agent.engine.liveliness._send_acknack sends (the same bytes: a test holds them
+ * equal). 1 if sent. */
+int send_stream_acknack(Receiver *self, Client *c, Stream *s, uint16_t bitmap) {
+    uint8_t message[17];
+    size_t n = 0;
+    uint16_t first = (uint16_t)(s->last_seq + 1);
+    message[n++] = c->session_id;
+    message[n++] = 0, message[n++] = 0, message[n++] = 0;  /* stream none, sequence 0 */
+    if (c->session_id < 0x80) {
+        memcpy(message + n, c->key, 4);
+        n += 4;
+    }
+    message[n++] = ACKNACK, message[n++] = 0x01, message[n++] = 5, message[n++] = 0;
+    message[n++] = first & 0xFF, message[n++] = first >> 8;
+    /* the bitmap as the encoder writes it: its first byte the higher sequence numbers */
+    message[n++] = bitmap >> 8, message[n++] = bitmap & 0xFF;
+    message[n++] = s->stream_id;
+    if (sendto(self->sock, message, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
+               c->addr_len) != (ssize_t)n)
+        return 0;
+    c->messages_out++;
+    c->bytes_out += n;
+    self->acknacks++;
+    self->acknack_bytes += n;
+    return 1;
+}
+
 /* The ACKNACK each pending stream owes, sent here as xrce.agent.engine.liveliness._send_acknack
  * would (the same bytes: a test holds them equal), when Python holds nothing out of order for it
  * (last_announced is last_seq: the NACK bitmap is empty). A stream that does not qualify, or whose
@@ -183,27 +202,7 @@ static void send_due_acknacks(Receiver *self) {
         Client *c = self->pending[i].client;
         Stream *s = self->pending[i].stream;
         if (!s->ack_due || !c->enabled || s->last_announced != s->last_seq) continue;
-        uint8_t message[17];
-        size_t n = 0;
-        uint16_t first = (uint16_t)(s->last_seq + 1);
-        message[n++] = c->session_id;
-        message[n++] = 0, message[n++] = 0, message[n++] = 0;  /* stream none, sequence 0 */
-        if (c->session_id < 0x80) {
-            memcpy(message + n, c->key, 4);
-            n += 4;
-        }
-        message[n++] = ACKNACK, message[n++] = 0x01, message[n++] = 5, message[n++] = 0;
-        message[n++] = first & 0xFF, message[n++] = first >> 8;
-        message[n++] = 0, message[n++] = 0;  /* nothing missing */
-        message[n++] = s->stream_id;
-        if (sendto(self->sock, message, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
-                   c->addr_len) != (ssize_t)n)
-            continue;
-        s->ack_due = 0;
-        c->messages_out++;
-        c->bytes_out += n;
-        self->acknacks++;
-        self->acknack_bytes += n;
+        if (send_stream_acknack(self, c, s, 0)) s->ack_due = 0;  /* 0: nothing missing */
     }
     self->pending_count = 0;
 }

@@ -146,6 +146,15 @@ static inline int seq_less(uint16_t a, uint16_t b) {
     return (a < b && b - a < 0x8000) || (a > b && a - b > 0x8000);
 }
 
+/* A datagram of ``length`` bytes from ``c`` handled here, counted as Python counts one. */
+static inline void count_message(Receiver *self, Client *c, size_t length) {
+    c->messages++;
+    c->bytes += length;
+    c->last_seen_ns = now_ns();
+    self->messages++;
+    self->bytes += length;
+}
+
 static inline Writer *find_writer(Client *c, uint16_t object_id) {
     for (Writer *w = c->writers; w; w = w->next)
         if (w->object_id == object_id) return w;
@@ -193,6 +202,7 @@ int try_fast_fragment(Receiver *self, Client *client, Stream *stream, uint8_t *d
 int try_fast_heartbeat(Receiver *self, Client *client, const uint8_t *data, size_t length);
 void free_reassembly(Stream *stream);
 void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t seq, size_t length);
+int send_stream_acknack(Receiver *self, Client *client, Stream *stream, uint16_t bitmap);
 PyObject *Receiver_take_partial(Receiver *self, PyObject *args);
 PyObject *Receiver_put_partial(Receiver *self, PyObject *args);
 PyObject *Receiver_set_room(Receiver *self, PyObject *args);

@@ -105,33 +105,6 @@ int try_fast_fragment(Receiver *self, Client *c, Stream *s, uint8_t *data, size_
     return 1;
 }
 
-/* The ACKNACK xrce.agent.engine.liveliness._send_acknack sends (the same bytes: a test holds them
- * equal). 1 if sent. */
-static int send_acknack(Receiver *self, Client *c, Stream *s, uint16_t bitmap) {
-    uint8_t message[17];
-    size_t n = 0;
-    uint16_t first = (uint16_t)(s->last_seq + 1);
-    message[n++] = c->session_id;
-    message[n++] = 0, message[n++] = 0, message[n++] = 0;  /* stream none, sequence 0 */
-    if (c->session_id < 0x80) {
-        memcpy(message + n, c->key, 4);
-        n += 4;
-    }
-    message[n++] = ACKNACK, message[n++] = 0x01, message[n++] = 5, message[n++] = 0;
-    message[n++] = first & 0xFF, message[n++] = first >> 8;
-    /* the bitmap as the encoder writes it: its first byte the higher sequence numbers */
-    message[n++] = bitmap >> 8, message[n++] = bitmap & 0xFF;
-    message[n++] = s->stream_id;
-    if (sendto(self->sock, message, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
-               c->addr_len) != (ssize_t)n)
-        return 0;
-    c->messages_out++;
-    c->bytes_out += n;
-    self->acknacks++;
-    self->acknack_bytes += n;
-    return 1;
-}
-
 /* A message on stream 0 holding one little-endian HEARTBEAT for a registered reliable stream that
  * Python holds nothing out of order for: noted and answered here as _on_heartbeat would (the
  * ACKNACK at once, every message announced and not handled named missing). A HEARTBEAT that makes
@@ -154,15 +127,11 @@ int try_fast_heartbeat(Receiver *self, Client *c, const uint8_t *data, size_t le
         bitmap |= (uint16_t)(1u << i);
     uint16_t kept = s->last_announced;
     s->last_announced = announced;
-    if (!send_acknack(self, c, s, bitmap)) {
+    if (!send_stream_acknack(self, c, s, bitmap)) {
         s->last_announced = kept;
         return 0;
     }
-    c->messages++;
-    c->bytes += length;
-    c->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    count_message(self, c, length);
     return 1;
 }
 

@@ -49,11 +49,7 @@ int try_fast_acknack(Receiver *self, Client *c, const uint8_t *data, size_t leng
         return 0;  /* acknowledges what was never sent: Python ignores it */
     uint16_t acknowledged = (uint16_t)(first_unacked - 1);
     if (seq_less(o->last_acknowledged, acknowledged)) o->last_acknowledged = acknowledged;
-    c->messages++;
-    c->bytes += length;
-    c->last_seen_ns = now_ns();
-    self->messages++;
-    self->bytes += length;
+    count_message(self, c, length);
     return 1;
 }
 
