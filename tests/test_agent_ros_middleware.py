@@ -461,7 +461,10 @@ async def test_replier_without_the_compiled_conversions_uses_python_messages(
     future, done = _call(client, request)
     assert await async_wait_until(done.is_set)
     assert future.result().string_value == "py:x"
-    assert bodies == [body_of(request)]
+    # The same CDR as serialize_message's but for the alignment padding, which Fast CDR leaves as
+    # the heap had it on this path (seen: two bytes of garbage in a CI run).
+    assert [len(body) for body in bodies] == [len(body_of(request))]
+    assert [decode(body, BasicTypes.Request) for body in bodies] == [request]
 
 
 async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer):  # noqa: F811

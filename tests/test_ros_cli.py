@@ -29,7 +29,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from test_msgs.action import Fibonacci
 from test_msgs.srv import BasicTypes
 
-from agent_process import REPO, AgentProcess
+from agent_process import REPO, AgentProcess, restore_default_signals
 from ros_helpers import DomainLease, RosPeer, wait_until
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
@@ -165,7 +165,8 @@ class Graph:
 
     def start(self, *args):
         return subprocess.Popen(xrce_ros_command() + list(args), env=self.env, cwd=REPO,
-                                text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                                text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                preexec_fn=restore_default_signals)  # Ctrl-C stops it
 
 
 @pytest.fixture(scope="module")

@@ -353,7 +353,8 @@ def test_robot_pings_until_an_agent_appears_then_runs():
 
 def _robot_process(port):
     return subprocess.Popen([sys.executable, "-m", "xrce.examples.turtlebot3", "udp4", "-p", str(port)],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=restore_default_signals)
 
 
 @pytest.mark.timeout(120)
