@@ -1,5 +1,5 @@
 """The client's ACKNACKs for the agent's reliable output stream in the compiled receive path
-(xrce/agent/engine/_reliable_out.c, xrce.agent.engine.fastpath.CompiledOutputStream).
+(xrce/agent/engine/_reliable_out.c, xrce.agent.engine.compiled_streams.CompiledOutputStream).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
 and once with ``XRCE_FASTPATH=0``: a client reads a ROS topic on its reliable stream and answers
@@ -27,7 +27,7 @@ from xrce.transports.udp import UdpTransport
 
 try:
     from xrce.agent.engine import _fastpath as fastpath
-    from xrce.agent.engine.fastpath import CompiledOutputStream
+    from xrce.agent.engine.compiled_streams import CompiledOutputStream
 except ImportError:
     fastpath = None
 

@@ -25,7 +25,7 @@
  * removes a writer before it destroys the publisher. This module owns the input sequence number of
  * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself, and
  * a registered reliable stream's two numbers (reliable_state, set_reliable_state) whenever its
- * InputReliableStream reads or moves them (xrce.agent.engine.fastpath.CompiledReliableStream).
+ * InputReliableStream reads or moves them (xrce.agent.engine.compiled_streams.CompiledReliableStream).
  * Counters accumulate here and Python folds them into its own (fold) after each read.
  *
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module

@@ -14,10 +14,11 @@
  * Python unchanged.
  *
  * One owner per number: the acknowledged point lives here (Python reads and moves it through
- * out_acknowledged and set_out_state: xrce.agent.engine.fastpath.CompiledOutputStream); last_sent
- * is Python's, written here before the message goes out, read here. The history slots this frees
- * are released by Python when it next uses the stream (CompiledOutputStream.release), under the
- * engine's lock, with their bytes' charge to the client's budget.
+ * out_acknowledged and set_out_state:
+ * xrce.agent.engine.compiled_streams.CompiledOutputStream); last_sent is Python's, written here
+ * before the message goes out, read here. The history slots this frees are released by Python
+ * when it next uses the stream (CompiledOutputStream.release), under the engine's lock, with their
+ * bytes' charge to the client's budget.
  */
 #include "_fastpath.h"
 

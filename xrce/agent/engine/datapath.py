@@ -454,7 +454,7 @@ class DataPath:
 
     def _release_acknowledged(self, client: ClientProxy, stream) -> None:
         """Give the bytes of the history the compiled path acknowledged back to the client's
-        budget (``fastpath.CompiledOutputStream``: freed as the window is looked at)."""
+        budget (``compiled_streams.CompiledOutputStream``: freed as the window is looked at)."""
         freed = stream.release()
         if freed:
             self._charge(client, -freed)
