@@ -11,8 +11,8 @@ best-effort or in-order reliable sample (``DataPath._fast_write`` calls ``offer`
 its source address and, for sessions with a key in the header, that key: a datagram from anywhere
 else is Python's to judge, e.g. against --allow-from), the stream (its sequence numbers move into
 C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStream`` asking C,
-``xrce.agent.engine.compiled_streams``, so the numbers have one owner) and the writer (its rcl publisher,
-which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
+``xrce.agent.engine.compiled_streams``, so the numbers have one owner) and the writer (its rcl
+publisher, which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
 pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
 counters are folded into the agent's, the link's, the clients' and the writers' after every read,

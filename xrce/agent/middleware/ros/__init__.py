@@ -1,7 +1,9 @@
 """``-m dds``: the middleware that maps XRCE objects onto rclpy, and the ROS 2 it runs on.
 
-- ``entities``: ``RosMiddleware``, XRCE entities as rclpy nodes, publishers and subscriptions;
-  ``creation``: entity creation parked while a type builds; ``services``: requesters and repliers;
+- ``entities``: ``RosMiddleware``, XRCE entities as rclpy nodes, publishers and subscriptions
+  (``records``: what it keeps per entity); ``creation``: entity creation parked while a type
+  builds; ``services``: requesters and repliers; ``membership``: the domains joined and left, the
+  agent's own publishers there, micro-ROS' graph feed (``graph``) where a client reads it;
 - ``domain``: one rclpy context and executor thread per ROS domain, and the hand-off to the loop;
 - ``types``: XRCE/DDS names, interface classes and QoS as ROS 2 spells them;
 - ``env``: which ROS 2 the agent runs on (also read by setup.py, by path); ``fastdds_profile``

@@ -3,18 +3,17 @@
 The threads (one rclpy context and executor thread per domain, its job queue and wake-up, the
 bounded hand-off of samples back to the loop) and the measurements behind them are in
 ``xrce.agent.middleware.ros.domain``; requesters and repliers (the request/reply path) in
-``xrce.agent.middleware.ros.services``. This module maps the XRCE entities onto rclpy ones and moves their
-data.
+``xrce.agent.middleware.ros.services``; joining and leaving domains, the agent's own publishers
+and micro-ROS' graph feed in ``xrce.agent.middleware.ros.membership``; what is kept per entity in
+``xrce.agent.middleware.ros.records``. This module maps the XRCE entities onto rclpy ones and
+moves their data.
 """
 
 from __future__ import annotations
 
 import asyncio
 import os
-import threading
 import time
-
-from rclpy.node import Node
 
 from xrce.agent.middleware import (
     DataCallback,
@@ -23,7 +22,6 @@ from xrce.agent.middleware import (
     Middleware,
     MiddlewareError,
     TopicSpec,
-    TypeNotReady,
 )
 from xrce.agent.middleware.ros.domain import (
     ENCAPSULATION_LE,
@@ -36,108 +34,21 @@ from xrce.agent.middleware.ros.domain import (
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
-from xrce.agent.middleware.ros.graph import GRAPH_TOPIC, GRAPH_TYPE, GraphFeed
+from xrce.agent.middleware.ros.graph import GRAPH_SPEC
+from xrce.agent.middleware.ros.membership import RosDomains, default_domain_id
+from xrce.agent.middleware.ros.records import (
+    GroupRecord,
+    ParticipantRecord,
+    ReaderRecord,
+    TopicRecord,
+    WriterRecord,
+)
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.raw_types import raw_message_type
 from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, qos_profile
 
 
-class _ParticipantRecord:
-    __slots__ = ("domain", "node")
-    kind = "participant"
-
-    def __init__(self, domain: DomainRuntime, node: Node):
-        self.domain = domain
-        self.node = node
-
-
-class _TopicRecord:
-    __slots__ = ("participant", "ros_name", "msg_class", "dds_level", "spec")
-    kind = "topic"
-
-    def __init__(self, participant: EntityKey, ros_name: str, msg_class, dds_level: bool = False,
-                 spec: TopicSpec | None = None):
-        self.participant = participant
-        self.ros_name = ros_name
-        self.msg_class = msg_class
-        self.dds_level = dds_level  # no ROS prefix: a DDS-level topic (types.dds_topic_to_ros)
-        self.spec = spec
-
-
-class _GroupRecord:
-    """XRCE publisher/subscriber: nothing in ROS, only the link to the participant."""
-
-    __slots__ = ("participant",)
-    kind = "group"
-
-    def __init__(self, participant: EntityKey):
-        self.participant = participant
-
-
-class _WriterRecord:
-    __slots__ = ("participant", "publisher")
-    kind = "datawriter"
-
-    def __init__(self, participant: EntityKey, publisher):
-        self.participant = participant
-        self.publisher = publisher
-
-
-class _ReaderRecord:
-    __slots__ = ("participant", "subscription", "handoff", "graph_domain")
-    kind = "datareader"
-
-    def __init__(self, participant: EntityKey, handoff: ReaderHandoff):
-        self.participant = participant
-        self.subscription = None
-        self.handoff = handoff
-        self.graph_domain = None  # a reader of micro-ROS' graph topic: its domain id
-
-
-# What rmw_microxrcedds' graph reader names (xrce.agent.middleware.ros.graph).
-GRAPH_SPEC = TopicSpec(GRAPH_TOPIC, GRAPH_TYPE)
-
-
-class AgentPublisher:
-    """A publisher of the agent's own that takes CDR bodies (no encapsulation header), on the
-    agent's hidden node (``DomainRuntime.host``, visible). Made by a job the loop does not wait
-    for: until then it has no reader and writes nothing."""
-
-    __slots__ = ("publisher", "matched_events", "_make")
-
-    def __init__(self, make, matched_events: bool):
-        self._make = make  # node -> (rclpy publisher, matched events or not)
-        self.publisher = None
-        self.matched_events = matched_events  # as asked for, until the RMW has said
-
-    def attach(self, node) -> None:
-        self.publisher, self.matched_events = self._make(node)
-
-    def write(self, body: bytes) -> None:
-        publisher = self.publisher
-        if publisher is not None:
-            publisher.publish(ENCAPSULATION_LE + body)
-
-    def subscriber_count(self) -> int:
-        publisher = self.publisher
-        return 0 if publisher is None else publisher.get_subscription_count()
-
-
-def _default_domain_id() -> int:
-    try:
-        return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
-    except ValueError:
-        return 0
-
-
-def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
-    domain.stop(timeout_s)
-    from xrce.agent.engine.dispatch import _return_free_heap
-
-    _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
-
-
-class RosMiddleware(RosServices, ParkedCreation, Middleware):
+class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
     name = "dds"
@@ -167,7 +78,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
         self._agent_publishers: dict[tuple, object] = {}
         self._domain_listeners: list = []  # called with each domain id joined (loop thread)
-        self._home_domain = _default_domain_id()  # joined at start, kept (_leave_if_unused)
+        self._home_domain = default_domain_id()  # joined at start, kept (_leave_if_unused)
         self._leaving: list = []  # threads stopping domains whose last participant went
         self.park_creation = park_creation
         # key -> Creation: entities being created on an executor thread while their client is
@@ -184,44 +95,6 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             self._loop = asyncio.get_running_loop()
         return self._loop
 
-    def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
-        """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
-        its thread, which makes the rclpy context and executor while the loop goes on: jobs queue
-        up behind that (``DomainRuntime``), so a client joining a new domain holds up no other
-        (its DDS participant is made with the GIL released too, ``ros.participant``).
-        A domain whose context could not start is started again on the next call."""
-        if self._closed:
-            raise MiddlewareError("middleware is closed")
-        domain = self._domains.get(domain_id)
-        if domain is not None and domain.failed is None:
-            return domain, False
-        if domain is not None:
-            del self._domains[domain_id]
-        try:
-            domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
-        except MiddlewareError:
-            raise
-        except Exception as exc:
-            raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
-        self._domains[domain_id] = domain
-        return domain, True
-
-    def _joined(self, domain_id: int) -> None:
-        """Tell the listeners (the agent's own publishers there): their jobs queue behind what
-        was submitted before, the first client's node in a new domain."""
-        for listener in list(self._domain_listeners):
-            try:
-                listener(domain_id)
-            except Exception:
-                log.warning("domain %d: a listener failed", domain_id, exc_info=True)
-
-    def add_domain_listener(self, listener) -> None:
-        """Call ``listener(domain_id)`` on the loop's thread for every ROS domain the agent has
-        joined and joins from now on."""
-        self._domain_listeners.append(listener)
-        for domain_id in list(self._domains):
-            listener(domain_id)
-
     def _record(self, key: EntityKey, kinds: tuple):
         record = self._entities.get(key)
         if record is None or record.kind not in kinds:
@@ -233,7 +106,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         owner = key if record.kind == "participant" else record.participant
         return owner, self._record(owner, ("participant",))
 
-    def _on_executor(self, participant: _ParticipantRecord, job):
+    def _on_executor(self, participant: ParticipantRecord, job):
         try:
             return participant.domain.call(job, self.entity_timeout_s)
         except MiddlewareError:
@@ -270,7 +143,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             domain.remove_client_node(node)
 
         try:
-            node, _ = self._create_on_executor(key, _ParticipantRecord(domain, None), make_node,
+            node, _ = self._create_on_executor(key, ParticipantRecord(domain, None), make_node,
                                                destroy_node)
         except MiddlewareError:
             raise
@@ -279,7 +152,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         finally:
             if started:  # after the node's job: the agent's own entities come after its STATUS
                 self._joined(domain_id)
-        self._entities[key] = _ParticipantRecord(domain, node)
+        self._entities[key] = ParticipantRecord(domain, node)
         self._graph_changed(domain)
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
@@ -287,16 +160,16 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
-        self._add(key, _TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
+        self._add(key, TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
                                     kind == "dds", topic))
 
     def create_publisher(self, key: EntityKey, participant: EntityKey) -> None:
         self._record(participant, ("participant",))
-        self._add(key, _GroupRecord(participant))
+        self._add(key, GroupRecord(participant))
 
     def create_subscriber(self, key: EntityKey, participant: EntityKey) -> None:
         self._record(participant, ("participant",))
-        self._add(key, _GroupRecord(participant))
+        self._add(key, GroupRecord(participant))
 
     def create_datawriter(self, key: EntityKey, publisher: EntityKey, topic: EntityKey,
                           qos: EndpointQosSpec) -> None:
@@ -308,7 +181,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         node = participant.node
         ros_publisher, _ = self._create_on_executor(key, participant, lambda: node.create_publisher(
             topic_record.msg_class, topic_record.ros_name, profile), node.destroy_publisher)
-        self._entities[key] = _WriterRecord(owner, ros_publisher)
+        self._entities[key] = WriterRecord(owner, ros_publisher)
         self._graph_changed(participant.domain)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
@@ -319,7 +192,7 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos, topic_record.dds_level)
         creation = self._creating.get(key)
-        record = creation.context if creation is not None else _ReaderRecord(
+        record = creation.context if creation is not None else ReaderRecord(
             owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
         node = participant.node
         record.subscription, _ = self._create_on_executor(
@@ -381,91 +254,6 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         record = self._record(reader, ("datareader",))
         return record.handoff.delivered, record.handoff.dropped
 
-    def domain_ids(self) -> list[int]:
-        """The ROS domains the agent has joined (one per domain its clients asked for), from when
-        its DDS participant there exists."""
-        return [domain_id for domain_id, domain in self._domains.items() if domain.joined]
-
-    def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
-                        on_matched=None):
-        """An ``AgentPublisher`` of the agent's own (``DomainRuntime.host``) in a domain already
-        joined, made on first use and destroyed with the domain; None when the agent has not
-        joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
-        (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
-        called on the loop's thread whenever a subscription matches or unmatches it; where the
-        RMW has no such event, ``publisher.matched_events`` is False."""
-        domain = self._domains.get(domain_id)
-        if domain is None or self._closed:
-            return None
-        publisher = self._agent_publishers.get((domain_id, topic))
-        if publisher is not None:
-            return publisher
-
-        loop = self._get_loop()
-
-        def matched(_info) -> None:  # on the executor thread
-            try:
-                loop.call_soon_threadsafe(on_matched)
-            except RuntimeError:  # the loop has closed: the agent is gone
-                pass
-
-        def make_publisher(node):
-            if on_matched is not None:
-                from rclpy.event_handler import PublisherEventCallbacks
-                try:
-                    return node.create_publisher(
-                        message_type, topic, depth,
-                        event_callbacks=PublisherEventCallbacks(matched=matched)), True
-                except Exception as exc:  # an RMW without the matched event
-                    log.debug("%s: no matched events (%s)", topic, exc)
-            return node.create_publisher(message_type, topic, depth), False
-
-        def attach() -> None:
-            domain.host(publisher, visible=True)
-            if on_matched is not None:  # it may have readers already, or no matched events
-                matched(None)
-
-        # Not waited for: the loop goes on serving, and in a domain a client has just joined it
-        # comes after that client's set-up.
-        publisher = AgentPublisher(make_publisher, on_matched is not None)
-        domain.post_after_start(attach)
-        self._agent_publishers[(domain_id, topic)] = publisher
-        return publisher
-
-    # -- micro-ROS' graph topic -----------------------------------------------------------------
-
-    def _graph_reader_added(self, key: EntityKey, domain: DomainRuntime) -> None:
-        record = self._entities[key]
-        if record.graph_domain is not None:
-            return
-        record.graph_domain = domain.domain_id
-        entry = self._graph_feeds.get(domain.domain_id)
-        if entry is None or entry[0].domain is not domain:
-            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._get_loop())
-            entry = self._graph_feeds[domain.domain_id] = [feed, 0]
-            feed.start()
-        entry[1] += 1
-
-    def _graph_reader_gone(self, record) -> None:
-        domain_id, record.graph_domain = record.graph_domain, None
-        entry = self._graph_feeds.get(domain_id)
-        if entry is None:
-            return
-        entry[1] -= 1
-        if entry[1] <= 0:
-            del self._graph_feeds[domain_id]
-            entry[0].stop()
-
-    def _graph_changed(self, domain: DomainRuntime) -> None:
-        entry = self._graph_feeds.get(domain.domain_id)
-        if entry is not None:
-            entry[0].changed()
-
-    def graph_feed(self, domain_id: int) -> GraphFeed | None:
-        """The graph publication of a domain, None where no client asked for it."""
-        entry = self._graph_feeds.get(domain_id)
-        return entry[0] if entry is not None else None
-
     # -- deletion -----------------------------------------------------------------------------
 
     def _detach(self, record) -> None:
@@ -514,31 +302,6 @@ class RosMiddleware(RosServices, ParkedCreation, Middleware):
         elif record.kind == "replier":
             self._on_executor(participant, lambda: node.destroy_service(record.service))
         self._graph_changed(participant.domain)
-
-    def _leave_if_unused(self, domain: DomainRuntime) -> None:
-        """Tear a domain down with its last client participant: its DDS participant, context and
-        executor thread (one client joining domains 1..20 and deleting its participants there
-        left 32 MB and 180 threads behind; now 3 MB and none, bench/hostile_ros.py). The default
-        domain stays joined (see ``start``). The thread is joined off the loop; ``close`` waits
-        for it."""
-        domain_id = domain.domain_id
-        if self._closed or domain_id == self._home_domain or \
-                self._domains.get(domain_id) is not domain:
-            return
-        if any(r.kind == "participant" and r.domain is domain for r in self._entities.values()) \
-                or any(c.domain is domain for c in self._creating.values()):
-            return
-        del self._domains[domain_id]
-        feed = self._graph_feeds.pop(domain_id, None)
-        if feed is not None:
-            feed[0].stop()  # its periodic check; its writer goes with the domain's nodes
-        for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
-            del self._agent_publishers[publisher_key]
-        log.debug("ROS domain %d has no participant left: leaving it", domain_id)
-        stopping = threading.Thread(target=_leave_domain, args=(domain, self.entity_timeout_s),
-                                    name="xrce-leave-domain-%d" % domain_id, daemon=True)
-        stopping.start()
-        self._leaving = [thread for thread in self._leaving if thread.is_alive()] + [stopping]
 
     # -- lifecycle ----------------------------------------------------------------------------
 

@@ -33,11 +33,13 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from xrce.agent.middleware import TopicSpec
 from xrce.agent.middleware.ros.domain import AGENT_NODE_NAME, ENCAPSULATION_LE, DomainRuntime, log
 from xrce.cdr import CdrWriter
 
 GRAPH_TOPIC = "ros_to_microros_graph"  # the DDS name rmw_microxrcedds reads
 GRAPH_TYPE = "micro_ros_msgs::msg::dds_::Graph_"
+GRAPH_SPEC = TopicSpec(GRAPH_TOPIC, GRAPH_TYPE)  # the board's reader's topic, as the engine says it
 CHECK_PERIOD_S = 0.5
 
 PUBLISHER, SUBSCRIBER, SERVICE_SERVER, SERVICE_CLIENT = 0, 1, 2, 3

@@ -1,0 +1,218 @@
+"""The ROS domains ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``) has joined, and
+what it keeps per domain besides its clients' entities.
+
+A domain is joined when a client's participant first asks for it (its thread and rclpy context:
+``xrce.agent.middleware.ros.domain``) and left with its last client participant, the default
+domain excepted; listeners hear of each domain joined. Per domain the agent may also have
+publishers of its own (``AgentPublisher``, e.g. /diagnostics) and micro-ROS' graph publication
+(``xrce.agent.middleware.ros.graph``), kept only while a client reads the graph topic there.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+from xrce.agent.middleware import EntityKey, MiddlewareError
+from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
+from xrce.agent.middleware.ros.graph import GRAPH_TYPE, GraphFeed
+from xrce.agent.middleware.ros.raw_types import raw_message_type
+
+
+class AgentPublisher:
+    """A publisher of the agent's own that takes CDR bodies (no encapsulation header), on the
+    agent's hidden node (``DomainRuntime.host``, visible). Made by a job the loop does not wait
+    for: until then it has no reader and writes nothing."""
+
+    __slots__ = ("publisher", "matched_events", "_make")
+
+    def __init__(self, make, matched_events: bool):
+        self._make = make  # node -> (rclpy publisher, matched events or not)
+        self.publisher = None
+        self.matched_events = matched_events  # as asked for, until the RMW has said
+
+    def attach(self, node) -> None:
+        self.publisher, self.matched_events = self._make(node)
+
+    def write(self, body: bytes) -> None:
+        publisher = self.publisher
+        if publisher is not None:
+            publisher.publish(ENCAPSULATION_LE + body)
+
+    def subscriber_count(self) -> int:
+        publisher = self.publisher
+        return 0 if publisher is None else publisher.get_subscription_count()
+
+
+def default_domain_id() -> int:
+    """The domain joined at start and kept while the agent runs (``RosMiddleware.start``)."""
+    try:
+        return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+    except ValueError:
+        return 0
+
+
+def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
+    domain.stop(timeout_s)
+    from xrce.agent.engine.dispatch import _return_free_heap
+
+    _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
+
+
+class RosDomains:
+    """Domains of ``RosMiddleware``, which mixes this class in: the methods use its ``_closed``,
+    ``_domains``, ``_home_domain``, ``_leaving``, ``_domain_listeners``, ``_agent_publishers``,
+    ``_graph_feeds``, ``_entities``, ``_creating``, ``executor_kind``, ``idle_wait_s``,
+    ``entity_timeout_s`` and ``_get_loop``."""
+
+    # -- joining and leaving ------------------------------------------------------------------
+
+    def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
+        """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
+        its thread, which makes the rclpy context and executor while the loop goes on: jobs queue
+        up behind that (``DomainRuntime``), so a client joining a new domain holds up no other
+        (its DDS participant is made with the GIL released too, ``ros.participant``).
+        A domain whose context could not start is started again on the next call."""
+        if self._closed:
+            raise MiddlewareError("middleware is closed")
+        domain = self._domains.get(domain_id)
+        if domain is not None and domain.failed is None:
+            return domain, False
+        if domain is not None:
+            del self._domains[domain_id]
+        try:
+            domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
+        except MiddlewareError:
+            raise
+        except Exception as exc:
+            raise MiddlewareError("cannot start ROS domain %d: %s" % (domain_id, exc)) from exc
+        self._domains[domain_id] = domain
+        return domain, True
+
+    def _joined(self, domain_id: int) -> None:
+        """Tell the listeners (the agent's own publishers there): their jobs queue behind what
+        was submitted before, the first client's node in a new domain."""
+        for listener in list(self._domain_listeners):
+            try:
+                listener(domain_id)
+            except Exception:
+                log.warning("domain %d: a listener failed", domain_id, exc_info=True)
+
+    def add_domain_listener(self, listener) -> None:
+        """Call ``listener(domain_id)`` on the loop's thread for every ROS domain the agent has
+        joined and joins from now on."""
+        self._domain_listeners.append(listener)
+        for domain_id in list(self._domains):
+            listener(domain_id)
+
+    def domain_ids(self) -> list[int]:
+        """The ROS domains the agent has joined (one per domain its clients asked for), from when
+        its DDS participant there exists."""
+        return [domain_id for domain_id, domain in self._domains.items() if domain.joined]
+
+    def _leave_if_unused(self, domain: DomainRuntime) -> None:
+        """Tear a domain down with its last client participant: its DDS participant, context and
+        executor thread (one client joining domains 1..20 and deleting its participants there
+        left 32 MB and 180 threads behind; now 3 MB and none, bench/hostile_ros.py). The default
+        domain stays joined (see ``start``). The thread is joined off the loop; ``close`` waits
+        for it."""
+        domain_id = domain.domain_id
+        if self._closed or domain_id == self._home_domain or \
+                self._domains.get(domain_id) is not domain:
+            return
+        if any(r.kind == "participant" and r.domain is domain for r in self._entities.values()) \
+                or any(c.domain is domain for c in self._creating.values()):
+            return
+        del self._domains[domain_id]
+        feed = self._graph_feeds.pop(domain_id, None)
+        if feed is not None:
+            feed[0].stop()  # its periodic check; its writer goes with the domain's nodes
+        for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
+            del self._agent_publishers[publisher_key]
+        log.debug("ROS domain %d has no participant left: leaving it", domain_id)
+        stopping = threading.Thread(target=_leave_domain, args=(domain, self.entity_timeout_s),
+                                    name="xrce-leave-domain-%d" % domain_id, daemon=True)
+        stopping.start()
+        self._leaving = [thread for thread in self._leaving if thread.is_alive()] + [stopping]
+
+    # -- the agent's own publishers -----------------------------------------------------------
+
+    def agent_publisher(self, domain_id: int, message_type, topic: str, depth: int = 10,
+                        on_matched=None):
+        """An ``AgentPublisher`` of the agent's own (``DomainRuntime.host``) in a domain already
+        joined, made on first use and destroyed with the domain; None when the agent has not
+        joined ``domain_id``. ``message_type`` is a ``raw_message_type``. Use from the loop thread
+        (rcl publish is thread-safe). ``on_matched()``, given when the publisher is made, is
+        called on the loop's thread whenever a subscription matches or unmatches it; where the
+        RMW has no such event, ``publisher.matched_events`` is False."""
+        domain = self._domains.get(domain_id)
+        if domain is None or self._closed:
+            return None
+        publisher = self._agent_publishers.get((domain_id, topic))
+        if publisher is not None:
+            return publisher
+
+        loop = self._get_loop()
+
+        def matched(_info) -> None:  # on the executor thread
+            try:
+                loop.call_soon_threadsafe(on_matched)
+            except RuntimeError:  # the loop has closed: the agent is gone
+                pass
+
+        def make_publisher(node):
+            if on_matched is not None:
+                from rclpy.event_handler import PublisherEventCallbacks
+                try:
+                    return node.create_publisher(
+                        message_type, topic, depth,
+                        event_callbacks=PublisherEventCallbacks(matched=matched)), True
+                except Exception as exc:  # an RMW without the matched event
+                    log.debug("%s: no matched events (%s)", topic, exc)
+            return node.create_publisher(message_type, topic, depth), False
+
+        def attach() -> None:
+            domain.host(publisher, visible=True)
+            if on_matched is not None:  # it may have readers already, or no matched events
+                matched(None)
+
+        # Not waited for: the loop goes on serving, and in a domain a client has just joined it
+        # comes after that client's set-up.
+        publisher = AgentPublisher(make_publisher, on_matched is not None)
+        domain.post_after_start(attach)
+        self._agent_publishers[(domain_id, topic)] = publisher
+        return publisher
+
+    # -- micro-ROS' graph topic -----------------------------------------------------------------
+
+    def _graph_reader_added(self, key: EntityKey, domain: DomainRuntime) -> None:
+        record = self._entities[key]
+        if record.graph_domain is not None:
+            return
+        record.graph_domain = domain.domain_id
+        entry = self._graph_feeds.get(domain.domain_id)
+        if entry is None or entry[0].domain is not domain:
+            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._get_loop())
+            entry = self._graph_feeds[domain.domain_id] = [feed, 0]
+            feed.start()
+        entry[1] += 1
+
+    def _graph_reader_gone(self, record) -> None:
+        domain_id, record.graph_domain = record.graph_domain, None
+        entry = self._graph_feeds.get(domain_id)
+        if entry is None:
+            return
+        entry[1] -= 1
+        if entry[1] <= 0:
+            del self._graph_feeds[domain_id]
+            entry[0].stop()
+
+    def _graph_changed(self, domain: DomainRuntime) -> None:
+        entry = self._graph_feeds.get(domain.domain_id)
+        if entry is not None:
+            entry[0].changed()
+
+    def graph_feed(self, domain_id: int) -> GraphFeed | None:
+        """The graph publication of a domain, None where no client asked for it."""
+        entry = self._graph_feeds.get(domain_id)
+        return entry[0] if entry is not None else None
