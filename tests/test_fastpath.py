@@ -236,6 +236,21 @@ def reliable_datagrams(session, writer, values):
     return transport.captured
 
 
+def mutate(data: bytearray, rng, times: int, longest_tail: int) -> None:
+    """``times`` random damages to a datagram: a byte changed, the end cut, up to ``longest_tail``
+    bytes added, or a length field claiming more or less than there is."""
+    for _ in range(times):
+        kind = rng.randrange(4)
+        if kind == 0 and data:
+            data[rng.randrange(len(data))] = rng.randrange(256)
+        elif kind == 1:
+            del data[rng.randrange(len(data) + 1):]
+        elif kind == 2:
+            data += bytes(rng.randrange(256) for _ in range(rng.randrange(1, longest_tail + 1)))
+        elif len(data) > 11:
+            data[10], data[11] = rng.randrange(256), rng.randrange(256)
+
+
 def acknack_messages(transport, stream_id, wait_s=0.3):
     """(first_unacked, nack_bitmap, the message's bytes) of each ACKNACK of ``stream_id`` the
     agent sends within ``wait_s``."""
@@ -433,16 +448,7 @@ def test_hostile_datagrams_are_left_to_python_or_published(ros_peer):  # noqa: F
         for index in range(20000):
             data = bytearray(valid)
             data[2], data[3] = index & 0xFF, (index >> 8) & 0xFF
-            for _ in range(rng.randrange(1, 4)):
-                kind = rng.randrange(4)
-                if kind == 0 and data:
-                    data[rng.randrange(len(data))] = rng.randrange(256)
-                elif kind == 1:
-                    del data[rng.randrange(len(data) + 1):]
-                elif kind == 2:
-                    data += bytes(rng.randrange(256) for _ in range(rng.randrange(1, 16)))
-                elif len(data) > 11:  # a length field claiming more or less than there is
-                    data[10], data[11] = rng.randrange(256), rng.randrange(256)
+            mutate(data, rng, rng.randrange(1, 4), longest_tail=15)
             taken += receiver.handle(bytes(data), ADDRESS)
         totals, clients, writers, _acks = receiver.fold()
         messages, _size, samples, stale, errors, _acknacks, _acknack_bytes = totals

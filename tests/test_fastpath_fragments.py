@@ -16,7 +16,7 @@ import pytest
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_fastpath import (FOLD_WAIT_S, KEY, CapturingTransport, Twist_ros, acknack_messages,
-                           needs_extension, reliable_datagrams, select_readable)
+                           mutate, needs_extension, reliable_datagrams, select_readable)
 from test_observability import stats_port
 from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
@@ -303,16 +303,7 @@ def test_hostile_fragments_and_heartbeats_are_bounded_or_left_to_python(ros_peer
             data = bytearray(valid[index % len(valid)])  # in turn: whole samples now and then
             if data[1]:
                 data[2], data[3] = (last + 1) & 0xFF, ((last + 1) >> 8) & 0xFF  # next in order
-            for _ in range(rng.choice((0, 0, 1, 2))):
-                kind = rng.randrange(4)
-                if kind == 0 and data:
-                    data[rng.randrange(len(data))] = rng.randrange(256)
-                elif kind == 1:
-                    del data[rng.randrange(len(data) + 1):]
-                elif kind == 2:
-                    data += bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300)))
-                elif len(data) > 11:
-                    data[10], data[11] = rng.randrange(256), rng.randrange(256)
+            mutate(data, rng, rng.choice((0, 0, 1, 2)), longest_tail=299)
             if receiver.handle(bytes(data), address):
                 taken += 1
             elif data[1:2] == b"\x80":  # as if Python had handled it: the stream moves on
