@@ -17,8 +17,12 @@ shared-memory segments in /dev/shm.
   then removes them, for a few seconds while late children finish.
 - lttng-ust's rendezvous files: every process that loads rcl or the rmw (the wheels link
   lttng-ust for ROS's tracepoints) creates ``/dev/shm/lttng-ust-wait-<abi>`` and
-  ``...-<abi>-<uid>`` when no LTTng session daemon has, and no environment variable stops it. Those
-  that appeared during the run are removed after it when no process maps them any more.
+  ``...-<abi>-<uid>`` when no LTTng session daemon has, and no environment variable stops it.
+  They are removed after the run when no process maps them, also those that were there before it:
+  a run that follows another (``.ci/run``'s two jobs) finds the first run's files, which that run
+  could not remove while the second one's processes mapped them. Unmapped, they serve nobody (a
+  session daemon and every traced process keep them mapped) and the next such process makes them
+  again.
 """
 
 from __future__ import annotations
@@ -119,10 +123,9 @@ def _mapped_by_any_process(paths: set) -> set:
     return mapped
 
 
-def remove_unused_lttng_wait_files(before: set) -> list:
-    """Remove the lttng-ust rendezvous files created since ``before`` that no process maps."""
-    created = {os.path.join(SHM_DIR, name) for name in shm_names() - before
-               if _LTTNG_WAIT.match(name)}
+def remove_unused_lttng_wait_files() -> list:
+    """Remove the lttng-ust rendezvous files that no process maps."""
+    created = {os.path.join(SHM_DIR, name) for name in shm_names() if _LTTNG_WAIT.match(name)}
     if not created:
         return []
     unused = created - _mapped_by_any_process(created)
@@ -155,7 +158,7 @@ def _clean_after(pid: int, before: set, linger_s: float = 5.0) -> None:
     while True:
         remove_dead_fastdds_segments(before, min_age_s=0.5)
         if time.monotonic() >= end:
-            remove_unused_lttng_wait_files(before)
+            remove_unused_lttng_wait_files()
             return
         time.sleep(0.5)
 
