@@ -231,6 +231,43 @@ def test_topic_list_shows_the_boards_topics_as_ros2_does(graph):
                     and lines[-1] == "", "topic", "list", "-v", *SPIN)
 
 
+def _endpoint_blocks(endpoints):
+    """What ros2topic info -v prints for each endpoint: rclpy's own text of it, a blank line."""
+    return [line for endpoint in endpoints for line in str(endpoint).split("\n") + [""]]
+
+
+def test_topic_info_prints_counts_nodes_and_qos_as_ros2_does(graph):
+    # ros2 topic info: the type and the counts; -v each endpoint as rclpy's TopicEndpointInfo
+    # prints itself (ros2topic prints that object), a blank line after each block. What ros2
+    # would print is taken from the test's own participant, which sees the same graph.
+    graph.run_until(["Type: std_msgs/msg/String", "Publisher count: 1", "Subscription count: 0"],
+                    "topic", "info", "/chatter", *SPIN)
+    graph.run_until(["Type: std_msgs/msg/String", "Publisher count: 0", "Subscription count: 1"],
+                    "topic", "info", "/cmd_in", *SPIN)
+    peer = graph.peer.node
+
+    def as_ros2_prints(topic):
+        publishers = peer.get_publishers_info_by_topic(topic)
+        subscriptions = peer.get_subscriptions_info_by_topic(topic)
+        return (["Type: std_msgs/msg/String", "", "Publisher count: %d" % len(publishers), ""]
+                + _endpoint_blocks(publishers)
+                + ["Subscription count: %d" % len(subscriptions), ""]
+                + _endpoint_blocks(subscriptions))
+
+    for topic, kind in (("/chatter", "PUBLISHER"), ("/cmd_in", "SUBSCRIPTION")):
+        lines = graph.run_until(lambda lines: lines == as_ros2_prints(topic),
+                                "topic", "info", "-v", topic, *SPIN)
+        # The board's endpoint, as the board asked for it: its node, reliable (the board's
+        # writer and reader are), a topic type hash as rclpy prints it.
+        first = lines.index("Node name: %s" % BOARD_NODE)
+        assert lines[first + 1] == "Node namespace: /", lines
+        assert "Endpoint type: %s" % kind in lines and "  Reliability: RELIABLE" in lines, lines
+        assert any(re.fullmatch(r"Topic type hash: RIHS01_[0-9a-f]{64}", line) for line in lines)
+        assert any(re.fullmatch(r"GID: ([0-9a-f]{2}\.){15}[0-9a-f]{2}", line) for line in lines)
+    lines, error = graph.run("topic", "info", "/nobody", expect_rc=1)
+    assert lines == [] and error == "Unknown topic '/nobody'\n"
+
+
 def test_topic_echo_once_prints_the_boards_sample_as_yaml(graph):
     # ros2 topic echo: the message as YAML, then a line '---'.
     def one_sample(pattern):
@@ -251,7 +288,7 @@ def test_topic_echo_runs_until_ctrl_c(graph):
     try:
         lines = [echo.stdout.readline() for _ in range(4)]  # two samples
         echo.send_signal(signal.SIGINT)
-        assert echo.wait(20) == 130
+        assert echo.wait(20) == 2  # ros2cli's main returns signal.SIGINT
     finally:
         if echo.poll() is None:
             echo.kill()
@@ -278,7 +315,7 @@ def test_topic_hz_prints_ros2s_rate_lines(graph):
                 lines.append(line.rstrip("\n"))
         selector.close()
         hz.send_signal(signal.SIGINT)  # hz runs until Ctrl-C, as ros2's
-        assert hz.wait(20) == 130
+        assert hz.wait(20) == 2
     finally:
         if hz.poll() is None:
             hz.kill()
@@ -328,6 +365,31 @@ def test_node_list_shows_the_board_and_hides_hidden_nodes(graph):
     finally:
         other.release()
     assert lines == []
+
+
+def test_node_info_lists_the_boards_endpoints_as_ros2_does(graph):
+    # ros2 node info: each kind's names and types, indented; an empty kind is a blank line; the
+    # board's node is what the board created (the agent adds nothing to it).
+    graph.run_until(["/" + BOARD_NODE,
+                     "  Subscribers:", "    /cmd_in: std_msgs/msg/String",
+                     "  Publishers:", "    /chatter: std_msgs/msg/String",
+                     "  Service Servers:", "    /double_it: test_msgs/srv/BasicTypes",
+                     "  Service Clients:", "",
+                     "  Action Servers:", "",
+                     "  Action Clients:", ""], "node", "info", "/" + BOARD_NODE, *SPIN)
+    # An action server is one line among the action servers; its topics and services are hidden
+    # (/fibonacci/_action/...) unless asked for.
+    lines = graph.run_until(lambda lines: "    /fibonacci: test_msgs/action/Fibonacci" in lines,
+                            "node", "info", "/" + PARAM_NODE, *SPIN)
+    assert lines[lines.index("  Action Servers:") + 1] == "    /fibonacci: test_msgs/action/Fibonacci"
+    assert "    /%s/list_parameters: rcl_interfaces/srv/ListParameters" % PARAM_NODE in lines
+    assert not any("/_action/" in line for line in lines), lines
+    graph.run_until(lambda lines: "    /fibonacci/_action/send_goal: "
+                                  "test_msgs/action/Fibonacci_SendGoal" in lines,
+                    "node", "info", "/" + PARAM_NODE, "--include-hidden", *SPIN)
+    # As typed: ros2 finds /mcu_board, not mcu_board.
+    lines, error = graph.run("node", "info", BOARD_NODE, expect_rc=1)
+    assert lines == [] and error == "Unable to find node '%s'\n" % BOARD_NODE
 
 
 # ----------------------------------------------------------------------------- service
@@ -380,6 +442,29 @@ def test_param_list_get_set_on_an_rclpy_node(graph):
     assert lines == [] and error == "Node not found\n"
 
 
+def test_param_list_does_not_wait_on_nodes_without_parameter_services(graph, monkeypatch, capsys):
+    """ros2param waits 5 s on every node without parameter services (the board's, the test's
+    peer); xrce-ros sees in the graph that they have none. Run in this process, so that which
+    nodes were waited for is seen, not timed."""
+    from xrce.tools.ros_cli import cli, param
+
+    waited = []
+    wait = param._client
+    monkeypatch.setattr(param, "_client", lambda node, name: waited.append(name) or wait(node, name))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(graph.domain_id))
+    for _ in range(4):  # a run before discovery found everything is asked again (run_until)
+        waited.clear()
+        assert cli.main(["param", "list"]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        if "/%s:" % PARAM_NODE in lines:
+            break
+    assert waited == ["/" + PARAM_NODE], waited
+    no_parameters = "Wait for service timed out waiting for parameter services for node %s"
+    assert lines == ["/%s:" % PARAM_NODE, "  gain", "  name", "  rate",
+                     "  start_type_description_service", "  use_sim_time",
+                     no_parameters % ("/" + BOARD_NODE), no_parameters % "/xrce_test_peer"], lines
+
+
 # ----------------------------------------------------------------------------- action
 
 def test_action_list_and_send_goal_on_an_rclpy_action_server(graph):
@@ -400,7 +485,6 @@ def test_action_list_and_send_goal_on_an_rclpy_action_server(graph):
 # ----------------------------------------------------------------------------- bad arguments
 
 @pytest.mark.parametrize("args, says", [
-    (["topic"], "the following arguments are required: VERB"),
     (["topic", "pub", "/x", "std_msgs/msg/Nope"], "The passed message type is invalid"),
     (["topic", "pub", "/x", "std_msgs/msg/String", "[1, 2]"], "needs to be a dictionary"),
     (["topic", "pub", "/x", "std_msgs/msg/String", "{nope: 1}"], "Failed to populate field"),
@@ -417,6 +501,64 @@ def test_a_bad_argument_gets_one_line_and_exit_2(args, says):
     assert done.returncode == 2, done
     assert done.stdout == "" and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("xrce-ros: error: ") and says in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("args, usage", [([], "usage: xrce-ros [-h] COMMAND ..."),
+                                         (["topic"], "usage: xrce-ros topic [-h] VERB ...")])
+def test_a_command_without_its_verb_prints_its_help_as_ros2_does(args, usage):
+    done = subprocess.run(xrce_ros_command() + args, cwd=REPO, text=True, capture_output=True,
+                          timeout=CLI_TIMEOUT_S)
+    assert (done.returncode, done.stderr) == (0, ""), done
+    assert done.stdout.splitlines()[0] == usage, done.stdout
+    assert "    info      Print information about a topic" in done.stdout or args == []
+
+
+def test_sigterm_ends_a_command_with_ros2s_code(graph):
+    echo = graph.start("topic", "echo", "/chatter")
+    try:
+        assert echo.stdout.readline().startswith("data: hello ")
+        echo.send_signal(signal.SIGTERM)
+        assert echo.wait(20) == 15  # ros2cli's main returns signal.SIGTERM
+    finally:
+        if echo.poll() is None:
+            echo.kill()
+            echo.wait()
+        echo.stdout.close()
+        echo.stderr.close()
+
+
+# ----------------------------------------------------------------------------- interface show
+
+def test_interface_show_prints_the_definition_and_nested_ones_as_ros2_does():
+    # ros2 interface show: the file as written; each nested message below its field, a tab
+    # deeper, without its comments and blank lines (--all-comments keeps them); --no-comments
+    # drops them everywhere. The expected text is geometry_msgs' and std_msgs' own files.
+    done = subprocess.run(xrce_ros_command() + ["interface", "show",
+                                                "geometry_msgs/msg/PoseStamped"],
+                          cwd=REPO, text=True, capture_output=True, timeout=CLI_TIMEOUT_S)
+    assert done.returncode == 0, done
+    assert done.stdout.splitlines() == [
+        "# A Pose with reference coordinate frame and timestamp", "",
+        "std_msgs/Header header", "\tbuiltin_interfaces/Time stamp", "\t\tint32 sec",
+        "\t\tuint32 nanosec", "\tstring frame_id",
+        "Pose pose", "\tPoint position", "\t\tfloat64 x", "\t\tfloat64 y", "\t\tfloat64 z",
+        "\tQuaternion orientation", "\t\tfloat64 x 0", "\t\tfloat64 y 0", "\t\tfloat64 z 0",
+        "\t\tfloat64 w 1"]
+    all_comments = subprocess.run(
+        xrce_ros_command() + ["interface", "show", "--all-comments", "std_msgs/msg/Header"],
+        cwd=REPO, text=True, capture_output=True, timeout=CLI_TIMEOUT_S).stdout.splitlines()
+    assert "\t# The seconds component, valid over all int32 values." in all_comments, all_comments
+    piped = subprocess.run(xrce_ros_command() + ["interface", "show", "--no-comments", "-"],
+                           input="test_msgs/action/Fibonacci\n", cwd=REPO, text=True,
+                           capture_output=True, timeout=CLI_TIMEOUT_S)
+    assert piped.stdout.splitlines() == ["int32 order", "---", "int32[] sequence", "---",
+                                         "int32[] sequence"], piped
+    for name, says in (("std_msgs/String", "Invalid name 'std_msgs/String'. Expected three "
+                                           "parts separated by '/'"),
+                       ("nowhere_msgs/msg/X", "Unknown package 'nowhere_msgs'")):
+        done = subprocess.run(xrce_ros_command() + ["interface", "show", name], cwd=REPO,
+                              text=True, capture_output=True, timeout=CLI_TIMEOUT_S)
+        assert (done.returncode, done.stdout, done.stderr) == (1, "", says + "\n"), done
 
 
 # ----------------------------------------------------------------------------- banners

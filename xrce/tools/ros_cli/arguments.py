@@ -5,12 +5,16 @@ import this; ``cli`` imports the verbs)."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 PROG = "xrce-ros"
 EXIT_FAILED = 1
 EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
+# ros2cli's main returns the signal's number: 2 after Ctrl-C (a bad argument's code too), 15 after
+# SIGTERM.
+EXIT_INTERRUPTED = int(signal.SIGINT)
+EXIT_TERMINATED = int(signal.SIGTERM)
 DEFAULT_SPIN_TIME_S = 0.5  # ros2cli's discovery wait without a daemon
 
 

@@ -1,35 +1,47 @@
 """The ``xrce-ros`` command line: ``xrce-ros <group> <verb> ...`` as ``ros2 <group> <verb> ...``.
 
-Exit codes: 0 done; 1 the graph did not give what was asked (ros2cli prints the same sentence on
-stderr and exits 1 there too); 2 a bad argument, in one line on stderr (ros2cli prints a usage
-dump: scripts and tests read one line); 130 Ctrl-C (ros2cli exits 2 there, which would read as a
-bad argument).
+Exit codes as ros2cli's: 0 done (a command without its verb prints its help, as ``ros2`` does); 1
+the graph did not give what was asked (the same sentence on stderr); 2 a bad argument, in one line
+on stderr (ros2cli prints a usage dump first: scripts and tests read one line), and 2 after Ctrl-C
+too (ros2cli returns ``signal.SIGINT``); 15 after SIGTERM (ros2cli's ExternalShutdownException).
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 
-from xrce.tools.ros_cli.arguments import (EXIT_FAILED, EXIT_INTERRUPTED, PROG, ArgumentParser,
-                                          CommandError, UsageError, usage_exit)
+from xrce.tools.ros_cli.arguments import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED, PROG,
+                                          ArgumentParser, CommandError, UsageError, usage_exit)
 
 
 # ----------------------------------------------------------------------------- parser
 
 def build_parser():
-    from xrce.tools.ros_cli import action, node, param, service, topic
+    from xrce.tools.ros_cli import action, interface, node, param, service, topic
 
     parser = ArgumentParser(
         prog=PROG,
         description="The ros2 verbs a micro-ROS user needs to see a board, on this venv's rclpy "
                     "(ros2cli's syntax and output; no daemon).")
-    groups = parser.add_subparsers(dest="group", metavar="COMMAND", required=True)
-    for module in (action, node, param, service, topic):
+    parser.set_defaults(help_of=parser)
+    groups = parser.add_subparsers(dest="group", metavar="COMMAND")
+    for module in (action, interface, node, param, service, topic):
         group = groups.add_parser(module.NAME, help=module.HELP, description=module.HELP)
-        verbs = group.add_subparsers(dest="verb", metavar="VERB", required=True)
+        group.set_defaults(help_of=group)
+        verbs = group.add_subparsers(dest="verb", metavar="VERB")
         module.add_verbs(verbs)
     return parser
+
+
+class Terminated(Exception):
+    """SIGTERM, raised between two steps of a verb as Ctrl-C is: the node is destroyed on the way
+    out, as ros2cli's context shutdown destroys its node."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
 
 
 def main(argv=None):
@@ -46,8 +58,12 @@ def main(argv=None):
     # Line-buffered as ros2cli makes it: a pipe reader (a script, a test) sees each message when
     # it is printed, not when a block fills.
     sys.stdout.reconfigure(line_buffering=True)
+    if not hasattr(args, "run"):  # `xrce-ros`, `xrce-ros topic`: the help, as ros2 prints it
+        args.help_of.print_help()
+        return 0
     from rclpy.exceptions import NameValidationException
 
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         return args.run(args) or 0
     except UsageError as error:
@@ -59,6 +75,8 @@ def main(argv=None):
         return EXIT_FAILED
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except Terminated:
+        return EXIT_TERMINATED
     except BrokenPipeError:
         # The reader went away (`xrce-ros topic echo /odom | head`): end quietly, and keep the
         # interpreter's final flush from failing on the same pipe.

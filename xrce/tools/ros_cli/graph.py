@@ -138,5 +138,17 @@ def checked_name(name, is_service=False):
     return full_name
 
 
+def is_hidden_name(name):
+    """ros2node's test for a hidden topic, service or action of a node: any part of the name
+    starts with the hidden prefix (``/patrol/_action/status``), not only the last one."""
+    return any(part.startswith(HIDDEN_NODE_PREFIX) for part in name.split("/"))
+
+
 def absolute_node_name(name):
     return name if name.startswith("/") else "/" + name
+
+
+def split_node_name(full_name):
+    """(name, namespace) of a node name as ros2node splits it (a leading / added)."""
+    namespace, _, name = ("/" + full_name.lstrip("/")).rpartition("/")
+    return name, namespace or "/"

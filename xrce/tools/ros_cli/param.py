@@ -7,11 +7,14 @@ import re
 import sys
 
 from xrce.tools.ros_cli.arguments import CommandError, UsageError, add_graph_arguments
-from xrce.tools.ros_cli.graph import CliNode, absolute_node_name
+from xrce.tools.ros_cli.graph import CliNode, absolute_node_name, split_node_name
 
 NAME = "param"
 HELP = "Various param related sub-commands"
 SERVICES_TIMEOUT_S = 5.0  # ros2param's wait for a node's parameter services
+# How long a node whose endpoints are in the graph without parameter services is watched for them
+# before it is taken to serve none.
+NO_PARAMETERS_WAIT_S = 0.5
 CALL_TIMEOUT_S = 5.0
 CALL_ATTEMPTS = 3
 
@@ -63,6 +66,30 @@ def _client(cli, node_name):
     return client
 
 
+def _serves_no_parameters(cli, node_name):
+    """True when the graph shows the node's endpoints but no ``<node>/list_parameters`` service:
+    a micro-ROS node without a parameter server, a node made with start_parameter_services=False.
+    ros2param waits SERVICES_TIMEOUT_S on each such node; a node not in the graph yet with
+    anything is waited for as there."""
+    name, namespace = split_node_name(node_name)
+    node = cli.node
+    wanted = node_name + "/list_parameters"
+
+    def has_service():
+        return any(service == wanted
+                   for service, _ in node.get_service_names_and_types_by_node(name, namespace))
+
+    def has_endpoints():
+        return bool(node.get_service_names_and_types_by_node(name, namespace)
+                    or node.get_publisher_names_and_types_by_node(name, namespace)
+                    or node.get_subscriber_names_and_types_by_node(name, namespace))
+
+    if has_service() or not has_endpoints():
+        return False
+    # Discovery brings a node's endpoints one by one: give the service a moment to show up too.
+    return not cli.spin_until(has_service, NO_PARAMETERS_WAIT_S)
+
+
 def _answer(cli, node_name, call):
     """The response to ``call()`` (a parameter-service request, all of which are safe to repeat).
     A request sent while the node's server has not matched this client's response reader yet is
@@ -109,7 +136,7 @@ def list_parameters(args):
                 raise CommandError("Node not found")
             node_names = [wanted]
         for node_name in node_names:
-            client = _client(cli, node_name)
+            client = None if _serves_no_parameters(cli, node_name) else _client(cli, node_name)
             if client is None:
                 print("Wait for service timed out waiting for parameter services for node %s"
                       % node_name)

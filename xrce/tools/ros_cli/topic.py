@@ -1,4 +1,4 @@
-"""``xrce-ros topic list | echo | hz | pub`` with ros2topic's options and output."""
+"""``xrce-ros topic list | info | echo | hz | pub`` with ros2topic's options and output."""
 
 from __future__ import annotations
 
@@ -31,6 +31,14 @@ def add_verbs(verbs):
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="List full details about each topic")
     parser.set_defaults(run=list_topics)
+
+    parser = verbs.add_parser("info", help="Print information about a topic")
+    add_graph_arguments(parser)
+    parser.add_argument("topic_name", help="Name of the ROS topic to get info (e.g. '/chatter')")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="Also print each publisher's and subscription's node, type, type "
+                             "hash, GID and QoS profile")
+    parser.set_defaults(run=info)
 
     parser = verbs.add_parser("echo", help="Output messages from a topic")
     add_graph_arguments(parser)
@@ -114,6 +122,30 @@ def list_topics(args):
     else:
         for name, types in topics:
             print("%s [%s]" % (name, ", ".join(types)) if args.show_types else name)
+
+
+# ----------------------------------------------------------------------------- info
+
+def info(args):
+    """ros2topic info: the name is matched as typed (a relative one is unknown there too); with -v
+    each endpoint as rclpy's TopicEndpointInfo prints itself, which is what ros2 prints, QoS
+    included, and a blank line after every block."""
+    with CliNode(spin_time=args.spin_time) as cli:
+        types = dict(cli.topic_names_and_types(include_hidden=True)).get(args.topic_name)
+        if types is None:
+            raise CommandError("Unknown topic '%s'" % args.topic_name)
+        node = cli.node
+        publishers = node.get_publishers_info_by_topic(args.topic_name) if args.verbose else ()
+        subscriptions = (node.get_subscriptions_info_by_topic(args.topic_name)
+                         if args.verbose else ())
+        counts = (node.count_publishers(args.topic_name), node.count_subscribers(args.topic_name))
+    end = "\n\n" if args.verbose else "\n"
+    print("Type: %s" % (types[0] if len(types) == 1 else types), end=end)
+    for label, count, endpoints in (("Publisher", counts[0], publishers),
+                                    ("Subscription", counts[1], subscriptions)):
+        print("%s count: %d" % (label, count), end=end)
+        for endpoint in endpoints:
+            print(endpoint, end=end)
 
 
 # ----------------------------------------------------------------------------- echo
