@@ -172,3 +172,35 @@ def test_the_demos_own_agent_error_is_passed_through(ros_domain):  # noqa: F811
     failed = lines.index(next(l for l in lines if l.startswith("xrce-agent demo: the agent did not start")))
     assert any("domainId is over 232" in l for l in lines[failed + 1:]), lines
     assert "Traceback" not in done.stdout + done.stderr
+
+
+def test_readmes_patrol_goal_succeeds_beside_the_demo(ros_domain):  # noqa: F811
+    """README's `action send_goal /patrol ... --feedback`, typed beside the demo with the command
+    its banner names: the demo yields /cmd_vel while the goal runs (a command would abort the
+    patrol, which ended every goal ABORTED before), so the lap ends SUCCEEDED, and then drives its
+    square again."""
+    readme = (REPO / "README.md").read_text()
+    goal = re.search(r"`xrce-ros (action send_goal /patrol[^`]*--feedback)`", readme)
+    assert goal, "README names no patrol goal to send beside the demo"
+    goal = " ".join(goal.group(1).split())
+    demo = Demo()
+    try:
+        watch = demo.wait_line(r"watch it from another shell on this machine: "
+                               r"(ROS_DOMAIN_ID=\d+ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (.+)) "
+                               r"topic echo /odom$")
+        demo.wait_line(r"^odom: #\d+ x=")  # the robot runs, driven by the demo
+        sent = subprocess.run(["sh", "-c", "%s %s" % (watch.group(1), goal)], cwd=REPO, text=True,
+                              capture_output=True, timeout=240)
+        assert sent.returncode == 0, sent
+        lines = sent.stdout.splitlines()
+        assert re.search(r"^Goal accepted with ID: [0-9a-f]{32}$", sent.stdout, re.M), sent.stdout
+        assert any(line.startswith("    left_time: ") for line in lines), sent.stdout  # --feedback
+        assert "Result:\n    success: true\n" in sent.stdout, sent.stdout
+        assert lines[-1] == "Goal finished with status: SUCCEEDED", sent.stdout
+        demo.wait_line(r"a /patrol goal is running: /cmd_vel yields to it until it ends$")
+        demo.wait_line(r"the /patrol goal ended: driving the square again$")
+        demo.proc.send_signal(signal.SIGINT)
+        assert demo.proc.wait(EXIT_TIMEOUT) == 130
+    finally:
+        demo.close()
+    assert not any("Traceback" in line for line in demo.lines), demo.lines

@@ -6,7 +6,9 @@ The agent (``-m dds``) and the robot (``python -m xrce.examples.turtlebot3``, ov
 sessions, so a terminal's Ctrl-C or hang-up reaches only the demo, which then stops the robot first
 (it deletes its session) and the agent second, and exits only when both are gone (130 after Ctrl-C,
 129 after SIGHUP, 143 after SIGTERM). This process is the ROS side: it prints what arrives on
-``/sensor_state`` and ``/odom`` once a second and drives a closed square on ``/cmd_vel``.
+``/sensor_state`` and ``/odom`` once a second and drives a closed square on ``/cmd_vel``, except
+while the robot runs a ``/patrol`` goal (its action status says so): a command would pre-empt the
+patrol, so the demo yields ``/cmd_vel`` to it and drives on when the goal has ended.
 
 The demo publishes ``/cmd_vel``, which a real robot obeys: by default everything runs in a ROS
 domain of its own (the first free one of ``PRIVATE_DOMAINS``, held through an abstract socket
@@ -320,12 +322,13 @@ def run(args):
 
 def _ros_side(domain, have_sensor_state, stop, duration_s):
     import rclpy
+    from action_msgs.msg import GoalStatus, GoalStatusArray
     from geometry_msgs.msg import Twist
     from nav_msgs.msg import Odometry
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_action_status_default
     from rclpy.signals import SignalHandlerOptions
 
     context = Context()
@@ -348,6 +351,20 @@ def _ros_side(domain, have_sensor_state, stop, duration_s):
         node.create_subscription(SensorState, "/sensor_state", keep("sensor_state"),
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
     cmd_vel = node.create_publisher(Twist, "/cmd_vel", 10)
+    # The patrol's goals as every action client sees them: the latest status array (transient
+    # local, so a goal already running when the demo starts is seen too).
+    running = {GoalStatus.STATUS_ACCEPTED, GoalStatus.STATUS_EXECUTING, GoalStatus.STATUS_CANCELING}
+    patrol = {"running": False}
+
+    def on_patrol_status(msg):
+        now_running = any(status.status in running for status in msg.status_list)
+        if now_running != patrol["running"]:
+            patrol["running"] = now_running
+            _say("%s: %s" % (PROG, "a /patrol goal is running: /cmd_vel yields to it until it ends"
+                             if now_running else "the /patrol goal ended: driving the square again"))
+
+    node.create_subscription(GoalStatusArray, "/patrol/_action/status", on_patrol_status,
+                             qos_profile_action_status_default)
     square = _Square()
     started = time.monotonic()
     next_command = next_print = started
@@ -359,6 +376,8 @@ def _ros_side(domain, have_sensor_state, stop, duration_s):
                 break
             if now >= next_command and square.sent == 0 and not cmd_vel.get_subscription_count():
                 next_command += COMMAND_PERIOD_S  # the robot would miss the first leg's start
+            elif now >= next_command and patrol["running"]:
+                next_command += COMMAND_PERIOD_S  # a command would abort the patrol
             elif now >= next_command:
                 next_command += COMMAND_PERIOD_S
                 twist = Twist()

@@ -7,7 +7,9 @@
 #   model (read-only)            "burger"
 # Action ``/patrol`` (turtlebot3_msgs/action/Patrol): drive one lap of a circle of the goal's radius
 # at 0.1 m/s, feedback ``left_time`` (s) every second, result ``success``; cancelling stops the
-# wheels at once. /cmd_vel keeps priority: a command received during a patrol aborts it.
+# wheels at once. /cmd_vel keeps priority: a command received during a patrol aborts it, except in
+# its first second, when commands sent before their sender saw the goal may still arrive (a node
+# that yields /cmd_vel to a patrol, as `xrce-agent demo` does, learns of it from the action status).
 #
 # Its own module: a board whose firmware does not ask for them never loads it, nor the parameter and
 # action code (xrce.client.parameters, xrce.client.actions) it brings.
@@ -20,6 +22,7 @@ from xrce.msgs.turtlebot3_msgs import Patrol
 _PATROL_SPEED = const(0.1)  # m/s
 _FEEDBACK_MS = const(1000)
 _TWO_PI = const(6.283185307179586)
+_HANDOVER_MS = const(1000)
 
 
 class RobotExtras:
@@ -65,6 +68,8 @@ class RobotExtras:
             return
         robot = self.robot
         elapsed = ticks_diff(now, self._started_ms)
+        if elapsed < _HANDOVER_MS:
+            self._commands = robot.commands_received  # already on its way when the goal came
         if goal.cancel_requested or robot.commands_received != self._commands or elapsed >= self._lap_ms:
             robot._move(now)
             robot.linear = 0.0
@@ -78,10 +83,11 @@ class RobotExtras:
                 goal.succeed(result)
             self._goal = None
             return
-        if robot.linear != _PATROL_SPEED:
+        angular = _PATROL_SPEED / goal.goal.radius
+        if robot.linear != _PATROL_SPEED or robot.angular != angular:
             robot._move(now)
             robot.linear = _PATROL_SPEED
-            robot.angular = _PATROL_SPEED / goal.goal.radius
+            robot.angular = angular
         robot._last_command_ms = now  # the patrol commands the wheels: no fail-safe stop
         if ticks_diff(now, self._feedback_ms) >= _FEEDBACK_MS:
             self._feedback_ms = now
