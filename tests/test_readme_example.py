@@ -12,8 +12,8 @@ from std_msgs.msg import String
 
 from agent_process import AgentProcess, restore_default_signals
 from procs import read_until
-from mp_harness import run_micropython
-from ros_helpers import ros_domain, ros_peer  # noqa: F401
+from mp_harness import ensure_installed, run_micropython
+from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -50,9 +50,68 @@ def test_readme_micropython_example_runs_as_written(ros_peer, ros_domain):  # no
         finally:
             stop.set()
             driver.join(5)
+        # The block ends by deleting its session: the board's node leaves the ROS graph now, while
+        # the agent runs on (it stayed there for the agent's lifetime before).
+        assert wait_until(lambda: ("board", "/") not in ros_peer.node_names(), 30), ros_peer.node_names()
     assert result.returncode == 0, result.stdout + result.stderr
     assert "cmd_vel 0.5 -0.25" in result.stdout
     assert len(chatter) >= 50 and chatter[-1].data.startswith("hello ")
+
+
+def _no_board_commands():
+    """The commands of README's "No board?" paragraph, as written."""
+    text = README.read_text()
+    paragraph = text[text.index("**No board?**"):]
+    paragraph = " ".join(paragraph[:paragraph.index("\n\n")].split())
+    install = re.search(r"`(npm ci --prefix tests/micropython[^`]*)`", paragraph)
+    run = re.search(r"`(node tests/micropython/run\.mjs board\.py)`", paragraph)
+    assert install and run, paragraph
+    return install.group(1), run.group(1)
+
+
+def test_no_board_runs_the_block_under_node_as_written_and_says_when_it_waits(ros_peer, ros_domain, tmp_path):  # noqa: F811
+    """README's "No board?": the block as board.py (AGENT on this machine), run by the README's
+    command from the checkout, says each second that no agent answers yet, then runs once an
+    agent is there, and leaves the ROS graph when it ends."""
+    import socket
+
+    _, command = _no_board_commands()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:  # a port no agent has yet
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    source = re.sub(r"^AGENT = .*$", "AGENT = (%r, %d)" % ("127.0.0.1", port), readme_example(), flags=re.M)
+    source = re.sub(r"^DOMAIN = .*$", "DOMAIN = %d" % ros_domain, source, flags=re.M)
+    board = tmp_path / "board.py"
+    board.write_text(source)
+    ensure_installed()
+    process = subprocess.Popen(command.replace("board.py", str(board)).split(), cwd=README.parent, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=restore_default_signals)
+    try:
+        waiting = process.stdout.readline()
+        assert waiting == "no agent at 127.0.0.1:%d yet\n" % port, (waiting, process.stderr.read())
+        with AgentProcess("udp4", "-m", "dds", "-p", str(port)):
+            assert wait_until(lambda: ("board", "/") in ros_peer.node_names(), 60), ros_peer.node_names()
+            out, err = process.communicate(timeout=120)
+            assert process.returncode == 0, out + err
+            assert wait_until(lambda: ("board", "/") not in ros_peer.node_names(), 30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+
+
+def test_run_mjs_without_npm_ci_says_what_to_run_in_one_line(tmp_path):
+    """A fresh clone has no tests/micropython/node_modules: run.mjs says in one line to run the
+    README's `npm ci` (exit 3), where Node printed its module-resolution stack."""
+    install, command = _no_board_commands()
+    fresh = tmp_path / "tests" / "micropython"
+    fresh.mkdir(parents=True)
+    for name in ("run.mjs", "ring.mjs", "udp_worker.mjs"):
+        shutil.copy(README.parent / "tests" / "micropython" / name, fresh / name)
+    (tmp_path / "board.py").write_text("print('never')\n")
+    done = subprocess.run(command.split(), cwd=tmp_path, text=True, capture_output=True, timeout=60)
+    assert done.returncode == 3 and done.stdout == "", done
+    assert done.stderr.count("\n") == 1 and "`%s`" % install in done.stderr, done.stderr
 
 
 # ------------------------------------------------------------------ every shell block (issue 23)

@@ -14,13 +14,13 @@
 // Default mount: the repo's xrce/ (.py files only) as /lib/xrce. The .py adapters next to this
 // file (e.g. nodeudp_transport.py) are always copied into /lib. Exit status: 0 on success, the
 // SystemExit code if the script calls sys.exit, 1 when it raises (traceback on stderr), 2 on a
-// usage error.
+// usage error, 3 when MicroPython's npm package is not installed next to this file (one line
+// saying how to install it).
 
 import fs from "node:fs";
 import path from "node:path";
 import { fileURLToPath } from "node:url";
 import { Worker } from "node:worker_threads";
-import { loadMicroPython } from "@micropython/micropython-webassembly-pyscript";
 import { DatagramRing } from "./ring.mjs";
 
 const HERE = path.dirname(fileURLToPath(import.meta.url));
@@ -28,6 +28,22 @@ const REPO = path.resolve(HERE, "..", "..");
 const DEFAULT_HEAP = 256 * 1024;
 const REQUEST_TIMEOUT_MS = 5000;
 const SKIPPED_DIRS = new Set(["__pycache__", "node_modules"]);
+const MICROPYTHON_PACKAGE = "@micropython/micropython-webassembly-pyscript";
+const NOT_INSTALLED = 3;
+
+// Imported when a script is to run, not at load: a checkout without `npm ci` gets one line
+// that says what to run, where a static import ends in Node's stack trace.
+async function importMicroPython() {
+  try {
+    return (await import(MICROPYTHON_PACKAGE)).loadMicroPython;
+  } catch (error) {
+    if (error.code !== "ERR_MODULE_NOT_FOUND") throw error;
+    const prefix = path.relative(process.cwd(), HERE) || ".";
+    process.stderr.write(`run.mjs: MicroPython 1.27 (${MICROPYTHON_PACKAGE}) is not installed: ` +
+                         `run \`npm ci --prefix ${prefix} --no-audit --no-fund\` first\n`);
+    process.exit(NOT_INSTALLED);
+  }
+}
 
 function usage(message) {
   process.stderr.write(`run.mjs: ${message}\n`);
@@ -383,6 +399,7 @@ _exit_status = _run_main(${pythonStr(scriptPath)})
 async function main() {
   const options = parseArgs(process.argv.slice(2));
   if (!fs.existsSync(options.script)) usage(`script not found: ${options.script}`);
+  const loadMicroPython = await importMicroPython();
   const stdout = byteSink(1);
   const stderr = byteSink(2);
   const mp = await loadMicroPython({
