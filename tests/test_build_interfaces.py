@@ -107,6 +107,9 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
     lines = dict((m.group(2), m) for m in re.finditer(r"^(built|cached) (\S+) (\S+) ([\d.]+)s$",
                                                       cold.stdout, re.M))
     assert set(lines) == {"micro_ros_msgs", "tf2_msgs", "turtlebot3_msgs"}, cold.stdout
+    # Each build says when it starts, before its minute of cmake and rosidl (silent before).
+    started_lines = re.findall(r"^building (\S+) \(cmake and rosidl's generators", cold.stdout, re.M)
+    assert started_lines == re.findall(r"^built (\S+) ", cold.stdout, re.M), cold.stdout
     for match in lines.values():
         assert match.group(1) == "built"
         assert Path(match.group(3)).parent == cache
@@ -132,6 +135,7 @@ def test_build_interfaces_cli_in_a_fresh_venv(clean_venv, tmp_path):
     assert warm.returncode == 0, warm.stdout
     assert re.findall(r"^(built|cached) (\S+)", warm.stdout, re.M) == [
         ("cached", "micro_ros_msgs"), ("cached", "tf2_msgs"), ("cached", "turtlebot3_msgs")]
+    assert "building" not in warm.stdout, warm.stdout
     print("build-interfaces cold %.1f s, cached %.2f s (whole process, %.2f s CPU)"
           % (cold_s, warm_s, warm_cpu_s))
     assert warm_cpu_s < 0.5 + 0.5  # < 0.5 s of work, plus the wheels' one re-exec of the interpreter

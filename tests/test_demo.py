@@ -20,7 +20,7 @@ from agent_process import restore_default_signals
 from ros_helpers import RosPeer, ros_domain, ros_peer, wait_until  # noqa: F401
 
 REPO = Path(__file__).resolve().parent.parent
-START_TIMEOUT = 240.0  # the first run builds turtlebot3_msgs (~25 s idle, more beside a CPU hog)
+START_TIMEOUT = 240.0  # the first run builds turtlebot3_msgs (44-51 s idle, more beside a CPU hog)
 EXIT_TIMEOUT = 60.0
 
 

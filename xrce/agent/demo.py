@@ -166,8 +166,8 @@ def stop_child(proc, timeout_s=10.0):
 def _ensure_interfaces(stop):
     """Build turtlebot3_msgs and tf2_msgs (a cache hit after the first run) unless the ROS in use
     has them already (apt's ros-jazzy-tf2-msgs, ...); False if not possible. The first build takes
-    ~25 s: a line says so after the first second (a cache hit is done by then), and another every
-    few seconds until it is done."""
+    45-60 s on two cores (measured: 44-51 s idle, 62 s at a load of 7): a line says so after the
+    first second (a cache hit is done by then), and another every few seconds until it is done."""
     import importlib.machinery
 
     missing = [name for name in ("tf2_msgs", "turtlebot3_msgs")
@@ -178,7 +178,7 @@ def _ensure_interfaces(stop):
         def progress():
             if done.wait(1.0):  # a cache hit: nothing to say
                 return
-            _say("%s: building %s for rclpy (first run only, ~25 s; then cached)"
+            _say("%s: building %s for rclpy (first run only, 45-60 s on two cores; then cached)"
                  % (PROG, " and ".join(missing)))
             while not done.wait(BUILD_PROGRESS_PERIOD_S):
                 _say("%s: still building (%.0f s)..." % (PROG, time.monotonic() - started))

@@ -250,8 +250,9 @@ def _build_into(package, prefix, dependency_prefixes, jobs):
         shutil.rmtree(build_dir, ignore_errors=True)
 
 
-def build_one(package, cache_root, package_hash, dependency_prefixes, jobs=None):
-    """Build ``package`` into ``<cache_root>/<package_hash>`` unless a complete build is there."""
+def build_one(package, cache_root, package_hash, dependency_prefixes, jobs=None, on_start=None):
+    """Build ``package`` into ``<cache_root>/<package_hash>`` unless a complete build is there;
+    ``on_start(name)`` is called when a real build begins (not for a cached one)."""
     import fcntl
     import shutil
     import time
@@ -272,6 +273,8 @@ def build_one(package, cache_root, package_hash, dependency_prefixes, jobs=None)
             os.unlink(prefix + ".log")
         except FileNotFoundError:
             pass
+        if on_start is not None:
+            on_start(package.name)
         try:
             _build_into(package, prefix, dependency_prefixes, jobs or os.cpu_count() or 1)
         except BaseException:
@@ -283,9 +286,10 @@ def build_one(package, cache_root, package_hash, dependency_prefixes, jobs=None)
 
 
 def build(dirs=None, cache_root=None, names=None, site_dir=None, register_results=True,
-          report=None):
+          report=None, on_start=None):
     """Build the interface packages under ``dirs`` (default ``search_dirs()``) — all of them, or
-    ``names`` and their in-tree dependencies — in dependency order; list of BuildResult."""
+    ``names`` and their in-tree dependencies — in dependency order; list of BuildResult.
+    ``on_start(name)`` when a package's real build begins, ``report(result)`` when it is done."""
     dirs = list(dirs) if dirs else search_dirs()
     if not dirs:
         raise InterfaceBuildError("no interface directories: pass one (this xrce ships no "
@@ -304,7 +308,7 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
         in_tree = [d for d in package.depends if d in packages]
         package_hash = content_hash(package, {d: hashes[d] for d in in_tree}, fingerprint)
         prefix, cached, seconds = build_one(package, cache_root, package_hash,
-                                            [prefixes[d] for d in in_tree])
+                                            [prefixes[d] for d in in_tree], on_start=on_start)
         hashes[package.name], prefixes[package.name] = package_hash, prefix
         result = BuildResult(package.name, prefix, cached, seconds, in_tree)
         results.append(result)
