@@ -71,7 +71,13 @@ class Demo:
 
     def close(self):
         if self.proc.poll() is None:
-            self.proc.kill()
+            # After a failed assertion: SIGTERM stops the demo's agent and robot too (a SIGKILL
+            # left them running, in sessions of their own, in the demo's domain).
+            self.proc.terminate()
+            try:
+                self.proc.wait(EXIT_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
         self.proc.wait(EXIT_TIMEOUT)
         self._reader.join(EXIT_TIMEOUT)
         self.proc.stdout.close()

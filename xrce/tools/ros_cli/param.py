@@ -129,7 +129,8 @@ def list_parameters(args):
     except re.error as error:
         raise UsageError("--filter: %s" % error) from None
     with CliNode(spin_time=args.spin_time) as cli:
-        node_names = sorted(cli.node_full_names(args.include_hidden_nodes))
+        # A name twice in the graph is listed once, as ros2param lists it (its answers by name).
+        node_names = sorted(set(cli.node_full_names(args.include_hidden_nodes)))
         if args.node_name:
             wanted = absolute_node_name(args.node_name)
             if wanted not in node_names:
