@@ -47,14 +47,14 @@ def interface_path(name):
         spec = None
     locations = list(spec.submodule_search_locations or ()) if spec is not None else []
     for location in locations:
-        # <prefix>/lib/pythonX.Y/site-packages/<package>: the prefix is three levels up (four
-        # under local/ as Debian's pip lays it out).
+        # <prefix>/lib/pythonX.Y/site-packages/<package>: the prefix is three levels up (a fourth
+        # for /usr/local/lib/... beside data in /usr/share).
         for prefix in (os.path.dirname(location).rsplit(os.sep, up)[0] for up in (3, 4)):
             share = os.path.join(prefix, "share", package)
             if os.path.isdir(share):
                 path = os.path.join(share, kind, leaf + "." + kind)
-                if not os.path.isfile(path):
-                    raise CommandError("Could not find the interface '%s'"
+                if not os.path.isfile(path):  # ros2 then looks for an .idl and names that
+                    raise CommandError("Could not find the interface '%s.idl'"
                                        % os.path.join(share, kind, leaf))
                 return path
     raise CommandError("Unknown package '%s'" % package)
