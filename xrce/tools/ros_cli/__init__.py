@@ -1,8 +1,9 @@
 """``xrce-ros``: the ``ros2`` verbs a micro-ROS user needs to see a board, for a venv that has rclpy
 from the PyPI wheels but no ``ros2`` (ros2cli has no PyPI wheels).
 
-The syntax and the output are ros2cli's (Jazzy) for the verbs it has: ``topic list/echo/hz/pub``,
-``node list``, ``service list/call``, ``param list/get/set``, ``action list/send_goal``. The code is
+The syntax and the output are ros2cli's (Jazzy) for the verbs it has: ``topic
+list/info/echo/hz/pub``, ``node list/info``, ``service list/call``, ``param list/get/set``,
+``action list/send_goal``, ``interface show``. The code is
 our own, on rclpy alone: ``rosidl_runtime_py`` (ros2cli's YAML conversion) is not in the wheels
 either, so ``messages`` does that part. ``cli`` holds the command line and the exit codes, ``graph``
 the short-lived node every verb runs on; one module per verb group.
