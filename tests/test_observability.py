@@ -36,11 +36,11 @@ def stats_port(agent):
 
 
 def client_row(snapshot, session):
-    """The one client's row: it is named by a tag only the agent can compute (the key itself is
-    a credential), so these tests run one client each."""
-    rows = snapshot["clients"]
-    assert len(rows) == 1 and rows[0]["session_id"] == session.session_id, rows
-    assert session.key.hex() not in json.dumps(snapshot)
+    """The one client's row, named by the key the client sent: these tests read the stats as
+    the agent's own user (tests/test_hostile_ros.py reads them as another)."""
+    rows = [row for row in snapshot["clients"] if row["key"] == session.key.hex()]
+    assert len(rows) == 1 and rows[0]["session_id"] == session.session_id, snapshot["clients"]
+    assert snapshot["keys_shown"] and re.fullmatch("[0-9a-f]{8}", rows[0]["tag"])
     return rows[0]
 
 
@@ -79,7 +79,8 @@ def test_a_corrupted_serial_frame_is_one_crc_drop_and_traffic_is_counted():
             view = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
                                    "--once"], cwd=REPO, capture_output=True, text=True, timeout=30)
             assert view.returncode == 0, view.stderr
-            assert row["key"] in view.stdout and session.key.hex() not in view.stdout
+            assert row["key"] in view.stdout and row["tag"] in view.stdout
+            assert "pseudoterminal " + device in view.stdout  # where the board is
             assert re.search(r"^pseudoterminal\s+\d+\s+\d+\s+\d+\s+\d+\s+1\s+1$", view.stdout,
                              re.MULTILINE), view.stdout
             session.delete(attempts=2, timeout_ms=500)
@@ -109,8 +110,10 @@ def test_decode_errors_and_topic_samples_are_counted_per_client():
             row = client_row(snapshot, session)
             assert row["decode_errors"] == 1
             assert snapshot["agent"]["decode_errors"] == 1
-            topics = [t for t in snapshot["topics"] if t["topic"] == "rt/counted"]
+            topics = [t for t in snapshot["topics"] if t["topic"] == "/counted"]
             assert len(topics) == 1 and topics[0]["direction"] == "to_ros"
+            assert topics[0]["dds_topic"] == "rt/counted" and \
+                topics[0]["type"] == "std_msgs/msg/String"
             assert topics[0]["samples"] == 25 and topics[0]["endpoints"] == 1
             # XCDR1 string: 4-byte length, the characters and a NUL.
             assert topics[0]["bytes"] == sum(4 + len("sample %d" % i) + 1 for i in range(25))

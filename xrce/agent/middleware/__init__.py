@@ -135,6 +135,11 @@ class Middleware:
         """Delete one entity. The engine deletes children before parents."""
         raise NotImplementedError
 
+    def ros_entity(self, key: EntityKey) -> Optional[str]:
+        """What the entity became outside the agent, in a user's words (``node /talker``,
+        ``publisher /chatter of node /talker``), for logs and stats; None where nothing."""
+        return None
+
     def write(self, writer: EntityKey, sample: bytes) -> bool:
         raise NotImplementedError
 

@@ -254,6 +254,26 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._record(reader, ("datareader",))
         return record.handoff.delivered, record.handoff.dropped
 
+    def ros_entity(self, key: EntityKey) -> str | None:
+        record = self._entities.get(key)
+        if record is None:
+            return None
+        if record.kind == "participant":
+            return "node " + record.node.get_fully_qualified_name()
+        participant = self._entities.get(getattr(record, "participant", None))
+        if participant is None or participant.kind != "participant":
+            return None
+        node = participant.node.get_fully_qualified_name()
+        if record.kind == "datawriter":
+            return "publisher %s of node %s" % (record.publisher.topic_name, node)
+        if record.kind == "datareader":
+            return "subscription %s of node %s" % (record.subscription.topic_name, node)
+        if record.kind == "requester":
+            return "service client %s of node %s" % (record.client.srv_name, node)
+        if record.kind == "replier":
+            return "service server %s of node %s" % (record.service.srv_name, node)
+        return None
+
     # -- deletion -----------------------------------------------------------------------------
 
     def _detach(self, record) -> None:
