@@ -21,6 +21,7 @@ from xrce.agent.middleware import (
 from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.agent.observe import entities as words
 from xrce.errors import DecodeError
+from xrce.agent.engine.mismatches import Mismatches
 from xrce.agent.observe.names import object_id_text
 from xrce.objects import PARENT_KIND, with_kind
 from xrce.streams import is_reliable
@@ -47,7 +48,7 @@ class Parked(Exception):
         self.future = future
 
 
-class ObjectRegistry:
+class ObjectRegistry(Mismatches):
     """Mixin of ``Agent``: CREATE/DELETE of XRCE objects and their middleware entities.
 
     Uses the agent's ``middleware``, ``refs``, ``stats``, ``max_objects_per_client`` and
