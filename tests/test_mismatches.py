@@ -13,9 +13,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from xrce import constants as C
 from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
+from xrce.stream_payloads import AckNack, Heartbeat
+from xrce.submessages import decode_message, encode_message
 from xrce.transports.udp import UdpTransport
 
 
@@ -108,3 +111,141 @@ def test_a_ros_publisher_of_another_type_on_the_boards_topic(ros_peer, ros_domai
                      r"type mismatch, nothing matches: the board's subscription has type "
                      r"std_msgs/msg/String, the ROS publisher of node /xrce_test_peer has "
                      r"std_msgs/msg/Int32; fix: " % session.key.hex(), lines[0]), lines[0]
+
+
+# ------------------------------------------------------------------ samples too large for a board
+
+class CClientReliableInput:
+    """A board's reliable input stream as eProsima's C client keeps it (input_reliable_stream.c):
+    ``history`` slots; a FRAGMENT is stored in its slot and nothing is handed on until the last
+    fragment of the message is in; a message beyond ``last_handled + history`` is dropped (only
+    remembered as announced). ACKNACK: the first message not handled, and a bit for every
+    announced one it has no slot filled for."""
+
+    def __init__(self, last_handled: int, history: int):
+        self.last_handled = last_handled
+        self.last_announced = last_handled
+        self.history = history
+        self.slots = {}  # seq -> (is a fragment, is the last one)
+        self.samples = 0
+
+    def receive(self, seq: int, fragment: bool, last: bool) -> None:
+        if 0 < (seq - self.last_handled) % 0x10000 <= self.history and seq not in self.slots:
+            if not fragment and seq == (self.last_handled + 1) % 0x10000:
+                self.last_handled = seq
+                self.samples += 1
+            else:
+                self.slots[seq] = (fragment, last)
+                self._complete()
+        if 0 < (seq - self.last_announced) % 0x10000 < 0x8000:
+            self.last_announced = seq
+
+    def _complete(self) -> None:
+        seq = (self.last_handled + 1) % 0x10000
+        while seq in self.slots:
+            if self.slots[seq][1]:  # the last fragment: the message is whole
+                for done in range(self.last_handled + 1, seq + 1):
+                    self.slots.pop(done % 0x10000, None)
+                self.last_handled = seq
+                self.samples += 1
+                return
+            seq = (seq + 1) % 0x10000
+
+    def acknack(self, stream_id: int) -> AckNack:
+        first = (self.last_handled + 1) % 0x10000
+        bitmap = 0
+        for i in range(min(16, (self.last_announced - self.last_handled) % 0x10000)):
+            if (first + i) % 0x10000 not in self.slots:
+                bitmap |= 1 << i
+        return AckNack(first, bitmap, stream_id)
+
+
+def run_as_c_client(session, stream: CClientReliableInput, until, timeout_s=20.0) -> bool:
+    """The board's side of its session from now on, as the C client with a short stream."""
+    sock = session.transport._sock
+    sock.settimeout(0.1)
+    deadline = time.monotonic() + timeout_s
+    while not until() and time.monotonic() < deadline:
+        try:
+            data = sock.recv(65536)
+        except OSError:
+            continue
+        header, payloads = decode_message(data)
+        if header.stream_id == session.reliable:
+            fragment = data[header.size] == C.FRAGMENT
+            last = fragment and bool(data[header.size + 1] & C.FLAG_LAST_FRAGMENT)
+            stream.receive(header.seq, fragment, last)
+        elif header.stream_id == C.STREAM_NONE and any(
+                isinstance(p, Heartbeat) and p.stream_id == session.reliable for p in payloads):
+            heartbeat = next(p for p in payloads if isinstance(p, Heartbeat))
+            if 0 < (heartbeat.last_unacked - stream.last_announced) % 0x10000 < 0x8000:
+                stream.last_announced = heartbeat.last_unacked
+        else:
+            continue
+        key = session.key if session.session_id < 0x80 else None
+        sock.send(encode_message(session.session_id, C.STREAM_NONE, 0, key,
+                                 [stream.acknack(session.reliable)]))
+    return until()
+
+
+def test_ros_samples_larger_than_the_boards_stream(ros_peer, ros_domain):  # noqa: F811
+    """A reliable reader whose stream holds 4 fragments (rmw_microxrcedds' default history) gets
+    a 3000-byte String (7 fragments with MTU 512): the stream is stuck for good, as with
+    eProsima's agent; a best-effort reader gets a sample larger than its MTU: dropped each time.
+    One WARNING each, naming the board, the topic, the sizes and the fix."""
+    from std_msgs.msg import String as RosString
+
+    with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8, mtu=512)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="small_board")
+            session.create_reader(node, "/big_command", String, lambda _m: None, reliable=True)
+            session.create_reader(node, "/big_status", String, lambda _m: None, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            reliable = ros_peer.node.create_publisher(
+                RosString, "/big_command",
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            best_effort = ros_peer.node.create_publisher(
+                RosString, "/big_status",
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+            assert wait_until(lambda: reliable.get_subscription_count() >= 1
+                              and best_effort.get_subscription_count() >= 1, 15)
+            board = CClientReliableInput(session._inputs[session.reliable].last_handled, 4)
+            for _ in range(2):
+                reliable.publish(RosString(data="x" * 3000))
+            # Best-effort samples sent right after matching may be lost in DDS: sent until the
+            # agent has dropped some (each one it gets is dropped).
+            sent = []
+
+            def both_named():
+                agent_stats = fetch_stats(port)["agent"]
+                if agent_stats["oversize_dropped"] < 2 and len(sent) < 100:
+                    best_effort.publish(RosString(data="x" * 3000))
+                    sent.append(1)
+                return agent_stats["mismatches"] >= 2 and agent_stats["oversize_dropped"] >= 2
+
+            assert run_as_c_client(session, board, both_named), \
+                ({k: v for k, v in fetch_stats(port)["agent"].items()
+                  if k in ("mismatches", "oversize_dropped")}, board.__dict__)
+            run_as_c_client(session, board, lambda: False, timeout_s=1.5)  # nothing more said
+            snapshot = fetch_stats(port)
+            assert snapshot["agent"]["mismatches"] == 2 and board.samples == 0
+            assert snapshot["agent"]["oversize_dropped"] >= 2  # every best-effort one
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    key = session.key.hex()
+    stuck = warnings(agent, "/big_command: ")
+    assert len(stuck) == 1, "".join(agent.output)
+    assert re.search(r"client %s at udp4 127\.0\.0\.1:\d+, datareader 0x[0-9A-F]{3}\(6\): "
+                     r"/big_command: a 30\d\d-byte sample from ROS cannot reach the board: its "
+                     r"reliable stream holds 4 fragments of at most \d+ bytes .* fix: raise the "
+                     r"board's stream history or MTU" % key, stuck[0]), stuck[0]
+    dropped = warnings(agent, "/big_status: ")
+    assert len(dropped) == 1, "".join(agent.output)
+    assert re.search(r"client %s at udp4 127\.0\.0\.1:\d+, datareader 0x[0-9A-F]{3}\(6\): "
+                     r"/big_status: a 30\d\d-byte sample from ROS cannot reach the board: it reads "
+                     r"on a best-effort stream, which carries one message of at most \d+ bytes .*"
+                     r"fix: read it with a reliable subscription" % key, dropped[0]), dropped[0]
