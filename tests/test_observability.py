@@ -238,3 +238,43 @@ def test_the_agent_sleeps_until_someone_subscribes_to_diagnostics(ros_peer, ros_
         count = len(arrays)
         assert _main_thread_wakes_over(pid, 3) <= 1
         assert len(arrays) == count
+
+
+def test_stats_json_finds_a_board_by_key_address_nodes_and_ros_names(ros_domain):  # noqa: F811
+    """`xrce-agent stats --json`, read as the agent's own user: the board's key as it sent it,
+    its address, its node and domain, its topics and types as ROS tools name them."""
+    with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        session = Session(UdpTransport("127.0.0.1", agent.port), key=0x0BADC0DE, history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            local_port = session.transport._sock.getsockname()[1]
+            node = session.create_participant(domain_id=ros_domain, name="turtlebot3_core")
+            session.create_writer(node, "/chatter", String, reliable=False)
+            session.create_reader(node, "/cmd_text", String, lambda _m: None)
+            assert session.run_until_all_status(5000), session.last_statuses
+            out = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
+                                  "--json"], cwd=REPO, capture_output=True, text=True, timeout=30)
+            assert out.returncode == 0, out.stderr
+            snapshot = json.loads(out.stdout)
+            table = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
+                                    "--once"], cwd=REPO, capture_output=True, text=True,
+                                   timeout=30).stdout
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    row = snapshot["clients"][0]
+    assert row["key"] == "0badc0de" and row["address"] == "udp4 127.0.0.1:%d" % local_port
+    assert [(p["name"], p["node"], p["domain"]) for p in row["participants"]] == \
+        [("turtlebot3_core", "node /turtlebot3_core", ros_domain)]
+    assert sorted((e["kind"], e["topic"], e["type"], e["dds_topic"], e["qos"])
+                  for e in row["endpoints"]) == [
+        ("datareader", "/cmd_text", "std_msgs/msg/String", "rt/cmd_text",
+         "reliable, volatile, keep_last 10"),
+        ("datawriter", "/chatter", "std_msgs/msg/String", "rt/chatter",
+         "best_effort, volatile, keep_last 10")]
+    assert sorted(t["topic"] for t in snapshot["topics"]) == ["/chatter", "/cmd_text"]
+    for text in ("0badc0de", "udp4 127.0.0.1:%d" % local_port, "/turtlebot3_core (domain %d)"
+                 % ros_domain, "/chatter", "/cmd_text", "std_msgs/msg/String"):
+        assert text in table, table
