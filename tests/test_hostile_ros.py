@@ -276,7 +276,7 @@ def test_type_names_import_nothing_and_spawn_no_child_per_name(tmp_path, ros_dom
     assert not imported.exists()
     assert "Beautiful is better than ugly" not in log  # `import this` prints the Zen of Python
     for type_name in hostile:
-        assert re.search("creating TOPIC .*failed: type %s: .* is not installed" % re.escape(type_name),
+        assert re.search("creating topic .*failed: type %s: .* is not installed" % re.escape(type_name),
                          log), log
 
 

@@ -6,6 +6,7 @@ both sides and the fix, counted in the stats."""
 
 from __future__ import annotations
 
+import contextlib
 import re
 import time
 
@@ -42,15 +43,23 @@ def keep_alive_until(session, predicate, timeout_s=20.0):
     return predicate()
 
 
+@contextlib.contextmanager
+def board(agent, domain_id, name, **session_options):
+    """A board's session with its participant: (session, participant id); closed after."""
+    session = Session(UdpTransport("127.0.0.1", agent.port), history=8, **session_options)
+    try:
+        assert session.create(attempts=5, timeout_ms=1000)
+        yield session, session.create_participant(domain_id=domain_id, name=name)
+    finally:
+        session.close()
+
+
 def test_best_effort_board_publisher_and_reliable_ros_subscription(ros_peer, ros_domain):  # noqa: F811
     from std_msgs.msg import String as RosString
 
     with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
         port = stats_port(agent)
-        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
-        try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="sensor_board")
+        with board(agent, ros_domain, "sensor_board") as (session, node):
             session.create_writer(node, "/chatter", String, reliable=False)
             assert session.run_until_all_status(5000), session.last_statuses
             # The ROS side asks for reliable delivery: no sample of the board's ever reaches it.
@@ -70,8 +79,6 @@ def test_best_effort_board_publisher_and_reliable_ros_subscription(ros_peer, ros
             assert len(writer) == 1 and len(writer[0]["mismatches"]) == 1, writer
             named = writer[0]["mismatches"][0]
             session.delete(attempts=2, timeout_ms=500)
-        finally:
-            session.close()
         assert agent.stop() == 0
     lines = warnings(agent, "incompatible QoS")
     assert len(lines) == 1, lines
@@ -91,10 +98,7 @@ def test_a_ros_publisher_of_another_type_on_the_boards_topic(ros_peer, ros_domai
 
     with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
         port = stats_port(agent)
-        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
-        try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="display_board")
+        with board(agent, ros_domain, "display_board") as (session, node):
             session.create_reader(node, "/status", String, lambda _m: None)
             assert session.run_until_all_status(5000), session.last_statuses
             ros_peer.node.create_publisher(Int32, "/status", 10)
@@ -102,8 +106,6 @@ def test_a_ros_publisher_of_another_type_on_the_boards_topic(ros_peer, ros_domai
             session.run_until_timeout(1000)
             assert mismatches(port) == 1
             session.delete(attempts=2, timeout_ms=500)
-        finally:
-            session.close()
         assert agent.stop() == 0
     lines = warnings(agent, "type mismatch")
     assert len(lines) == 1, "".join(agent.output)
@@ -197,10 +199,7 @@ def test_ros_samples_larger_than_the_boards_stream(ros_peer, ros_domain):  # noq
 
     with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
         port = stats_port(agent)
-        session = Session(UdpTransport("127.0.0.1", agent.port), history=8, mtu=512)
-        try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="small_board")
+        with board(agent, ros_domain, "small_board", mtu=512) as (session, node):
             session.create_reader(node, "/big_command", String, lambda _m: None, reliable=True)
             session.create_reader(node, "/big_status", String, lambda _m: None, reliable=False)
             assert session.run_until_all_status(5000), session.last_statuses
@@ -212,7 +211,7 @@ def test_ros_samples_larger_than_the_boards_stream(ros_peer, ros_domain):  # noq
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
             assert wait_until(lambda: reliable.get_subscription_count() >= 1
                               and best_effort.get_subscription_count() >= 1, 15)
-            board = CClientReliableInput(session._inputs[session.reliable].last_handled, 4)
+            stream = CClientReliableInput(session._inputs[session.reliable].last_handled, 4)
             for _ in range(2):
                 reliable.publish(RosString(data="x" * 3000))
             # Best-effort samples sent right after matching may be lost in DDS: sent until the
@@ -226,15 +225,13 @@ def test_ros_samples_larger_than_the_boards_stream(ros_peer, ros_domain):  # noq
                     sent.append(1)
                 return agent_stats["mismatches"] >= 2 and agent_stats["oversize_dropped"] >= 2
 
-            assert run_as_c_client(session, board, both_named), \
+            assert run_as_c_client(session, stream, both_named), \
                 ({k: v for k, v in fetch_stats(port)["agent"].items()
-                  if k in ("mismatches", "oversize_dropped")}, board.__dict__)
-            run_as_c_client(session, board, lambda: False, timeout_s=1.5)  # nothing more said
+                  if k in ("mismatches", "oversize_dropped")}, stream.__dict__)
+            run_as_c_client(session, stream, lambda: False, timeout_s=1.5)  # nothing more said
             snapshot = fetch_stats(port)
-            assert snapshot["agent"]["mismatches"] == 2 and board.samples == 0
+            assert snapshot["agent"]["mismatches"] == 2 and stream.samples == 0
             assert snapshot["agent"]["oversize_dropped"] >= 2  # every best-effort one
-        finally:
-            session.close()
         assert agent.stop() == 0
     key = session.key.hex()
     stuck = warnings(agent, "/big_command: ")
