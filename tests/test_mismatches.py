@@ -233,16 +233,13 @@ def test_ros_samples_larger_than_the_boards_stream(ros_peer, ros_domain):  # noq
             assert snapshot["agent"]["mismatches"] == 2 and stream.samples == 0
             assert snapshot["agent"]["oversize_dropped"] >= 2  # every best-effort one
         assert agent.stop() == 0
-    key = session.key.hex()
-    stuck = warnings(agent, "/big_command: ")
-    assert len(stuck) == 1, "".join(agent.output)
-    assert re.search(r"client %s at udp4 127\.0\.0\.1:\d+, datareader 0x[0-9A-F]{3}\(6\): "
-                     r"/big_command: a 30\d\d-byte sample from ROS cannot reach the board: its "
-                     r"reliable stream holds 4 fragments of at most \d+ bytes .* fix: raise the "
-                     r"board's stream history or MTU" % key, stuck[0]), stuck[0]
-    dropped = warnings(agent, "/big_status: ")
-    assert len(dropped) == 1, "".join(agent.output)
-    assert re.search(r"client %s at udp4 127\.0\.0\.1:\d+, datareader 0x[0-9A-F]{3}\(6\): "
-                     r"/big_status: a 30\d\d-byte sample from ROS cannot reach the board: it reads "
-                     r"on a best-effort stream, which carries one message of at most \d+ bytes .*"
-                     r"fix: read it with a reliable subscription" % key, dropped[0]), dropped[0]
+    head = r"client %s at udp4 127\.0\.0\.1:\d+, datareader 0x[0-9A-F]{3}\(6\): " % session.key.hex()
+    for topic, reason in (
+            ("/big_command", r"its reliable stream holds 4 fragments of at most \d+ bytes .* fix: "
+                             r"raise the board's stream history or MTU"),
+            ("/big_status", r"it reads on a best-effort stream, which carries one message of at "
+                            r"most \d+ bytes .*fix: read it with a reliable subscription")):
+        lines = warnings(agent, topic + ": ")
+        assert len(lines) == 1, "".join(agent.output)
+        assert re.search(head + topic + r": a 30\d\d-byte sample from ROS cannot reach the "
+                         r"board: " + reason, lines[0]), lines[0]
