@@ -41,7 +41,7 @@ class Mismatches:
         if client is None or entry is None:  # gone since: still worth the line
             log.warning("mismatch: %s", text)
             return
-        kept = entry.info.setdefault("mismatches", [])
+        kept = _info(entry).setdefault("mismatches", [])
         if len(kept) < MAX_MISMATCHES_KEPT:
             kept.append(text)
         log.warning("client %s at %s, %s %s: %s", client.key.hex(),
@@ -71,8 +71,9 @@ class Mismatches:
         not handled: the first FRAGMENTs of a sample it holds until the last arrives. A board
         whose stream is shorter than the sample (eProsima's client holds one fragment per slot
         of its input stream's history) can never take the rest: the same ACKNACK then comes
-        back for ever and the stream is stuck. The same, ``STUCK_ROUNDS`` heartbeat periods apart (the
-missing fragments resent in between), and nothing held past the first missing one: named."""
+        back for ever and the stream is stuck. The same, ``STUCK_ROUNDS`` heartbeat periods
+        apart (the missing fragments resent in between), and nothing held past the first missing
+        one: named."""
         first = acknack.first_unacked
         bitmap = acknack.nack_bitmap
         held = (bitmap & -bitmap).bit_length() - 1  # fragments the board holds, from ``first``

@@ -18,11 +18,11 @@ from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
 )
+from xrce.agent.engine.mismatches import Mismatches
 from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.agent.observe import entities as words
-from xrce.errors import DecodeError
-from xrce.agent.engine.mismatches import Mismatches
 from xrce.agent.observe.names import object_id_text
+from xrce.errors import DecodeError
 from xrce.objects import PARENT_KIND, with_kind
 from xrce.streams import is_reliable
 from xrce.submessages import Create, Delete, Status, encode_message
@@ -272,7 +272,6 @@ class ObjectRegistry(Mismatches):
             self.middleware.delete(client.entity(object_id))
         except Exception:
             log.warning("middleware failed to delete %r", client.entity(object_id), exc_info=True)
-
 
 
 def _log_refusal(client: ClientProxy, kind: int, object_id: int, status: int) -> None:
