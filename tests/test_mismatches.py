@@ -15,7 +15,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
-from xrce.agent.observe.stats_view import fetch_stats
+from xrce.agent.observe.stats_view import fetch_stats, format_snapshot
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.stream_payloads import AckNack, Heartbeat
@@ -78,6 +78,8 @@ def test_best_effort_board_publisher_and_reliable_ros_subscription(ros_peer, ros
             writer = [e for e in row["endpoints"] if e["kind"] == "datawriter"]
             assert len(writer) == 1 and len(writer[0]["mismatches"]) == 1, writer
             named = writer[0]["mismatches"][0]
+            view = format_snapshot(snapshot)
+            assert "mismatches 1" in view and "mismatches:\n  client %s: %s" % (key, named) in view
             session.delete(attempts=2, timeout_ms=500)
         assert agent.stop() == 0
     lines = warnings(agent, "incompatible QoS")

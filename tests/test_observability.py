@@ -194,6 +194,10 @@ def test_diagnostics_name_the_client(ros_peer, ros_domain):  # noqa: F811
             status = next(s for a in arrays for s in a.status if s.name.startswith(prefix))
             values = {kv.key: kv.value for kv in status.values}
             assert values["link"] == "udp4" and int(values["messages_in"]) >= 1
+            # Findable without the key: its address and its node, domain and topics.
+            assert re.fullmatch(r"udp4 127\.0\.0\.1:\d+", values["address"]), values
+            assert values["nodes"] == "/diagnosed (domain %d)" % ros_domain, values
+            assert "key" not in values and "tag" not in values
             # Named by its tag: the key would let any ROS node take the session over.
             assert re.fullmatch("[0-9a-f]{8}", status.hardware_id) and \
                 status.name == prefix + status.hardware_id
