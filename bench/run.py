@@ -73,8 +73,9 @@ def serial_goodput(baudrate, seconds, size=200):
                 while True:
                     time.sleep(0.01)
                     snapshot = fetch_stats(port)
-                    topic = next((t for t in snapshot["topics"]
-                                  if t["topic"] == "rt/serial_goodput"), {})
+                    # DDS name: "topic" is the ROS one since issue 38 (a baseline has only it)
+                    topic = next((t for t in snapshot["topics"] if t.get(
+                        "dds_topic", t["topic"]) == "rt/serial_goodput"), {})
                     now = time.monotonic()
                     if topic.get("samples", 0) != samples:
                         samples, last_progress, done_at = topic["samples"], now, now

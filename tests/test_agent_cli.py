@@ -581,7 +581,7 @@ def test_discovery_answers_with_the_agents_port(agent):
 def test_the_ros_middleware_runs_section_13_and_exits_0(agent):
     pytest.importorskip("rclpy")
     process = agent("udp4", "-p", "0")  # -m dds is the default
-    assert process.banner.endswith("(middleware dds)")
+    assert "(middleware dds)" in process.banner
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
         client.connect(("127.0.0.1", process.port()))
 
@@ -620,6 +620,26 @@ def test_verbosity_6_traces_every_message_and_0_is_silent(agent, verbosity, trac
 
 
 # ------------------------------------------------------------------ xrce-agent stats (issue 23)
+
+def test_the_banner_says_where_boards_connect(agent):
+    """Bound to every interface, the banner lists the host's addresses with the port, as a
+    board's AGENT = ("192.168.1.10", 8888) needs them; a serial agent has nothing to add."""
+    from xrce.agent.cli.addresses import MAX_LISTED, host_addresses
+
+    process = agent("udp4", "-p", "0", "-m", "ced")
+    port = int(re.search(r"on port (\d+)", process.banner).group(1))
+    listed = re.search(r"; boards reach it at udp4 (.*) \(all interfaces\)$", process.banner)
+    assert listed, process.banner
+    addresses = host_addresses(False)
+    assert "127.0.0.1" in addresses and addresses[-1] == "127.0.0.1"  # loopback last
+    expected = ["%s:%d" % (a, port) for a in addresses[:MAX_LISTED]]
+    assert listed.group(1).split(", ") == expected + (["..."] if len(addresses) > MAX_LISTED
+                                                      else [])
+    assert process.stop() == 0
+    process = agent("pseudoterminal", "-m", "ced")
+    assert "boards reach it" not in process.banner
+    assert process.stop() == 0
+
 
 def test_stats_json_is_one_snapshot_and_a_closed_reader_ends_it_quietly(agent):
     import json

@@ -126,7 +126,7 @@ def test_a_flood_of_refused_creates_logs_a_bounded_number_of_lines(ros_domain): 
                 session.close()
         assert agent.stop() == 0
     output = "".join(agent.output)
-    logged = re.findall(r"creating TOPIC 0x[0-9A-F]{4} failed: type (made_up_\d+_msgs)", output)
+    logged = re.findall(r"creating topic 0x[0-9A-F]{3}\(2\) failed: type (made_up_\d+_msgs)", output)
     assert logged[:1] == ["made_up_0_msgs"], output[-3000:]  # the first one, named
     not_logged = sum(int(n) for n in re.findall(r"(\d+) more failed CREATEs not logged", output))
     assert len(logged) + not_logged == sessions * per_session, output[-3000:]  # logged or counted

@@ -36,11 +36,11 @@ def stats_port(agent):
 
 
 def client_row(snapshot, session):
-    """The one client's row: it is named by a tag only the agent can compute (the key itself is
-    a credential), so these tests run one client each."""
-    rows = snapshot["clients"]
-    assert len(rows) == 1 and rows[0]["session_id"] == session.session_id, rows
-    assert session.key.hex() not in json.dumps(snapshot)
+    """The one client's row, named by the key the client sent: these tests read the stats as
+    the agent's own user (tests/test_hostile_ros.py reads them as another)."""
+    rows = [row for row in snapshot["clients"] if row["key"] == session.key.hex()]
+    assert len(rows) == 1 and rows[0]["session_id"] == session.session_id, snapshot["clients"]
+    assert snapshot["keys_shown"] and re.fullmatch("[0-9a-f]{8}", rows[0]["tag"])
     return rows[0]
 
 
@@ -79,7 +79,8 @@ def test_a_corrupted_serial_frame_is_one_crc_drop_and_traffic_is_counted():
             view = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
                                    "--once"], cwd=REPO, capture_output=True, text=True, timeout=30)
             assert view.returncode == 0, view.stderr
-            assert row["key"] in view.stdout and session.key.hex() not in view.stdout
+            assert row["key"] in view.stdout and row["tag"] in view.stdout
+            assert "pseudoterminal " + device in view.stdout  # where the board is
             assert re.search(r"^pseudoterminal\s+\d+\s+\d+\s+\d+\s+\d+\s+1\s+1$", view.stdout,
                              re.MULTILINE), view.stdout
             session.delete(attempts=2, timeout_ms=500)
@@ -109,8 +110,10 @@ def test_decode_errors_and_topic_samples_are_counted_per_client():
             row = client_row(snapshot, session)
             assert row["decode_errors"] == 1
             assert snapshot["agent"]["decode_errors"] == 1
-            topics = [t for t in snapshot["topics"] if t["topic"] == "rt/counted"]
+            topics = [t for t in snapshot["topics"] if t["topic"] == "/counted"]
             assert len(topics) == 1 and topics[0]["direction"] == "to_ros"
+            assert topics[0]["dds_topic"] == "rt/counted" and \
+                topics[0]["type"] == "std_msgs/msg/String"
             assert topics[0]["samples"] == 25 and topics[0]["endpoints"] == 1
             # XCDR1 string: 4-byte length, the characters and a NUL.
             assert topics[0]["bytes"] == sum(4 + len("sample %d" % i) + 1 for i in range(25))
@@ -191,6 +194,10 @@ def test_diagnostics_name_the_client(ros_peer, ros_domain):  # noqa: F811
             status = next(s for a in arrays for s in a.status if s.name.startswith(prefix))
             values = {kv.key: kv.value for kv in status.values}
             assert values["link"] == "udp4" and int(values["messages_in"]) >= 1
+            # Findable without the key: its address and its node, domain and topics.
+            assert re.fullmatch(r"udp4 127\.0\.0\.1:\d+", values["address"]), values
+            assert values["nodes"] == "/diagnosed (domain %d)" % ros_domain, values
+            assert "key" not in values and "tag" not in values
             # Named by its tag: the key would let any ROS node take the session over.
             assert re.fullmatch("[0-9a-f]{8}", status.hardware_id) and \
                 status.name == prefix + status.hardware_id
@@ -235,3 +242,43 @@ def test_the_agent_sleeps_until_someone_subscribes_to_diagnostics(ros_peer, ros_
         count = len(arrays)
         assert _main_thread_wakes_over(pid, 3) <= 1
         assert len(arrays) == count
+
+
+def test_stats_json_finds_a_board_by_key_address_nodes_and_ros_names(ros_domain):  # noqa: F811
+    """`xrce-agent stats --json`, read as the agent's own user: the board's key as it sent it,
+    its address, its node and domain, its topics and types as ROS tools name them."""
+    with AgentProcess("udp4", "-m", "dds", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        session = Session(UdpTransport("127.0.0.1", agent.port), key=0x0BADC0DE, history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            local_port = session.transport._sock.getsockname()[1]
+            node = session.create_participant(domain_id=ros_domain, name="turtlebot3_core")
+            session.create_writer(node, "/chatter", String, reliable=False)
+            session.create_reader(node, "/cmd_text", String, lambda _m: None)
+            assert session.run_until_all_status(5000), session.last_statuses
+            out = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
+                                  "--json"], cwd=REPO, capture_output=True, text=True, timeout=30)
+            assert out.returncode == 0, out.stderr
+            snapshot = json.loads(out.stdout)
+            table = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p", str(port),
+                                    "--once"], cwd=REPO, capture_output=True, text=True,
+                                   timeout=30).stdout
+            session.delete(attempts=2, timeout_ms=500)
+        finally:
+            session.close()
+        assert agent.stop() == 0
+    row = snapshot["clients"][0]
+    assert row["key"] == "0badc0de" and row["address"] == "udp4 127.0.0.1:%d" % local_port
+    assert [(p["name"], p["node"], p["domain"]) for p in row["participants"]] == \
+        [("turtlebot3_core", "node /turtlebot3_core", ros_domain)]
+    assert sorted((e["kind"], e["topic"], e["type"], e["dds_topic"], e["qos"])
+                  for e in row["endpoints"]) == [
+        ("datareader", "/cmd_text", "std_msgs/msg/String", "rt/cmd_text",
+         "reliable, volatile, keep_last 10"),
+        ("datawriter", "/chatter", "std_msgs/msg/String", "rt/chatter",
+         "best_effort, volatile, keep_last 10")]
+    assert sorted(t["topic"] for t in snapshot["topics"]) == ["/chatter", "/cmd_text"]
+    for text in ("0badc0de", "udp4 127.0.0.1:%d" % local_port, "/turtlebot3_core (domain %d)"
+                 % ros_domain, "/chatter", "/cmd_text", "std_msgs/msg/String"):
+        assert text in table, table

@@ -158,7 +158,10 @@ async def serve(args, refs):
         banner = "; ".join(link.describe() for link in started)
         if observe.describe():
             banner += "; " + observe.describe()
-        sys.stdout.write("%s: %s (middleware %s)\n" % (PROG, banner, args.middleware))
+        from xrce.agent.cli.addresses import banner_suffix
+
+        sys.stdout.write("%s: %s (middleware %s)%s\n" % (PROG, banner, args.middleware,
+                                                         banner_suffix(started)))
         sys.stdout.flush()
         loop.add_signal_handler(signal.SIGUSR1, _print_stats, agent, started)
         stopped = asyncio.ensure_future(stop.wait())

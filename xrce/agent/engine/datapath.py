@@ -286,9 +286,14 @@ class DataPath:
                     self._wake_at(now + (min(len(sample), active.rate) - active.tokens) / active.rate)
                     break
                 active.tokens -= len(sample)
-            if not self._send_on_stream(client, active.stream_id, None,
-                                        data_message(client, active.stream_id, active.request_id,
-                                                     entry.object_id, sample)):
+            message = data_message(client, active.stream_id, active.request_id, entry.object_id,
+                                   sample)
+            if len(message) > client.mtu:  # the board's stream may not carry it: mismatches.py
+                if not is_reliable(active.stream_id):
+                    self._too_large_for_best_effort(client, entry, len(sample), len(message))
+                elif entry.info is not None:
+                    entry.info["fragmented"] = len(sample)
+            if not self._send_on_stream(client, active.stream_id, None, message):
                 if active.rate:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
@@ -407,9 +412,9 @@ class DataPath:
             message = encode_message(client.session_id, stream_id, 0, client.header_key, [payload])
         if not is_reliable(stream_id):
             if len(message) > client.mtu:
-                self.stats.oversize_dropped += 1
-                log.warning("client %s: %d-byte best-effort message exceeds mtu %d, dropped",
-                            client.key.hex(), len(message), client.mtu)
+                self.stats.oversize_dropped += 1  # a reader's: named once in _pump
+                log.debug("client %s: %d-byte best-effort message exceeds mtu %d, dropped",
+                          client.key.hex(), len(message), client.mtu)
                 return True
             stream = client.out_best_effort.get(stream_id)
             if stream is None:

@@ -116,6 +116,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         # in-process middleware (-m ced) delivers samples while the engine is receiving.
         self.lock = threading.RLock()
         middleware.engine_lock = self.lock
+        middleware.on_mismatch = self._middleware_mismatch  # engine/mismatches.py
+        self._held_fragments: Dict[tuple, tuple] = {}  # engine/mismatches.py
         self._loop_thread = threading.get_ident()  # the thread the loop runs on, once started
         self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
         self._timer_due = NEVER

@@ -82,6 +82,8 @@ class Liveliness:
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
         stored = stream.stored_bytes
         resend = stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms, holdoff_ms)
+        if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatches.py
+            self._acknack_holds_fragments(client, stream, acknack)
         self._charge(client, stream.stored_bytes - stored)
         for message in resend:
             self.stats.retransmissions += 1

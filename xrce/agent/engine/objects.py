@@ -18,7 +18,10 @@ from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
 )
+from xrce.agent.engine.mismatches import Mismatches
 from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
+from xrce.agent.observe import entities as words
+from xrce.agent.observe.names import object_id_text
 from xrce.errors import DecodeError
 from xrce.objects import PARENT_KIND, with_kind
 from xrce.streams import is_reliable
@@ -45,7 +48,7 @@ class Parked(Exception):
         self.future = future
 
 
-class ObjectRegistry:
+class ObjectRegistry(Mismatches):
     """Mixin of ``Agent``: CREATE/DELETE of XRCE objects and their middleware entities.
 
     Uses the agent's ``middleware``, ``refs``, ``stats``, ``max_objects_per_client`` and
@@ -73,14 +76,16 @@ class ObjectRegistry:
         existing = client.objects.get(object_id)
         if existing is not None:
             if not request.reuse and not request.replace:
-                self._status(client, request, C.STATUS_ERR_ALREADY_EXISTS, stream_id)
+                self._refused(client, request, object_id, C.STATUS_ERR_ALREADY_EXISTS, stream_id)
                 return
             if request.reuse:
                 if reuse.matches(kind, existing.signature, request, self.refs):
+                    if log.isEnabledFor(logging.DEBUG):
+                        log.debug("%s", words.object_line("reused", client, existing))
                     self._status(client, request, C.STATUS_OK_MATCHED, stream_id)
                     return
                 if not request.replace:
-                    self._status(client, request, C.STATUS_ERR_MISMATCH, stream_id)
+                    self._refused(client, request, object_id, C.STATUS_ERR_MISMATCH, stream_id)
                     return
             self._delete_object(client, object_id)
         if len(client.objects) >= (self.max_objects_per_client or MAX_OBJECTS_PER_CLIENT):
@@ -91,20 +96,33 @@ class ObjectRegistry:
             return
         parent = None if kind == C.OBJK_PARTICIPANT else with_kind(request.tail_id, PARENT_KIND[kind])
         if parent is not None and parent not in client.objects:
-            self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
+            self._refused(client, request, object_id, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
             return
-        entry = ObjectEntry(object_id, kind, parent, reuse.representation_of(request))
+        entry = ObjectEntry(object_id, kind, parent, reuse.representation_of(request), info={})
         try:
             status = self._build(client, request, entry)
         except TypeNotReady as pending:
             raise Parked(pending.future)
         except (MiddlewareError, XmlRepresentationError) as exc:
-            self.create_failures.warning("client %s: creating %s 0x%04X failed: %s",
-                                         client.key.hex(), wire_names.OBJECT_KIND_NAMES.get(kind),
-                                         object_id, exc)
+            self.create_failures.warning("client %s: creating %s %s failed: %s",
+                                         client.key.hex(), words.kind_name(kind),
+                                         object_id_text(object_id), exc)
             status = C.STATUS_ERR_DDS_ERROR
         if status == C.STATUS_OK:
             client.objects[object_id] = entry
+            if kind != C.OBJK_TOPIC:
+                entry.info["ros"] = self.middleware.ros_entity(client.entity(object_id))
+            if log.isEnabledFor(logging.INFO):
+                log.info("%s", words.object_line("created", client, entry))
+        elif status != C.STATUS_ERR_DDS_ERROR:
+            _log_refusal(client, kind, object_id, status)
+        self._status(client, request, status, stream_id)
+
+    def _refused(self, client: ClientProxy, request: Create, object_id: int, status: int,
+                 stream_id: int) -> None:
+        """A CREATE answered with an error the client caused: at debug level, as eProsima's
+        agent logs them (``-v 5``)."""
+        _log_refusal(client, request.kind, object_id, status)
         self._status(client, request, status, stream_id)
 
     def _reference(self, request: Create) -> str:
@@ -142,6 +160,7 @@ class ObjectRegistry:
                 # Fast DDS cannot compute ports beyond it and aborts the whole process (found by
                 # bench/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
                 raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
+            entry.info.update(name=name, domain=domain)
             mw.create_participant(key, domain, name)
         elif kind == C.OBJK_TOPIC:
             if fmt == C.REPRESENTATION_IN_BINARY:
@@ -174,6 +193,7 @@ class ObjectRegistry:
                 qos = parsed.qos
             entry.topic = topic
             entry.topic_spec = client.objects[topic].topic_spec
+            entry.info["qos"] = qos
             if writer:
                 mw.create_datawriter(key, client.entity(entry.parent), client.entity(topic), qos)
                 entry.write = mw.writer(key)
@@ -189,6 +209,7 @@ class ObjectRegistry:
                 spec = _xml().parse_service(
                     self._xml_text(request), "requester" if kind == C.OBJK_REQUESTER else "replier")
             qos = EndpointQosSpec()
+            entry.info.update(service=words.service_info(spec), qos=qos)
             entry.reader = ReaderState(_queue_bound(qos))
             if kind == C.OBJK_REQUESTER:
                 mw.create_requester(key, client.entity(entry.parent), spec, qos,
@@ -216,6 +237,9 @@ class ObjectRegistry:
                 [Status(request.request_id, request.object_id)]))
             return
         if request.object_id not in client.objects:
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("client %s: DELETE of unknown object %s", client.key.hex(),
+                          object_id_text(request.object_id))
             self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
             return
         self._delete_object(client, request.object_id)
@@ -232,9 +256,12 @@ class ObjectRegistry:
         for child in children:
             if child in client.objects:
                 self._delete_object(client, child)
-        entry = client.objects.pop(object_id, None)
+        entry = client.objects.get(object_id)
         if entry is None:
             return
+        if log.isEnabledFor(logging.INFO):  # its parents are still there to be named
+            log.info("%s", words.object_line("deleted", client, entry))
+        del client.objects[object_id]
         client.blocked_readers.discard(object_id)
         if entry.reader is not None:
             client.queued_bytes -= sum(len(sample) for sample in entry.reader.queue)
@@ -246,6 +273,11 @@ class ObjectRegistry:
         except Exception:
             log.warning("middleware failed to delete %r", client.entity(object_id), exc_info=True)
 
+
+def _log_refusal(client: ClientProxy, kind: int, object_id: int, status: int) -> None:
+    if log.isEnabledFor(logging.DEBUG):
+        log.debug("client %s: %s %s not created: %s", client.key.hex(), words.kind_name(kind),
+                  object_id_text(object_id), wire_names.STATUS_NAMES.get(status, status))
 
 
 def _xml():

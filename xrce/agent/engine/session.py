@@ -94,6 +94,7 @@ class AgentStats:
     clients_evicted: int = 0  # idle sessions (no objects) deleted to admit a new client
     nested_fragments: int = 0  # reassembled messages holding FRAGMENTs again: dropped
     sources_refused: int = 0  # datagrams from outside --allow-from, dropped before any lookup
+    mismatches: int = 0  # board/ROS endpoint pairs that cannot talk, each warned once (objects.py)
 
     def as_dict(self) -> Dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -139,6 +140,7 @@ class ObjectEntry:
     sample_bytes: int = 0
     # Writers: the middleware's publish for this entity, looked up once (see datapath._fast_write).
     write: Optional[Callable[[bytes], bool]] = None
+    info: Optional[dict] = None  # what it is in words, for logs and stats (observe/entities.py)
 
 
 class ClientProxy:

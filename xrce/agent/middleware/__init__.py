@@ -102,6 +102,10 @@ class Middleware:
     name = "abstract"
     # The engine's lock (``Agent.lock``), set by the engine; see the module docstring.
     engine_lock: Optional[threading.RLock] = None
+    # on_mismatch(entity, text): a client's endpoint cannot talk to a peer outside the agent
+    # (incompatible QoS, another type); called once per pair, from any thread. Set by the engine,
+    # which names the client and counts it.
+    on_mismatch: Optional[Callable[[EntityKey, str], None]] = None
 
     def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
         raise NotImplementedError
@@ -134,6 +138,11 @@ class Middleware:
     def delete(self, key: EntityKey) -> None:
         """Delete one entity. The engine deletes children before parents."""
         raise NotImplementedError
+
+    def ros_entity(self, key: EntityKey) -> Optional[str]:
+        """What the entity became outside the agent, in a user's words (``node /talker``,
+        ``publisher /chatter of node /talker``), for logs and stats; None where nothing."""
+        return None
 
     def write(self, writer: EntityKey, sample: bytes) -> bool:
         raise NotImplementedError

@@ -1,8 +1,9 @@
 """``/diagnostics``: with ``-m dds`` and ``diagnostic_msgs`` importable, a
 ``diagnostic_msgs/DiagnosticArray`` goes out once a second in every ROS domain the agent has joined
 where some node subscribes to it: one status for the agent, one per client, named after the
-client's tag (``names.client_tag``: the key itself is a credential). Its content is an
-``Observer`` snapshot (xrce.agent.observe.observability).
+client's tag (``names.client_tag``: the key itself is a credential, and the whole domain reads
+this), with its address, its nodes and domains and its topics and types as ROS names. Its
+content is an ``Observer`` snapshot (xrce.agent.observe.observability).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import logging
 import time
 
 from xrce.cdr import CdrWriter
+from xrce.agent.observe.entities import endpoints_text, nodes_text
 
 # One logger for everything observability does (xrce.agent.observe.observability wires this module in).
 log = logging.getLogger("xrce.agent.observability")
@@ -19,6 +21,9 @@ STALE_AFTER_S = 5.0  # a client silent this long is reported WARN on /diagnostic
 DIAGNOSTIC_ARRAY_TYPE = "diagnostic_msgs::msg::dds_::DiagnosticArray_"
 DIAGNOSTIC_OK = 0  # diagnostic_msgs/DiagnosticStatus levels
 DIAGNOSTIC_WARN = 1
+# The whole ROS domain reads /diagnostics: a client is named by its tag, never its key (the
+# snapshot it is made from has none: Observer.snapshot without show_keys); nested rows as text.
+_NOT_VALUES = frozenset(("key", "tag", "participants", "endpoints"))
 
 
 def diagnostic_array_type():
@@ -42,13 +47,15 @@ def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
                  "xrce_agent", [(k, str(v)) for k, v in snapshot["agent"].items()])]
     for client in snapshot["clients"]:
         stale = client["last_seen_s"] >= STALE_AFTER_S
+        values = [(k, "" if v is None else str(v)) for k, v in client.items()
+                  if k not in _NOT_VALUES]
+        values += [("nodes", nodes_text(client)), ("endpoints", endpoints_text(client))]
         statuses.append((
             DIAGNOSTIC_WARN if stale else DIAGNOSTIC_OK,
-            "xrce_agent: client %s" % client["key"],
+            "xrce_agent: client %s" % client["tag"],
             "silent for %.1f s" % client["last_seen_s"] if stale
-            else "session 0x%02X on %s" % (client["session_id"], client["link"]),
-            client["key"],
-            [(k, "" if v is None else str(v)) for k, v in client.items() if k != "key"]))
+            else "session 0x%02X on %s" % (client["session_id"], client["address"]),
+            client["tag"], values))
     writer = CdrWriter(bytearray(512))
     writer.i32(stamp_ns // 1000000000)  # header.stamp
     writer.u32(stamp_ns % 1000000000)

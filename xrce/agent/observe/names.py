@@ -41,3 +41,50 @@ def endpoint_text(endpoint) -> str:
         host = endpoint[0]
         return ("[%s]:%s" if ":" in str(host) else "%s:%s") % (host, endpoint[1])
     return str(endpoint).replace(" ", "")
+
+
+def address_text(link_name: str, endpoint) -> str:
+    """Where a client talks from, as a user would look for it: ``udp4 192.168.1.7:41234``,
+    ``serial /dev/ttyACM0`` (a serial endpoint is the device and the frame's source address,
+    which boards leave at 0: named only when it is not)."""
+    if isinstance(endpoint, tuple) and len(endpoint) == 2 and str(endpoint[0]).startswith("/"):
+        device, source = endpoint
+        return "%s %s" % (link_name, device) if not source else \
+            "%s %s (frame address %s)" % (link_name, device, source)
+    return "%s %s" % (link_name, endpoint_text(endpoint))
+
+
+# The ROS 2 DDS mapping's prefixes (XRCE-WIRE.md §4): what ROS tools call the topic. Standard
+# library only, unlike xrce.agent.middleware.ros.types: stats and logs of a -m ced agent use it.
+_ROS_PREFIXES = {"rt/": "", "rq/": "Request", "rr/": "Reply"}
+
+
+def ros_topic_name(dds_name: str) -> str:
+    """``rt/chatter`` -> ``/chatter``, ``rq/add_two_intsRequest`` -> ``/add_two_ints``; a name
+    without a ROS prefix is a DDS-level topic and stays as it is."""
+    prefix = dds_name[:3]
+    suffix = _ROS_PREFIXES.get(prefix)
+    if suffix is None or not dds_name.endswith(suffix):
+        return dds_name
+    name = dds_name[3:len(dds_name) - len(suffix)]
+    return name if name.startswith("/") else "/" + name
+
+
+def ros_type_name(dds_type: str) -> str:
+    """``std_msgs::msg::dds_::String_`` -> ``std_msgs/msg/String``; other spellings unchanged."""
+    parts = dds_type.split("::")
+    if len(parts) == 4 and parts[2] == "dds_" and parts[3].endswith("_"):
+        return "%s/%s/%s" % (parts[0], parts[1], parts[3][:-1])
+    return dds_type
+
+
+def object_id_text(object_id: int) -> str:
+    """An XRCE object id as eProsima's agent logs it: ``0x001(5)`` is id 1 of kind 5."""
+    return "0x%03X(%d)" % (object_id >> 4, object_id & 0x0F)
+
+
+def qos_text(qos) -> str:
+    """An endpoint's QoS (``xrce.agent.middleware.EndpointQosSpec``) in the words of ROS:
+    ``reliable, volatile, keep_last 10``."""
+    return "%s, %s, %s" % ("reliable" if qos.reliable else "best_effort", qos.durability,
+                           "keep_last %d" % qos.depth if qos.keep_last else "keep_all")

@@ -27,12 +27,18 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
+import socket
+import struct
 import time
 
 from xrce import constants as C
 from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
+from xrce.agent.observe.entities import DIRECTIONS, describe
 # In this module's __all__ too, as before they had a module of their own.
-from xrce.agent.observe.names import client_pseudonym, client_tag, endpoint_text  # noqa: F401
+from xrce.agent.observe.names import (  # noqa: F401
+    address_text, client_pseudonym, client_tag, endpoint_text, ros_topic_name, ros_type_name,
+)
 # The `xrce-agent stats` subcommand is registered (xrce/agent/cli/subcommands.py) through this module.
 
 log = logging.getLogger("xrce.agent.observability")
@@ -40,6 +46,7 @@ log = logging.getLogger("xrce.agent.observability")
 DEFAULT_SUMMARY_PERIOD_S = 5.0
 RATE_PERIOD_S = 1.0
 _TOPIC_KINDS = {C.OBJK_DATAWRITER: "to_ros", C.OBJK_DATAREADER: "from_ros"}
+_DESCRIBED = frozenset(DIRECTIONS) | {C.OBJK_PARTICIPANT}
 
 
 def _link_crc_errors(link) -> int:
@@ -112,17 +119,26 @@ class Observer:
         self._previous = {}
         self._rates = {}
 
-    def snapshot(self) -> dict:
+    def snapshot(self, show_keys: bool = False) -> dict:
+        """Everything the stats show. Each client by its ``tag`` (names.client_tag); its
+        ``key`` as the client sent it only with ``show_keys`` (the reader may know it: see
+        ``StatsServer``), None otherwise."""
         now = self.clock()
         agent = self.agent
         clients = []
         for client in list(agent.clients.values()):
             rates = self._rates.get(("client", client.key), (0.0, 0.0, 0.0, 0.0))
+            entities = [describe(client, entry) for entry in list(client.objects.values())
+                        if entry.kind in _DESCRIBED]
             clients.append({
-                "key": client_tag(client.key),
+                "key": client.key.hex() if show_keys else None,
+                "tag": client_tag(client.key),
                 "session_id": client.session_id,
                 "link": client.link.name,
                 "endpoint": endpoint_text(client.endpoint),
+                "address": address_text(client.link.name, client.endpoint),
+                "participants": [e for e in entities if e["kind"] == "participant"],
+                "endpoints": [e for e in entities if e["kind"] != "participant"],
                 "objects": len(client.objects),
                 "messages_in": client.messages_in,
                 "messages_out": client.messages_out,
@@ -146,7 +162,9 @@ class Observer:
                 sorted(self._topic_totals().items()):
             rates = self._rates.get(("topic", name, direction), (0.0, 0.0))
             topics.append({
-                "topic": name, "type": type_name, "direction": direction, "endpoints": endpoints,
+                "topic": ros_topic_name(name), "type": ros_type_name(type_name),
+                "dds_topic": name, "dds_type": type_name, "direction": direction,
+                "endpoints": endpoints,
                 "samples": samples, "bytes": size, "samples_per_s": round(rates[0], 1),
                 "bytes_per_s": round(rates[1], 1),
             })
@@ -158,16 +176,47 @@ class Observer:
             links.append(row)
         timelines = getattr(agent, "timelines", None)
         return {"time": time.time(), "uptime_s": round(now - self.started, 3),
-                "agent": agent.stats.as_dict(), "links": links, "clients": clients,
-                "topics": topics,
-                "recoveries": [dict(t, key=client_tag(bytes.fromhex(t["key"])))
+                "keys_shown": show_keys, "agent": agent.stats.as_dict(), "links": links,
+                "clients": clients, "topics": topics,
+                "recoveries": [dict(t, key=t["key"] if show_keys else None,
+                                    tag=client_tag(bytes.fromhex(t["key"])))
                                for t in timelines.snapshot()] if timelines is not None else []}
 
 
 # ------------------------------------------------------------------------------------ live view
 
+def _proc_net_address(host: str, port: int) -> str:
+    """An address as /proc/net/tcp{,6} prints it: the address's 32-bit words in host order, hex."""
+    if ":" in host:
+        words = struct.unpack("=4I", socket.inet_pton(socket.AF_INET6, host))
+    else:
+        words = struct.unpack("=I", socket.inet_aton(host))
+    return "%s:%04X" % ("".join("%08X" % word for word in words), port)
+
+
+def connection_uid(peer, local):
+    """The user id owning the other end of a loopback TCP connection (``peer`` connected to our
+    ``local``), read from the kernel's socket table as ``ss -e`` does; None where unknown (not
+    Linux, or the peer already gone)."""
+    try:
+        ours = _proc_net_address(local[0], local[1])
+        theirs = _proc_net_address(peer[0], peer[1])
+        with open("/proc/net/tcp6" if ":" in peer[0] else "/proc/net/tcp") as table:
+            for line in table:
+                fields = line.split()
+                if len(fields) > 7 and fields[1] == theirs and fields[2] == ours:
+                    return int(fields[7])
+    except (OSError, ValueError, TypeError, IndexError, struct.error):
+        pass
+    return None
+
+
 class StatsServer:
-    """Every TCP connection on ``host:port`` gets the current snapshot as JSON, then EOF."""
+    """Every TCP connection on ``host:port`` gets the current snapshot as JSON, then EOF.
+
+    Client keys are credentials (names.py): the snapshot names each client by the key it sent
+    only to a reader who could read that key from the agent anyway, a process of the agent's own
+    user or root (``connection_uid``); any other local user gets tags only, as before."""
 
     def __init__(self, observer: Observer, port: int, host: str = "127.0.0.1"):
         self.observer = observer
@@ -186,7 +235,10 @@ class StatsServer:
 
     async def _serve(self, reader, writer) -> None:
         try:
-            writer.write(json.dumps(self.observer.snapshot()).encode() + b"\n")
+            uid = connection_uid(writer.get_extra_info("peername"),
+                                 writer.get_extra_info("sockname"))
+            show_keys = uid is not None and uid in (0, os.geteuid())
+            writer.write(json.dumps(self.observer.snapshot(show_keys)).encode() + b"\n")
             await writer.drain()
         except (ConnectionError, OSError):
             pass
@@ -352,7 +404,8 @@ class Observability:
                     next_summary += self.summary_period
                     from xrce.agent.observe.stats_view import summary_lines
 
-                    for line in summary_lines(self.observer.snapshot()):
+                    # The operator's own log, which names keys anyway.
+                    for line in summary_lines(self.observer.snapshot(show_keys=True)):
                         log.debug("%s", line)
             except Exception:  # observability must never stop the agent
                 log.warning("observability round failed", exc_info=True)

@@ -14,6 +14,7 @@ import sys
 import time
 
 from xrce.agent.engine.timeline import format_timeline
+from xrce.agent.observe.entities import nodes_text
 
 
 def _number(value) -> str:
@@ -24,42 +25,70 @@ def _number(value) -> str:
     return str(value)
 
 
-def _table(headers, rows) -> list:
+def _table(headers, rows, words: bool = False) -> list:
+    """Columns of numbers right-aligned after the first; with ``words``, all left-aligned."""
     widths = [len(h) for h in headers]
     text_rows = [[_number(v) for v in row] for row in rows]
     for row in text_rows:
         widths = [max(w, len(cell)) for w, cell in zip(widths, row)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(headers, widths))]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(headers, widths)).rstrip()]
     lines.append("  ".join("-" * w for w in widths))
     for row in text_rows:
-        lines.append("  ".join(cell.rjust(w) if i else cell.ljust(w)
-                               for i, (cell, w) in enumerate(zip(row, widths))))
+        lines.append("  ".join(cell.rjust(w) if i and not words else cell.ljust(w)
+                               for i, (cell, w) in enumerate(zip(row, widths))).rstrip())
     return lines
 
 
-def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5) -> str:
-    """The stats view: links, clients (busiest first) and topics as plain-text tables."""
+def client_name(row: dict) -> str:
+    """A client as the stats name it: the key it sent, or its tag where keys are hidden."""
+    return row.get("key") or row["tag"]
+
+
+def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5,
+                    max_endpoints: int = 60) -> str:
+    """The stats view: links, clients (busiest first) with their addresses and nodes, their
+    endpoints and the topics as plain-text tables."""
     agent = snapshot["agent"]
     lines = ["xrce-agent up %.0f s: %d clients, in %d msg / %d B, out %d msg / %d B, "
-             "dropped %d (decode %d), retransmissions %d" % (
+             "dropped %d (decode %d), retransmissions %d, mismatches %d" % (
                  snapshot["uptime_s"], len(snapshot["clients"]), agent["messages_in"],
                  agent["bytes_in"], agent["messages_out"], agent["bytes_out"], agent["dropped"],
-                 agent["decode_errors"], agent["retransmissions"]), ""]
+                 agent["decode_errors"], agent["retransmissions"], agent.get("mismatches", 0))]
+    if snapshot["clients"] and not snapshot.get("keys_shown"):
+        lines.append("client keys hidden (this reader is not the agent's user): clients named "
+                     "by tag, as on /diagnostics")
+    lines.append("")
     lines += _table(("link", "msg in", "msg out", "bytes in", "bytes out", "drops", "crc"),
                     [(l["name"], l["messages_in"], l["messages_out"], l["bytes_in"],
                       l["bytes_out"], l["drops"], l["crc_errors"]) for l in snapshot["links"]])
     clients = sorted(snapshot["clients"], key=lambda c: -(c["messages_in_per_s"]
                                                           + c["messages_out_per_s"]))
+    shown = clients[:max_clients]
     lines.append("")
-    lines += _table(("client", "link", "msg/s in", "msg/s out", "msg in", "msg out", "B/s in",
+    lines += _table(("client", "tag", "address", "session", "nodes (ROS domain)"),
+                    [(client_name(c), c["tag"], c["address"], "0x%02X" % c["session_id"],
+                      nodes_text(c) or "-") for c in shown], words=True)
+    lines.append("")
+    lines += _table(("client", "msg/s in", "msg/s out", "msg in", "msg out", "B/s in",
                      "B/s out", "decode", "dup", "retx", "rtt ms", "skew ms", "seen s"),
-                    [(c["key"], c["link"], c["messages_in_per_s"], c["messages_out_per_s"],
+                    [(client_name(c), c["messages_in_per_s"], c["messages_out_per_s"],
                       c["messages_in"], c["messages_out"], c["bytes_in_per_s"],
                       c["bytes_out_per_s"], c["decode_errors"], c["duplicates"],
                       c["retransmissions"], c["rtt_ms"], c["timestamp_skew_ms"],
-                      c["last_seen_s"]) for c in clients[:max_clients]])
+                      c["last_seen_s"]) for c in shown])
     if len(clients) > max_clients:
         lines.append("... %d more clients" % (len(clients) - max_clients))
+    endpoints = [(client_name(c), e) for c in shown for e in c.get("endpoints", ())]
+    if endpoints:
+        lines.append("")
+        lines += _table(("client", "endpoint", "topic / service", "type", "QoS", "samples",
+                         "mismatch"),
+                        [(name, "%s %s" % (e["kind"], e["object_id"]),
+                          e.get("topic") or e.get("service"), e.get("type"), e.get("qos", "-"),
+                          e["samples"], "yes" if e.get("mismatches") else "-")
+                         for name, e in endpoints[:max_endpoints]], words=True)
+        if len(endpoints) > max_endpoints:
+            lines.append("... %d more endpoints" % (len(endpoints) - max_endpoints))
     lines.append("")
     lines += _table(("topic", "direction", "type", "endpoints", "samples", "samples/s", "B/s"),
                     [(t["topic"], t["direction"], t["type"], t["endpoints"], t["samples"],
@@ -67,7 +96,13 @@ def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int =
     recoveries = snapshot.get("recoveries") or []
     if recoveries:
         lines += ["", "recoveries (latest last):"]
-        lines += ["  " + format_timeline(t) for t in recoveries[-max_recoveries:]]
+        lines += ["  " + format_timeline(dict(t, key=t.get("key") or t["tag"]))
+                  for t in recoveries[-max_recoveries:]]
+    mismatches = [(client_name(c), text) for c in shown for e in c.get("endpoints", ())
+                  for text in e.get("mismatches", ())]
+    if mismatches:
+        lines += ["", "mismatches:"]
+        lines += ["  client %s: %s" % pair for pair in mismatches]
     return "\n".join(lines)
 
 
@@ -83,7 +118,7 @@ def summary_lines(snapshot: dict) -> list:
     for c in snapshot["clients"]:
         if c["messages_in_per_s"] or c["messages_out_per_s"]:
             lines.append("client %s on %s: %.1f msg/s in, %.1f msg/s out, retx %d, rtt %s ms, "
-                         "seen %.1f s ago" % (c["key"], c["link"], c["messages_in_per_s"],
+                         "seen %.1f s ago" % (client_name(c), c["address"], c["messages_in_per_s"],
                                               c["messages_out_per_s"], c["retransmissions"],
                                               _number(c["rtt_ms"]), c["last_seen_s"]))
     for t in snapshot["topics"]:

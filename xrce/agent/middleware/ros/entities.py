@@ -15,6 +15,8 @@ import asyncio
 import os
 import time
 
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+
 from xrce.agent.middleware import (
     DataCallback,
     EndpointQosSpec,
@@ -22,6 +24,7 @@ from xrce.agent.middleware import (
     Middleware,
     MiddlewareError,
     TopicSpec,
+    TypeNotReady,
 )
 from xrce.agent.middleware.ros.domain import (
     ENCAPSULATION_LE,
@@ -36,6 +39,7 @@ from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
 from xrce.agent.middleware.ros.graph import GRAPH_SPEC
 from xrce.agent.middleware.ros.membership import RosDomains, default_domain_id
+from xrce.agent.middleware.ros.mismatch import MismatchWatch, TypeWatch
 from xrce.agent.middleware.ros.records import (
     GroupRecord,
     ParticipantRecord,
@@ -46,6 +50,9 @@ from xrce.agent.middleware.ros.records import (
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.raw_types import raw_message_type
 from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, qos_profile
+
+
+MISMATCH_RETRY_S = 0.3  # a peer whose node the ROS graph does not know yet is looked for again
 
 
 class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
@@ -87,6 +94,9 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         # domain id -> (GraphFeed, number of client readers of the graph topic there): the graph
         # is published only where a client asked for it (xrce.agent.middleware.ros.graph).
         self._graph_feeds: dict[int, list] = {}
+        # key -> MismatchWatch of each client endpoint (xrce.agent.middleware.ros.mismatch).
+        self._watches: dict = {}
+        self._type_watches: dict = {}  # domain id -> TypeWatch (mismatch.py)
 
     # -- plumbing -----------------------------------------------------------------------------
 
@@ -179,8 +189,18 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos, topic_record.dds_level)
         node = participant.node
-        ros_publisher, _ = self._create_on_executor(key, participant, lambda: node.create_publisher(
-            topic_record.msg_class, topic_record.ros_name, profile), node.destroy_publisher)
+        events = PublisherEventCallbacks(**self._watch(key, participant, topic_record, profile,
+                                                       True))
+        try:
+            ros_publisher, _ = self._create_on_executor(
+                key, participant, lambda: node.create_publisher(
+                    topic_record.msg_class, topic_record.ros_name, profile,
+                    event_callbacks=events), node.destroy_publisher)
+        except TypeNotReady:
+            raise
+        except Exception:
+            self._unwatch(key)
+            raise
         self._entities[key] = WriterRecord(owner, ros_publisher)
         self._graph_changed(participant.domain)
 
@@ -195,14 +215,62 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = creation.context if creation is not None else ReaderRecord(
             owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
         node = participant.node
-        record.subscription, _ = self._create_on_executor(
-            key, participant, lambda: node.create_subscription(
-                topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile,
-                raw=True), node.destroy_subscription, record)
+        events = SubscriptionEventCallbacks(**self._watch(key, participant, topic_record, profile,
+                                                          False))
+        try:
+            record.subscription, _ = self._create_on_executor(
+                key, participant, lambda: node.create_subscription(
+                    topic_record.msg_class, topic_record.ros_name, record.handoff.push, profile,
+                    raw=True, event_callbacks=events), node.destroy_subscription, record)
+        except TypeNotReady:
+            raise
+        except Exception:
+            self._unwatch(key)
+            raise
         self._entities[key] = record
         if topic_record.spec == GRAPH_SPEC:
             self._graph_reader_added(key, participant.domain)
         self._graph_changed(participant.domain)
+
+    def _watch(self, key: EntityKey, participant: ParticipantRecord, topic_record, profile,
+               board_writes: bool) -> dict:
+        """The event callbacks that name the ROS peers a board's endpoint cannot match
+        (``xrce.agent.middleware.ros.mismatch``); they replace rclpy's default, which logged
+        the topic alone."""
+        loop, domain = self._get_loop(), participant.domain
+
+        def retry(job) -> None:  # executor thread: run ``job`` there again a little later
+            try:
+                loop.call_soon_threadsafe(loop.call_later, MISMATCH_RETRY_S, domain.post, job)
+            except RuntimeError:  # the loop has closed: the agent is going
+                pass
+
+        def report(entity: EntityKey, text: str) -> None:
+            hook = self.on_mismatch
+            if hook is not None:
+                hook(entity, text)
+            else:
+                log.warning("%r: %s", entity, text)
+
+        # A parked creation's retry (xrce.agent.middleware.ros.creation) takes the entity made
+        # with the first call's callbacks: the same watch.
+        watch = self._watches.get(key)
+        if watch is None:
+            watch = self._watches[key] = MismatchWatch(key, participant.node, topic_record,
+                                                       profile, board_writes, report, retry)
+            if not topic_record.dds_level and topic_record.spec is not None:
+                types = self._type_watches.get(domain.domain_id)
+                if types is None or types.domain is not domain:
+                    types = self._type_watches[domain.domain_id] = TypeWatch(domain, loop, report)
+                types.add(key, topic_record.ros_name, topic_record.spec.type_name, board_writes)
+        return watch.callbacks()
+
+    def _unwatch(self, key: EntityKey) -> None:
+        watch = self._watches.pop(key, None)
+        if watch is not None:
+            watch.closed = True  # its events may still come: they find nothing to say
+            for types in self._type_watches.values():
+                types.discard(key)
 
     # -- data ---------------------------------------------------------------------------------
 
@@ -254,6 +322,26 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._record(reader, ("datareader",))
         return record.handoff.delivered, record.handoff.dropped
 
+    def ros_entity(self, key: EntityKey) -> str | None:
+        record = self._entities.get(key)
+        if record is None:
+            return None
+        if record.kind == "participant":
+            return "node " + record.node.get_fully_qualified_name()
+        participant = self._entities.get(getattr(record, "participant", None))
+        if participant is None or participant.kind != "participant":
+            return None
+        node = participant.node.get_fully_qualified_name()
+        if record.kind == "datawriter":
+            return "publisher %s of node %s" % (record.publisher.topic_name, node)
+        if record.kind == "datareader":
+            return "subscription %s of node %s" % (record.subscription.topic_name, node)
+        if record.kind == "requester":
+            return "service client %s of node %s" % (record.client.srv_name, node)
+        if record.kind == "replier":
+            return "service server %s of node %s" % (record.service.srv_name, node)
+        return None
+
     # -- deletion -----------------------------------------------------------------------------
 
     def _detach(self, record) -> None:
@@ -277,6 +365,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             for child_key in [k for k, r in self._entities.items()
                               if r.kind != "participant" and r.participant == key]:
                 self._detach(self._entities.pop(child_key))
+                self._unwatch(child_key)
             domain, node = record.domain, record.node
 
             def destroy_node():
@@ -289,6 +378,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             return
         del self._entities[key]
         self._detach(record)
+        self._unwatch(key)
         participant = self._entities.get(record.participant)
         if participant is None:
             return
@@ -351,6 +441,10 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             if record.kind != "participant":
                 self._detach(record)
         self._entities.clear()
+        self._watches.clear()
+        for types in self._type_watches.values():
+            types.stop()
+        self._type_watches.clear()
         domains = list(self._domains.values())
         self._domains.clear()
         loop = asyncio.get_running_loop()
