@@ -1,14 +1,16 @@
-"""Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead and expired clients (XRCE-WIRE.md §9, §10).
+"""Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead, retired and expired clients (XRCE-WIRE.md §9, §10).
 
 ``Liveliness`` is the part of ``xrce.agent.engine.dispatch.Agent`` that answers a client's HEARTBEAT with
 an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
-HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead/expired clients
-and paced READ_DATA delivery.
+HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead, retired and
+expired clients (the rule: "Recovery and liveliness" in docs/ARCHITECTURE.md) and paced READ_DATA
+delivery.
 
 Nothing is polled: that work runs from one loop timer (``loop.call_at``) set for the earliest time
 something is due, HEARTBEATs ``heartbeat_period`` after unacknowledged output, a client's dead time
 after it was last heard, a READ_DATA's deadline. With no client, or clients whose output is all
-acknowledged, the agent wakes at most once per dead time per client.
+acknowledged, the agent wakes at most once per dead time per client (and every 0.5 s for a minute
+after a new client appears beside dead ones on their host: ``_retirement``).
 """
 
 from __future__ import annotations
