@@ -145,3 +145,21 @@ def test_a_spoofed_create_client_cannot_retire_a_live_board(ced_agent):
     assert OLD in agent.clients
     # Each stranger's session, silent since, was the one retired by the next.
     assert agent.stats.clients_retired == 2 and list(agent.clients) == [OLD, b"\x66\x00\x00\x03"]
+
+
+def test_a_board_reconnecting_under_new_keys_leaves_the_lives_of_one_dead_time(ced_agent):
+    """rmw_microxrcedds' reconnection, once a second, 100 times, with the agent's defaults: at
+    any time at most the lives heard within the dead time (30 s) are there, then only the last."""
+    agent, link = ced_agent
+    most = 0
+    for life in range(100):
+        peer = board(agent, link, ("10.0.0.5", 40000 + life), bytes([0x0e, 0, life, 1]))
+        peer.write(b"odom")
+        agent.clock.now += 1.0
+        agent.tick()
+        most = max(most, len(agent.clients))
+    assert most <= agent.client_dead_time + 1
+    agent.clock.now += agent.client_dead_time
+    agent.tick()
+    assert list(agent.clients) == [bytes([0x0e, 0, 99, 1])]  # the last life: asleep, as far as known
+    assert agent.stats.clients_retired == 99

@@ -6,7 +6,8 @@ real agent processes, real sockets and pty pairs, and the ROS graph as rclpy see
   client's publisher leaves the ROS graph long before any dead time (set to 2 minutes here);
 - retired: a new key from the same host and another port (rmw_microxrcedds after a reboot) that
   creates the same node retires the silent old client once it has been dead, while a neighbour
-  that speaks, and a silent one that is another node, stay;
+  that speaks, and a silent one that is another node, stay; 100 reconnections under new keys
+  leave one publisher in the graph;
 - expiry: ``--client-expire-time 3000`` deletes a silent client 3 s after its last message (it
   took 30 s, the dead time, before);
 - sleepers: a client silent for many dead times keeps its session and publishes when it wakes; one
@@ -156,6 +157,28 @@ def test_a_new_key_from_the_same_host_retires_the_dead_old_client_not_its_neighb
     assert re.search(r"client 7a1c0003 silent for \d+ ms and client 7a1c0004, created since from "
                      r"the same host 127\.0\.0\.3, has its participant: retired", log), log
     assert log.count("retired") == 1, log
+
+
+def test_a_board_reconnecting_100_times_under_new_keys_leaves_one_publisher(ros_peer,  # noqa: F811
+                                                                              ros_domain):  # noqa: F811
+    """rmw_microxrcedds' reconnection pattern 100 times: a new socket (new port), a new key, the
+    same node and publisher, one sample, gone without DELETE. A short dead time (1 s) keeps the
+    test short; the bound scales with it (30 s by default: test_agent_engine_retirement)."""
+    with AgentProcess("udp4", "-m", "dds", "--client-dead-time", "1000") as agent:
+        for life in range(100):
+            session, writer = board(UdpTransport("127.0.0.1", agent.port), 0x0D0D0000 + life,
+                                    ros_domain, "reconnecting_fw", "/reconnecting")
+            session.write(writer, String(data="life %d" % life))
+            session.flush()
+            session.close()
+        # The last life is kept (asleep as far as anyone can tell); every earlier one goes.
+        assert wait_until(lambda: publishers(ros_peer, "/reconnecting") == 1, 60, 0.1), \
+            publishers(ros_peer, "/reconnecting")
+        time.sleep(1.0)  # a late ghost would show up in discovery now
+        assert publishers(ros_peer, "/reconnecting") == 1
+        assert ros_peer.node_names().count(("reconnecting_fw", "/")) == 1
+        log = agent_log(agent)
+    assert log.count(": retired, deleting its") == 99, log[-3000:]
 
 
 def test_expire_time_deletes_a_silent_client_that_long_after_its_last_message(ros_peer,  # noqa: F811
