@@ -161,5 +161,6 @@ def test_a_board_reconnecting_under_new_keys_leaves_the_lives_of_one_dead_time(c
     assert most <= agent.client_dead_time + 1
     agent.clock.now += agent.client_dead_time
     agent.tick()
-    assert list(agent.clients) == [bytes([0x0e, 0, 99, 1])]  # the last life: asleep, as far as known
+    # The last life stays: asleep, as far as anyone can tell.
+    assert list(agent.clients) == [bytes([0x0e, 0, 99, 1])]
     assert agent.stats.clients_retired == 99
