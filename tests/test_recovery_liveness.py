@@ -11,25 +11,32 @@ real agent processes, real sockets and pty pairs, and the ROS graph as rclpy see
 - expiry: ``--client-expire-time 3000`` deletes a silent client 3 s after its last message (it
   took 30 s, the dead time, before);
 - sleepers: a client silent for many dead times keeps its session and publishes when it wakes; one
-  whose session was taken from it gets it back by pinging (``auto_recover``).
+  whose session was taken from it gets it back by pinging (``auto_recover``);
+- recorded micro-ROS firmware (golden restart.jsonl) booting again under a new key: its first
+  life is retired (rmw_microxrcedds creates the same participant).
 
 Each board is a ``Session`` of this project's client on its own socket; boards of "different
-hosts" send from different loopback addresses (127.0.0.x). Nothing here asserts a duration
-except the expiry bound, which is the feature (with a margin for a loaded machine).
+hosts" send from different loopback addresses (127.0.0.x). The only durations asserted are
+"not before" bounds that load cannot break, and the expiry's upper bound, which is the feature
+(with a margin for a loaded machine).
 """
 
 import re
 import socket
 import time
+from pathlib import Path
 
 from agent_process import AgentProcess
+from microros_replay import Capture, Replayer, UdpChannel
 from procs import read_until
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_recovery_agent import PtyDevice
+from xrce import constants as C
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
 
+INTERFACES = Path(__file__).resolve().parent / "interfaces"  # turtlebot3_msgs for the captures
 LONG_DEAD_TIME_MS = "120000"  # no dead time passes during a test: only replacement can act
 
 
@@ -308,3 +315,37 @@ def _ros_string():
     from std_msgs.msg import String as RosString
 
     return RosString
+
+
+def test_micro_ros_rebooted_under_a_new_key_retires_its_first_life(
+        ros_peer, ros_domain):  # noqa: F811
+    """The recorded micro-ROS firmware (tests/golden/microros/restart.jsonl: rclc +
+    rmw_microxrcedds, killed, booted again from a new UDP port) with the second boot's
+    CREATE_CLIENT under another key, as rmw's rand() draws it after a reset: its first life is
+    retired once dead, because the second created the same node; one /sensor_state publisher."""
+    capture = Capture("restart")
+    second_boot = [i for i, (boot, data) in enumerate(capture.steps)
+                   if boot == 1 and data[0] == 0x80 and data[4] == C.CREATE_CLIENT]
+    index, = second_boot
+    data = capture.steps[index][1]
+    assert data[16:20] == bytes.fromhex("a1b2c3d4")  # the client key in CREATE_CLIENT
+    capture.steps[index] = (1, data[:16] + bytes.fromhex("a1b2c3d5") + data[20:])
+    teardown = min(i for i, (boot, data) in enumerate(capture.steps)
+                   if boot == 1 and data[0] > 0x80 and len(data) > 4 and data[4] == C.DELETE)
+    with AgentProcess("udp4", "-m", "dds", "--client-dead-time", "1500",
+                      "--interfaces", str(INTERFACES)) as agent:
+        channel = UdpChannel(agent.port)
+        try:
+            replay = Replayer(capture, channel, domain_id=ros_domain)
+            replay.run(until_step=teardown)
+            assert all(status == C.STATUS_OK for (boot, _), (_, status) in
+                       replay.answers.statuses.items() if boot == 1)  # created anew, not reused
+            assert wait_for_log_lines(
+                agent, r"client a1b2c3d4 silent for \d+ ms and client a1b2c3d5, created since "
+                r"from the same host 127\.0\.0\.1, has its participant: retired", 1, 30) == 1
+            assert wait_until(lambda: publishers(ros_peer, "/sensor_state") == 1, 20)
+            time.sleep(1.0)  # a ghost found late by discovery would show now
+            assert publishers(ros_peer, "/sensor_state") == 1
+        finally:
+            channel.close()
+        agent_log(agent)
