@@ -339,3 +339,53 @@ def test_topics_of_two_services_are_refused():
         service_ros_name("s", "rq/aRequest", "rr/bReply")
     with pytest.raises(MiddlewareError, match="neither a name nor"):
         service_ros_name("", None, "calc_Reply")
+
+
+# ------------------------------------------------------------------------------ hostile names
+
+BOUND_SCRIPT = r"""
+import rclpy  # loads rcl and rmw, which the helper looks its functions up in
+from xrce.agent.engine import _fastpath
+made = [_fastpath.named_message_type("made_up_%d_msgs" % i, "msg", "T", True) for i in range(1100)]
+kinds = [type(m).__name__ for m in made]
+print(kinds.index("str"), kinds.count("PyCapsule"), made[-1])
+print(_fastpath.named_service_type("one_more_srvs", "srv", "X", True))
+"""
+
+
+def test_types_known_by_name_are_bounded_per_process():
+    """A client inventing type names makes at most 1024 type supports in the agent's process
+    (a few hundred bytes each, kept: rmw holds pointers into them); past that, an error."""
+    done = subprocess.run([sys.executable, "-c", BOUND_SCRIPT], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.splitlines() == ["1024 1024 1024 types known by name already",
+                                        "1024 types known by name already"], done.stdout
+
+
+def test_a_long_name_and_a_missing_helper_are_refused_with_what_is_missing(monkeypatch):
+    import xrce.agent.engine
+    from xrce.agent.middleware import UnknownTypeError
+    from xrce.agent.middleware.ros import raw_types
+
+    long_package = "p" * 250
+    with pytest.raises(UnknownTypeError, match="at most 255"):
+        raw_types.named_message_type(long_package + "::msg::dds_::T_", long_package, "msg", "T")
+    # An install without the compiled helper (no C compiler when xrce was installed).
+    monkeypatch.setitem(sys.modules, "xrce.agent.engine._fastpath", None)
+    monkeypatch.delattr(xrce.agent.engine, "_fastpath", raising=False)
+    with pytest.raises(UnknownTypeError, match="px4_msgs is not installed, and carrying a type "
+                                               "known only by its name needs the agent's compiled "
+                                               "helper"):
+        raw_types.named_message_type("px4_msgs::msg::dds_::SensorCombined_", "px4_msgs", "msg",
+                                     "SensorCombined")
+    from xrce.agent.middleware import TypeNotReady
+
+    try:  # the interface directories are listed once per run first (a child interpreter)
+        raw_types.named_service_type("nope_srvs::srv::dds_::X_Request_")
+    except TypeNotReady as pending:
+        pending.future.result(timeout=60)
+    except UnknownTypeError:
+        pass
+    with pytest.raises(UnknownTypeError, match="compiled helper"):
+        raw_types.named_service_type("nope_srvs::srv::dds_::X_Request_")
