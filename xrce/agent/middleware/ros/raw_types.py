@@ -16,7 +16,7 @@ import types
 from xrce.agent.middleware import UnknownTypeError
 from xrce.agent.middleware.ros.types import (
     _ACTION_MESSAGES, _ACTION_SERVICES, BUILD_HINT, _check_package, _import_module, _split_type,
-    log, package_present,
+    log, package_present, split_service_type,
 )
 
 
@@ -215,13 +215,9 @@ def library_service_type(request_type: str):
     stand_in = _library_services.get(request_type)
     if stand_in is not None:
         return stand_in
-    package, kind, type_name = _split_type(request_type)
+    package, kind, type_name = split_service_type(request_type)
     if kind != "srv":
         return None
-    for suffix in ("_Request", "_Response"):
-        if type_name.endswith(suffix):
-            type_name = type_name[:-len(suffix)]
-            break
     _check_package(package, request_type)
     stand_in = None
     try:
@@ -382,11 +378,7 @@ def named_service_type(request_type: str):
     stand_in = _named_services.get(request_type)
     if stand_in is not None:
         return stand_in
-    package, kind, type_name = _split_type(request_type)
-    for suffix in ("_Request", "_Response"):
-        if type_name.endswith(suffix):
-            type_name = type_name[:-len(suffix)]
-            break
+    package, kind, type_name = split_service_type(request_type)
     if kind == "action":
         if type_name.partition("_")[2] not in _ACTION_SERVICES:
             return None  # service_class says what is wrong with the name
