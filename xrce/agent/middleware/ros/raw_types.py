@@ -323,9 +323,10 @@ def _named_helper(dds_type: str, package: str):
     if _fastpath is None or not hasattr(_fastpath, "named_message_type"):
         raise UnknownTypeError(
             "type %s: %s is not installed, and carrying a type known only by its name needs the "
-            "agent's compiled helper (xrce.agent.engine._fastpath, built by a C compiler when xrce "
-            "is installed), which this install lacks: reinstall xrce where gcc is present, or "
-            "build %s (--interfaces DIR, then %s)" % (dds_type, package, package, BUILD_HINT))
+            "agent's compiled helper (xrce.agent.engine._fastpath), which this install lacks: a "
+            "platform-independent wheel has none, an install from source with a C compiler (gcc, "
+            "python3-dev) builds it; or build %s for the agent (--interfaces DIR, then %s)"
+            % (dds_type, package, package, BUILD_HINT))
     if len(dds_type) > _NAME_MAX:
         raise UnknownTypeError("type name of %d characters: at most %d" % (len(dds_type),
                                                                            _NAME_MAX))
