@@ -343,6 +343,19 @@ def _described() -> bool:
     return rosenv.fastdds_major() < 3
 
 
+_packages_by_name: set = set()  # packages whose types are known by name (bounded as the types)
+
+
+def _note_by_name(package: str, dds_type: str) -> None:
+    """One line per package at -v 4 (PX4 names some 50 types of one package), one per type at
+    -v 5 and above."""
+    if package not in _packages_by_name:
+        _packages_by_name.add(package)
+        log.info("no package %s on the agent's side: its types are carried by name, their CDR "
+                 "bytes as they are (first: %s)", package, dds_type)
+    log.debug("type %s carried by name", dds_type)
+
+
 def _refused_by_name(dds_type: str, package: str, why: str) -> UnknownTypeError:
     return UnknownTypeError("type %s: %s is not installed, and the type cannot be carried by name: "
                             "%s" % (dds_type, package, why))
@@ -365,8 +378,7 @@ def named_message_type(dds_type: str, package: str, kind: str, type_name: str):
         "_CONVERT_FROM_PY": from_py, "_CONVERT_TO_PY": to_py, "_DESTROY_ROS_MESSAGE": destroy})
     handle = _named_messages[dds_type] = meta(type_name, (), {
         "__module__": "%s.%s" % (package, kind), "__slots__": ()})
-    log.info("type %s: no package %s on the agent's side: carried by name, its CDR bytes as they "
-             "are", dds_type, package)
+    _note_by_name(package, dds_type)
     return handle
 
 
@@ -402,8 +414,7 @@ def named_service_type(request_type: str):
         "Response": _raw_message_class(type_name + "_Response", module, response_support, create,
                                        destroy, (to_py, from_py), (RawReply,))})
     _named_services[request_type] = stand_in
-    log.info("service type %s: no package %s on the agent's side: carried by name, its CDR bytes "
-             "as they are", request_type, package)
+    _note_by_name(package, request_type)
     return stand_in
 
 
