@@ -333,14 +333,20 @@ def _named_helper(dds_type: str, package: str):
     return _fastpath
 
 
+_fastdds_major = None  # of the RMW loaded: read from /proc/self/maps once
+
+
 def _described() -> bool:
     """Whether a type known by name gives rmw an introspection description (a struct without
     fields): Fast DDS 2's rmw_fastrtps (Jazzy) needs one to create an endpoint and does not
     announce it; Fast DDS 3's (Kilted) announces it as the endpoint's XTypes type information,
     which would not match the real type's (``_named_types.c``)."""
-    from xrce.agent.middleware.ros import env as rosenv
+    global _fastdds_major
+    if _fastdds_major is None:
+        from xrce.agent.middleware.ros import env as rosenv
 
-    return rosenv.fastdds_major() < 3
+        _fastdds_major = rosenv.fastdds_major()
+    return _fastdds_major < 3
 
 
 _packages_by_name: set = set()  # packages whose types are known by name (bounded as the types)
