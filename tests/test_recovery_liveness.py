@@ -73,7 +73,7 @@ def board(transport, key, domain_id, node, topic, **options):
     assert session.create(attempts=10, timeout_ms=1000)
     participant = session.create_participant(domain_id=domain_id, name=node)
     writer = session.create_writer(participant, topic, String)
-    assert session.run_until_all_status(5000), session.last_statuses
+    assert session.run_until_all_status(20000), session.last_statuses  # a loaded machine
     return session, writer
 
 
