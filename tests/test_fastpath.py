@@ -222,6 +222,79 @@ def test_a_client_heard_only_through_the_compiled_path_stays_alive(ros_peer, ros
         assert "best-effort samples take the compiled path" in output
 
 
+PAD = b"\xee"  # padding bytes are not read: a value no String sample of the test ends with
+
+
+def run_padded_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
+    """PX4's client pads every datagram to a multiple of 4 bytes: best-effort String samples of
+    odd CDR length, each datagram with its padding. Returns (raw CDR received in ROS, the
+    CDR sent, counter deltas)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String as RosString
+    from xrce.msgs.std_msgs import String
+    received = []
+    ros_peer.node.create_subscription(RosString, topic, received.append,
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
+                                      raw=True)
+    with AgentProcess("udp4", "-m", "dds", "--stats-port", "0", env=env) as agent:
+        port = stats_port(agent)
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            node = session.create_participant(domain_id=ros_domain, name="fastpath_padded")
+            writer = session.create_writer(node, topic, String, reliable=False)
+            assert session.run_until_all_status(5000), session.last_statuses
+            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            before = fetch_stats(port)
+            transport = session.transport
+            transport.capture, transport.captured = True, []
+            for index in range(10):  # CDR of 5 + 2 * index bytes ("s" * ..., its 0, its length)
+                session.write(writer, String(data="s" * (2 * index)), stream_id=session.best_effort)
+                session.flush()
+            transport.capture = False
+            sent = []
+            for seq, frame in enumerate(transport.captured):
+                start = 4 if frame[0] & 0x80 else 8
+                end = start + 4 + (frame[start + 2] | frame[start + 3] << 8)
+                assert end % 4, "the scenario needs unaligned samples"
+                sent.append(bytes(frame[start + 8:end]))
+                # (xrce.client pads as PX4's client does; padded here whatever it did)
+                transport.inner.send(with_seq(bytes(frame[:end]) + PAD * (-end % 4), seq))
+                if seq == 1:  # the first opens the stream, the second registers the writer
+                    time.sleep(0.3)
+            assert wait_until(lambda: len(received) >= 10, 10), received
+            time.sleep(FOLD_WAIT_S)
+            after = fetch_stats(port)
+        finally:
+            session.close()
+    deltas = {name: after["agent"][name] - before["agent"][name]
+              for name in ("messages_in", "samples_in", "dropped", "decode_errors",
+                           "samples_compiled")}
+    return [bytes(raw[4:]) for raw in received], sent, deltas
+
+
+@pytest.mark.parametrize("switch", [pytest.param("1", marks=needs_extension), "0"],
+                         ids=["compiled", "python"])
+def test_padded_datagrams_as_px4_sends_them_publish_the_sample_alone(ros_peer, ros_domain, switch):  # noqa: F811
+    """The padding after a datagram's one WRITE_DATA is not part of the sample, on either path;
+    and such samples take the compiled path as unpadded ones do (PX4's samples and xrce.client's
+    did not: the Python path's shortcut, which registers a writer with C, refused padded
+    datagrams)."""
+    received, sent, deltas = run_padded_scenario(ros_peer, ros_domain, "/fastpath_pad_" + switch,
+                                                 {"XRCE_FASTPATH": switch})
+    assert len(received) == len(sent)
+    for got, cdr in zip(received, sent):
+        # Fast DDS delivers the payload zero-padded to 4 bytes; a PAD byte would be the agent's
+        assert got[:len(cdr)] == cdr and got[len(cdr):] == bytes(len(got) - len(cdr)), (got, cdr)
+    assert deltas["messages_in"] == deltas["samples_in"] == 10, deltas
+    assert deltas["dropped"] == deltas["decode_errors"] == 0, deltas
+    if switch == "1":  # two samples through Python, C publishes the rest
+        assert deltas["samples_compiled"] == 8, deltas
+    else:
+        assert deltas["samples_compiled"] == 0, deltas
+
+
 def reliable_datagrams(session, writer, values):
     """The exact datagrams of Twist(linear.x=value) on the session's built-in reliable stream,
     each the next in order, not sent (the session counts them as sent)."""

@@ -89,8 +89,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     if (data[pos] == FRAGMENT && pos + 4 + sub_length == length)  /* _reliable_in.c */
         return try_fast_fragment(self, client, stream, data, length, pos, sub_length);
     if (pos + 8 > length) return 0;
+    /* up to 3 bytes of alignment padding may follow (PX4's client pads every datagram) */
+    size_t end = pos + 4 + sub_length;
     if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
-        sub_length < 4 || pos + 4 + sub_length != length)
+        sub_length < 4 || end > length || length > ((end + 3) & ~(size_t)3))
         return 0;
     Writer *writer = find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7]));
     if (writer == NULL) return 0;
