@@ -11,8 +11,8 @@ waits for them), then the streaming part at the recorded timing, looped for as l
 Rewritten, as a live PX4 would have them: best-effort sequence numbers (they keep counting up
 when the streaming part loops, else the agent would drop the second lap as old), ACKNACKs (sent
 for every reliable message and HEARTBEAT of the agent, naming what this side received: the
-recorded ones acknowledged eProsima's messages) and the originate time of each TIMESTAMP (this
-side's monotonic clock, so each TIMESTAMP_REPLY gives a round trip). The reliable WRITE_DATA of
+recorded ones acknowledged eProsima's messages) and the originate time of each TIMESTAMP (the time
+of day as it is sent; the kernel's receive stamp of the TIMESTAMP_REPLY ends the round trip). The reliable WRITE_DATA of
 the streaming part (PX4's answer to a service request that no ROS node sends here) is left out.
 """
 
@@ -28,6 +28,7 @@ import time
 from xrce import constants as C
 
 PX4_STREAM = 0x80  # PX4's reliable stream, and the agent's reliable stream to it
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux's value where Python lacks the name
 CREATE_ANSWER_S = 2.0  # a reliable message whose STATUS did not come by then is sent again
 
 
@@ -74,6 +75,9 @@ class Px4Link:
     def __init__(self, port: int):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        # The kernel stamps each answer as it arrives (CLOCK_REALTIME): a round trip is then the
+        # agent's and the loopback's, not this process's threads waiting for the GIL.
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.connect(("127.0.0.1", port))
         self.lock = threading.Condition()
         self.statuses = {}  # request id -> status code
@@ -97,14 +101,16 @@ class Px4Link:
         self.sock.settimeout(0.2)
         while self.running:
             try:
-                data = self.sock.recv(4096)
+                data, ancillary, _flags, _address = self.sock.recvmsg(4096, 64)
             except socket.timeout:
                 continue
             except OSError:
                 if not self.running:
                     return
                 continue
-            now = time.monotonic_ns()
+            now = next((sec * 1000000000 + nsec for level, kind, value in ancillary
+                        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS
+                        for sec, nsec in [struct.unpack_from("qq", value)]), time.time_ns())
             if len(data) < 4:
                 continue
             acknowledge = False
@@ -161,8 +167,9 @@ class Px4Link:
     # -- PX4's side --------------------------------------------------------------------------
 
     def timestamp(self, data: bytes) -> bytes:
-        """``data`` (a TIMESTAMP) with this side's monotonic clock as originate."""
-        now = time.monotonic_ns()
+        """``data`` (a TIMESTAMP) with the time of day as originate (the clock of the kernel's
+        receive stamps)."""
+        now = time.time_ns()
         out = bytearray(data)
         struct.pack_into("<iI", out, 8, now // 1000000000, now % 1000000000)
         return bytes(out)
