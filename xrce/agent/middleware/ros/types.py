@@ -91,15 +91,45 @@ def dds_topic_to_ros(dds_name: str) -> tuple[str, str]:
     return "dds", _full_name(dds_name)
 
 
-def service_ros_name(service_name: str, request_topic: str | None = None) -> str:
-    """The ROS service name from a ServiceSpec: its name, else its request topic."""
+def _service_of_topic(topic: str | None, kind: str) -> str | None:
+    """The service a well-formed request (``rq/<X>Request``) or reply (``rr/<X>Reply``) topic
+    belongs to, ``/X``; None for no topic, another form, or an invalid ROS name."""
+    if not topic:
+        return None
+    try:
+        found, name = dds_topic_to_ros(topic)
+    except MiddlewareError:
+        return None
+    return name if found == kind else None
+
+
+def service_ros_name(service_name: str, request_topic: str | None = None,
+                     reply_topic: str | None = None) -> str:
+    """The ROS service name of a requester or replier.
+
+    eProsima's agent (2.4 and 3.x, from binary, XML or a reference alike) makes its DDS request
+    writer/reader on the request topic name and its reply one on the reply topic name, and uses
+    the service name for nothing. ROS names a service's two topics ``rq/<service>Request`` and
+    ``rr/<service>Reply``, so the service is the one those names spell: PX4's replier
+    ``vehicle_command`` with ``rq/fmu/vehicle_commandRequest`` is ``/fmu/vehicle_command``,
+    ``rq/px4_1/fmu/...`` is ``/px4_1/fmu/vehicle_command``. One well-formed topic alone (the other
+    absent, or not in that form) names it too. Two well-formed topics of different services are
+    refused: eProsima's agent would make DDS endpoints no ROS client pairs, and one rclpy service
+    cannot have two names. With no well-formed topic (a plain DDS client's ``calc_Request``, or
+    none given) the service name serves, as its ROS name. micro-ROS sends the service name and
+    the topics consistently (``/add_two_ints``, ``rq/add_two_intsRequest``): its services,
+    actions and parameters keep their names."""
+    from_request = _service_of_topic(request_topic, "request")
+    from_reply = _service_of_topic(reply_topic, "reply")
+    if from_request and from_reply and from_request != from_reply:
+        raise MiddlewareError("request topic %r and reply topic %r name two services (%s, %s): "
+                              "a ROS 2 service has one" % (request_topic, reply_topic,
+                                                            from_request, from_reply))
+    if from_request or from_reply:
+        return from_request or from_reply
     if service_name:
         return dds_topic_to_ros(service_name)[1]
-    if request_topic:
-        kind, name = dds_topic_to_ros(request_topic)
-        if kind == "request":
-            return name
-    raise MiddlewareError("service has neither a name nor a request topic")
+    raise MiddlewareError("service has neither a name nor a request or reply topic")
 
 
 def _split_type(dds_type: str) -> tuple[str, str, str]:
@@ -144,21 +174,21 @@ def _registered(package: str) -> bool:
     return is_registered(package)
 
 
-def _check_package(package: str, dds_type: str) -> None:
-    """Return if ``package`` may be imported for ``dds_type``; else raise UnknownTypeError, or
-    TypeNotReady while the interface directories are listed or the package is built."""
+def package_present(package: str, dds_type: str) -> bool:
+    """Whether ``package`` may be imported for ``dds_type``: True for an interface package of the
+    ROS in use or of the agent's registry (built now from its interface directories if one has
+    it); False where no package of that name is anywhere, the type is then known by its name
+    only (``raw_types.named_message_type``). Raises TypeNotReady while the interface directories
+    are listed or the package is built, UnknownTypeError when its build failed."""
     if _in_ament_index(package) or _registered(package):
-        return
+        return True
     from xrce.agent import interfaces
 
     listing = interfaces.search_index()
     if not listing.done():
         raise TypeNotReady("looking for %s in the interface directories" % package, listing)
     if package not in listing.result():
-        raise UnknownTypeError("type %s: %s is not installed: no interface package of the ROS in "
-                               "use (ament index) nor of the agent's interface directories has "
-                               "that name (--interfaces DIR, then %s)"
-                               % (dds_type, package, BUILD_HINT))
+        return False
     future = interfaces.start_package_build(package)
     if not future.done():
         log.info("building interface package %s for type %s; its CREATE waits", package, dds_type)
@@ -168,10 +198,20 @@ def _check_package(package: str, dds_type: str) -> None:
         raise UnknownTypeError("type %s: building %s failed in this agent run (not retried "
                                "before a restart): %s" % (dds_type, package, error)) from None
     if not future.result():
-        raise UnknownTypeError("type %s: %s is not installed (%s)" % (dds_type, package,
-                                                                      BUILD_HINT))
+        return False
     if not _registered(package):
         raise UnknownTypeError("type %s: %s was built but is not registered" % (dds_type, package))
+    return True
+
+
+def _check_package(package: str, dds_type: str) -> None:
+    """Return if ``package`` may be imported for ``dds_type``; else raise UnknownTypeError, or
+    TypeNotReady while the interface directories are listed or the package is built."""
+    if not package_present(package, dds_type):
+        raise UnknownTypeError("type %s: %s is not installed: no interface package of the ROS in "
+                               "use (ament index) nor of the agent's interface directories has "
+                               "that name (--interfaces DIR, then %s)"
+                               % (dds_type, package, BUILD_HINT))
 
 
 def _import_module(package: str, module_name: str):
