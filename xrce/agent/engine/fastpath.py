@@ -20,6 +20,7 @@ and each reliable stream C delivered on gets its ACKNACK: from C at the end of t
 Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
+A registered client's TIMESTAMPs are answered in C (PX4's time sync counts only fast round trips).
 The board's ACKNACKs for the agent's reliable output streams are taken in C too when they only
 move the acknowledged point (no NACK, the window not full, no HEARTBEAT being timed): the stream
 becomes a ``CompiledOutputStream`` whose acknowledged point C owns, and whose history Python frees
@@ -277,15 +278,15 @@ class FastPath:
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
         self.folded_at = time.monotonic()
-        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes), clients, \
-            writers, acks = self.receiver.fold()
-        if acknacks:
+        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes, replies,
+         reply_bytes), clients, writers, acks = self.receiver.fold()
+        if acknacks or replies:
             stats = self.agent.stats
             stats.acknacks_out += acknacks
-            stats.messages_out += acknacks
-            stats.bytes_out += acknack_bytes
-            self.link.stats.messages_out += acknacks
-            self.link.stats.bytes_out += acknack_bytes
+            stats.messages_out += acknacks + replies
+            stats.bytes_out += acknack_bytes + reply_bytes
+            self.link.stats.messages_out += acknacks + replies
+            self.link.stats.bytes_out += acknack_bytes + reply_bytes
         if messages:
             stats = self.agent.stats
             stats.messages_in += messages
@@ -308,12 +309,14 @@ class FastPath:
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
         offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
             else 0.0
-        for handle, count, size, seen_ns, count_out, size_out in clients:
+        for handle, count, size, seen_ns, count_out, size_out, skew_ns in clients:
             client = self.clients.get(handle)
             if client is None:
                 continue
             client.messages_out += count_out
             client.bytes_out += size_out
+            if skew_ns is not None:
+                client.timestamp_skew_ns = skew_ns
             if not count:
                 continue
             client.messages_in += count
