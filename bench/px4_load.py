@@ -1,7 +1,7 @@
 """Agent CPU at PX4's load, beside eProsima's MicroXRCEAgent in the same run, and TIMESTAMP round
 trips (PX4's time sync) while streaming and on a loaded machine.
 
-    .venv/bin/python bench/px4_load.py --agent-cmd /work/peers/agent.sh \
+    .venv/bin/python bench/px4_load.py --agent-cmd $PEERS/agent.sh \
         --capture tests/golden/px4/px4_main.jsonl.gz --px4-msgs DIR [--rounds 5] [--seconds 20]
         [--agent-px4-msgs] [--only-subscriber | --no-subscriber]
 
@@ -238,7 +238,8 @@ def rtt_summary(values):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agent-cmd", required=True,
-                        help="eProsima's agent (it gets 'udp4 -p PORT'), e.g. /work/peers/agent.sh")
+                        help="eProsima's agent (it gets 'udp4 -p PORT'), e.g. $PEERS/agent.sh "
+                             "(docs/PERFORMANCE.md)")
     parser.add_argument("--capture", default=str(REPO / "tests/golden/px4/px4_main.jsonl.gz"))
     parser.add_argument("--px4-msgs", metavar="DIR", help="px4_msgs source for the subscriber")
     parser.add_argument("--agent-px4-msgs", action="store_true",

@@ -68,6 +68,18 @@ def with_seq(datagram, seq):
     return bytes(out)
 
 
+def matched_writer(session, ros_peer, ros_domain, name, topic, message_type):  # noqa: F811
+    """(node, writer): a new session's best-effort writer on ``topic``, matched by the agent's
+    publisher and ``ros_peer``'s subscription."""
+    assert session.create(attempts=5, timeout_ms=1000)
+    node = session.create_participant(domain_id=ros_domain, name=name)
+    writer = session.create_writer(node, topic, message_type, reliable=False)
+    assert session.run_until_all_status(5000), session.last_statuses
+    assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+    time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+    return node, writer
+
+
 def run_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
     """Drive one agent; returns (values received in ROS, counter deltas, agent output)."""
     received = []
@@ -78,12 +90,7 @@ def run_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
         port = stats_port(agent)
         session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
         try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="fastpath")
-            writer = session.create_writer(node, topic, Twist, reliable=False)
-            assert session.run_until_all_status(5000), session.last_statuses
-            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
-            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            node, writer = matched_writer(session, ros_peer, ros_domain, "fastpath", topic, Twist)
             before = fetch_stats(port)
             values = list(range(1, 21))
             frames = twist_datagrams(session, writer, values)
@@ -240,12 +247,8 @@ def run_padded_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
         port = stats_port(agent)
         session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
         try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="fastpath_padded")
-            writer = session.create_writer(node, topic, String, reliable=False)
-            assert session.run_until_all_status(5000), session.last_statuses
-            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
-            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            _node, writer = matched_writer(session, ros_peer, ros_domain, "fastpath_padded", topic,
+                                           String)
             before = fetch_stats(port)
             transport = session.transport
             transport.capture, transport.captured = True, []
