@@ -193,14 +193,16 @@ def one_run(agent, capture, seconds, subscriber, load):
         sync_rtts = [v for label, v in link.rtts if label == "sync"]
         link.label = "streaming"
         total = SETTLE_S + seconds + 60.0
-        sent = []
-        streamer = threading.Thread(target=lambda: sent.append(link.stream(capture, total, stop)))
+        streamer = threading.Thread(target=link.stream, args=(capture, total, stop))
         streamer.start()
         time.sleep(SETTLE_S)
         got_before = int(subscriber.ask("count")) if subscriber else 0
         cpu_before, started = cpu_seconds(agent.pid), time.monotonic()
+        sent_before = link.samples_sent
         time.sleep(seconds)
-        cpu = (cpu_seconds(agent.pid) - cpu_before) / (time.monotonic() - started)
+        elapsed = time.monotonic() - started
+        cpu = (cpu_seconds(agent.pid) - cpu_before) / elapsed
+        rate = (link.samples_sent - sent_before) / elapsed
         delivered = int(subscriber.ask("count")) - got_before if subscriber else None
         busy = hogs(load)
         try:
@@ -220,7 +222,7 @@ def one_run(agent, capture, seconds, subscriber, load):
     for label in ("streaming", "loaded"):
         rtts[label] = [v for name, v in link.rtts if name == label]
     return {"cpu": cpu, "delivered": delivered, "answered_loaded": answered, "rtt": rtts,
-            "rate": capture.samples_per_lap / capture.lap_s}
+            "rate": rate, "recorded_rate": capture.samples_per_lap / capture.lap_s}
 
 
 def _a_timestamp(capture):
@@ -285,10 +287,10 @@ def main(argv=None):
                         if subscriber:
                             subscriber.close()
                     results.setdefault((name, with_sub), []).append(run)
-                    print("round %d %s, %s: CPU %.2f %% of a core (%.0f samples/s offered%s); "
+                    print("round %d %s, %s: CPU %.2f %% of a core (%.0f samples/s sent of %.0f recorded%s); "
                           "TIMESTAMP sync %s; streaming %s; loaded (%d busy) %s"
                           % (round_index + 1, name, "subscriber" if with_sub else "no subscriber",
-                             100 * run["cpu"], run["rate"],
+                             100 * run["cpu"], run["rate"], run["recorded_rate"],
                              ", %d delivered to the subscriber (%.0f/s)"
                              % (run["delivered"], run["delivered"] / args.seconds)
                              if with_sub else "",
@@ -307,13 +309,15 @@ def report(results, configs, args):
         ours = [100 * r["cpu"] for r in results[("xrce-agent", with_sub)]]
         theirs = [100 * r["cpu"] for r in results[("MicroXRCEAgent", with_sub)]]
         ratios = sorted(a / b for a, b in zip(ours, theirs) if b)
+        rates = [r["rate"] for name in ("xrce-agent", "MicroXRCEAgent")
+                 for r in results[(name, with_sub)]]
         label = "with an rclpy subscriber on /fmu/out" if with_sub else "no subscriber"
         record("agent CPU at PX4's load, %s" % label, median(ours), "% core", median(theirs),
                "MicroXRCEAgent 2.4.3 (%s)" % args.agent_cmd, "<= 1.0x",
                "medians of %d rounds over %.0f s; xrce-agent %.2f-%.2f, MicroXRCEAgent %.2f-%.2f, "
-               "per-round ratio %.2f-%.2f%s" % (
+               "per-round ratio %.2f-%.2f; samples sent %.0f-%.0f/s%s" % (
                    len(ours), args.seconds, min(ours), max(ours), min(theirs), max(theirs),
-                   ratios[0], ratios[-1],
+                   ratios[0], ratios[-1], min(rates), max(rates),
                    "; xrce-agent with px4_msgs" if args.agent_px4_msgs else
                    "; xrce-agent without px4_msgs"))
     for name in ("xrce-agent", "MicroXRCEAgent"):

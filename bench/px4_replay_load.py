@@ -86,6 +86,7 @@ class Px4Link:
         self.label = "sync"
         self.next_in = 0  # the agent's next reliable sequence number this side expects
         self.out_seq = 0  # best-effort sequence number of the next sample
+        self.samples_sent = 0
         self.running = True
         self.reader = threading.Thread(target=self._read, daemon=True)
         self.reader.start()
@@ -245,6 +246,7 @@ class Px4Link:
                     self.out_seq = (self.out_seq + 1) & 0xFFFF
                     data = bytes(out)
                     sent += 1
+                    self.samples_sent += 1
                 elif kind == "timestamp":
                     data = self.timestamp(data)
                 elif kind == "acknack":
