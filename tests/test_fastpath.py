@@ -68,6 +68,18 @@ def with_seq(datagram, seq):
     return bytes(out)
 
 
+def matched_writer(session, ros_peer, ros_domain, name, topic, message_type):  # noqa: F811
+    """(node, writer): a new session's best-effort writer on ``topic``, matched by the agent's
+    publisher and ``ros_peer``'s subscription."""
+    assert session.create(attempts=5, timeout_ms=1000)
+    node = session.create_participant(domain_id=ros_domain, name=name)
+    writer = session.create_writer(node, topic, message_type, reliable=False)
+    assert session.run_until_all_status(5000), session.last_statuses
+    assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
+    time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+    return node, writer
+
+
 def run_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
     """Drive one agent; returns (values received in ROS, counter deltas, agent output)."""
     received = []
@@ -78,12 +90,7 @@ def run_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
         port = stats_port(agent)
         session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
         try:
-            assert session.create(attempts=5, timeout_ms=1000)
-            node = session.create_participant(domain_id=ros_domain, name="fastpath")
-            writer = session.create_writer(node, topic, Twist, reliable=False)
-            assert session.run_until_all_status(5000), session.last_statuses
-            assert wait_until(lambda: ros_peer.node.count_publishers(topic) > 0, 10)
-            time.sleep(0.5)  # the subscriber's matching by the agent's publisher
+            node, writer = matched_writer(session, ros_peer, ros_domain, "fastpath", topic, Twist)
             before = fetch_stats(port)
             values = list(range(1, 21))
             frames = twist_datagrams(session, writer, values)
@@ -220,6 +227,75 @@ def test_a_client_heard_only_through_the_compiled_path_stays_alive(ros_peer, ros
     assert received.count(1.0) >= 55
     if switch == "1":
         assert "best-effort samples take the compiled path" in output
+
+
+PAD = b"\xee"  # padding bytes are not read: a value no String sample of the test ends with
+
+
+def run_padded_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
+    """PX4's client pads every datagram to a multiple of 4 bytes: best-effort String samples of
+    odd CDR length, each datagram with its padding. Returns (raw CDR received in ROS, the
+    CDR sent, counter deltas)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String as RosString
+    from xrce.msgs.std_msgs import String
+    received = []
+    ros_peer.node.create_subscription(RosString, topic, received.append,
+                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT),
+                                      raw=True)
+    with AgentProcess("udp4", "-m", "dds", "--stats-port", "0", env=env) as agent:
+        port = stats_port(agent)
+        session = Session(CapturingTransport(UdpTransport("127.0.0.1", agent.port)), history=8)
+        try:
+            _node, writer = matched_writer(session, ros_peer, ros_domain, "fastpath_padded", topic,
+                                           String)
+            before = fetch_stats(port)
+            transport = session.transport
+            transport.capture, transport.captured = True, []
+            for index in range(10):  # CDR of 5 + 2 * index bytes ("s" * ..., its 0, its length)
+                session.write(writer, String(data="s" * (2 * index)), stream_id=session.best_effort)
+                session.flush()
+            transport.capture = False
+            sent = []
+            for seq, frame in enumerate(transport.captured):
+                start = 4 if frame[0] & 0x80 else 8
+                end = start + 4 + (frame[start + 2] | frame[start + 3] << 8)
+                assert end % 4, "the scenario needs unaligned samples"
+                sent.append(bytes(frame[start + 8:end]))
+                # (xrce.client pads as PX4's client does; padded here whatever it did)
+                transport.inner.send(with_seq(bytes(frame[:end]) + PAD * (-end % 4), seq))
+                if seq == 1:  # the first opens the stream, the second registers the writer
+                    time.sleep(0.3)
+            assert wait_until(lambda: len(received) >= 10, 10), received
+            time.sleep(FOLD_WAIT_S)
+            after = fetch_stats(port)
+        finally:
+            session.close()
+    deltas = {name: after["agent"][name] - before["agent"][name]
+              for name in ("messages_in", "samples_in", "dropped", "decode_errors",
+                           "samples_compiled")}
+    return [bytes(raw[4:]) for raw in received], sent, deltas
+
+
+@pytest.mark.parametrize("switch", [pytest.param("1", marks=needs_extension), "0"],
+                         ids=["compiled", "python"])
+def test_padded_datagrams_as_px4_sends_them_publish_the_sample_alone(ros_peer, ros_domain, switch):  # noqa: F811
+    """The padding after a datagram's one WRITE_DATA is not part of the sample, on either path;
+    and such samples take the compiled path as unpadded ones do (PX4's samples and xrce.client's
+    did not: the Python path's shortcut, which registers a writer with C, refused padded
+    datagrams)."""
+    received, sent, deltas = run_padded_scenario(ros_peer, ros_domain, "/fastpath_pad_" + switch,
+                                                 {"XRCE_FASTPATH": switch})
+    assert len(received) == len(sent)
+    for got, cdr in zip(received, sent):
+        # Fast DDS delivers the payload zero-padded to 4 bytes; a PAD byte would be the agent's
+        assert got[:len(cdr)] == cdr and got[len(cdr):] == bytes(len(got) - len(cdr)), (got, cdr)
+    assert deltas["messages_in"] == deltas["samples_in"] == 10, deltas
+    assert deltas["dropped"] == deltas["decode_errors"] == 0, deltas
+    if switch == "1":  # two samples through Python, C publishes the rest
+        assert deltas["samples_compiled"] == 8, deltas
+    else:
+        assert deltas["samples_compiled"] == 0, deltas
 
 
 def reliable_datagrams(session, writer, values):
@@ -372,13 +448,13 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
         rest, _more = receiver.read()
         assert rest == [(datagram, address)]
         assert receiver.reliable_state(handle, 0x80) == (4, 4)
-        assert receiver.fold() == ((0, 0, 0, 0, 0, 0, 0), [], [], [])
+        assert receiver.fold() == ((0,) * 9, [], [], [])
 
         receiver.add_writer(handle, 0x0015, publisher.handle.pointer)  # now it publishes
         assert receiver.handle(datagram, address)
         assert receiver.reliable_state(handle, 0x80) == (5, 5)
         totals, clients, writers, acks = receiver.fold()
-        assert totals == (1, len(datagram), 1, 0, 0, 0, 0) and acks == [(handle, 0x80)]
+        assert totals == (1, len(datagram), 1, 0, 0, 0, 0, 0, 0) and acks == [(handle, 0x80)]
 
         # Read with Python's leave (no ACKNACK of its own queued): the one owed is sent here,
         # byte for byte what Python sends, and counted; none is left for Python.
@@ -391,8 +467,8 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
         client.settimeout(5)
         assert client.recv(64) == acknack
         totals, clients, writers, acks = receiver.fold()
-        assert totals == (1, len(datagram), 1, 0, 0, 1, len(acknack)) and acks == []
-        assert clients[0][4:] == (1, len(acknack))
+        assert totals == (1, len(datagram), 1, 0, 0, 1, len(acknack), 0, 0) and acks == []
+        assert clients[0][4:] == (1, len(acknack), None)
         assert not receiver.handle(datagram, address)  # the duplicate is Python's to count
         assert not receiver.handle(keyed_datagram(7, stream_id=0x80), address)  # a gap: Python's
         receiver.set_reliable_state(handle, 0x80, 5, 7)  # Python holds 7, waits for 6
@@ -451,7 +527,7 @@ def test_hostile_datagrams_are_left_to_python_or_published(ros_peer):  # noqa: F
             mutate(data, rng, rng.randrange(1, 4), longest_tail=15)
             taken += receiver.handle(bytes(data), ADDRESS)
         totals, clients, writers, _acks = receiver.fold()
-        messages, _size, samples, stale, errors, _acknacks, _acknack_bytes = totals
+        messages, _size, samples, stale, errors = totals[:5]
         assert taken == messages == clients[0][1] and errors == 0
         assert samples == sum(row[2] for row in writers) and samples + stale >= taken > 1000
     finally:
@@ -484,7 +560,7 @@ def test_registration_sequence_numbers_and_removal(ros_peer):  # noqa: F811
         assert receiver.handle(keyed_datagram(1), ADDRESS)  # older: dropped
         assert receiver.stream_seq(handle, 0x01) == 2
         totals, clients, writers, _acks = receiver.fold()
-        assert totals == (3, 3 * len(keyed_datagram(2)), 1, 2, 0, 0, 0)  # one published, two stale
+        assert totals == (3, 3 * len(keyed_datagram(2)), 1, 2, 0, 0, 0, 0, 0)  # one published, two stale
         assert writers == [(handle, 0x0015, 1, 48)] and clients[0][:3] == (handle, 3, 3 * 64)
         receiver.set_client_enabled(handle, False)  # e.g. dead: Python must revive it
         assert not receiver.handle(keyed_datagram(3), ADDRESS)

@@ -10,7 +10,10 @@ the same messages and count the same. Then the C side and the stream object alon
 """
 
 import socket
+import struct
 import time
+
+import pytest
 
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
@@ -233,3 +236,53 @@ def test_plain_acknacks_move_the_acknowledged_point_in_c_and_the_rest_is_python(
         assert not receiver.handle(keyed_acknack(3 + WINDOW), ADDRESS)
     finally:
         sock.close()
+
+
+def timestamp_datagram(session_id, sec, nsec, flags=0x01):
+    header = bytes((session_id, 0, 0, 0)) + (KEY if session_id < 0x80 else b"")
+    return header + bytes((0x0E, flags, 8, 0)) + struct.pack("<iI", sec, nsec)
+
+
+@needs_extension
+@pytest.mark.parametrize("session_id", [0x01, 0x81], ids=["key in header", "no key"])
+def test_a_timestamp_is_answered_in_c_with_the_python_paths_bytes(ros_peer, session_id):  # noqa: F811
+    """PX4's time sync: a registered client's TIMESTAMP gets its TIMESTAMP_REPLY from C, the
+    message the Python path encodes for the same three times; anything else stays Python's."""
+    from xrce.submessages import TimestampReply
+    assert fastpath.resolve_rcl()  # the compiled path runs only once rcl is there
+    agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    board = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    agent.bind(("127.0.0.1", 0))
+    board.bind(("127.0.0.1", 0))
+    board.settimeout(5)
+    address = board.getsockname()
+    receiver = fastpath.Receiver(agent.fileno())
+    try:
+        handle = receiver.add_client(session_id, KEY if session_id < 0x80 else bytes(4), address)
+        assert not receiver.handle(timestamp_datagram(session_id, 7, 5, flags=0), address)  # BE
+        assert not receiver.handle(timestamp_datagram(session_id, 7, 10 ** 9), address)
+        assert not receiver.handle(timestamp_datagram(session_id, 7, 5) + b"\0" * 4, address)
+        assert not receiver.handle(timestamp_datagram(session_id, 7, 5), ("127.0.0.1", 1))
+        before = time.time_ns()
+        assert receiver.handle(timestamp_datagram(session_id, -3, 112000000), address)
+        after = time.time_ns()
+        reply = board.recv(100)
+        header, payloads = decode_message(reply)
+        (answer,) = payloads
+        assert isinstance(answer, TimestampReply) and header.stream_id == 0
+        assert answer.originate_ns == -3 * 10 ** 9 + 112000000
+        assert before <= answer.receive_ns <= answer.transmit_ns <= after
+        assert reply == encode_message(session_id, 0, 0, KEY if session_id < 0x80 else None,
+                                       [TimestampReply(answer.transmit_ns, answer.receive_ns,
+                                                       answer.originate_ns)])
+        totals, clients, _writers, _acks = receiver.fold()
+        assert totals[:2] == (1, len(timestamp_datagram(session_id, 0, 0)))
+        assert totals[7:] == (1, len(reply))
+        assert clients == [(handle, 1, totals[1], clients[0][3], 1, len(reply),
+                            answer.receive_ns - answer.originate_ns)]
+        receiver.set_client_enabled(handle, False)  # a client Python attends to: Python answers
+        assert not receiver.handle(timestamp_datagram(session_id, 7, 5), address)
+    finally:
+        receiver.remove_client(handle)
+        agent.close()
+        board.close()

@@ -9,6 +9,7 @@
  * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
  * end of the wake-up, or by Python (send_due_acknacks says when). FRAGMENTs of such a stream and
  * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat),
+ * a client's TIMESTAMPs are answered here (try_fast_timestamp),
  * the client's plain ACKNACKs for the agent's reliable output streams _reliable_out.c's. The
  * tables Python fills (clients, streams, writers) are _receiver_tables.c's; the extension's ROS
  * helpers beside the receive path are _ros_support.c's and _services.c's.
@@ -89,8 +90,10 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     if (data[pos] == FRAGMENT && pos + 4 + sub_length == length)  /* _reliable_in.c */
         return try_fast_fragment(self, client, stream, data, length, pos, sub_length);
     if (pos + 8 > length) return 0;
+    /* up to 3 bytes of alignment padding may follow (PX4's client pads every datagram) */
+    size_t end = pos + 4 + sub_length;
     if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
-        sub_length < 4 || pos + 4 + sub_length != length)
+        sub_length < 4 || end > length || length > ((end + 3) & ~(size_t)3))
         return 0;
     Writer *writer = find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7]));
     if (writer == NULL) return 0;
@@ -109,6 +112,62 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     return 1;
 }
 
+static void put_time(uint8_t *out, int64_t ns) {
+    int64_t sec = ns / 1000000000, nsec = ns % 1000000000;
+    if (nsec < 0) sec -= 1, nsec += 1000000000;  /* as Python's floor division encodes it */
+    uint32_t s = (uint32_t)(int32_t)sec, n = (uint32_t)nsec;
+    for (int i = 0; i < 4; i++) out[i] = (uint8_t)(s >> (8 * i)), out[4 + i] = (uint8_t)(n >> (8 * i));
+}
+
+static int64_t time_of_day_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+/* A datagram that is one little-endian TIMESTAMP: answered here with the bytes the Python path
+ * sends (xrce.agent.engine.dispatch, a test holds them equal): TIMESTAMP_REPLY on stream none,
+ * the time of day at transmit and at receive, the client's time echoed. PX4 counts only round
+ * trips under 10 ms towards its time sync and sends one in its loop among its samples: answered
+ * here, it waits for nothing in Python, nor does the rest of the batch behind it. 1 if sent. */
+static int try_fast_timestamp(Receiver *self, Client *c, const uint8_t *data, size_t length) {
+    size_t pos = data[0] < 0x80 ? 8 : 4;
+    if (length != pos + 12 || data[pos] != TIMESTAMP || !(data[pos + 1] & 0x01) ||
+        (data[pos + 2] | data[pos + 3] << 8) != 8)
+        return 0;
+    int64_t received = time_of_day_ns();
+    const uint8_t *t = data + pos + 4;
+    int32_t sec = (int32_t)((uint32_t)t[0] | (uint32_t)t[1] << 8 | (uint32_t)t[2] << 16 |
+                            (uint32_t)t[3] << 24);
+    uint32_t nsec = (uint32_t)t[4] | (uint32_t)t[5] << 8 | (uint32_t)t[6] << 16 |
+                    (uint32_t)t[7] << 24;
+    if (nsec >= 1000000000u) return 0;  /* Python normalizes such a time in its echo */
+    uint8_t reply[8 + 4 + 24];
+    size_t n = 0;
+    reply[n++] = c->session_id;
+    reply[n++] = 0, reply[n++] = 0, reply[n++] = 0;  /* stream none, sequence 0 */
+    if (c->session_id < 0x80) {
+        memcpy(reply + n, c->key, 4);
+        n += 4;
+    }
+    reply[n++] = TIMESTAMP_REPLY, reply[n++] = 0x01, reply[n++] = 24, reply[n++] = 0;
+    put_time(reply + n + 8, received);
+    memcpy(reply + n + 16, t, 8);
+    put_time(reply + n, time_of_day_ns());
+    n += 24;
+    if (sendto(self->sock, reply, n, MSG_DONTWAIT, (const struct sockaddr *)&c->addr,
+               c->addr_len) != (ssize_t)n)
+        return 0;
+    count_message(self, c, length);
+    c->messages_out++;
+    c->bytes_out += n;
+    c->timestamp_skew_ns = received - ((int64_t)sec * 1000000000 + nsec);
+    c->has_skew = 1;
+    self->timestamp_replies++;
+    self->timestamp_reply_bytes += n;
+    return 1;
+}
+
 /* Publish the datagram here if all of it is fast; 0 when Python must have it. Called locked. */
 static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
     if (!self->enabled || rcl_publish_serialized == NULL || length < 12) return 0;
@@ -118,7 +177,8 @@ static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct s
     if (client == NULL || !client->enabled) return 0;
     if (data[1] == 0)  /* _reliable_in.c, _reliable_out.c */
         return try_fast_heartbeat(self, client, data, length) ||
-               try_fast_acknack(self, client, data, length);
+               try_fast_acknack(self, client, data, length) ||
+               try_fast_timestamp(self, client, data, length);
     Stream *stream = find_stream(client, data[1]);
     if (stream == NULL) return 0;
     if (stream->reliable) return try_fast_reliable(self, client, stream, data, length);
@@ -303,8 +363,9 @@ static PyObject *Receiver_read(Receiver *self, PyObject *const *args, Py_ssize_t
 }
 
 /* fold(): the counters since the previous fold, reset here:
- * ((messages, bytes, samples, stale, publish_errors, acknacks sent, their bytes),
- *  [(handle, messages, bytes, last_seen_ns, messages_out, bytes_out)],
+ * ((messages, bytes, samples, stale, publish_errors, acknacks sent, their bytes,
+ *   TIMESTAMP_REPLYs sent, their bytes),
+ *  [(handle, messages, bytes, last_seen_ns, messages_out, bytes_out, timestamp skew ns or None)],
  *  [(handle, object_id, samples, bytes)],
  *  [(handle, stream_id)] of the reliable streams that handled a message: each owes an ACKNACK) */
 static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
@@ -315,13 +376,18 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
     int failed = 0;
     for (Client *c = self->clients; c && !failed; c = c->next) {
         if (c->messages || c->messages_out) {
-            PyObject *row = Py_BuildValue("(lKKLKK)", c->handle, (unsigned long long)c->messages,
-                                          (unsigned long long)c->bytes, (long long)c->last_seen_ns,
-                                          (unsigned long long)c->messages_out,
-                                          (unsigned long long)c->bytes_out);
+            PyObject *skew = c->has_skew ? PyLong_FromLongLong(c->timestamp_skew_ns)
+                                         : Py_NewRef(Py_None);
+            PyObject *row = skew ? Py_BuildValue("(lKKLKKN)", c->handle,
+                                                 (unsigned long long)c->messages,
+                                                 (unsigned long long)c->bytes,
+                                                 (long long)c->last_seen_ns,
+                                                 (unsigned long long)c->messages_out,
+                                                 (unsigned long long)c->bytes_out, skew) : NULL;
             failed = row == NULL || PyList_Append(clients, row) < 0;
             Py_XDECREF(row);
             c->messages = c->bytes = c->messages_out = c->bytes_out = 0;
+            c->has_skew = 0;
         }
         for (Writer *w = c->writers; w && !failed; w = w->next) {
             if (!w->samples) continue;
@@ -340,15 +406,18 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
             s->ack_due = 0;
         }
     }
-    PyObject *totals = Py_BuildValue("(KKKKKKK)", (unsigned long long)self->messages,
+    PyObject *totals = Py_BuildValue("(KKKKKKKKK)", (unsigned long long)self->messages,
                                      (unsigned long long)self->bytes,
                                      (unsigned long long)self->samples,
                                      (unsigned long long)self->stale,
                                      (unsigned long long)self->publish_errors,
                                      (unsigned long long)self->acknacks,
-                                     (unsigned long long)self->acknack_bytes);
+                                     (unsigned long long)self->acknack_bytes,
+                                     (unsigned long long)self->timestamp_replies,
+                                     (unsigned long long)self->timestamp_reply_bytes);
     self->messages = self->bytes = self->samples = self->stale = self->publish_errors = 0;
-    self->acknacks = self->acknack_bytes = 0;
+    self->acknacks = self->acknack_bytes = self->timestamp_replies = 0;
+    self->timestamp_reply_bytes = 0;
     self->pending_count = 0;  /* every ack_due was just handed to Python */
     pthread_mutex_unlock(&self->mutex);
     if (!failed && totals) result = Py_BuildValue("(NOOO)", totals, clients, writers, acks);

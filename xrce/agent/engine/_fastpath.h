@@ -32,6 +32,8 @@
 #define ACKNACK 0x0A
 #define HEARTBEAT 0x0B
 #define FRAGMENT 0x0D
+#define TIMESTAMP 0x0E
+#define TIMESTAMP_REPLY 0x0F
 #define FLAG_LAST_FRAGMENT 0x02
 #define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
 
@@ -108,6 +110,10 @@ typedef struct Client {
      * last set it (set_room), less what was added since; and the bytes of reassembly added (or,
      * negative, given back) since the last fold, which Python charges to the client. */
     int64_t room, frag_charged;
+    /* The receive time minus the client's transmit time of its last TIMESTAMP answered here
+     * (ClientProxy.timestamp_skew_ns); has_skew: one came since the last fold. */
+    int64_t timestamp_skew_ns;
+    int has_skew;
 } Client;
 
 typedef struct {
@@ -121,6 +127,7 @@ typedef struct {
     int enabled;
     /* Agent-wide counters since the last fold. */
     uint64_t messages, bytes, samples, stale, publish_errors, acknacks, acknack_bytes;
+    uint64_t timestamp_replies, timestamp_reply_bytes;  /* TIMESTAMP_REPLYs sent here */
     uint64_t fragments_in;
     size_t reassembly_limit;  /* Agent.max_reassembly_bytes; 0 (not set): no reassembly here */
     /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found

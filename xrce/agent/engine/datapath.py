@@ -73,8 +73,11 @@ class DataPath:
         if self.timelines.pending and client.key in self.timelines.pending:
             return False  # a client coming back: _write_data notes its first sample into ROS
         length = data[start + 2] | (data[start + 3] << 8)
+        end = start + 4 + length
+        # PX4's client pads every datagram to a multiple of 4 bytes: up to 3 bytes after the
+        # submessage are its alignment padding, as iter_submessages reads them.
         if data[start] != C_WRITE_DATA or data[start + 1] & C.FLAG_FORMAT_MASK != C.FORMAT_DATA \
-                or start + 4 + length != len(data) or length < 4:
+                or not end <= len(data) <= ((end + 3) & ~3) or length < 4:
             return False
         entry = client.objects.get((data[start + 6] << 8) | data[start + 7])
         if entry is None or entry.write is None:
@@ -100,7 +103,7 @@ class DataPath:
         self.stats.samples_in += 1
         entry.samples += 1
         entry.sample_bytes += length - 4
-        entry.write(data[start + 8:])
+        entry.write(data[start + 8:end])
         if entry.kind == C_DATAWRITER:
             fastpath = getattr(link, "fastpath", None)
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)

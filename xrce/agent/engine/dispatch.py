@@ -225,6 +225,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
 
     def _tick_locked(self) -> None:
         self._resume_parked_locked()
+        for fastpath in self.fastpaths:
+            if fastpath.clients:  # the compiled path's last_seen, before liveliness judges it
+                fastpath.fold()
         now = self.clock()
         due = NEVER
         if self.timelines.pending:
@@ -251,8 +254,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         if due < NEVER:
             self._wake_at(due)
         for fastpath in self.fastpaths:
-            # Its counters were folded after the read that brought them; clients found dead
-            # just now must come back through Python.
+            # Clients found dead just now must come back through Python.
             fastpath.sync()
 
     @property

@@ -20,6 +20,7 @@ and each reliable stream C delivered on gets its ACKNACK: from C at the end of t
 Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
+A registered client's TIMESTAMPs are answered in C (PX4's time sync counts only fast round trips).
 The board's ACKNACKs for the agent's reliable output streams are taken in C too when they only
 move the acknowledged point (no NACK, the window not full, no HEARTBEAT being timed): the stream
 becomes a ``CompiledOutputStream`` whose acknowledged point C owns, and whose history Python frees
@@ -28,6 +29,7 @@ as it next looks at the window (``_reliable_out.c`` says why that keeps every ru
 
 from __future__ import annotations
 
+import asyncio
 import binascii
 import logging
 import os
@@ -47,6 +49,12 @@ except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
 READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
+# How long C's counters may wait for Python when C took a whole wake-up's datagrams and no client
+# has a reliable input stream in C: PX4 sends 600+ best-effort datagrams a second, in ~400 wake-ups,
+# and folding after each was a fifth of the loop thread's time (bench/px4_load.py). Statistics,
+# last_seen and the writers' counters are then at most this late; the timed work and a deleted
+# client fold first, and so does every read that hands Python a datagram.
+FOLD_INTERVAL_S = 0.05
 
 
 def enabled_by_environment() -> bool:
@@ -120,6 +128,8 @@ class CompiledClient:
         path.receiver.remove_client(self.handle)
         path.clients.pop(self.handle, None)
         client.fast = None
+        path.reliable_in = any(other.fast is not None and other.fast.reliable
+                               for other in path.clients.values())
 
 
 class FastPath:
@@ -131,9 +141,15 @@ class FastPath:
         self.receiver = _fastpath.Receiver(sock.fileno())
         self.receiver.set_reassembly_limit(agent.max_reassembly_bytes or MAX_REASSEMBLY)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
+        self.reliable_in = False  # a client has a reliable input stream in C: fold every read
+        self.folded_at = 0.0  # time.monotonic() of the last fold
+        self.fold_timer = None  # the loop's handle of a fold due later (FOLD_INTERVAL_S)
         agent.fastpaths.append(self)
 
     def close(self) -> None:
+        if self.fold_timer is not None:
+            self.fold_timer.cancel()
+            self.fold_timer = None
         with self.agent.lock:
             for client in list(self.clients.values()):
                 if client.fast is not None:
@@ -169,9 +185,19 @@ class FastPath:
                 break
         if self.clients:
             # No lock: these counters are only ever written on the loop's thread.
+            if handed or self.reliable_in or \
+                    time.monotonic() - self.folded_at >= FOLD_INTERVAL_S:
+                self.fold()
+                if handed:
+                    self.sync()
+            elif self.fold_timer is None:
+                self.fold_timer = asyncio.get_running_loop().call_at(
+                    self.folded_at + FOLD_INTERVAL_S, self._fold_later)
+
+    def _fold_later(self) -> None:
+        self.fold_timer = None
+        if self.clients:
             self.fold()
-            if handed:
-                self.sync()
 
     # -- registration ---------------------------------------------------------------------
 
@@ -203,7 +229,7 @@ class FastPath:
             client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
                                                                    stream)
             state.streams.add(stream_id)
-            state.reliable = True
+            state.reliable = self.reliable_in = True
             self.receiver.set_room(state.handle, self.room(client))
             log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
                       client.key.hex(), stream_id)
@@ -251,15 +277,16 @@ class FastPath:
 
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
-        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes), clients, \
-            writers, acks = self.receiver.fold()
-        if acknacks:
+        self.folded_at = time.monotonic()
+        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes, replies,
+         reply_bytes), clients, writers, acks = self.receiver.fold()
+        if acknacks or replies:
             stats = self.agent.stats
             stats.acknacks_out += acknacks
-            stats.messages_out += acknacks
-            stats.bytes_out += acknack_bytes
-            self.link.stats.messages_out += acknacks
-            self.link.stats.bytes_out += acknack_bytes
+            stats.messages_out += acknacks + replies
+            stats.bytes_out += acknack_bytes + reply_bytes
+            self.link.stats.messages_out += acknacks + replies
+            self.link.stats.bytes_out += acknack_bytes + reply_bytes
         if messages:
             stats = self.agent.stats
             stats.messages_in += messages
@@ -282,12 +309,14 @@ class FastPath:
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
         offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
             else 0.0
-        for handle, count, size, seen_ns, count_out, size_out in clients:
+        for handle, count, size, seen_ns, count_out, size_out, skew_ns in clients:
             client = self.clients.get(handle)
             if client is None:
                 continue
             client.messages_out += count_out
             client.bytes_out += size_out
+            if skew_ns is not None:
+                client.timestamp_skew_ns = skew_ns
             if not count:
                 continue
             client.messages_in += count
