@@ -176,5 +176,6 @@ static PyMethodDef ros_support_methods[] = {
 };
 
 int xrce_ros_support_add(PyObject *module) {
+    if (xrce_named_types_add(module) < 0) return -1;
     return PyModule_AddFunctions(module, ros_support_methods);
 }

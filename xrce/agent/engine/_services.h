@@ -11,6 +11,9 @@ int xrce_services_add(PyObject *module);
 /* Adds _ros_support.c's functions (type supports, raw conversions, participant_node, ...). */
 int xrce_ros_support_add(PyObject *module);
 
+/* Adds _named_types.c's functions (type supports of types known only by name). */
+int xrce_named_types_add(PyObject *module);
+
 /* A function of rcl, rmw or rcutils from the librcl rclpy loaded; NULL without one. */
 void *xrce_rcl_symbol(const char *name);
 

@@ -15,7 +15,8 @@ import types
 
 from xrce.agent.middleware import UnknownTypeError
 from xrce.agent.middleware.ros.types import (
-    _ACTION_MESSAGES, BUILD_HINT, _check_package, _import_module, _split_type, log,
+    _ACTION_MESSAGES, _ACTION_SERVICES, BUILD_HINT, _check_package, _import_module, _split_type,
+    log, package_present,
 )
 
 
@@ -112,7 +113,8 @@ def raw_message_type(dds_type: str):
                                    % (dds_type, ", ".join("X_" + n for n in _ACTION_MESSAGES)))
     elif kind != "msg":
         raise UnknownTypeError("%r is not a message type" % dds_type)
-    _check_package(package, dds_type)
+    if not package_present(package, dds_type):
+        return named_message_type(dds_type, package, kind, type_name)
     attributes = _library_type_support(package, type_name)
     if attributes is not None:
         meta = type("Metaclass_" + type_name, (_RawTypeMeta,), attributes)
@@ -301,3 +303,118 @@ def raw_service_type(srv):
                 Response=_raw_class(srv.Response, srv.Response.__name__, to_reply, (RawReply,)))
     _raw_services[srv] = stand_in
     return stand_in
+
+
+# -- types known only by name ----------------------------------------------------------------------
+#
+# A client may name a type of a package the agent has nowhere (PX4's px4_msgs): as eProsima's
+# agent does, its samples cross as the CDR bytes they are, under the DDS type name the client
+# gave, and a ROS node that has the package reads and writes them. The type support is made from
+# the name alone by the compiled helper (_named_types.c); nothing is imported for such a name.
+# The helper keeps at most 1024 such types per process; these dicts hold the ones made.
+
+_named_messages: dict = {}  # dds type name -> raw message class
+_named_services: dict = {}  # dds request type name -> raw service class
+_NAME_MAX = 255  # a DDS type name's limit in ROS' type descriptions
+
+
+def _named_helper(dds_type: str, package: str):
+    """The compiled helper, or UnknownTypeError saying what is missing."""
+    try:
+        from xrce.agent.engine import _fastpath
+    except ImportError:
+        _fastpath = None
+    if _fastpath is None or not hasattr(_fastpath, "named_message_type"):
+        raise UnknownTypeError(
+            "type %s: %s is not installed, and carrying a type known only by its name needs the "
+            "agent's compiled helper (xrce.agent.engine._fastpath, built by a C compiler when xrce "
+            "is installed), which this install lacks: reinstall xrce where gcc is present, or "
+            "build %s (--interfaces DIR, then %s)" % (dds_type, package, package, BUILD_HINT))
+    if len(dds_type) > _NAME_MAX:
+        raise UnknownTypeError("type name of %d characters: at most %d" % (len(dds_type),
+                                                                           _NAME_MAX))
+    return _fastpath
+
+
+def _described() -> bool:
+    """Whether a type known by name gives rmw an introspection description (a struct without
+    fields): Fast DDS 2's rmw_fastrtps (Jazzy) needs one to create an endpoint and does not
+    announce it; Fast DDS 3's (Kilted) announces it as the endpoint's XTypes type information,
+    which would not match the real type's (``_named_types.c``)."""
+    from xrce.agent.middleware.ros import env as rosenv
+
+    return rosenv.fastdds_major() < 3
+
+
+def _refused_by_name(dds_type: str, package: str, why: str) -> UnknownTypeError:
+    return UnknownTypeError("type %s: %s is not installed, and the type cannot be carried by name: "
+                            "%s" % (dds_type, package, why))
+
+
+def named_message_type(dds_type: str, package: str, kind: str, type_name: str):
+    """The raw message class of ``dds_type``, a type of a package the agent does not have,
+    made from its name alone: publishers and raw subscriptions of it carry the client's CDR
+    bytes."""
+    handle = _named_messages.get(dds_type)
+    if handle is not None:
+        return handle
+    helper = _named_helper(dds_type, package)
+    type_support = helper.named_message_type(package, kind, type_name, _described())
+    if isinstance(type_support, str):
+        raise _refused_by_name(dds_type, package, type_support)
+    create, from_py, to_py, destroy = helper.raw_type_conversions()
+    meta = type("Metaclass_" + type_name, (_RawTypeMeta,), {
+        "_TYPE_SUPPORT": type_support, "_CREATE_ROS_MESSAGE": create,
+        "_CONVERT_FROM_PY": from_py, "_CONVERT_TO_PY": to_py, "_DESTROY_ROS_MESSAGE": destroy})
+    handle = _named_messages[dds_type] = meta(type_name, (), {
+        "__module__": "%s.%s" % (package, kind), "__slots__": ()})
+    log.info("type %s: no package %s on the agent's side: carried by name, its CDR bytes as they "
+             "are", dds_type, package)
+    return handle
+
+
+def named_service_type(request_type: str):
+    """The raw service class of ``request_type`` (``pkg::srv::dds_::X_Request_``, or an action's
+    ``X_SendGoal_Request_``/``X_GetResult_Request_``) where its package is nowhere on the agent's
+    side, made from the name alone; None where the package is there. Requests and replies cross
+    as CDR bytes both ways: ``Request`` and ``Response`` are ``RawReply`` classes (made with the
+    sample's CDR, encapsulation first) that rclpy takes as the bytes behind the encapsulation."""
+    stand_in = _named_services.get(request_type)
+    if stand_in is not None:
+        return stand_in
+    package, kind, type_name = _split_type(request_type)
+    for suffix in ("_Request", "_Response"):
+        if type_name.endswith(suffix):
+            type_name = type_name[:-len(suffix)]
+            break
+    if kind == "action":
+        if type_name.partition("_")[2] not in _ACTION_SERVICES:
+            return None  # service_class says what is wrong with the name
+    elif kind != "srv":
+        return None
+    if package_present(package, request_type):
+        return None
+    helper = _named_helper(request_type, package)
+    supports = helper.named_service_type(package, kind, type_name, _described())
+    if isinstance(supports, str):
+        raise _refused_by_name(request_type, package, supports)
+    service_support, request_support, response_support = supports
+    create, destroy, to_py, from_py = helper.named_conversions()
+    module = "%s.%s" % (package, kind)
+    meta = type("Metaclass_" + type_name, (_RawServiceMeta,), {"_TYPE_SUPPORT": service_support})
+    stand_in = meta(type_name, (), {
+        "__module__": module, "__slots__": (),
+        "Request": _raw_message_class(type_name + "_Request", module, request_support, create,
+                                      destroy, (to_py, from_py), (RawReply,)),
+        "Response": _raw_message_class(type_name + "_Response", module, response_support, create,
+                                       destroy, (to_py, from_py), (RawReply,))})
+    _named_services[request_type] = stand_in
+    log.info("service type %s: no package %s on the agent's side: carried by name, its CDR bytes "
+             "as they are", request_type, package)
+    return stand_in
+
+
+def carries_cdr(srv) -> bool:
+    """Whether a service class's requests and replies are CDR bytes (``RawReply`` objects to
+    send, bytes taken): a replier's raw types and the types known by name."""
+    return isinstance(srv.Response, type) and issubclass(srv.Response, RawReply)

@@ -36,7 +36,9 @@ from xrce.agent.middleware import (
 )
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZE, log
-from xrce.agent.middleware.ros.raw_types import RawReply, library_service_type, raw_service_type
+from xrce.agent.middleware.ros.raw_types import (
+    carries_cdr, library_service_type, named_service_type, raw_service_type,
+)
 from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
 
 
@@ -192,8 +194,10 @@ class RosServices:
 
     def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                          qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
+        # A type known only by name sends the client's CDR bytes; otherwise Python messages.
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
-            key, participant, service, qos)
+            key, participant, service, qos,
+            lambda name: named_service_type(name) or service_class(name))
         self._get_loop()
         creation = self._creating.get(key)
         record = creation.context if creation is not None else \
@@ -206,10 +210,12 @@ class RosServices:
     def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                        qos: EndpointQosSpec, on_request: RequestCallback) -> None:
         # The service type from the package's C libraries where it can be (CDR bytes both ways,
-        # no Python package imported), else its Python classes.
+        # no Python package imported), made from its name where the package is nowhere, else
+        # its Python classes.
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
             key, participant, service, qos,
-            lambda name: library_service_type(name) or service_class(name))
+            lambda name: named_service_type(name) or library_service_type(name)
+            or service_class(name))
         creation = self._creating.get(key)
         if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
             record = creation.context
@@ -226,8 +232,7 @@ class RosServices:
         def make_service():
             ros_service = node.create_service(srv, service_name, record.take, qos_profile=profile)
             ros_service.send_response = record.capture
-            raw = srv if isinstance(srv.Response, type) and issubclass(srv.Response, RawReply) \
-                else raw_service_type(srv)
+            raw = srv if carries_cdr(srv) else raw_service_type(srv)
             if raw is not None:  # requests and replies cross as CDR bytes
                 ros_service.srv_type = raw
                 record.raw_reply = raw.Response
@@ -244,7 +249,11 @@ class RosServices:
         if record is None or record.kind != "requester":
             return False
         try:
-            request = deserialize_message(ENCAPSULATION_LE + bytes(sample), record.srv.Request)
+            if carries_cdr(record.srv):  # a type known by name: its bytes as they are
+                request = record.srv.Request(ENCAPSULATION_LE + bytes(sample))
+            else:
+                request = deserialize_message(ENCAPSULATION_LE + bytes(sample),
+                                              record.srv.Request)
         except Exception as exc:
             log.warning("request for %r does not decode as %s: %s", requester,
                         record.srv.__name__, exc)
@@ -351,7 +360,9 @@ class RosServices:
 
         def reply_arrived(future) -> None:  # executor thread
             try:
-                body = serialize_message(future.result())[ENCAPSULATION_SIZE:]
+                reply = future.result()
+                body = reply if reply.__class__ is bytes else \
+                    serialize_message(reply)[ENCAPSULATION_SIZE:]
             except Exception:
                 log.exception("service reply could not be serialized")
                 return

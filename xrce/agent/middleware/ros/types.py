@@ -144,21 +144,21 @@ def _registered(package: str) -> bool:
     return is_registered(package)
 
 
-def _check_package(package: str, dds_type: str) -> None:
-    """Return if ``package`` may be imported for ``dds_type``; else raise UnknownTypeError, or
-    TypeNotReady while the interface directories are listed or the package is built."""
+def package_present(package: str, dds_type: str) -> bool:
+    """Whether ``package`` may be imported for ``dds_type``: True for an interface package of the
+    ROS in use or of the agent's registry (built now from its interface directories if one has
+    it); False where no package of that name is anywhere, the type is then known by its name
+    only (``raw_types.named_message_type``). Raises TypeNotReady while the interface directories
+    are listed or the package is built, UnknownTypeError when its build failed."""
     if _in_ament_index(package) or _registered(package):
-        return
+        return True
     from xrce.agent import interfaces
 
     listing = interfaces.search_index()
     if not listing.done():
         raise TypeNotReady("looking for %s in the interface directories" % package, listing)
     if package not in listing.result():
-        raise UnknownTypeError("type %s: %s is not installed: no interface package of the ROS in "
-                               "use (ament index) nor of the agent's interface directories has "
-                               "that name (--interfaces DIR, then %s)"
-                               % (dds_type, package, BUILD_HINT))
+        return False
     future = interfaces.start_package_build(package)
     if not future.done():
         log.info("building interface package %s for type %s; its CREATE waits", package, dds_type)
@@ -168,10 +168,20 @@ def _check_package(package: str, dds_type: str) -> None:
         raise UnknownTypeError("type %s: building %s failed in this agent run (not retried "
                                "before a restart): %s" % (dds_type, package, error)) from None
     if not future.result():
-        raise UnknownTypeError("type %s: %s is not installed (%s)" % (dds_type, package,
-                                                                      BUILD_HINT))
+        return False
     if not _registered(package):
         raise UnknownTypeError("type %s: %s was built but is not registered" % (dds_type, package))
+    return True
+
+
+def _check_package(package: str, dds_type: str) -> None:
+    """Return if ``package`` may be imported for ``dds_type``; else raise UnknownTypeError, or
+    TypeNotReady while the interface directories are listed or the package is built."""
+    if not package_present(package, dds_type):
+        raise UnknownTypeError("type %s: %s is not installed: no interface package of the ROS in "
+                               "use (ament index) nor of the agent's interface directories has "
+                               "that name (--interfaces DIR, then %s)"
+                               % (dds_type, package, BUILD_HINT))
 
 
 def _import_module(package: str, module_name: str):
