@@ -251,11 +251,14 @@ static void no_fini(void *message) {
 
 /* Kilted's rmw_fastrtps asks a type for its introspection to announce XTypes type information,
  * and where there is none (types without a description here) leaves its "Type support not from
- * this implementation" error set although the endpoint is made: the next error of that thread
- * would print it as overwritten. A type known by name clears that error of the previous
- * endpoint at the next lookup rmw makes (the agent makes its endpoints on one thread). */
+ * this implementation" error set although the endpoint is made; Fast DDS 3 then tells rmw of the
+ * new endpoint on the same thread, and rmw_dds_common, finding no type hash in its USER_DATA,
+ * sets "user_data argument is null" over it: rcutils prints both as an error overwritten, for
+ * every endpoint. Those two errors, and only they, are cleared whenever rmw calls into a type
+ * known by name (its type hash is asked for between the two). */
 typedef struct { char str[1024]; } error_string_t;  /* rcutils_error_string_t */
-#define STALE_ERROR "Type support not from this implementation"
+static const char *const stale_errors[] = {"Type support not from this implementation",
+                                           "user_data argument is null"};
 
 static void clear_stale_error(void) {
     static bool (*is_set)(void);
@@ -267,7 +270,14 @@ static void clear_stale_error(void) {
         reset = (reset_error_fn)xrce_rcl_symbol("rcutils_reset_error");
         if (is_set == NULL || get == NULL || reset == NULL) return;
     }
-    if (is_set() && strncmp(get().str, STALE_ERROR, sizeof STALE_ERROR - 1) == 0) reset();
+    if (!is_set()) return;
+    error_string_t error = get();
+    for (size_t i = 0; i < sizeof stale_errors / sizeof *stale_errors; i++) {
+        if (strncmp(error.str, stale_errors[i], strlen(stale_errors[i])) == 0) {
+            reset();
+            return;
+        }
+    }
 }
 
 static const message_ts_t *message_handle(const message_ts_t *handle, const char *identifier) {
@@ -284,6 +294,7 @@ static const message_ts_t *message_handle(const message_ts_t *handle, const char
 
 static const type_hash_t *message_hash(const message_ts_t *handle) {
     (void)handle;
+    clear_stale_error();
     return &unset_hash;
 }
 
@@ -393,6 +404,7 @@ static const service_ts_t *service_handle(const service_ts_t *handle, const char
 
 static const type_hash_t *service_hash(const service_ts_t *handle) {
     (void)handle;
+    clear_stale_error();
     return &unset_hash;
 }
 

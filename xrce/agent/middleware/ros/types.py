@@ -91,15 +91,45 @@ def dds_topic_to_ros(dds_name: str) -> tuple[str, str]:
     return "dds", _full_name(dds_name)
 
 
-def service_ros_name(service_name: str, request_topic: str | None = None) -> str:
-    """The ROS service name from a ServiceSpec: its name, else its request topic."""
+def _service_of_topic(topic: str | None, kind: str) -> str | None:
+    """The service a well-formed request (``rq/<X>Request``) or reply (``rr/<X>Reply``) topic
+    belongs to, ``/X``; None for no topic, another form, or an invalid ROS name."""
+    if not topic:
+        return None
+    try:
+        found, name = dds_topic_to_ros(topic)
+    except MiddlewareError:
+        return None
+    return name if found == kind else None
+
+
+def service_ros_name(service_name: str, request_topic: str | None = None,
+                     reply_topic: str | None = None) -> str:
+    """The ROS service name of a requester or replier.
+
+    eProsima's agent (2.4 and 3.x, from binary, XML or a reference alike) makes its DDS request
+    writer/reader on the request topic name and its reply one on the reply topic name, and uses
+    the service name for nothing. ROS names a service's two topics ``rq/<service>Request`` and
+    ``rr/<service>Reply``, so the service is the one those names spell: PX4's replier
+    ``vehicle_command`` with ``rq/fmu/vehicle_commandRequest`` is ``/fmu/vehicle_command``,
+    ``rq/px4_1/fmu/...`` is ``/px4_1/fmu/vehicle_command``. One well-formed topic alone (the other
+    absent, or not in that form) names it too. Two well-formed topics of different services are
+    refused: eProsima's agent would make DDS endpoints no ROS client pairs, and one rclpy service
+    cannot have two names. With no well-formed topic (a plain DDS client's ``calc_Request``, or
+    none given) the service name serves, as its ROS name. micro-ROS sends the service name and
+    the topics consistently (``/add_two_ints``, ``rq/add_two_intsRequest``): its services,
+    actions and parameters keep their names."""
+    from_request = _service_of_topic(request_topic, "request")
+    from_reply = _service_of_topic(reply_topic, "reply")
+    if from_request and from_reply and from_request != from_reply:
+        raise MiddlewareError("request topic %r and reply topic %r name two services (%s, %s): "
+                              "a ROS 2 service has one" % (request_topic, reply_topic,
+                                                            from_request, from_reply))
+    if from_request or from_reply:
+        return from_request or from_reply
     if service_name:
         return dds_topic_to_ros(service_name)[1]
-    if request_topic:
-        kind, name = dds_topic_to_ros(request_topic)
-        if kind == "request":
-            return name
-    raise MiddlewareError("service has neither a name nor a request topic")
+    raise MiddlewareError("service has neither a name nor a request or reply topic")
 
 
 def _split_type(dds_type: str) -> tuple[str, str, str]:
