@@ -32,11 +32,6 @@ SENSOR_COMBINED_WRITER = 0x0D95  # PX4's datawriter of rt/fmu/out/sensor_combine
 VEHICLE_COMMAND_READER = 0x8146  # PX4's datareader of rt/fmu/in/vehicle_command
 DO_SET_MODE, ARM_DISARM, NAV_LAND = 176, 400, 21
 
-NEEDS_SERVICE_NAMES = pytest.mark.xfail(
-    strict=True, reason="#37 item 2 (branch h36-types) is not merged here yet: the agent names "
-    "PX4's service /vehicle_command after its service name, not /fmu/vehicle_command after its "
-    "request/reply topics as eProsima's agent does")
-
 
 def check_answers(capture: Px4Capture, ours) -> None:
     """Per boot and request id the STATUS eProsima sent, and its other answers by count."""
@@ -180,7 +175,6 @@ class OffboardNode:
             self._thread.join(2)
 
 
-@NEEDS_SERVICE_NAMES
 @pytest.mark.timeout(240)
 def test_px4_main_replayed_into_ros_without_px4_msgs(px4_msgs, ros_peer, ros_domain):  # noqa: F811
     capture = Px4Capture("px4_main")
@@ -222,7 +216,6 @@ def test_px4_main_replayed_into_ros_without_px4_msgs(px4_msgs, ros_peer, ros_dom
     assert {m.timestamp for m in offboard.sensor_combined} <= recorded
 
 
-@NEEDS_SERVICE_NAMES
 @pytest.mark.timeout(240)
 def test_px4_two_vehicles_answer_their_own_services(px4_msgs, ros_peer, ros_domain):  # noqa: F811
     """px4_two: PX4 -i 0 and -i 1 (namespace px4_1) on one agent. Each vehicle's service is its
