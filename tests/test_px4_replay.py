@@ -258,9 +258,9 @@ def test_px4_two_vehicles_answer_their_own_services(px4_msgs, ros_peer, ros_doma
         delivered = [deserialize(sample[24:], px4_msgs.msg.VehicleCommand)
                      for sample in ours.samples[(peer, REPLIER)]]
         assert [(c.command, c.target_system) for c in delivered] == [(DO_SET_MODE, peer + 1)]
-        reply = [bytes(body[28:]) for index, sender, body in capture.submessages(C.WRITE_DATA)
-                 if sender == peer and index in capture.replier_reply_steps()]
-        recorded = deserialize(reply[0], px4_msgs.msg.VehicleCommandAck)
+        reply = next(bytes(body[28:]) for _index, sender, body in capture.submessages(C.WRITE_DATA)
+                     if sender == peer and ((body[2] << 8) | body[3]) == REPLIER)
+        recorded = deserialize(reply, px4_msgs.msg.VehicleCommandAck)
         got = responses[peer].reply
         assert (got.command, got.result, got.target_system, got.timestamp) == \
             (recorded.command, recorded.result, recorded.target_system, recorded.timestamp)
