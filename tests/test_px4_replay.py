@@ -208,7 +208,7 @@ def test_px4_main_replayed_into_ros_without_px4_msgs(px4_msgs, ros_peer, ros_dom
     request = deserialize(ours.samples[(0, REPLIER)][0][24:], px4_msgs.msg.VehicleCommand)
     assert (request.command, request.target_system) == (NAV_LAND, 1)
     # ... and the node gets PX4's: its recorded answer to the service call, its sensor samples.
-    assert wait_until(lambda: offboard.response is not None, 10)
+    assert wait_until(lambda: offboard.response is not None, 30)
     assert (offboard.response.reply.command, offboard.response.reply.result) == (NAV_LAND, 0)
     recorded = {deserialize(cdr, px4_msgs.msg.SensorCombined).timestamp
                 for cdr in recorded_samples(capture, SENSOR_COMBINED_WRITER)}
@@ -248,7 +248,7 @@ def test_px4_two_vehicles_answer_their_own_services(px4_msgs, ros_peer, ros_doma
                 client.call_async(request).add_done_callback(
                     lambda future, peer=peer: responses.__setitem__(peer, future.result()))
             ours = replay.run(start_step=first_reply, speed=2.0)
-            assert wait_until(lambda: len(responses) == 2, 10), responses
+            assert wait_until(lambda: len(responses) == 2, 30), responses
         finally:
             channel.close()
         assert agent.proc.poll() is None
