@@ -5,8 +5,9 @@ do; prints the rows of issue #37's table for each run and a summary over the run
         ip link set lo up && exec .venv/bin/python bench/px4_sitl.py \\
         --px4-build $PX4W/PX4-Autopilot/build/px4_sitl_default --px4-msgs DIR [--runs 3]'
 
-``--px4-build`` (or $PX4_BUILD) is PX4's ``build/px4_sitl_default`` (../shared/tools/px4/ builds
-one); ``--px4-msgs`` (or $PX4_MSGS) a folder holding the ``px4_msgs`` source package of the same
+``--px4-build`` (or $PX4_BUILD) is PX4's ``build/px4_sitl_default`` (``make px4_sitl_default`` in a
+PX4-Autopilot checkout of a release tag); ``--px4-msgs`` (or $PX4_MSGS) a folder holding the
+``px4_msgs`` source package (github PX4/px4_msgs) of the same
 PX4 release, built here for this script's node only (xrce.agent.interfaces, registered in this
 process alone): the agent never sees it, and the script checks that its interpreter cannot import
 it. The agent is ``python -m xrce.agent udp4 -p 8888`` of this checkout, or ``--agent-cmd CMD``
@@ -50,6 +51,9 @@ AGENT_PORT = 8888  # PX4's default (rcS: uxrce_dds_client start -t udp -p 8888)
 DO_SET_MODE, ARM_DISARM, NAV_LAND = 176, 400, 21
 ARMED, OFFBOARD = 2, 14
 FAST_TOPIC_HZ = 50  # a topic streaming faster than this is one of PX4's 100 Hz ones
+# PX4's log once its session's time sync is done (uxr_sync_session) or its filter has converged;
+# after an agent restart only the first comes again (the filter stays converged)
+SYNCED = "synchronized with time offset|time sync converged"
 
 
 def log(text):
@@ -118,6 +122,7 @@ class Px4:
         self.folder.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, PX4_SIM_MODEL="sihsim_quadx")
         self.lines = []
+        self.saved = False
         self.started = time.monotonic()
         self.proc = subprocess.Popen([str(self.build / "bin" / "px4"), "-d", "-i", str(self.instance),
                                       str(self.build / "etc")], cwd=self.folder, env=env,
@@ -144,12 +149,24 @@ class Px4:
                                 text=True, timeout=timeout_s)
         return result.stdout + result.stderr
 
+    def save_log(self):
+        """Append what PX4 said to ``px4.log`` in its folder (each boot after the previous)."""
+        if self.saved:
+            return
+        self.saved = True
+        with open(self.folder / "px4.log", "a") as f:
+            f.writelines("%.3f %s\n" % (when, line) for when, line in self.lines)
+
     def kill(self):
+        if self.proc is not None:
+            self.save_log()
         if self.proc is not None and self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
 
     def stop(self):
+        if self.proc is not None:
+            self.save_log()
         if self.proc is not None and self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
@@ -199,6 +216,7 @@ class Node:
         self.executor.add_node(self.node)
         self.arrivals = {}  # topic -> [(monotonic, PX4 timestamp in us)]
         self.latest = {}  # topic -> latest decoded message
+        self.timesync = []  # /fmu/out/timesync_status messages
         self._subscriptions = {}
         self._stop = False
         self._lock = threading.Lock()
@@ -239,6 +257,8 @@ class Node:
                 stamp = getattr(message, "timestamp", 0)
                 self.arrivals[topic].append((time.monotonic(), stamp))
                 self.latest[topic] = message
+                if topic == "/fmu/out/timesync_status":
+                    self.timesync.append(message)
 
             self._subscriptions[topic] = self.node.create_subscription(
                 self.message_type(type_name), topic, on_message, qos_profile_sensor_data)
@@ -341,6 +361,7 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
         node.subscribe_all("/fmu/out/")
         time.sleep(2)  # matched
         start_counts = {t: node.count(t) for t in node.arrivals}
+        start_timesync = len(node.timesync)
         cpu0, t0 = cpu_seconds(agent.proc.pid), time.monotonic()
         time.sleep(10)
         cpu1, t1 = cpu_seconds(agent.proc.pid), time.monotonic()
@@ -353,13 +374,20 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
                 # samples PX4 wrote over that span at its rate, by its own clock
                 span_us = stamps[-1] - stamps[0]
                 shares[topic] = (len(stamps) - 1) / (span_us / 1e6 * 100.0) if span_us else 0.0
-        fast = sorted(t for t, hz in rates.items() if hz > FAST_TOPIC_HZ)
-        silent = sorted(t for t, hz in rates.items() if hz == 0)
+        own = [t for t in rates if t.startswith("/fmu/out/")]
+        fast = sorted(t for t in own if rates[t] > FAST_TOPIC_HZ)
         rows["/fmu/out topics"] = "%d subscribed, %d with samples in 10 s" % (
-            len(rates), len(rates) - len(silent))
-        rows["100 Hz topics in ROS"] = ", ".join(
-            "%s %.1f Hz (%.0f%% of 100 Hz by PX4's clock)" % (t.rsplit("/", 1)[1], rates[t], 100 * shares.get(t, 0))
-            for t in fast) or "none"
+            len(own), sum(1 for t in own if rates[t]))
+        rows["100 Hz topics in ROS"] = (
+            "%d topics %.1f-%.1f Hz, median %.1f Hz (%.0f-%.0f %% of 100 Hz on PX4's clock)" % (
+                len(fast), min(rates[t] for t in fast), max(rates[t] for t in fast),
+                statistics.median(rates[t] for t in fast), 100 * min(shares[t] for t in fast),
+                100 * max(shares[t] for t in fast)) if fast else "none")
+        rtts = [m.round_trip_time / 1000 for m in node.timesync[start_timesync:]
+                if m.source_protocol == 2]  # DDS
+        rows["TIMESTAMP round trip (PX4's timesync_status, on its 4 ms lockstep clock)"] = (
+            "p50 %.2f ms, max %.2f ms over %d" % (statistics.median(rtts), max(rtts), len(rtts))
+            if rtts else "no samples")
         rows["agent CPU"] = "%.1f %% of a core" % (100 * (cpu1 - cpu0) / (t1 - t0))
 
         # offboard: arm, offboard, climb
@@ -386,11 +414,20 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
             "answered: command %d result %d" % (response.reply.command, response.reply.result)
             if response is not None else "NOT answered")
 
-        status = px4[0].shell("uxrce_dds_client status")
-        found = re.search(r"timesync converged: (\w+)", status)
-        rows["uxrce_dds_client status"] = "%s; timesync converged: %s" % (
+        # PX4 resets its time sync on a "time jump" (its lockstep clock against the agent's
+        # UTC, after the load of the climb): wait for it to converge again
+        asked = time.monotonic()
+        status = ""
+        while time.monotonic() < asked + 30 and "timesync converged: true" not in status:
+            status = px4[0].shell("uxrce_dds_client status")
+            time.sleep(0.5)
+        warnings = {what: sum(1 for _, line in px4[0].lines if what in line)
+                    for what in ("time jump detected", "RTT too high", "no longer converged")}
+        rows["uxrce_dds_client status"] = "%s, timesync converged: %s%s; PX4 log: %s" % (
             "connected" if "Running, connected" in status else "NOT connected",
-            found.group(1) if found else "?")
+            "true" if "timesync converged: true" in status else "false",
+            " (after %.1f s)" % (time.monotonic() - asked) if time.monotonic() - asked > 1 else "",
+            ", ".join("%d x %s" % (n, what) for what, n in warnings.items()))
 
         # a second vehicle
         px4[1].start()
@@ -420,8 +457,12 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
         flowing_after = time.monotonic() - restarted
         served = node.call("/fmu/vehicle_command", _request(vehicle_command(
             DO_SET_MODE, 1.0, 4.0, 3.0, target_system=1)), 30)
-        rows["PX4 restart"] = ("samples again after %.1f s, service %s" % (
-            flowing_after, "answered" if served else "NOT answered") if back else "NO samples in 90 s")
+        synced = px4[0].said(SYNCED, restarted)
+        rows["PX4 restart"] = ("samples again after %.1f s (time synced after %s), "
+                               "service %s" % (flowing_after, "%.1f s" % (synced - restarted)
+                                               if synced else "NEVER",
+                                               "answered" if served else "NOT answered")
+                               if back else "NO samples in 90 s")
 
         # agent restart
         agent.stop()
@@ -435,8 +476,12 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
                                                               target_system=target)), 30)
                   for target, service in ((1, "/fmu/vehicle_command"),
                                           (2, "/px4_1/fmu/vehicle_command"))]
-        rows["agent restart"] = ("both vehicles' samples again after %.1f s, services %s" % (
-            flowing_after, "answered" if all(served) else "NOT all answered")
+        synced = [instance.said(SYNCED, restarted) for instance in px4]
+        rows["agent restart"] = ("both vehicles' samples again after %.1f s (time synced after %s), "
+                                 "services %s" % (
+                                     flowing_after, " and ".join("%.1f s" % (t - restarted) if t
+                                                                 else "NEVER" for t in synced),
+                                     "answered" if all(served) else "NOT all answered")
             if all(back) else "samples back: %r" % back)
     finally:
         for instance in px4:
@@ -460,6 +505,8 @@ def main(argv=None):
     parser.add_argument("--agent-cmd", default=None,
                         help="another agent's command line (run as CMD udp4 -p 8888)")
     parser.add_argument("--runs", type=int, default=1)
+    parser.add_argument("--logs", type=Path, default=None,
+                        help="copy each run's agent and PX4 logs into this folder")
     args = parser.parse_args(argv)
     if not args.px4_build or not (args.px4_build / "bin" / "px4").exists():
         parser.error("--px4-build: no bin/px4 in %s" % args.px4_build)
@@ -478,6 +525,14 @@ def main(argv=None):
                 log("run %d/%d" % (run + 1, args.runs))
                 agent = Agent(args.agent_cmd, workdir / ("agent_%d.log" % run))
                 rows = one_run(args, workdir / ("run_%d" % run), node, agent)
+                if args.logs:
+                    kept = args.logs / ("run_%d" % (run + 1))
+                    kept.mkdir(parents=True, exist_ok=True)
+                    shutil.copy(agent.log_path, kept / "agent.log")
+                    for instance in (0, 1):
+                        px4_log = workdir / ("run_%d" % run) / ("px4_%d" % instance) / "px4.log"
+                        if px4_log.exists():
+                            shutil.copy(px4_log, kept / ("px4_%d.log" % instance))
                 rows["px4_msgs on the agent's side"] = "yes" if agent_sees else "no"
                 results.append(rows)
                 print("\n## run %d: %s, agent %s" % (run + 1, args.px4_build,
@@ -490,8 +545,12 @@ def main(argv=None):
         if len(results) > 1:
             print("\n## over %d runs" % len(results))
             for what in results[0]:
-                numbers = [float(m) for rows in results for m in
-                           re.findall(r"(\d+\.\d+) (?:Hz|%)", rows.get(what, ""))[:1]]
+                numbers = []
+                for rows in results:
+                    found = (re.search(r"median (\d+\.\d+)", rows.get(what, "")) or
+                             re.search(r"(\d+\.\d+) (?:Hz|%|ms)", rows.get(what, "")))
+                    if found:
+                        numbers.append(float(found.group(1)))
                 median = " (median %.1f)" % statistics.median(numbers) if numbers else ""
                 print("| %s | %s%s |" % (what, " / ".join(rows.get(what, "-") for rows in results),
                                           median))
