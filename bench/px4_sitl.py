@@ -51,8 +51,9 @@ AGENT_PORT = 8888  # PX4's default (rcS: uxrce_dds_client start -t udp -p 8888)
 DO_SET_MODE, ARM_DISARM, NAV_LAND = 176, 400, 21
 ARMED, OFFBOARD = 2, 14
 FAST_TOPIC_HZ = 50  # a topic streaming faster than this is one of PX4's 100 Hz ones
-# PX4's log once its session's time sync is done (uxr_sync_session) or its filter has converged;
-# after an agent restart only the first comes again (the filter stays converged)
+# PX4's log once its time sync has converged and the session is synchronized, or (1.16 only, 1.17
+# logs it at debug level) once its filter has converged; after an agent restart only the first
+# comes again (the filter stays converged)
 SYNCED = "synchronized with time offset|time sync converged"
 
 
@@ -340,9 +341,8 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
     try:
         agent.start()
         px4[0].start()
-        synced = wait_for(lambda: px4[0].said("time sync converged"), 90)
-        rows["time sync converged"] = ("yes after %.1f s" % (px4[0].said("time sync converged") -
-                                                             px4[0].started)
+        synced = wait_for(lambda: px4[0].said(SYNCED), 90)
+        rows["time sync converged"] = ("yes after %.1f s" % (px4[0].said(SYNCED) - px4[0].started)
                                        if synced else "NO within 90 s")
         # PX4's entities, as ROS sees them
         graph = lambda: (  # noqa: E731
@@ -391,8 +391,10 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
         rows["agent CPU"] = "%.1f %% of a core" % (100 * (cpu1 - cpu0) / (t1 - t0))
 
         # offboard: arm, offboard, climb
-        status_topic = next((t for t in node.arrivals if re.match(r"/fmu/out/vehicle_status(_v\d+)?$", t)),
-                            None)
+        # PX4 1.16 and later add the message's version to a topic name from version 1 on
+        status_topic, position_topic = (next((t for t in node.arrivals if re.match(
+            r"/fmu/out/%s(_v\d+)?$" % name, t)), None) for name in ("vehicle_status",
+                                                                    "vehicle_local_position"))
         offboard = Offboard(node)
         try:
             def state():
@@ -400,7 +402,7 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
                 return (status.arming_state, status.nav_state) if status is not None else None
 
             armed = wait_for(lambda: state() == (ARMED, OFFBOARD), 20)
-            position = lambda: node.latest.get("/fmu/out/vehicle_local_position")  # noqa: E731
+            position = lambda: node.latest.get(position_topic)  # noqa: E731
             climbed = wait_for(lambda: position() is not None and position().z < -2.0, 25)
             z = position().z if position() is not None else float("nan")
             rows["offboard: arm, offboard, climb"] = "%s, z = %.2f m" % (
@@ -431,7 +433,7 @@ def one_run(args, workdir: Path, node: Node, agent: Agent) -> dict:
 
         # a second vehicle
         px4[1].start()
-        wait_for(lambda: px4[1].said("time sync converged"), 90)
+        wait_for(lambda: px4[1].said(SYNCED), 90)
         wait_for(lambda: node.node.count_services("/px4_1/fmu/vehicle_command") >= 1 and
                  node.topics("/px4_1/fmu/out/sensor_combined"), 60)
         node.subscribe_all("/px4_1/fmu/out/")
