@@ -223,8 +223,8 @@ def test_type_names_import_nothing_and_spawn_no_child_per_name(tmp_path, ros_dom
     assert not imported.exists()
     assert "Beautiful is better than ugly" not in log  # `import this` prints the Zen of Python
     for type_name in hostile:
-        assert "type %s: no package %s on the agent's side: carried by name" % (
-            type_name, type_name.split(":")[0]) in log, log
+        assert "no package %s on the agent's side: its types are carried by name, their CDR " \
+            "bytes as they are (first: %s)" % (type_name.split(":")[0], type_name) in log, log
 
 
 

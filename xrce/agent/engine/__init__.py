@@ -10,7 +10,9 @@
   goes when a client comes back;
 - ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path; the same
   extension's ``_services.c`` converts a replier's requests and replies between rclpy's C
-  messages and CDR bytes (``xrce.agent.middleware.ros.raw_types.raw_service_type``).
+  messages and CDR bytes (``xrce.agent.middleware.ros.raw_types.raw_service_type``), and
+  ``_named_types.c`` makes type supports from a type's DDS name alone
+  (``raw_types.named_message_type``).
 """
 
 from xrce.agent import _moved

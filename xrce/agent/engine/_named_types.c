@@ -8,10 +8,9 @@
  * they are. Here such a support is made from the name alone: what rosidl_typesupport_fastrtps_c
  * generates (namespace "pkg::msg", name "T": rmw_fastrtps names the DDS type
  * "pkg::msg::dds_::T_"), an introspection description with no field (rmw_fastrtps registers a
- * type object from it) and an unset type hash with a type description without fields (rcl's
- * node type cache wants one). The structures are declared here as rosidl_runtime_c,
- * rosidl_typesupport_fastrtps_cpp and rosidl_typesupport_introspection_c declare them in the
- * headers of Jazzy's and Kilted's wheels; nothing of ROS is linked.
+ * type object from it; on Fast DDS 2 only, see named_message_type) and an unset type hash with
+ * a type description without fields (rcl's node type cache wants one). The structures are
+ * ROS's own (_named_types.h); nothing of ROS is linked.
  *
  * A service's C message is a byte string (named_message_t): rmw's serialize callback writes it
  * as it is after the encapsulation, its deserialize callback keeps what follows the
@@ -19,8 +18,8 @@
  * (serialize_array, get_buffer_pointer, get_current_position: Itanium ABI, `this` first); the
  * end of its buffer, which no exported function gives, is read from its iterators (see
  * cdr_end). Only rmw_fastrtps_cpp is served: an RMW that serializes from the introspection
- * description (rmw_cyclonedds_cpp) would send no field at all, so named_types_unsupported()
- * names the reason instead.
+ * description (rmw_cyclonedds_cpp) would send no field at all, so resolve() names the reason
+ * instead.
  *
  * Types are made once per name and never freed (rmw keeps pointers into them), at most
  * NAMED_TYPES_MAX in a process: a client inventing names gets an error past it.
@@ -35,75 +34,18 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "_named_types.h"
 #include "_services.h"
 
 #define NAMED_TYPES_MAX 1024
 #define ENCAPSULATION 4
 
-/* ---------------------------------------------------------- the structures as ROS declares them */
-
-typedef struct { uint8_t version; uint8_t value[32]; } type_hash_t;  /* version 0: unset */
-typedef struct { char *data; size_t size, capacity; } ros_string_t;
-typedef struct { void *data; size_t size, capacity; } ros_sequence_t;
-typedef struct { ros_string_t type_name; ros_sequence_t fields; } individual_description_t;
-typedef struct { individual_description_t type; ros_sequence_t referenced; } type_description_t;
-
-typedef struct message_ts message_ts_t;
-struct message_ts {  /* rosidl_message_type_support_t */
-    const char *identifier;
-    const void *data;
-    const message_ts_t *(*func)(const message_ts_t *, const char *);
-    const type_hash_t *(*get_type_hash)(const message_ts_t *);
-    const type_description_t *(*get_type_description)(const message_ts_t *);
-    const ros_sequence_t *(*get_type_description_sources)(const message_ts_t *);
-};
-
-typedef struct service_ts service_ts_t;
-struct service_ts {  /* rosidl_service_type_support_t */
-    const char *identifier;
-    const void *data;
-    const service_ts_t *(*func)(const service_ts_t *, const char *);
-    const message_ts_t *request, *response, *event;
-    void *(*event_create)(void);  /* never called: introspection is not enabled */
-    bool (*event_destroy)(void);
-    const type_hash_t *(*get_type_hash)(const service_ts_t *);
-    const type_description_t *(*get_type_description)(const service_ts_t *);
-    const ros_sequence_t *(*get_type_description_sources)(const service_ts_t *);
-};
-
-typedef struct {  /* message_type_support_callbacks_t (rosidl_typesupport_fastrtps_cpp) */
-    const char *message_namespace, *message_name;
-    bool (*cdr_serialize)(const void *message, void *cdr);
-    bool (*cdr_deserialize)(void *cdr, void *message);
-    uint32_t (*get_serialized_size)(const void *message);
-    size_t (*max_serialized_size)(char *bounds_info);
-    void *key_callbacks;
-} fastrtps_callbacks_t;
-#define FASTRTPS_UNBOUNDED_TYPE 0x00
-
-typedef struct {  /* service_type_support_callbacks_t */
-    const char *service_namespace, *service_name;
-    const message_ts_t *request_members, *response_members;
-} fastrtps_service_callbacks_t;
-
-typedef struct {  /* rosidl_typesupport_introspection_c__MessageMembers */
-    const char *message_namespace, *message_name;
-    uint32_t member_count;
-    size_t size_of;
-    bool has_any_key_member;
-    const void *members;
-    void (*init_function)(void *, int);
-    void (*fini_function)(void *);
-} introspection_members_t;
-
-typedef struct {  /* rosidl_typesupport_introspection_c__ServiceMembers */
-    const char *service_namespace, *service_name;
-    const introspection_members_t *request_members, *response_members, *event_members;
-} introspection_service_members_t;
-
 /* -------------------------------------------------------------------- a message known by name */
 
 typedef struct { uint8_t *data; size_t length; } named_message_t;  /* CDR after the encapsulation */
+
+/* pkg, kind, T -> "pkg::kind" (fastrtps), "pkg__kind" (introspection), "T", "pkg/kind/T" */
+typedef struct { char *dds_namespace, *introspection_namespace, *name, *description_name; } names_t;
 
 typedef struct {
     message_ts_t dispatch, fastrtps, introspection;  /* dispatch first: the handle rclpy holds */
@@ -111,7 +53,7 @@ typedef struct {
     fastrtps_callbacks_t callbacks;
     introspection_members_t members;
     type_description_t description;
-    char *dds_namespace, *introspection_namespace, *name, *description_name;
+    names_t names;
 } named_type_t;
 
 typedef struct {
@@ -121,8 +63,17 @@ typedef struct {
     introspection_service_members_t members;
     named_type_t *request, *response;
     type_description_t description;
-    char *dds_namespace, *introspection_namespace, *name, *description_name;
+    names_t names;
 } named_service_t;
+
+_Static_assert(offsetof(named_type_t, fastrtps) == sizeof(message_ts_t) &&
+               offsetof(named_type_t, introspection) == 2 * sizeof(message_ts_t) &&
+               offsetof(named_type_t, described) == 3 * sizeof(message_ts_t),
+               "a type's handles, then described (handle_for)");
+_Static_assert(offsetof(named_service_t, fastrtps) == sizeof(service_ts_t) &&
+               offsetof(named_service_t, introspection) == 2 * sizeof(service_ts_t) &&
+               offsetof(named_service_t, described) == 3 * sizeof(service_ts_t),
+               "a service's handles, then described (handle_for)");
 
 static const type_hash_t unset_hash;  /* all zeros: ROSIDL_TYPE_HASH_VERSION_UNSET */
 static const ros_sequence_t no_sources;
@@ -280,40 +231,71 @@ static void clear_stale_error(void) {
     }
 }
 
-static const message_ts_t *message_handle(const message_ts_t *handle, const char *identifier) {
+/* A type's (or service's) three handles lie one after the other, dispatch first, then whether
+ * it is described: from any of them, the first, and the one rmw asks for by identifier. */
+static const char *first_handle(const void *handle, size_t size) {
+    const char *identifier = *(const char *const *)handle;
+    return (const char *)handle - (identifier == fastrtps_identifier ? size :
+                                   identifier == introspection_identifier ? 2 * size : 0);
+}
+
+static const void *handle_for(const void *handle, size_t size, const char *identifier) {
     clear_stale_error();
-    const named_type_t *type = (const named_type_t *)((const char *)handle - (
-        handle->identifier == fastrtps_identifier ? offsetof(named_type_t, fastrtps) :
-        handle->identifier == introspection_identifier ? offsetof(named_type_t, introspection) :
-        offsetof(named_type_t, dispatch)));
-    if (strcmp(identifier, fastrtps_identifier) == 0) return &type->fastrtps;
-    if (type->described && strcmp(identifier, introspection_identifier) == 0)
-        return &type->introspection;
+    const char *first = first_handle(handle, size);
+    if (strcmp(identifier, fastrtps_identifier) == 0) return first + size;
+    if (*(const bool *)(first + 3 * size) && strcmp(identifier, introspection_identifier) == 0)
+        return first + 2 * size;
     return NULL;
 }
 
-static const type_hash_t *message_hash(const message_ts_t *handle) {
-    (void)handle;
-    clear_stale_error();
-    return &unset_hash;
-}
+/* The functions rmw calls on a message's (service's) handles: which handle for an identifier,
+ * the unset hash, the description without fields, no sources. */
+#define HANDLE_FUNCTIONS(prefix, ts_t, owner_t)                                                  \
+    static const ts_t *prefix##_handle(const ts_t *handle, const char *identifier) {             \
+        return handle_for(handle, sizeof *handle, identifier);                                   \
+    }                                                                                            \
+    static const type_hash_t *prefix##_hash(const ts_t *handle) {                                \
+        (void)handle;                                                                            \
+        clear_stale_error();                                                                     \
+        return &unset_hash;                                                                      \
+    }                                                                                            \
+    static const type_description_t *prefix##_description(const ts_t *handle) {                 \
+        return &((const owner_t *)first_handle(handle, sizeof *handle))->description;            \
+    }                                                                                            \
+    static const ros_sequence_t *prefix##_sources(const ts_t *handle) {                          \
+        (void)handle;                                                                            \
+        return &no_sources;                                                                      \
+    }
 
-static const type_description_t *message_description(const message_ts_t *handle) {
-    const named_type_t *type = (const named_type_t *)((const char *)message_handle(
-        handle, fastrtps_identifier) - offsetof(named_type_t, fastrtps));
-    return &type->description;
-}
-
-static const ros_sequence_t *message_sources(const message_ts_t *handle) {
-    (void)handle;
-    return &no_sources;
-}
+HANDLE_FUNCTIONS(message, message_ts_t, named_type_t)
+HANDLE_FUNCTIONS(service, service_ts_t, named_service_t)
 
 static char *joined(const char *a, const char *b, const char *c) {
     size_t length = strlen(a) + strlen(b) + strlen(c) + 1;
     char *out = malloc(length);
     if (out != NULL) snprintf(out, length, "%s%s%s", a, b, c);
     return out;
+}
+
+static void names_free(names_t *names) {
+    free(names->dds_namespace);
+    free(names->introspection_namespace);
+    free(names->name);
+    free(names->description_name);
+}
+
+static bool names_make(names_t *names, const char *package, const char *kind, const char *name) {
+    names->dds_namespace = joined(package, "::", kind);
+    names->introspection_namespace = joined(package, "__", kind);
+    names->name = joined(name, "", "");
+    char *kind_slash = joined("/", kind, "/");
+    names->description_name = kind_slash ? joined(package, kind_slash, name) : NULL;
+    free(kind_slash);
+    if (names->dds_namespace && names->introspection_namespace && names->name &&
+        names->description_name)
+        return true;
+    names_free(names);
+    return false;
 }
 
 static void describe(type_description_t *description, char *name) {
@@ -338,32 +320,30 @@ static named_type_t *named_type_new(const char *package, const char *kind, const
     named_type_t *type = calloc(1, sizeof *type);
     if (type == NULL) return NULL;
     type->described = described;
-    type->dds_namespace = joined(package, "::", kind);
-    type->introspection_namespace = joined(package, "__", kind);
-    type->name = joined(name, "", "");
-    char *kind_slash = joined("/", kind, "/");
-    type->description_name = kind_slash ? joined(package, kind_slash, name) : NULL;
-    free(kind_slash);
-    if (!type->dds_namespace || !type->introspection_namespace || !type->name ||
-        !type->description_name) {
-        free(type->dds_namespace);
-        free(type->introspection_namespace);
-        free(type->name);
-        free(type->description_name);
+    if (!names_make(&type->names, package, kind, name)) {
         free(type);
         return NULL;
     }
     type->callbacks = (fastrtps_callbacks_t){
-        type->dds_namespace, type->name, named_serialize, named_deserialize,
+        type->names.dds_namespace, type->names.name, named_serialize, named_deserialize,
         named_serialized_size, named_max_serialized_size, NULL};
     type->members = (introspection_members_t){
-        type->introspection_namespace, type->name, 0, sizeof(named_message_t), false, NULL,
+        type->names.introspection_namespace, type->names.name, 0, sizeof(named_message_t), false, NULL,
         no_init, no_fini};
-    describe(&type->description, type->description_name);
+    describe(&type->description, type->names.description_name);
     message_ts_init(&type->dispatch, dispatch_identifier, NULL);
     message_ts_init(&type->fastrtps, fastrtps_identifier, &type->callbacks);
     message_ts_init(&type->introspection, introspection_identifier, &type->members);
     return type;
+}
+
+/* Why ``types`` more types cannot be made (a str), or NULL when they can. */
+static PyObject *refusal(int types) {
+    const char *why = resolve();
+    if (why != NULL) return PyUnicode_FromString(why);
+    if (named_types_made + types > NAMED_TYPES_MAX)
+        return PyUnicode_FromFormat("%d types known by name already", NAMED_TYPES_MAX);
+    return NULL;
 }
 
 /* named_message_type(package, kind, name, described) -> the capsule of message type
@@ -378,10 +358,8 @@ static PyObject *named_message_type(PyObject *module, PyObject *args) {
     const char *package, *kind, *name;
     int described;
     if (!PyArg_ParseTuple(args, "sssp", &package, &kind, &name, &described)) return NULL;
-    const char *why = resolve();
-    if (why != NULL) return PyUnicode_FromString(why);
-    if (named_types_made >= NAMED_TYPES_MAX)
-        return PyUnicode_FromFormat("%d types known by name already", NAMED_TYPES_MAX);
+    PyObject *refused = refusal(1);
+    if (refused != NULL) return refused;
     named_type_t *type = named_type_new(package, kind, name, described);
     if (type == NULL) return PyErr_NoMemory();
     named_types_made++;
@@ -389,35 +367,6 @@ static PyObject *named_message_type(PyObject *module, PyObject *args) {
 }
 
 /* ------------------------------------------------------------------ a service known by name */
-
-static const service_ts_t *service_handle(const service_ts_t *handle, const char *identifier) {
-    clear_stale_error();
-    const named_service_t *service = (const named_service_t *)((const char *)handle - (
-        handle->identifier == fastrtps_identifier ? offsetof(named_service_t, fastrtps) :
-        handle->identifier == introspection_identifier ? offsetof(named_service_t, introspection) :
-        offsetof(named_service_t, dispatch)));
-    if (strcmp(identifier, fastrtps_identifier) == 0) return &service->fastrtps;
-    if (service->described && strcmp(identifier, introspection_identifier) == 0)
-        return &service->introspection;
-    return NULL;
-}
-
-static const type_hash_t *service_hash(const service_ts_t *handle) {
-    (void)handle;
-    clear_stale_error();
-    return &unset_hash;
-}
-
-static const type_description_t *service_description(const service_ts_t *handle) {
-    const named_service_t *service = (const named_service_t *)((const char *)service_handle(
-        handle, fastrtps_identifier) - offsetof(named_service_t, fastrtps));
-    return &service->description;
-}
-
-static const ros_sequence_t *service_sources(const service_ts_t *handle) {
-    (void)handle;
-    return &no_sources;
-}
 
 static void service_ts_init(service_ts_t *ts, const char *identifier, const void *data,
                             const named_service_t *service) {
@@ -440,34 +389,26 @@ static PyObject *named_service_type(PyObject *module, PyObject *args) {
     const char *package, *kind, *name;
     int described;
     if (!PyArg_ParseTuple(args, "sssp", &package, &kind, &name, &described)) return NULL;
-    const char *why = resolve();
-    if (why != NULL) return PyUnicode_FromString(why);
-    if (named_types_made + 3 > NAMED_TYPES_MAX)
-        return PyUnicode_FromFormat("%d types known by name already", NAMED_TYPES_MAX);
+    PyObject *refused = refusal(3);
+    if (refused != NULL) return refused;
     named_service_t *service = calloc(1, sizeof *service);
     char *request_name = joined(name, "_Request", ""), *response_name = joined(name, "_Response", "");
     if (service == NULL || request_name == NULL || response_name == NULL) goto no_memory;
     service->described = described;
     service->request = named_type_new(package, kind, request_name, described);
     service->response = named_type_new(package, kind, response_name, described);
-    service->dds_namespace = joined(package, "::", kind);
-    service->introspection_namespace = joined(package, "__", kind);
-    service->name = joined(name, "", "");
-    char *kind_slash = joined("/", kind, "/");
-    service->description_name = kind_slash ? joined(package, kind_slash, name) : NULL;
-    free(kind_slash);
-    if (!service->request || !service->response || !service->dds_namespace ||
-        !service->introspection_namespace || !service->name || !service->description_name)
+    if (!service->request || !service->response ||
+        !names_make(&service->names, package, kind, name))
         goto no_memory;  /* what was made is left: a few bytes, once, when memory ran out */
     free(request_name);
     free(response_name);
     service->callbacks = (fastrtps_service_callbacks_t){
-        service->dds_namespace, service->name, &service->request->fastrtps,
+        service->names.dds_namespace, service->names.name, &service->request->fastrtps,
         &service->response->fastrtps};
     service->members = (introspection_service_members_t){
-        service->introspection_namespace, service->name, &service->request->members,
+        service->names.introspection_namespace, service->names.name, &service->request->members,
         &service->response->members, NULL};
-    describe(&service->description, service->description_name);
+    describe(&service->description, service->names.description_name);
     service_ts_init(&service->dispatch, dispatch_identifier, NULL, service);
     service_ts_init(&service->fastrtps, fastrtps_identifier, &service->callbacks, service);
     service_ts_init(&service->introspection, introspection_identifier, &service->members, service);

@@ -16,7 +16,7 @@ import types
 from xrce.agent.middleware import UnknownTypeError
 from xrce.agent.middleware.ros.types import (
     _ACTION_MESSAGES, _ACTION_SERVICES, BUILD_HINT, _check_package, _import_module, _split_type,
-    log, package_present,
+    log, package_present, split_service_type,
 )
 
 
@@ -215,13 +215,9 @@ def library_service_type(request_type: str):
     stand_in = _library_services.get(request_type)
     if stand_in is not None:
         return stand_in
-    package, kind, type_name = _split_type(request_type)
+    package, kind, type_name = split_service_type(request_type)
     if kind != "srv":
         return None
-    for suffix in ("_Request", "_Response"):
-        if type_name.endswith(suffix):
-            type_name = type_name[:-len(suffix)]
-            break
     _check_package(package, request_type)
     stand_in = None
     try:
@@ -327,13 +323,17 @@ def _named_helper(dds_type: str, package: str):
     if _fastpath is None or not hasattr(_fastpath, "named_message_type"):
         raise UnknownTypeError(
             "type %s: %s is not installed, and carrying a type known only by its name needs the "
-            "agent's compiled helper (xrce.agent.engine._fastpath, built by a C compiler when xrce "
-            "is installed), which this install lacks: reinstall xrce where gcc is present, or "
-            "build %s (--interfaces DIR, then %s)" % (dds_type, package, package, BUILD_HINT))
+            "agent's compiled helper (xrce.agent.engine._fastpath), which this install lacks: a "
+            "platform-independent wheel has none, an install from source with a C compiler (gcc, "
+            "python3-dev) builds it; or build %s for the agent (--interfaces DIR, then %s)"
+            % (dds_type, package, package, BUILD_HINT))
     if len(dds_type) > _NAME_MAX:
         raise UnknownTypeError("type name of %d characters: at most %d" % (len(dds_type),
                                                                            _NAME_MAX))
     return _fastpath
+
+
+_fastdds_major = None  # of the RMW loaded: read from /proc/self/maps once
 
 
 def _described() -> bool:
@@ -341,9 +341,25 @@ def _described() -> bool:
     fields): Fast DDS 2's rmw_fastrtps (Jazzy) needs one to create an endpoint and does not
     announce it; Fast DDS 3's (Kilted) announces it as the endpoint's XTypes type information,
     which would not match the real type's (``_named_types.c``)."""
-    from xrce.agent.middleware.ros import env as rosenv
+    global _fastdds_major
+    if _fastdds_major is None:
+        from xrce.agent.middleware.ros import env as rosenv
 
-    return rosenv.fastdds_major() < 3
+        _fastdds_major = rosenv.fastdds_major()
+    return _fastdds_major < 3
+
+
+_packages_by_name: set = set()  # packages whose types are known by name (bounded as the types)
+
+
+def _note_by_name(package: str, dds_type: str) -> None:
+    """One line per package at -v 4 (PX4 names some 50 types of one package), one per type at
+    -v 5 and above."""
+    if package not in _packages_by_name:
+        _packages_by_name.add(package)
+        log.info("no package %s on the agent's side: its types are carried by name, their CDR "
+                 "bytes as they are (first: %s)", package, dds_type)
+    log.debug("type %s carried by name", dds_type)
 
 
 def _refused_by_name(dds_type: str, package: str, why: str) -> UnknownTypeError:
@@ -368,8 +384,7 @@ def named_message_type(dds_type: str, package: str, kind: str, type_name: str):
         "_CONVERT_FROM_PY": from_py, "_CONVERT_TO_PY": to_py, "_DESTROY_ROS_MESSAGE": destroy})
     handle = _named_messages[dds_type] = meta(type_name, (), {
         "__module__": "%s.%s" % (package, kind), "__slots__": ()})
-    log.info("type %s: no package %s on the agent's side: carried by name, its CDR bytes as they "
-             "are", dds_type, package)
+    _note_by_name(package, dds_type)
     return handle
 
 
@@ -382,11 +397,7 @@ def named_service_type(request_type: str):
     stand_in = _named_services.get(request_type)
     if stand_in is not None:
         return stand_in
-    package, kind, type_name = _split_type(request_type)
-    for suffix in ("_Request", "_Response"):
-        if type_name.endswith(suffix):
-            type_name = type_name[:-len(suffix)]
-            break
+    package, kind, type_name = split_service_type(request_type)
     if kind == "action":
         if type_name.partition("_")[2] not in _ACTION_SERVICES:
             return None  # service_class says what is wrong with the name
@@ -409,8 +420,7 @@ def named_service_type(request_type: str):
         "Response": _raw_message_class(type_name + "_Response", module, response_support, create,
                                        destroy, (to_py, from_py), (RawReply,))})
     _named_services[request_type] = stand_in
-    log.info("service type %s: no package %s on the agent's side: carried by name, its CDR bytes "
-             "as they are", request_type, package)
+    _note_by_name(package, request_type)
     return stand_in
 
 

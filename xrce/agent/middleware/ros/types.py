@@ -305,16 +305,21 @@ def _import_service_event_info() -> None:
             del sys.modules["numpy"]
 
 
+def split_service_type(request_or_reply_type: str) -> tuple[str, str, str]:
+    """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ("pkg", "srv", "X")."""
+    package, kind, type_name = _split_type(request_or_reply_type)
+    for suffix in ("_Request", "_Response"):
+        if type_name.endswith(suffix):
+            return package, kind, type_name[:-len(suffix)]
+    return package, kind, type_name
+
+
 def service_class(request_or_reply_type: str):
     """``pkg::srv::dds_::X_Request_`` (or ``X_Response_``) -> ``pkg.srv.X``; an action's
     ``pkg::action::dds_::X_SendGoal_Request_`` -> ``pkg.action.X.Impl.SendGoalService`` (and
     ``X_GetResult_`` -> ``GetResultService``)."""
     _import_service_event_info()
-    package, kind, type_name = _split_type(request_or_reply_type)
-    for suffix in ("_Request", "_Response"):
-        if type_name.endswith(suffix):
-            type_name = type_name[:-len(suffix)]
-            break
+    package, kind, type_name = split_service_type(request_or_reply_type)
     if kind == "action":
         if type_name.partition("_")[2] not in _ACTION_SERVICES:
             raise UnknownTypeError("%r is not a service of an action (one of %s)"
