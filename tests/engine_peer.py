@@ -94,9 +94,11 @@ class Peer:
         found = [s for s in self.statuses() if s[1] == request_id]
         return found[0][2] if found else None
 
-    def build_pubsub(self, topic="rt/chatter", reader_depth=10, reliable=True, domain=0):
+    def build_pubsub(self, topic="rt/chatter", reader_depth=10, reliable=True, domain=0,
+                     participant="p"):
         qos_flags = C.QOS_KEEP_LAST | (C.QOS_RELIABLE if reliable else 0)
-        assert self.create(0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("p"), domain) == 0
+        assert self.create(0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin(participant),
+                           domain) == 0
         assert self.create(0x0012, C.OBJK_TOPIC, BIN, TopicBin(topic, "std_msgs::msg::dds_::String_"),
                            0x0011) == 0
         assert self.create(0x0013, C.OBJK_PUBLISHER, BIN, PubSubBin(), 0x0011) == 0

@@ -24,11 +24,16 @@ def _add_session_options(parser):
     group.add_argument("--client-dead-time", type=milliseconds, metavar="MS",
                        default=int(dispatch.CLIENT_DEAD_TIME * 1000),
                        help="a client silent this long is dead: no more HEARTBEATs to it, entities "
-                            "kept, any message revives it (default %(default)s, as eProsima)")
+                            "kept, any message revives it (default %(default)s, as eProsima); a "
+                            "dead client certainly gone is deleted (retired): its TCP connection "
+                            "or serial port closed, or a newer client from its address created "
+                            "its participant. A new key on a session's address and port (or "
+                            "serial device) replaces it at once")
     group.add_argument("--client-expire-time", type=milliseconds, metavar="MS",
                        default=int(dispatch.CLIENT_EXPIRE_TIME * 1000),
-                       help="a client silent this long (since its last message) is deleted with "
-                            "all its ROS entities; 0 = never (default, as eProsima without uxr_hl)")
+                       help="a client silent this long (since its last message, whatever the "
+                            "dead time) is deleted with all its ROS entities; 0 = never: a board "
+                            "asleep keeps its session (default, as eProsima without uxr_hl)")
     group.add_argument("--max-clients", type=positive, metavar="N", default=dispatch.MAX_CLIENTS,
                        help="sessions at once; a new one evicts the longest-dead client or is "
                             "refused with ERR_RESOURCES (default %(default)s)")

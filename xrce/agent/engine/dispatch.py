@@ -111,6 +111,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         self.clock: Callable[[], float] = time.monotonic  # tests may substitute a fake clock
         self.clients: Dict[bytes, ClientProxy] = {}
         self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
+        # Where such a session's TCP connection or serial port closed: the next CREATE there
+        # replaces it (xrce.agent.engine.session). Host → HostRecord: see Liveliness._retirement.
+        self._closed_endpoints: Dict[Tuple[Any, Hashable], bytes] = {}
+        self.hosts: Dict[Hashable, Any] = {}
         self._started = False
         # Held by whichever thread runs the engine (module docstring); reentrant because an
         # in-process middleware (-m ced) delivers samples while the engine is receiving.
@@ -314,7 +318,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             client.dead = False
             self.stats.clients_revived += 1
             log.info("client %s is alive again", client.key.hex())
-            self._wake_at(client.last_seen + (client.hard_liveliness or self.client_dead_time))
+            self._wake_at(client.last_seen + self._quiet_limit(client))
         client.messages_in += 1
         client.bytes_in += len(data)
         stream_id = header.stream_id

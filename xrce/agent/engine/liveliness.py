@@ -1,14 +1,16 @@
-"""Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead and expired clients (XRCE-WIRE.md §9, §10).
+"""Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead, retired and expired clients (XRCE-WIRE.md §9, §10).
 
 ``Liveliness`` is the part of ``xrce.agent.engine.dispatch.Agent`` that answers a client's HEARTBEAT with
 an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
-HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead/expired clients
-and paced READ_DATA delivery.
+HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead, retired and
+expired clients (the rule: "Recovery and liveliness" in docs/ARCHITECTURE.md) and paced READ_DATA
+delivery.
 
 Nothing is polled: that work runs from one loop timer (``loop.call_at``) set for the earliest time
 something is due, HEARTBEATs ``heartbeat_period`` after unacknowledged output, a client's dead time
 after it was last heard, a READ_DATA's deadline. With no client, or clients whose output is all
-acknowledged, the agent wakes at most once per dead time per client.
+acknowledged, the agent wakes at most once per dead time per client (and every 0.5 s for a minute
+after a new client appears beside dead ones on their host: ``_retirement``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import logging
 import threading
 
 import math
+from typing import Tuple
 
 from xrce import constants as C
 from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
@@ -27,6 +30,10 @@ log = logging.getLogger("xrce.agent")
 
 HARD_LIVELINESS_PROBES = 3
 NEVER = math.inf
+# After a new client appears on a host, how long (s) its dead neighbours are checked, and how
+# often, for the participant that would show it to be one of them started over.
+SUCCESSOR_WATCH_S = 60.0
+SUCCESSOR_CHECK_S = 0.5
 
 
 class Liveliness:
@@ -130,11 +137,56 @@ class Liveliness:
         self.stats.acknacks_out += 1
         self._send_stream0(client, AckNack(first, bitmap, stream.stream_id))
 
+    def _quiet_limit(self, client: ClientProxy) -> float:
+        """Silence after which something happens to ``client``: its dead time, or its expiry if
+        that comes first (the timer is set for it)."""
+        dead_time = client.hard_liveliness or self.client_dead_time
+        expire_time = self.client_expire_time
+        return expire_time if expire_time and expire_time < dead_time else dead_time
+
+    def _retirement(self, client: ClientProxy, now: float) -> Tuple[str, float]:
+        """Why a dead client is certainly gone ("" while it may still be there, asleep), and
+        when to look again. Gone: its TCP connection or serial port closed, or a client with
+        another key, created from the same host after it last spoke, created the same
+        participant (what a board does after a reboot or rmw's fini and init under a new
+        ``rand()`` key). A board that sleeps is never retired for its silence alone; see
+        "Recovery and liveliness" in docs/ARCHITECTURE.md for what a spoofed one can do."""
+        if client.closed:
+            return "its %s endpoint %r closed" % (client.link.name, client.endpoint), NEVER
+        record = self.hosts.get(client.host)
+        if record is None or record.born_at <= client.last_seen:
+            return "", NEVER
+        mine = None
+        for other in record.members:
+            if other is client or other.created_at <= client.last_seen:
+                continue
+            if mine is None:
+                mine = _participants(client)
+                if not mine:
+                    return "", NEVER
+            if any(signature in mine for signature in _participants(other)):
+                return "client %s, created since from the same host %s, has its participant" % (
+                    other.key.hex(), _host_text(client.host)), NEVER
+        # A newer neighbour without that participant (yet): it may still be on its way there
+        # (PX4 syncs its clock for ~6 s first). Look again for a while, then wait for the next.
+        if now - record.born_at < SUCCESSOR_WATCH_S:
+            return "", now + SUCCESSOR_CHECK_S
+        return "", NEVER
+
     def _tick_client(self, client: ClientProxy, now: float) -> float:
         """The timed work for one client; returns when it next has some (``NEVER``: only when
         the client speaks again)."""
         dead_time = client.hard_liveliness or self.client_dead_time
         silent = now - client.last_seen
+        expire_time = self.client_expire_time
+        if expire_time and silent >= expire_time:
+            # What --client-expire-time says: counted from its last message, whatever the dead
+            # time (the dead time used to gate it: 30 s before a 3 s expiry was applied).
+            self.stats.clients_expired += 1
+            log.info("client %s silent for %d ms: expired, deleting its %d objects",
+                     client.key.hex(), int(silent * 1000), len(client.objects))
+            self._delete_client(client)
+            return NEVER
         if silent >= dead_time:
             if not client.dead:
                 client.dead = True
@@ -160,14 +212,13 @@ class Liveliness:
                          int(silent * 1000))
                 self._delete_client(client)
                 return NEVER
-            if not client.hard_liveliness and self.client_expire_time:
-                if silent >= self.client_expire_time:
-                    self.stats.clients_expired += 1
-                    log.info("client %s silent for %d ms: expired, deleting its %d objects",
-                             client.key.hex(), int(silent * 1000), len(client.objects))
-                    self._delete_client(client)
-                    return NEVER
-                return client.last_seen + self.client_expire_time
+            reason, recheck = self._retirement(client, now)
+            if reason:
+                self.stats.clients_retired += 1
+                log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
+                         client.key.hex(), int(silent * 1000), reason, len(client.objects))
+                self._delete_client(client)
+                return NEVER
             if client.hard_liveliness:
                 if client.probes >= HARD_LIVELINESS_PROBES:
                     log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
@@ -177,8 +228,10 @@ class Liveliness:
                 self._send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
                                                    C.INFO_CONFIGURATION))
                 return now + self.heartbeat_period
-            return NEVER  # dead clients get no HEARTBEATs
-        due = client.last_seen + dead_time
+            # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
+            expiry = client.last_seen + expire_time if expire_time else NEVER
+            return recheck if recheck < expiry else expiry
+        due = client.last_seen + self._quiet_limit(client)
         soon = now + self.heartbeat_period
         for stream in list(client.out_reliable.values()):
             if stream.__class__ is not OutputReliableStream:
@@ -207,6 +260,19 @@ class Liveliness:
                     elif active.deadline < due:
                         due = active.deadline
         return due
+
+
+def _participants(client: ClientProxy) -> list:
+    """The signatures (xrce.agent.engine.reuse) of the client's participants: equal for the same
+    node created again, whatever the key or object ids."""
+    return [entry.signature for entry in client.objects.values()
+            if entry.kind == C.OBJK_PARTICIPANT]
+
+
+def _host_text(host) -> str:
+    if isinstance(host, tuple):  # (link name, serial device)
+        return "%s %s" % host[:2]
+    return str(host)
 
 
 def _still_reading(client) -> bool:

@@ -9,11 +9,13 @@ clients. The agent-wide counters (``AgentStats``) and the per-client quota defau
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
 
 from xrce import constants as C
+from xrce.agent.engine.admission import endpoint_address
 from xrce.agent.middleware import EntityKey, TopicSpec
 from xrce.agent.observe.names import client_tag
 from xrce.streams import (
@@ -86,6 +88,8 @@ class AgentStats:
     clients_dead: int = 0  # times a client went silent for client_dead_time
     clients_revived: int = 0  # dead clients that spoke again
     clients_expired: int = 0  # silent for client_expire_time: deleted with their entities
+    clients_replaced: int = 0  # deleted at once: a new key took over their endpoint
+    clients_retired: int = 0  # dead and certainly gone (a newer client on their host, or closed)
     clients_refused: int = 0  # CREATE_CLIENT beyond max_clients with no dead client to evict
     endpoints_closed: int = 0  # TCP connections / serial ports that went away under a session
     quota_objects: int = 0  # CREATE refused with ERR_RESOURCES
@@ -157,6 +161,10 @@ class ClientProxy:
         self.hard_liveliness = hard_liveliness
         self.probes = 0
         self.dead = False  # silent for the dead time: no HEARTBEATs until it speaks again
+        # The machine or device it speaks from (``client_host``) and whether its TCP connection
+        # or serial port went away: what the retirement rule (xrce.agent.engine.liveliness) uses.
+        self.host: Hashable = None
+        self.closed = False
         self.queued_bytes = 0  # sample bytes waiting in this client's reader queues
         # Bytes of this client's other buffers (see MAX_CLIENT_BYTES); Agent._charge keeps it.
         self.buffered = 0
@@ -225,14 +233,20 @@ class SessionTable:
 
     def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
         """A TCP connection or serial port went away: sessions identified by that endpoint need a
-        new CREATE_CLIENT (as a new UDP socket would). Their objects stay for REUSE; liveliness
-        decides when a client that never comes back is forgotten."""
+        new CREATE_CLIENT (as a new UDP socket would). Their objects stay for REUSE until the
+        board comes back with its key, a new client takes the endpoint (replaced at once), or
+        the dead time passes (retired: xrce.agent.engine.liveliness)."""
         key = self.endpoints.pop((link, endpoint), None)
         for client in self.clients.values():
             if client.link is link and client.endpoint == endpoint:
                 self.stats.endpoints_closed += 1
-                log.info("client %s: %s %r closed; its entities are kept until it returns or expires",
-                         client.key.hex(), link.name, endpoint)
+                client.closed = True
+                if client.header_key is None:  # bound to it: the next CREATE there replaces it
+                    self._closed_endpoints[(link, endpoint)] = client.key
+                log.info("client %s: %s %r closed; its entities are kept until it returns or its "
+                         "dead time passes", client.key.hex(), link.name, endpoint)
+                # Already dead: nothing of it is scheduled any more.
+                self._wake_at(self.clock() + self.heartbeat_period)
         if key is not None and key not in self.clients:
             log.debug("endpoint %s %r was mapped to unknown client %s", link.name, endpoint, key.hex())
 
@@ -259,18 +273,28 @@ class SessionTable:
         session_id = request.session_id
         now = self.clock()
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
-            bound = self.endpoints.get((link, endpoint))
+            # The endpoint is the only identity of a session without a key in its headers: a new
+            # key created there means the board behind it started over (a reboot, rmw's fini and
+            # init). The old session cannot be reached any more: delete it now, not as a ghost.
+            bound = self.endpoints.get((link, endpoint)) or \
+                self._closed_endpoints.get((link, endpoint))
             if bound is not None and bound != key and bound in self.clients:
-                log.info("endpoint %s %r re-bound from client %s to %s", link.name, endpoint,
-                         bound.hex(), key.hex())
+                self.stats.clients_replaced += 1
+                log.info("client %s replaced by client %s on %s %r: deleting its %d objects",
+                         bound.hex(), key.hex(), link.name, endpoint,
+                         len(self.clients[bound].objects))
                 self._delete_client(self.clients[bound])
+        host = client_host(link, endpoint)
         client = self.clients.get(key)
         restarted = client is not None and client.session_id == session_id
         if restarted:
             self._reset_streams(client)  # session restart: objects survive for REUSE
             self._unbind(client)
             client.link, client.endpoint, client.last_seen, client.probes = link, endpoint, now, 0
-            client.dead = False
+            client.dead = client.closed = False
+            if host != client.host:
+                self._leave_host(client)
+                self._join_host(client, host, None)
             log.info("client %s session 0x%02X restarted on %s %r, %d objects kept for reuse",
                      key.hex(), session_id, link.name, endpoint, len(client.objects))
         else:
@@ -285,10 +309,32 @@ class SessionTable:
             self.stats.clients_created += 1
             log.info("client %s session 0x%02X created on %s %r (mtu %d; shown to others as %s)",
                      key.hex(), session_id, link.name, endpoint, client.mtu, client_tag(key))
+            self._join_host(client, host, now)
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
-        self._wake_at(now + (client.hard_liveliness or self.client_dead_time))
+        self._wake_at(now + self._quiet_limit(client))
         self.timelines.established(client, restarted)
+
+    def _join_host(self, client: ClientProxy, host: Hashable, born: Optional[float]) -> None:
+        """Count ``client`` among ``host``'s; ``born``: it is a new client there (not a restart),
+        whose entities may show that a dead neighbour was its previous life
+        (Liveliness._retirement)."""
+        client.host = host
+        record = self.hosts.get(host)
+        if record is None:
+            record = self.hosts[host] = HostRecord()
+        record.members.add(client)
+        if born is not None:
+            record.born_at = born
+            if len(record.members) > 1:  # its neighbours are looked at from the next tick on
+                self._wake_at(born + self.heartbeat_period)
+
+    def _leave_host(self, client: ClientProxy) -> None:
+        record = self.hosts.get(client.host)
+        if record is not None:
+            record.members.discard(client)
+            if not record.members:  # bounded by the clients: a spoofed flood's hosts go too
+                del self.hosts[client.host]
 
     def _room_for_client(self, key: bytes, link: Link, endpoint: Hashable, session_id: int) -> bool:
         """True if a session for ``key`` fits under max_clients, evicting what it takes: the
@@ -334,8 +380,11 @@ class SessionTable:
             log.warning("client %s: " + message, client.key.hex(), *args)
 
     def _unbind(self, client: ClientProxy) -> None:
-        if self.endpoints.get((client.link, client.endpoint)) == client.key:
-            del self.endpoints[(client.link, client.endpoint)]
+        place = (client.link, client.endpoint)
+        if self.endpoints.get(place) == client.key:
+            del self.endpoints[place]
+        if self._closed_endpoints.get(place) == client.key:
+            del self._closed_endpoints[place]
 
     def _reset_streams(self, client: ClientProxy) -> None:
         if client.fast is not None:  # first: it frees (and uncharges) what C acknowledged
@@ -364,6 +413,7 @@ class SessionTable:
         self._unbind(client)
         if self.clients.get(client.key) is client:
             del self.clients[client.key]
+            self._leave_host(client)
         self.stats.clients_deleted += 1
         if self.timelines.pending:
             self.timelines.forget(client)
@@ -396,6 +446,29 @@ class SessionTable:
         return Info(request.request_id, request.object_id, C.STATUS_OK, impl_status,
                     locators=list(locators))
 
+
+
+class HostRecord:
+    """The clients of one host (``client_host``), and when the latest new one was created."""
+
+    __slots__ = ("members", "born_at")
+
+    def __init__(self):
+        self.members: Set[ClientProxy] = set()
+        self.born_at = -math.inf
+
+
+def client_host(link: Link, endpoint: Hashable) -> Hashable:
+    """Where a client speaks from, as far as the agent can tell boards apart: the IP address of a
+    UDP or TCP endpoint (several boards behind one NAT share it), the device of a serial one
+    (several boards on one bus share it)."""
+    address = endpoint_address(endpoint)
+    if address is not None:
+        return address
+    name = getattr(link, "name", "link")
+    if isinstance(endpoint, tuple) and endpoint:
+        return (name, endpoint[0])
+    return (name, endpoint)
 
 
 def _hard_liveliness(properties) -> Optional[float]:
