@@ -88,25 +88,31 @@ if dump:
     mallinfo2.restype = MallInfo2
     def count():
         return collections.Counter(type(o).__qualname__ for o in gc.get_objects())
+    def objs(name):
+        return [o for o in gc.get_objects() if type(o).__qualname__ == name]
     def describe(obj):
         if isinstance(obj, dict):
             return "dict(%s)" % ",".join(sorted(str(k) for k in list(obj)[:6]))
-        if type(obj).__name__ in ("frame", "list", "tuple", "cell", "function", "method"):
-            return "%s %s" % (type(obj).__name__, getattr(obj, "__qualname__", "")
-                              or getattr(getattr(obj, "f_code", None), "co_name", ""))
-        return type(obj).__qualname__
+        name = getattr(obj, "__qualname__", None) or getattr(getattr(obj, "__func__", None),
+                                                              "__qualname__", "")
+        return "%s %s" % (type(obj).__qualname__, name)
     def referrers(name):
-        found = [o for o in gc.get_objects() if type(o).__qualname__ == name][:4]
+        everything = gc.get_objects()
+        found = [o for o in everything if type(o).__qualname__ == name][:3]
+        skip = {id(everything), id(found)}
         out = []
         for obj in found:
-            chain = []
-            for ref in gc.get_referrers(obj):
-                if ref is found or type(ref).__name__ == "frame":
-                    continue
-                up = [describe(r) for r in gc.get_referrers(ref)
-                      if r is not found and type(r).__name__ != "frame"][:4]
-                chain.append("%s<-[%s]" % (describe(ref), "; ".join(up)))
-            out.append("    %s referred by %s" % (name, " | ".join(chain[:6])))
+            paths, level = [], [(obj, "")]
+            for _ in range(5):
+                nxt = []
+                for item, path in level:
+                    for ref in gc.get_referrers(item):
+                        if id(ref) in skip or type(ref).__name__ == "frame" or ref is level:
+                            continue
+                        nxt.append((ref, path + " <- " + describe(ref)))
+                level = nxt[:6]
+            out.append("    %s: %s" % (name, " || ".join(p for _, p in level)))
+        del everything
         return "\n".join(out)
     def dumper():
         first = snapshot = None
@@ -124,6 +130,12 @@ if dump:
                      sys.getallocatedblocks(), info.uordblks / 1e6, info.fordblks / 1e6,
                      info.hblkhd / 1e6,
                      " ".join("%s:+%d(%d)" % (k, d, now[k]) for d, k in grown if d))]
+            for expression in filter(None, os.environ.get("CHURN_EVAL", "").split(";")):
+                try:
+                    value = eval(expression, {"objs": objs})
+                except Exception as exc:
+                    value = repr(exc)
+                lines.append("    %s = %s" % (expression, value))
             for name in filter(None, os.environ.get("CHURN_REFS", "").split(",")):
                 lines.append(referrers(name))
             if snapshot is not None:
@@ -198,7 +210,8 @@ class PtyBoardLink:
             return 0
         try:
             data = os.read(self.master, size)
-        except OSError:
+        except OSError:  # EIO: the agent has not (re)opened its end yet
+            time.sleep(min(max(timeout_ms, 0), 20) / 1000.0)
             return 0
         buf[:len(data)] = data
         return len(data)
@@ -498,7 +511,7 @@ def run(args):
 def report(result):
     fmt = lambda v, spec="%.1f": "-" if v is None else spec % v  # noqa: E731
     lines = [
-        "%s, %s%s, %.0f min: %d board lives, %d creations failed %s"
+        "%s, %s%s, %g min: %d board lives, %d creations failed %s"
         % (result["agent"], result["mode"], " (same key)" if result["same_key"] else "",
            result["minutes"], result["lives"], result["failed"], result["failures"] or ""),
         "  agent RSS %s -> %s (after warm-up) -> %s MB; slope after warm-up %s MB/h"
