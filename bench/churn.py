@@ -119,6 +119,8 @@ if dump:
         start = time.monotonic()
         while True:
             time.sleep(60)
+            if os.environ.get("CHURN_COLLECT"):
+                gc.collect()
             now = count()
             if first is None:
                 first = now
@@ -275,7 +277,7 @@ def life_keys(same_key):
         yield SAME_KEY if same_key else rng.randrange(1, 0xFFFFFFFF)
 
 
-def churn_lives(args, agent, domain_id, deadline, stats):
+def churn_lives(args, agent, domain_id, deadline, stats, stopped):
     """One board life a second until ``deadline``, each vanishing after its 5 samples."""
     keys = life_keys(args.same_key)
     odom, imu = Odometry(), Imu()
@@ -285,7 +287,7 @@ def churn_lives(args, agent, domain_id, deadline, stats):
     while True:
         due = start + index * args.period
         now = time.monotonic()
-        if due >= deadline:
+        if due >= deadline or stopped.is_set():
             return
         if due > now:
             time.sleep(due - now)
@@ -306,7 +308,7 @@ def churn_lives(args, agent, domain_id, deadline, stats):
             stats["failures"][failed] = stats["failures"].get(failed, 0) + 1
 
 
-def soak_boards(args, agent, domain_id, deadline, stats, boards=10, life_s=10.0):
+def soak_boards(args, agent, domain_id, deadline, stats, stopped, boards=10, life_s=10.0):
     """``boards`` boards beside the robot, each living ``life_s`` seconds (a sample a second)
     then vanishing, staggered so that one reconnects every ``life_s / boards`` seconds."""
     keys = life_keys(False)
@@ -314,7 +316,7 @@ def soak_boards(args, agent, domain_id, deadline, stats, boards=10, life_s=10.0)
     live = {}  # slot -> (board, vanish at, next sample at)
     start = time.monotonic()
     next_life = [start + slot * life_s / boards for slot in range(boards)]
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not stopped.is_set():
         now = time.monotonic()
         for slot in range(boards):
             if slot in live and now >= live[slot][1]:
@@ -370,8 +372,10 @@ robot.shutdown()
 class Sampler(threading.Thread):
     """Every SAMPLE_PERIOD_S: (seconds since start, agent RSS MB, agent CPU s, /odom publishers)."""
 
-    def __init__(self, pid, ros, topic):
+    def __init__(self, pid, ros, topic, rss_limit_mb=None):
         super().__init__(daemon=True)
+        self.rss_limit_mb = rss_limit_mb
+        self.over_limit = threading.Event()  # the agent's RSS passed rss_limit_mb: stop the boards
         self.pid, self.ros, self.topic = pid, ros, topic
         self.samples = []
         self.stopping = threading.Event()
@@ -381,6 +385,8 @@ class Sampler(threading.Thread):
         publishers = int(self.ros.ask("publishers %s" % self.topic))
         self.samples.append((time.monotonic() - self.start_time, rss_mb(self.pid),
                              cpu_seconds(self.pid), publishers))
+        if self.rss_limit_mb and self.samples[-1][1] > self.rss_limit_mb:
+            self.over_limit.set()
 
     def run(self):
         while True:
@@ -467,13 +473,13 @@ def run(args):
             robot.stdin.write("go\n")
             robot.stdin.flush()
         time.sleep(2.0)
-        sampler = Sampler(agent.pid, ros, topic)
+        sampler = Sampler(agent.pid, ros, topic, args.rss_limit)
         sampler.start()
         deadline = time.monotonic() + 60.0 * args.minutes
         if args.soak:
-            soak_boards(args, agent, lease.domain_id, deadline, stats)
+            soak_boards(args, agent, lease.domain_id, deadline, stats, sampler.over_limit)
         else:
-            churn_lives(args, agent, lease.domain_id, deadline, stats)
+            churn_lives(args, agent, lease.domain_id, deadline, stats, sampler.over_limit)
         samples = sampler.finish()
         if args.soak:
             robot.stdin.write("stop\n")
@@ -485,6 +491,8 @@ def run(args):
             robot.stdin.write("quit\n")
             robot.stdin.flush()
         result.update(stats)
+        result["minutes_run"] = round(samples[-1][0] / 60.0, 1)
+        result["stopped_at_rss_limit"] = sampler.over_limit.is_set()
         result.update(summarize(samples, args.warmup))
         result["samples"] = [(round(t), round(m, 2), round(c, 2), p) for t, m, c, p in samples]
         if isinstance(agent, XrceAgent):
@@ -511,9 +519,10 @@ def run(args):
 def report(result):
     fmt = lambda v, spec="%.1f": "-" if v is None else spec % v  # noqa: E731
     lines = [
-        "%s, %s%s, %g min: %d board lives, %d creations failed %s"
+        "%s, %s%s, %g min%s: %d board lives, %d creations failed %s"
         % (result["agent"], result["mode"], " (same key)" if result["same_key"] else "",
-           result["minutes"], result["lives"], result["failed"], result["failures"] or ""),
+           result["minutes_run"], " (stopped at the RSS limit)" if result["stopped_at_rss_limit"]
+           else "", result["lives"], result["failed"], result["failures"] or ""),
         "  agent RSS %s -> %s (after warm-up) -> %s MB; slope after warm-up %s MB/h"
         % (fmt(result["rss_start"]), fmt(result["rss_warm"]), fmt(result["rss_end"]),
            fmt(result["slope_mb_h"], "%.2f")),
@@ -539,6 +548,9 @@ def main(argv=None):
     parser.add_argument("--soak", action="store_true", help="TurtleBot3 + 10 reconnecting boards")
     parser.add_argument("--warmup", type=float, default=300.0, metavar="S",
                         help="seconds left out of the RSS slope (default 300)")
+    parser.add_argument("--rss-limit", type=float, metavar="MB",
+                        help="stop the boards early once the agent holds this much (a leaking "
+                             "agent must not take the machine's memory)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures and samples here")
     args = parser.parse_args(argv)
     if args.serial and (args.agent_cmd or args.soak):
