@@ -41,6 +41,7 @@ import random
 import re
 import select
 import shlex
+import signal
 import subprocess
 import sys
 import tempfile
@@ -375,7 +376,7 @@ class Sampler(threading.Thread):
     def __init__(self, pid, ros, topic, rss_limit_mb=None):
         super().__init__(daemon=True)
         self.rss_limit_mb = rss_limit_mb
-        self.over_limit = threading.Event()  # the agent's RSS passed rss_limit_mb: stop the boards
+        self.stop_boards = threading.Event()  # the agent's RSS passed rss_limit_mb, or SIGUSR1
         self.pid, self.ros, self.topic = pid, ros, topic
         self.samples = []
         self.stopping = threading.Event()
@@ -386,7 +387,7 @@ class Sampler(threading.Thread):
         self.samples.append((time.monotonic() - self.start_time, rss_mb(self.pid),
                              cpu_seconds(self.pid), publishers))
         if self.rss_limit_mb and self.samples[-1][1] > self.rss_limit_mb:
-            self.over_limit.set()
+            self.stop_boards.set()
 
     def run(self):
         while True:
@@ -475,11 +476,14 @@ def run(args):
         time.sleep(2.0)
         sampler = Sampler(agent.pid, ros, topic, args.rss_limit)
         sampler.start()
+        # SIGUSR1 ends the boards' part early and reports as usual (a run the machine cannot
+        # afford any longer).
+        signal.signal(signal.SIGUSR1, lambda *_: sampler.stop_boards.set())
         deadline = time.monotonic() + 60.0 * args.minutes
         if args.soak:
-            soak_boards(args, agent, lease.domain_id, deadline, stats, sampler.over_limit)
+            soak_boards(args, agent, lease.domain_id, deadline, stats, sampler.stop_boards)
         else:
-            churn_lives(args, agent, lease.domain_id, deadline, stats, sampler.over_limit)
+            churn_lives(args, agent, lease.domain_id, deadline, stats, sampler.stop_boards)
         samples = sampler.finish()
         if args.soak:
             robot.stdin.write("stop\n")
@@ -492,7 +496,7 @@ def run(args):
             robot.stdin.flush()
         result.update(stats)
         result["minutes_run"] = round(samples[-1][0] / 60.0, 1)
-        result["stopped_at_rss_limit"] = sampler.over_limit.is_set()
+        result["stopped_early"] = sampler.stop_boards.is_set()
         result.update(summarize(samples, args.warmup))
         result["samples"] = [(round(t), round(m, 2), round(c, 2), p) for t, m, c, p in samples]
         if isinstance(agent, XrceAgent):
@@ -521,7 +525,7 @@ def report(result):
     lines = [
         "%s, %s%s, %g min%s: %d board lives, %d creations failed %s"
         % (result["agent"], result["mode"], " (same key)" if result["same_key"] else "",
-           result["minutes_run"], " (stopped at the RSS limit)" if result["stopped_at_rss_limit"]
+           result["minutes_run"], " (stopped early: RSS limit or SIGUSR1)" if result["stopped_early"]
            else "", result["lives"], result["failed"], result["failures"] or ""),
         "  agent RSS %s -> %s (after warm-up) -> %s MB; slope after warm-up %s MB/h"
         % (fmt(result["rss_start"]), fmt(result["rss_warm"]), fmt(result["rss_end"]),
