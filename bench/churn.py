@@ -419,7 +419,7 @@ def summarize(samples, warmup_s):
     windows = []
     for index in range(1, len(samples)):
         t, _rss, cpu, _pubs = samples[index]
-        w = int(t // CPU_WINDOW_S)
+        w = int(samples[index - 1][0] // CPU_WINDOW_S)  # the window the interval starts in
         while len(windows) <= w:
             windows.append([0.0, 0.0])
         windows[w][0] += cpu - samples[index - 1][2]
