@@ -41,6 +41,7 @@ import random
 import re
 import select
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -519,9 +520,7 @@ def run(args):
         if agent is not None:
             agent.stop()
         lease.release()
-        for name in os.listdir(workdir):
-            os.unlink(os.path.join(workdir, name))
-        os.rmdir(workdir)
+        shutil.rmtree(workdir, ignore_errors=True)
     return result
 
 
