@@ -875,3 +875,38 @@ async def test_a_new_domains_participant_is_made_by_a_placeholder_that_then_goes
         peer.close()
         await mw.close()
         lease.release()
+
+
+
+async def test_a_deleted_participants_node_is_freed_without_waiting_for_python(ros_domain):  # noqa: F811
+    """With park_creation (the CLI's agent), what the executor made for a client was held by a
+    reference cycle (the creation, its job's future, the future's callback) that only Python's
+    cyclic collector frees, and at a board life a second its passes over the oldest generation
+    came minutes apart (bench/churn.py: RSS rising ~20 MB/h). With those passes off, the node
+    of a deleted participant is freed all the same."""
+    import gc
+    import weakref
+
+    def created(call):
+        while True:
+            try:
+                return call()
+            except TypeNotReady as pending:
+                pending.future.result(timeout=60)
+
+    mw = RosMiddleware(park_creation=True, entity_timeout_s=0.5)
+    await mw.start()
+    gc.collect()
+    gc.disable()
+    try:
+        participant = created(lambda: make_participant(mw, ros_domain, "short_lived", 0x21))
+        created(lambda: mw.create_topic(key(0x22), participant,
+                                        TopicSpec("rt/short_lived", "std_msgs::msg::dds_::String_")))
+        created(lambda: mw.create_publisher(key(0x23), participant))
+        created(lambda: mw.create_datawriter(key(0x25), key(0x23), key(0x22), QOS))
+        node = weakref.ref(mw._entities[participant].node)
+        mw.delete(participant)
+        assert await async_wait_until(lambda: node() is None, timeout_s=30)
+    finally:
+        gc.enable()
+        await mw.close()

@@ -82,6 +82,16 @@ class ParkedCreation:
         raise TypeNotReady("%r is being created on the ROS executor" % (key,), creation.parked)
 
     def _undo_untaken(self, key: EntityKey, creation: Creation, participant, undo) -> None:
+        try:
+            self._undo_if_untaken(key, creation, participant, undo)
+        finally:
+            # The creation's last use: its job's future keeps ``ended`` (above), which keeps the
+            # creation, which keeps the future and its result (a client's node, publisher...).
+            # Cut here, that cycle goes by reference counting, not minutes later when Python
+            # next collects its oldest generation (bench/churn.py: ~20 MB/h at a board a second).
+            creation.job = None
+
+    def _undo_if_untaken(self, key: EntityKey, creation: Creation, participant, undo) -> None:
         if creation.taken:
             return
         if self._creating.get(key) is creation:
