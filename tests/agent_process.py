@@ -77,6 +77,13 @@ class AgentProcess:
             self.proc.communicate()
         return self.proc.returncode
 
+    def drain(self):
+        """Keep what the agent has logged so far (in ``output``) without waiting for more. At -v 4
+        (the default) the agent logs a line per object; a test that makes many objects without
+        reading its log must call this now and then, or the agent blocks on a full pipe (64 KiB)."""
+        line, output = read_until(self.proc, lambda text: False, 0.01)
+        self.output.append(output)
+
     def __exit__(self, *exc):
         self.stop()
 

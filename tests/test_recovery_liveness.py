@@ -28,7 +28,6 @@ from pathlib import Path
 
 from agent_process import AgentProcess
 from microros_replay import Capture, Replayer, UdpChannel
-from procs import read_until
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_recovery_agent import PtyDevice
 from xrce import constants as C
@@ -82,18 +81,16 @@ def publishers(ros_peer, topic):  # noqa: F811
 
 
 def wait_for_log_lines(agent, pattern, count, timeout):
-    """Read the running agent's log until ``count`` distinct lines match ``pattern`` (or the
-    timeout); returns how many did. What is read stays in ``agent.output``."""
-    seen = set()
-
-    def found(line):
-        if re.search(pattern, line):
-            seen.add(line)  # read_until looks at every line again with each chunk
-        return len(seen) >= count
-
-    _, output = read_until(agent.proc, found, timeout)
-    agent.output.append(output)
-    return len(seen)
+    """Read the running agent's log until ``count`` distinct lines of all it logged match
+    ``pattern`` (or the timeout); returns how many did. What is read stays in ``agent.output``."""
+    matching = re.compile(r"^.*(?:%s).*$" % pattern, re.M)
+    deadline = time.monotonic() + timeout
+    while True:
+        agent.drain()
+        seen = len(set(matching.findall("".join(agent.output))))
+        if seen >= count or time.monotonic() > deadline or agent.proc.poll() is not None:
+            return seen
+        time.sleep(0.2)
 
 
 def agent_log(agent):
@@ -195,6 +192,7 @@ def test_a_board_reconnecting_100_times_under_new_keys_leaves_one_publisher(
             session.write(writer, String(data="life %d" % life))
             session.flush()
             session.close()
+            agent.drain()  # ~10 log lines a life: a full pipe would stall the agent
         # Every earlier life goes: retired once dead; or replaced at once where the kernel gave a
         # new socket the port of an earlier life (ephemeral ports are drawn at random: a repeat
         # among 100 is likely).
