@@ -676,6 +676,70 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
         await agent.close()
 
 
+async def test_a_parked_writer_whose_participant_is_made_again_meanwhile_gets_a_live_publisher(
+        ros_domain):  # noqa: F811
+    """Stream 0 is not parked: while a datawriter's creation is on the executor, the client
+    deletes its participant and creates it, its topic and publisher again with the same ids (one
+    fuzzed datagram did). The resumed CREATE must not take the publisher made in the old,
+    destroyed node (rclpy InvalidHandle in the entity log line: handler_errors 1 in
+    tests/test_hostile_input.py), but make one in the new node."""
+    from engine_peer import BIN, Link, Peer
+    from xrce import constants as C
+    from xrce.agent.engine.dispatch import Agent
+    from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.submessages import Create, Delete
+
+    mw = RosMiddleware(park_creation=True, entity_timeout_s=2.0)
+    agent = Agent(mw)
+    await agent.start()
+    peer = Peer(agent, Link(), ("h", 1))
+    try:
+        assert peer.connect()[1] == C.STATUS_OK
+        answers = {}
+
+        def family(first_request):
+            return [Create(first_request, 0x0011, C.OBJK_PARTICIPANT, BIN, ParticipantBin("again"),
+                           ros_domain),
+                    Create(first_request + 1, 0x0012, C.OBJK_TOPIC, BIN,
+                           TopicBin("rt/again", "std_msgs::msg::dds_::String_"), 0x0011),
+                    Create(first_request + 2, 0x0013, C.OBJK_PUBLISHER, BIN, PubSubBin(), 0x0011)]
+
+        def answered(*requests):
+            answers.update({rid: status for _, rid, status in peer.statuses()})
+            return all(r in answers for r in requests)
+
+        peer.send(0x80, *family(0x10))
+        assert await async_wait_until(lambda: answered(0x10, 0x11, 0x12), 10.0)
+        old_node = mw._entities[(agent.clients[peer.key].key_int, 0x0011)].node
+        key_int = agent.clients[peer.key].key_int
+        gate = threading.Event()
+        mw._domains[ros_domain].post(lambda: gate.wait(10))  # the executor is busy
+        writer = DataWriterBin(0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 1))
+        peer.send(0x80, Create(0x20, 0x0015, C.OBJK_DATAWRITER, BIN, writer, 0x0013))  # parks
+        # Stream 0, handled now, the loop not turning: the DELETE waits for the executor, which
+        # makes the writer in the old node, then destroys that node. Then a new participant
+        # (its job awaited here, so that its retry finds it done), topic and publisher take the
+        # same ids before the writer's CREATE is resumed.
+        threading.Timer(0.2, gate.set).start()
+        peer.send(0, Delete(0x30, 0x0011))
+        assert mw._creating[(key_int, 0x0015)].job.done()
+        peer.send(0, *family(0x31))
+        deadline = time.monotonic() + 5
+        while not mw._creating[(key_int, 0x0011)].job.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert await async_wait_until(lambda: answered(0x20, 0x30, 0x31, 0x32, 0x33), 10.0)
+        assert [answers[r] for r in (0x20, 0x30, 0x31, 0x32, 0x33)] == [C.STATUS_OK] * 5
+        assert agent.stats.handler_errors == 0
+        node = mw._entities[(key_int, 0x0011)].node
+        assert node is not old_node
+        publisher = mw._entities[(key_int, 0x0015)].publisher
+        assert publisher in node.publishers and publisher.topic_name == "/again"
+        assert agent.clients[peer.key].objects[0x0015].info["ros"] == \
+            "publisher /again of node /again"
+    finally:
+        await agent.close()
+
+
 async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  # noqa: F811
     """With park_creation, a participant in a domain the agent has not joined parks its client
     while the domain's context, executor and DDS participant start on a thread of their own:

@@ -18,12 +18,13 @@ from xrce.agent.middleware.ros.domain import log
 class Creation:
     """An entity being created on an executor thread (``ParkedCreation._create_on_executor``)."""
 
-    __slots__ = ("job", "context", "domain", "parked", "taken")
+    __slots__ = ("job", "context", "domain", "node", "parked", "taken")
 
-    def __init__(self, job, context, domain):
+    def __init__(self, job, context, domain, node):
         self.job = job  # the executor job's future
         self.context = context
         self.domain = domain  # a domain with an entity being created in it stays joined
+        self.node = node  # the node the entity is made in (None: a participant's own node)
         self.parked = concurrent.futures.Future()  # done when the job is, or at the timeout
         self.taken = False
 
@@ -38,6 +39,19 @@ class ParkedCreation:
     """Mixin of ``RosMiddleware``: uses its ``park_creation``, ``_creating``,
     ``entity_timeout_s``, ``_on_executor``, ``_get_loop`` and ``_leave_if_unused``."""
 
+    def _pending_creation(self, key: EntityKey, participant):
+        """The creation a parked CREATE of ``key`` submitted, if its retry may take it: not when
+        the node it was made in is not ``participant``'s any more. Stream 0 is not parked, so a
+        client can delete its participant and create it again (and the publisher, same ids)
+        while a datawriter's creation waits: taking that would hand out an rclpy entity of a
+        destroyed node (InvalidHandle at first use). Forgotten here, a new one is submitted;
+        the timer undoes the stale one (``_undo_untaken``)."""
+        creation = self._creating.get(key)
+        if creation is not None and creation.node is not participant.node:
+            del self._creating[key]
+            return None
+        return creation
+
     def _create_on_executor(self, key: EntityKey, participant, job, undo,
                             context=None):
         """``(job's result, context)``, ``job`` creating ``key``'s rclpy entity on the domain's
@@ -49,8 +63,14 @@ class ParkedCreation:
         (the client went away meanwhile) is undone with ``undo(result)`` on the executor."""
         if not self.park_creation:
             return self._on_executor(participant, job), context
-        creation = self._creating.pop(key, None)
+        creation = self._pending_creation(key, participant)
         if creation is not None:
+            if not creation.job.done() and not creation.parked.done():
+                # Resumed early: another creation of this client (one on stream 0, which is not
+                # parked) ended first. Not the timeout: wait on for this one.
+                raise TypeNotReady("%r is being created on the ROS executor" % (key,),
+                                   creation.parked)
+            del self._creating[key]
             if not creation.job.done():  # the timeout: what the job makes later is undone
                 raise MiddlewareError("ROS executor of domain %d did not answer within %.1f s"
                                       % (participant.domain.domain_id, self.entity_timeout_s))
@@ -66,7 +86,8 @@ class ParkedCreation:
             submitted = participant.domain.submit(job)
         except MiddlewareError:
             raise
-        creation = self._creating[key] = Creation(submitted, context, participant.domain)
+        creation = self._creating[key] = Creation(submitted, context, participant.domain,
+                                                    participant.node)
         timer = loop.call_later(self.entity_timeout_s, creation.settle)
 
         def ended(_future) -> None:  # executor thread

@@ -211,7 +211,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos, topic_record.dds_level)
-        creation = self._creating.get(key)
+        creation = self._pending_creation(key, participant)
         record = creation.context if creation is not None else ReaderRecord(
             owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
         node = participant.node

@@ -200,7 +200,7 @@ class RosServices:
             key, participant, service, qos,
             lambda name: named_service_type(name) or service_class(name))
         self._get_loop()
-        creation = self._creating.get(key)
+        creation = self._pending_creation(key, participant_record)
         record = creation.context if creation is not None else \
             _RequesterRecord(owner, srv, on_reply, _expires(service_name))
         node = participant_record.node
@@ -217,7 +217,7 @@ class RosServices:
             key, participant, service, qos,
             lambda name: named_service_type(name) or library_service_type(name)
             or service_class(name))
-        creation = self._creating.get(key)
+        creation = self._pending_creation(key, participant_record)
         if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
             record = creation.context
         else:
