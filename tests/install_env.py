@@ -113,18 +113,32 @@ def stop_listener_client_and_agent(listener, client, agent):
     agent.stop()
 
 
+def source_copy(root: Path) -> Path:
+    """This checkout without its build products, for pip to build from: pip builds in the source
+    tree (build/, xrce.egg-info), and a test on the other xdist worker that builds this checkout
+    too (README's install line) made pip's copy step fail with ENOENT in one CI run."""
+    import shutil
+
+    source = root / "src"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(
+        ".venv*", "node_modules", "build", "dist", "*.so", ".git", "__pycache__", "*.egg-info",
+        ".*cache"))
+    return source
+
+
 @pytest.fixture(scope="session")
 def xrce_wheels(tmp_path_factory):
     """``{"pypi": wheel, "system": wheel}``: this checkout built without and with a sourced ROS."""
     root = tmp_path_factory.mktemp("wheels")
     require_package_index(root / "probe")
     wheels = {}
+    source = source_copy(root)
     # XRCE_FASTPATH=0: the platform-independent wheel a release publishes for every machine (a Pi
     # included); the agent's compiled UDP path comes with a build from source (tests/test_fastpath.py).
     for kind, extra in (("pypi", {"XRCE_FASTPATH": "0"}),
                         ("system", {"ROS_DISTRO": "jazzy", "XRCE_FASTPATH": "0"})):
         out = root / kind
-        built = run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", out, REPO],
+        built = run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", out, source],
                     env=clean_env(**extra), timeout=300)
         assert built.returncode == 0, _pip_output(built)
         (wheels[kind],) = out.glob("xrce-*.whl")
@@ -180,7 +194,8 @@ def sourced_ros(tmp_path_factory):
                     "--ignore-installed", *rosenv.pypi_ros_requirements()], env=clean_env(), timeout=600)
     assert laid_out.returncode == 0, _pip_output(laid_out)[-3000:]
     ros = SourcedRos(prefix, root / "venv")
-    install = run([python, "-m", "pip", "install", "-q", REPO], env=ros.env(), timeout=300)
+    install = run([python, "-m", "pip", "install", "-q", source_copy(root)], env=ros.env(),
+                  timeout=300)
     assert install.returncode == 0, _pip_output(install)[-3000:]
     print("ROS 2 prefix and a venv with xrce installed beside it: %.1f s" % (time.monotonic() - started))
     return ros
