@@ -141,7 +141,8 @@ def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_doma
     from rclpy.context import Context
     from rclpy.publisher import Publisher
 
-    from xrce.agent.middleware.ros.domain import NO_TYPE_DESCRIPTION, AgentNode
+    from xrce.agent.middleware.ros.agent_node import AgentNode
+    from xrce.agent.middleware.ros.domain import NO_TYPE_DESCRIPTION
 
     context = Context()
     rclpy.init(args=[], context=context, domain_id=ros_domain)
@@ -153,6 +154,45 @@ def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_doma
         writer = node.create_publisher(ParameterEvent, "/parameter_events", 10)
         assert isinstance(writer, Publisher) and writer.topic_name == "/parameter_events"
         writer.publish(ParameterEvent())
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_agent_node_forgets_the_entities_it_destroys(ros_domain):  # noqa: F811
+    """Issue 39, serial churn: rclpy's callback group kept a weak reference to every entity and
+    event handler ever made on a node. The anchor node hosts the wake-up each time a serial board
+    is replaced, so its group grew by ~5 references a board life for the agent's lifetime."""
+    import rclpy
+    from rclpy.context import Context
+    from std_msgs.msg import String
+    from test_msgs.srv import BasicTypes
+
+    from xrce.agent.middleware.ros.agent_node import AgentNode
+    from xrce.agent.middleware.ros.domain import NO_TYPE_DESCRIPTION
+
+    context = Context()
+    rclpy.init(args=[], context=context, domain_id=ros_domain)
+    try:
+        node = AgentNode("callback_group_probe", context=context, start_parameter_services=False,
+                         enable_rosout=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
+        group = node.default_callback_group
+        before = len(group.entities)
+        for round_ in range(20):
+            made = [(node.destroy_subscription,
+                     node.create_subscription(String, "/probe_%d" % round_, lambda _m: None, 10)),
+                    (node.destroy_publisher, node.create_publisher(String, "/probe", 10)),
+                    (node.destroy_guard_condition, node.create_guard_condition(lambda: None)),
+                    (node.destroy_timer, node.create_timer(60.0, lambda: None)),
+                    (node.destroy_service, node.create_service(BasicTypes, "/probe_srv",
+                                                               lambda _q, r: r)),
+                    (node.destroy_client, node.create_client(BasicTypes, "/probe_srv"))]
+            assert len(group.entities) > before  # what the group holds while they live
+            for destroy, entity in made:
+                assert destroy(entity)
+            del made
+        assert len(group.entities) == before, "%d references left behind" % (
+            len(group.entities) - before)
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)

@@ -61,6 +61,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from xrce.agent.middleware import MiddlewareError
 from xrce.agent.middleware.ros import participant
+from xrce.agent.middleware.ros.agent_node import AgentNode
 from xrce.agent.middleware.ros.raw_types import raw_message_type
 
 # The whole ROS bridge logs under one name, the one it had as a single module, so that existing
@@ -94,35 +95,6 @@ WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL
 
 EXECUTOR_EVENTS = "events"
 EXECUTOR_SINGLE = "single"
-
-
-class _NoParameterEvents:
-    """What an ``AgentNode`` has instead of rclpy's /parameter_events publisher."""
-
-    handle = None
-
-    def publish(self, message) -> None:
-        pass
-
-    def destroy(self) -> None:
-        pass
-
-
-class AgentNode(Node):
-    """An rclpy node without the /parameter_events publisher that ``Node.__init__`` creates
-    unconditionally (rclcpp has ``start_parameter_event_publisher`` for this; rclpy has no such
-    option). Nothing can change an agent node's parameters (no parameter services), so the only
-    events it would publish are the declarations of its construction. Measured: the agent under
-    the TurtleBot3 load holds 0.3 MB less than when it destroyed the publisher after construction
-    (49.9 -> 49.6 MB; in a bare rclpy process the first node costs 5.2 instead of 13.4 MB, much of
-    which the agent allocates for other entities anyway). Recognised by its call:
-    ``Node.__init__`` asks for the publisher before it has the attribute; a client's own writer on
-    /parameter_events, made later, is a real publisher."""
-
-    def create_publisher(self, msg_type, topic, *args, **kwargs):
-        if topic == "/parameter_events" and "_parameter_event_publisher" not in self.__dict__:
-            return _NoParameterEvents()
-        return super().create_publisher(msg_type, topic, *args, **kwargs)
 
 
 class _Wake:
