@@ -201,6 +201,7 @@ class PtyBoardLink:
         staging = link + ".new"
         os.symlink(name, staging)
         os.replace(staging, link)
+        self.link, self.name = link, name
         self.transport = CustomTransport(lambda _u: True, lambda _u: True, self._write,
                                          self._read, framing=True, local_addr=1, remote_addr=0)
 
@@ -223,6 +224,15 @@ class PtyBoardLink:
         return len(data)
 
     def close(self):
+        # The link goes first, as an unplugged USB device's node does: closing the master frees
+        # the pty's number, and an agent reopening a link that still named /dev/pts/N would open
+        # (and lock) whatever pty took that number next, another process's (seen while a test
+        # suite ran beside the serial churn).
+        try:
+            if os.readlink(self.link) == self.name:
+                os.unlink(self.link)
+        except OSError:
+            pass
         os.close(self.master)
 
 
