@@ -264,6 +264,12 @@ class Node:
             self._subscriptions[topic] = self.node.create_subscription(
                 self.message_type(type_name), topic, on_message, qos_profile_sensor_data)
 
+    def unsubscribe_all(self):
+        """Destroy the subscriptions (the next agent's writers are then matched anew)."""
+        for subscription in self._subscriptions.values():
+            self.node.destroy_subscription(subscription)
+        self._subscriptions.clear()
+
     def count(self, topic):
         return len(self.arrivals.get(topic, ()))
 
