@@ -504,22 +504,31 @@ def _request(command):
     return px4_msgs.srv.VehicleCommand.Request(request=command)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def add_px4_arguments(parser) -> None:
+    """--px4-build and --px4-msgs (also bench/px4_sitl_cpu.py's)."""
     parser.add_argument("--px4-build", type=Path, default=os.environ.get("PX4_BUILD"),
                         help="PX4's build/px4_sitl_default (default $PX4_BUILD)")
     parser.add_argument("--px4-msgs", default=os.environ.get("PX4_MSGS"),
                         help="folder holding the px4_msgs package of that release (default $PX4_MSGS)")
+
+
+def check_px4_arguments(parser, args) -> None:
+    if not args.px4_build or not (args.px4_build / "bin" / "px4").exists():
+        parser.error("--px4-build: no bin/px4 in %s" % args.px4_build)
+    if not args.px4_msgs or not os.path.isdir(args.px4_msgs):
+        parser.error("--px4-msgs: no folder %s" % args.px4_msgs)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_px4_arguments(parser)
     parser.add_argument("--agent-cmd", default=None,
                         help="another agent's command line (run as CMD udp4 -p 8888)")
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument("--logs", type=Path, default=None,
                         help="copy each run's agent and PX4 logs into this folder")
     args = parser.parse_args(argv)
-    if not args.px4_build or not (args.px4_build / "bin" / "px4").exists():
-        parser.error("--px4-build: no bin/px4 in %s" % args.px4_build)
-    if not args.px4_msgs or not os.path.isdir(args.px4_msgs):
-        parser.error("--px4-msgs: no folder %s" % args.px4_msgs)
+    check_px4_arguments(parser, args)
 
     workdir = Path(tempfile.mkdtemp(prefix="px4-sitl-bench-"))
     try:

@@ -24,7 +24,6 @@ by name.
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import statistics
 import sys
@@ -36,8 +35,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
 
 from figures import print_table, record  # noqa: E402
-from px4_sitl import (SYNCED, Agent, Node, Px4, agent_can_import_px4_msgs,  # noqa: E402
-                      cpu_seconds, log, px4_msgs_for_this_process, wait_for)
+from px4_sitl import (SYNCED, Agent, Node, Px4, add_px4_arguments,  # noqa: E402
+                      agent_can_import_px4_msgs, check_px4_arguments, cpu_seconds, log,
+                      px4_msgs_for_this_process, wait_for)
 
 # The first seconds after the node subscribes: its 24 readers matched with the agent's writers
 # (discovery, and the graph the agent watches for mismatches), reported on their own.
@@ -82,19 +82,13 @@ def one_round(args, workdir: Path, node: Node, command) -> dict:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--px4-build", type=Path, default=os.environ.get("PX4_BUILD"),
-                        help="PX4's build/px4_sitl_default (default $PX4_BUILD)")
-    parser.add_argument("--px4-msgs", default=os.environ.get("PX4_MSGS"),
-                        help="folder holding the px4_msgs package of that release (default $PX4_MSGS)")
+    add_px4_arguments(parser)
     parser.add_argument("--agent-cmd", required=True,
                         help="eProsima's agent, run as CMD udp4 -p 8888 (e.g. $PEERS/agent.sh)")
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--seconds", type=float, default=60.0, help="CPU window per agent and round")
     args = parser.parse_args(argv)
-    if not args.px4_build or not (args.px4_build / "bin" / "px4").exists():
-        parser.error("--px4-build: no bin/px4 in %s" % args.px4_build)
-    if not args.px4_msgs or not os.path.isdir(args.px4_msgs):
-        parser.error("--px4-msgs: no folder %s" % args.px4_msgs)
+    check_px4_arguments(parser, args)
     if args.rounds < 1 or args.seconds <= 0:
         parser.error("--rounds and --seconds must be positive")
     if agent_can_import_px4_msgs(None):
