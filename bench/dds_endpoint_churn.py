@@ -1,7 +1,11 @@
 """What creating and destroying ROS endpoints costs in memory below the agent: rclpy, rmw_fastrtps
 and Fast DDS alone, no xrce code on the way (issue 39, the RSS slope of bench/churn.py).
 
-    unshare -n sh -c 'ip link set lo up && exec .venv/bin/python bench/dds_endpoint_churn.py'
+    unshare -nm sh -c 'mount -t tmpfs tmpfs /dev/shm && ip link set lo up && \
+        exec .venv/bin/python bench/dds_endpoint_churn.py'
+
+(a private loopback and /dev/shm: the discovering peer is killed, and Fast DDS leaves its
+shared-memory files behind)
 
 A board life in bench/churn.py makes, on the agent's ROS side, a node with two publishers and one
 subscription and destroys them again a dead time later. This does the same in one process, in a
