@@ -16,14 +16,16 @@ connected (CPU seconds: the agent's own start-up, an interpreter and rclpy for x
 PX4's CREATEs), the ``MATCHING_S`` after the node subscribed, and then ``--seconds`` of streaming
 (the row of issue #37), with the samples the subscriber received; then stops both and does the same with
 the other agent. The order alternates between rounds so that a drift of the machine's load falls
-on both. Printed: every round, then the medians, the ratio of the medians and the per-round
-ratios. The agent never sees px4_msgs (checked, as in bench/px4_sitl.py): it bridges PX4's types
+on both. Printed: every round, with each agent's busiest threads over the window (CPU and context
+switches a second, threads of one name summed: Python's threads all show as ``python``), then the
+medians, the ratio of the medians and the per-round ratios. The agent never sees px4_msgs (checked, as in bench/px4_sitl.py): it bridges PX4's types
 by name.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import statistics
 import sys
@@ -46,6 +48,35 @@ OURS = "xrce-agent"
 THEIRS = "MicroXRCEAgent"
 
 
+def threads(pid: int) -> dict:
+    """CPU seconds and context switches of each of a process's threads, summed by thread name."""
+    found = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in Path("/proc/%d/task" % pid).iterdir():
+        try:
+            stat = (task / "stat").read_text()
+            status = (task / "status").read_text()
+        except OSError:  # the thread ended meanwhile
+            continue
+        name, fields = stat.split("(", 1)[1].rsplit(")", 1)
+        fields = fields.split()
+        switches = sum(int(line.split()[1]) for line in status.splitlines()
+                       if "ctxt_switches:" in line)
+        cpu, count = found.get(name, (0.0, 0))
+        found[name] = (cpu + (int(fields[11]) + int(fields[12])) / tick, count + switches)
+    return found
+
+
+def busiest(before: dict, after: dict, seconds: float, top: int = 4) -> str:
+    """The threads that took most CPU between two ``threads`` readings, with their wake-ups."""
+    rows = []
+    for name, (cpu, switches) in after.items():
+        cpu0, switches0 = before.get(name, (0.0, 0))
+        rows.append((100 * (cpu - cpu0) / seconds, (switches - switches0) / seconds, name))
+    rows.sort(reverse=True)
+    return ", ".join("%s %.2f %% %.0f sw/s" % (name, cpu, rate) for cpu, rate, name in rows[:top])
+
+
 def one_round(args, workdir: Path, node: Node, command) -> dict:
     """One agent with PX4 streaming: its CPU share and the samples the node received per second."""
     workdir.mkdir(parents=True)
@@ -65,14 +96,15 @@ def one_round(args, workdir: Path, node: Node, command) -> dict:
         node.subscribe_all("/fmu/out/")
         time.sleep(MATCHING_S)
         received0 = sum(node.count(topic) for topic in node.arrivals)
-        cpu0, t0 = cpu_seconds(agent.proc.pid), time.monotonic()
+        cpu0, t0, threads0 = cpu_seconds(agent.proc.pid), time.monotonic(), threads(agent.proc.pid)
         time.sleep(args.seconds)
-        cpu1, t1 = cpu_seconds(agent.proc.pid), time.monotonic()
+        cpu1, t1, threads1 = cpu_seconds(agent.proc.pid), time.monotonic(), threads(agent.proc.pid)
         received1 = sum(node.count(topic) for topic in node.arrivals)
         if agent.proc.poll() is not None:
             raise RuntimeError("the agent exited during the window: see %s" % agent.log_path)
         return {"cpu": 100 * (cpu1 - cpu0) / (t1 - t0), "rate": (received1 - received0) / (t1 - t0),
-                "connect": connected, "matching": 100 * (cpu0 - connected) / (t0 - subscribed_at)}
+                "connect": connected, "matching": 100 * (cpu0 - connected) / (t0 - subscribed_at),
+                "threads": busiest(threads0, threads1, t1 - t0)}
     finally:
         node.unsubscribe_all()
         px4.stop()
@@ -115,6 +147,8 @@ def main(argv=None):
                           index + 1, OURS, ours["cpu"], ours["rate"], THEIRS, theirs["cpu"],
                           theirs["rate"], ours["cpu"] / theirs["cpu"], ours["matching"],
                           theirs["matching"], ours["connect"], theirs["connect"]), flush=True)
+                for name in (OURS, THEIRS):
+                    print("  %s threads: %s" % (name, results[name][-1]["threads"]), flush=True)
         finally:
             node.close()
     finally:
