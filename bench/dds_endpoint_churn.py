@@ -14,6 +14,9 @@ private ROS domain, 1,000 times after 200 to warm up, with the agent's own node 
 
 - ``nodes``: a node per life, as the agent makes one per board participant;
 - ``endpoints``: the three endpoints on one node that stays;
+- ``matched``: the same, each matched by an endpoint of that node (a ROS node subscribed to the
+  board's topics and publishing its commands): Fast DDS 2.14 keeps its matched status for every
+  endpoint that ever matched (EDP's reader_status_/writer_status_ maps, never erased);
 
 each once alone in its domain and once with another process's participant (a plain rclpy node)
 discovering it, as the ROS nodes beside a robot's agent always do. Printed: bytes per life.
@@ -84,6 +87,11 @@ def measure(mode: str, lives: int) -> tuple:
                          enable_rosout=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
 
     staying = make_node("staying_node")
+    counterparts = []
+    if mode == "matched":
+        counterparts = [staying.create_subscription(Odometry, "/odom", lambda _m: None, 10),
+                        staying.create_subscription(Odometry, "/imu", lambda _m: None, 10),
+                        staying.create_publisher(Twist, "/cmd_vel", 10)]
 
     def life():
         node = make_node("churn_board") if mode == "nodes" else staying
@@ -113,7 +121,7 @@ def measure(mode: str, lives: int) -> tuple:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--lives", type=int, default=1000)
-    parser.add_argument("--mode", choices=("nodes", "endpoints"), default=None,
+    parser.add_argument("--mode", choices=("nodes", "endpoints", "matched"), default=None,
                         help="one case in this process (the script runs each in a process of its own)")
     parser.add_argument("--peer", action="store_true", help="with a discovering participant")
     args = parser.parse_args(argv)
@@ -136,7 +144,7 @@ def main(argv=None):
             args.mode, "with a discovering peer" if args.peer else "alone in its domain",
             per_life, rss_before, rss_after, args.lives), flush=True)
         return 0
-    for mode in ("nodes", "endpoints"):
+    for mode in ("nodes", "endpoints", "matched"):
         for peer in (False, True):
             subprocess.run([sys.executable, __file__, "--mode", mode, "--lives", str(args.lives)]
                            + (["--peer"] if peer else []), check=True)
