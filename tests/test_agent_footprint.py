@@ -8,7 +8,7 @@ import time
 import pytest
 
 from agent_process import REPO, AgentProcess
-from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
+from ros_helpers import async_wait_until, ros_domain, ros_peer, wait_until  # noqa: F401
 
 
 def test_no_rcl_log_file(ros_domain, tmp_path):  # noqa: F811
@@ -196,6 +196,46 @@ def test_agent_node_forgets_the_entities_it_destroys(ros_domain):  # noqa: F811
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+async def test_the_agents_own_entities_stop_moving_once_a_hosting_board_goes(
+        ros_domain, ros_peer):  # noqa: F811
+    """Issue 39: each move of the agent's own entities (the wake-up) between nodes makes their
+    DDS endpoints anew, and Fast DDS keeps ~60 bytes for every endpoint that ever matched, for the
+    participant's life. Over UDP, vanished boards retire oldest first, so the wake-up moved at
+    each retirement; over serial, one board at a time, it went to the anchor and back each life
+    (1-2 MB/h at a life a second). Once a hosting board goes it stays on the hidden anchor."""
+    from xrce.agent.middleware.ros.entities import RosMiddleware
+
+    def board(life):
+        return (0x0B0A0000 + life, 0x01)
+
+    mw = RosMiddleware()
+    await mw.start()
+    try:
+        mw.create_participant(board(0), ros_domain, "board")
+        domain = mw._domains[ros_domain]
+        assert domain.call(lambda: domain._wake_item is not None, 20.0)
+        mw.create_participant(board(1), ros_domain, "board")
+        mw.delete(board(0))  # the first board's node hosted the agent's entities
+        assert domain.call(lambda: domain.agent_node is domain._anchor, 20.0)
+        moves = domain.call(lambda: domain._wake_item.generation, 20.0)
+        # Over UDP: a new board comes, the oldest vanished one is retired.
+        for life in range(2, 8):
+            mw.create_participant(board(life), ros_domain, "board")
+            mw.delete(board(life - 1))
+        # Over serial: the board goes before the next one comes.
+        for life in range(8, 12):
+            mw.delete(board(life - 1))
+            mw.create_participant(board(life), ros_domain, "board")
+        assert domain.call(lambda: domain._wake_item.generation, 20.0) == moves
+        assert domain.call(lambda: 42, 20.0) == 42  # the wake-up still works
+        assert await async_wait_until(lambda: sorted(ros_peer.node_names()) == [
+            ("_xrce_agent", "/"), ("board", "/")], 20.0), ros_peer.node_names()
+        assert not [name for name, _ in ros_peer.node_names() if not name.startswith("_")
+                    and name != "board"]
+    finally:
+        await mw.close()
 
 
 def test_interface_jobs_run_one_at_a_time_on_threads_that_end():

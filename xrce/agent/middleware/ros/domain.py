@@ -183,7 +183,9 @@ class DomainRuntime:
         # The node hosting the agent's own entities (the wake topic, RosMiddleware's agent
         # publishers, the graph topic's writer): a client's, or the anchor (host()).
         self.agent_node: Node | None = None
-        self._anchor: Node | None = None  # the hidden ``_xrce_agent``, only while no client's
+        self._anchor: Node | None = None  # the hidden ``_xrce_agent`` (_move_host says when)
+        # A hosting client's node went: the agent's entities stay on the anchor from then on.
+        self._anchored = False
         self._hosted: list = []  # moved with the host (DDS-level)
         self._pinned: list = []  # on the anchor for good (ROS topics)
         self._wake_item: _Wake | None = None
@@ -230,10 +232,11 @@ class DomainRuntime:
     #
     # The wake topic (or guard condition) and the graph topic's writer need a node, and a node
     # shows in every ROS node listing, which micro_ros_agent's never do (its graph participant
-    # has no node). Both are DDS-level, outside ROS listings: they live on a client's node while
-    # the domain has one, and on the hidden anchor node ``_xrce_agent`` while it has none, which
-    # keeps the domain's DDS participant (rmw creates it with a context's first node and
-    # destroys it with its last) and the wake-up alive between clients. Moving them is
+    # has no node). Both are DDS-level, outside ROS listings: they live on the first client's
+    # node, and once that node goes, on the hidden anchor node ``_xrce_agent`` (``ros2 node list``
+    # leaves it out), which keeps the domain's DDS participant (rmw creates it with a context's
+    # first node and destroys it with its last) and the wake-up alive between clients
+    # (``_move_host`` says why they do not follow the next client). Moving them is
     # create-then-destroy, on this thread: nothing is ever without its entity. What the agent
     # publishes as a ROS topic (RosMiddleware.agent_publisher: /diagnostics) stays on the anchor
     # (``visible``): it is the agent's, and under a client's node a board would list it as its
@@ -287,6 +290,12 @@ class DomainRuntime:
         if item in self._hosted:
             self._hosted.remove(item)
 
+    # Every move makes the hosted endpoints anew, and Fast DDS (2.14, EDP's matched-status maps)
+    # keeps ~60 bytes for every local endpoint that ever matched, for the participant's life.
+    # Moving from one board to the next as each goes cost the agent ~1 MB/h at a board life a
+    # second (bench/churn.py, issue 39). So the anchor hands the entities to the first client that
+    # comes (the graph then shows only clients' nodes), and once a hosting client's node goes they
+    # stay on the anchor: at most two moves in a domain's life.
     def _move_host(self, new: Node) -> None:
         old, self.agent_node = self.agent_node, new
         for item in list(self._hosted):
@@ -305,20 +314,20 @@ class DomainRuntime:
             self.agent_node = node
             return
         anchor = self._anchor
-        if anchor is not None and self.agent_node is anchor:
+        if anchor is not None and self.agent_node is anchor and not self._anchored:
             self._move_host(node)
             if not self._pinned:
                 self._anchor = None
                 self.retire(lambda: self._destroy_node(anchor))  # it hosted the wake-up
 
     def remove_client_node(self, node: Node) -> None:
-        """Executor thread: destroy a client's node, the agent's entities moved off it first
-        (to another client's node, else to the anchor)."""
+        """Executor thread: destroy a client's node, the agent's entities moved off it first, to
+        the anchor for good (``_move_host``)."""
         if node in self.client_nodes:
             self.client_nodes.remove(node)
         if self.agent_node is node:
-            self._move_host(self.client_nodes[0] if self.client_nodes else
-                            self._anchor or self._raise_anchor())
+            self._anchored = True
+            self._move_host(self._anchor or self._raise_anchor())
             self.retire(lambda: self._destroy_node(node))  # it hosted the wake-up (_Wake.move)
             return
         self._destroy_node(node)
