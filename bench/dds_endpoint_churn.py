@@ -87,7 +87,7 @@ def measure(mode: str, lives: int) -> tuple:
                          enable_rosout=False, parameter_overrides=[NO_TYPE_DESCRIPTION])
 
     staying = make_node("staying_node")
-    counterparts = []
+    counterparts = []  # held until the node goes: what each life's endpoints match
     if mode == "matched":
         counterparts = [staying.create_subscription(Odometry, "/odom", lambda _m: None, 10),
                         staying.create_subscription(Odometry, "/imu", lambda _m: None, 10),

@@ -232,8 +232,6 @@ async def test_the_agents_own_entities_stop_moving_once_a_hosting_board_goes(
         assert domain.call(lambda: 42, 20.0) == 42  # the wake-up still works
         assert await async_wait_until(lambda: sorted(ros_peer.node_names()) == [
             ("_xrce_agent", "/"), ("board", "/")], 20.0), ros_peer.node_names()
-        assert not [name for name, _ in ros_peer.node_names() if not name.startswith("_")
-                    and name != "board"]
     finally:
         await mw.close()
 
