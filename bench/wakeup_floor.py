@@ -7,6 +7,7 @@ rate (paced per millisecond, as bench/xrce_flood.py paces its samples), in three
 
 - ``asyncio``: an asyncio loop reading the socket from ``add_reader`` until it is drained, as
   the agent's UDP link does (xrce.agent.links.udp.UdpServer) and nothing else;
+- ``uvloop``: the same on uvloop, the agent's loop by default (xrce.agent.cli.event_loop);
 - ``python``: a plain Python loop blocked in ``recvfrom``;
 - ``c``: the same loop compiled from C, when a C compiler is at hand (skipped otherwise);
 - ``bridge`` (``bridge_floor``, run by bench/agent_cost.py next to its subscriber): the asyncio
@@ -53,14 +54,17 @@ async def main():
     loop.add_reader(sock.fileno(), ready)
     print(sock.getsockname()[1], flush=True)
     await loop.run_in_executor(None, sys.stdin.readline)
-asyncio.run(main())
+{run}(main())
 """
 
-_ASYNCIO_RECEIVER = _ASYNCIO_TEMPLATE.format(setup="", on_datagram="pass")
+_ASYNCIO_RECEIVER = _ASYNCIO_TEMPLATE.format(setup="", on_datagram="pass", run="asyncio.run")
+# The same on uvloop, the loop the agent runs on (xrce.agent.cli.event_loop).
+_UVLOOP_RECEIVER = _ASYNCIO_TEMPLATE.format(setup="import uvloop", on_datagram="pass",
+                                            run="uvloop.run")
 
 # The least a Python bridge can do per datagram: the asyncio reader above, publishing a Twist's
 # CDR bytes with rclpy for each datagram (argv: topic), the agent's job without XRCE.
-_BRIDGE_RECEIVER = _ASYNCIO_TEMPLATE.format(on_datagram="publish(sample)", setup=r"""
+_BRIDGE_RECEIVER = _ASYNCIO_TEMPLATE.format(on_datagram="publish(sample)", run="asyncio.run", setup=r"""
 import rclpy
 from geometry_msgs.msg import Twist
 from rclpy.context import Context
@@ -163,6 +167,7 @@ def receiver_cost(command, rate, seconds, env=None, ready=None):
 def wakeup_floors(seconds=5.0, rates=(150, 5000)):
     """{(kind, rate): (CPU fraction, µs per datagram)} for the receivers available here."""
     receivers = {"asyncio": [PYTHON, "-c", _ASYNCIO_RECEIVER],
+                 "uvloop": [PYTHON, "-c", _UVLOOP_RECEIVER],
                  "python": [PYTHON, "-c", _PYTHON_RECEIVER]}
     build = None
     compiler = shutil.which("cc") or shutil.which("gcc")

@@ -66,7 +66,7 @@ def test_wheel_dependencies_follow_the_ros_in_use(xrce_wheels, tmp_path):
 
     system = wheel_requirements(xrce_wheels["system"])
     assert not [r for r in system if r.startswith("ros-")], system
-    assert {"pyserial", "crcmod-plus", "pyyaml"} <= set(system)
+    assert {"pyserial", "crcmod-plus", "pyyaml", "uvloop"} <= set(system)
 
     bad = run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", tmp_path, REPO],
               env=clean_env(XRCE_ROS="ros1"))
@@ -88,18 +88,18 @@ def dry_run_on_a_pi(wheel, tmp_path, as_on_a_pi):
 
 
 def test_install_resolves_on_a_raspberry_pi_with_cpython_312(xrce_wheels, tmp_path):
-    # With apt's ROS sourced on the Pi: xrce and three small binary wheels.
+    # With apt's ROS sourced on the Pi: xrce and four small binary wheels.
     _, chosen = dry_run_on_a_pi(xrce_wheels["system"], tmp_path, as_on_a_pi=False)
-    assert set(chosen) == {"xrce", "pyserial", "crcmod-plus", "pyyaml"}, chosen
+    assert set(chosen) == {"xrce", "pyserial", "crcmod-plus", "pyyaml", "uvloop"}, chosen
     for name, filename in chosen.items():
         assert filename.endswith("-none-any.whl") or "aarch64" in filename, (name, filename)
-    assert "cp312" in chosen["pyyaml"]
+    assert "cp312" in chosen["pyyaml"] and "cp312" in chosen["uvloop"]
 
     # The wheel built without ROS (as on PyPI): on the Pi its markers leave every ROS wheel out.
     report, chosen = dry_run_on_a_pi(xrce_wheels["pypi"], tmp_path, as_on_a_pi=True)
     assert report["environment"]["platform_machine"] == "aarch64"
     assert report["environment"]["python_version"] == "3.12"
-    assert set(chosen) == {"xrce", "pyserial", "crcmod-plus", "pyyaml"}, chosen
+    assert set(chosen) == {"xrce", "pyserial", "crcmod-plus", "pyyaml", "uvloop"}, chosen
 
 
 def test_without_any_rclpy_dds_fails_in_one_line_and_ced_runs(sourced_ros, tmp_path):

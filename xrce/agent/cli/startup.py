@@ -17,6 +17,7 @@ import signal
 import sys
 
 from xrce.agent.cli.arguments import PROG, VERBOSITY_LEVELS, CliError
+from xrce.agent.cli.event_loop import event_loop
 from xrce.agent.cli.subcommands import SUBCOMMANDS
 from xrce.agent.cli.transports import IP_SUBCOMMANDS
 from xrce.agent.observe import observability
@@ -29,6 +30,7 @@ def check(args):
         raise CliError("--allow-from needs an IP link (udp4, udp6, tcp4, tcp6), not %s"
                        % args.subcommand)
     check_paths(args)
+    event_loop()
     return load_refs(args.refs) if args.refs else None
 
 
@@ -242,7 +244,10 @@ def run(args, refs):
         profile = fastdds_profile.install()  # before any participant: Fast DDS reads it once
         if profile:
             logging.getLogger("xrce.agent.rosenv").debug("Fast DDS participant profile: %s", profile)
+    description, loop_factory = event_loop()
+    logging.getLogger("xrce.agent").debug("event loop: %s", description)
     try:
-        return asyncio.run(serve(args, refs))
+        with asyncio.Runner(loop_factory=loop_factory) as runner:
+            return runner.run(serve(args, refs))
     except KeyboardInterrupt:  # a second Ctrl-C during shutdown
         return 130

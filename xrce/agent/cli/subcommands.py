@@ -16,7 +16,7 @@ import argparse
 import sys
 
 from xrce.agent.cli import transports
-from xrce.agent.cli.arguments import PROG, ArgumentParser, seconds
+from xrce.agent.cli.arguments import PROG, ArgumentParser, CliError, seconds
 
 
 class Subcommand:
@@ -107,8 +107,14 @@ class _VersionAction(argparse.Action):
         import xrce
         from xrce.agent.middleware.ros import env as rosenv
 
-        sys.stdout.write("%s %s (DDS-XRCE 1.0, Python %s)\n%s\n" % (
-            PROG, xrce.__version__, platform.python_version(), rosenv.would_use()))
+        from xrce.agent.cli.event_loop import event_loop
+
+        try:
+            loop = event_loop()[0]
+        except CliError as exc:
+            loop = str(exc)
+        sys.stdout.write("%s %s (DDS-XRCE 1.0, Python %s, %s)\n%s\n" % (
+            PROG, xrce.__version__, platform.python_version(), loop, rosenv.would_use()))
         sys.stdout.flush()
         parser.exit(0)
 

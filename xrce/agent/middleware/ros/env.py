@@ -33,7 +33,8 @@ DEFAULT_DISTRO = "jazzy"
 # evaluates these on the installing machine, so a wheel of xrce built anywhere installs on a Pi too.
 PYPI_ROS_MARKER = ('sys_platform == "linux" and platform_machine == "x86_64" and '
                    'python_version >= "3.11" and python_version < "3.13"')
-COMMON_REQUIREMENTS = ("pyserial", "crcmod-plus", "pyyaml")
+# uvloop: the agent's event loop (xrce.agent.cli.startup.event_loop says why).
+COMMON_REQUIREMENTS = ("pyserial", "crcmod-plus", "pyyaml", "uvloop")
 # Package names without their distribution prefix (ros-<distro>-...); both distributions have each.
 PYPI_ROS_PACKAGES = (
     "rclpy[fastrtps]",
