@@ -48,10 +48,9 @@ from xrce.agent.launcher import main
 main(sys.argv[1:])
 """
 
-# Each was imported by every agent once; each is only needed by some subcommand or option. (ssl
-# is not among them: uvloop, the agent's loop, imports it, and it adds no resident memory here.)
+# Each was imported by every agent once; each is only needed by some subcommand or option.
 _NOT_IMPORTED_BY_A_UDP_AGENT = ("xrce.agent.demo", "xrce.agent.links.tcp",
-                                "xrce.agent.links.serial", "shutil",
+                                "xrce.agent.links.serial", "shutil", "ssl",
                                 "xml.etree.ElementTree", "xrce.agent.engine.xmlrep",
                                 "xrce.agent.observe.capture", "xrce.agent.observe.stats_view",
                                 "xrce.agent.interfaces.builder")

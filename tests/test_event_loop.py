@@ -34,6 +34,34 @@ def test_uvloop_by_default_asyncio_when_asked():
         event_loop({"XRCE_AGENT_LOOP": "trio"})
 
 
+_IMPORT_AS_THE_AGENT_DOES = """
+import sys
+from xrce.agent import launcher
+launcher._import_asyncio_without_tls()
+from xrce.agent.cli import event_loop as chosen
+if sys.argv[1] == "refuse":  # a uvloop that needs more of ssl at import than the stand-in gives
+    def refuse(self, name):
+        raise AttributeError(name)
+    chosen._NoTls.__getattr__ = refuse
+import asyncio
+description, factory = chosen.event_loop({})
+loop = factory()
+print(description, type(loop).__module__, loop.run_until_complete(asyncio.sleep(0.01, "ran")),
+      type(sys.modules.get("ssl")).__name__)
+"""
+
+
+@pytest.mark.parametrize("stand_in", ["names", "refuse"])
+def test_uvloop_is_imported_without_ssl_or_else_with_the_real_one(stand_in):
+    """The agent's uvloop reads ssl's names from a stand-in (the real ssl is 1.2 MB resident);
+    should a uvloop need more, it is imported again with the real ssl, and runs."""
+    done = subprocess.run([sys.executable, "-c", _IMPORT_AS_THE_AGENT_DOES, stand_in],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    expected_ssl = "NoneType" if stand_in == "names" else "module"
+    assert done.stdout.split() == ["uvloop", uvloop.__version__, "uvloop", "ran", expected_ssl]
+
+
 def test_version_names_the_loop_and_a_bad_choice_is_one_line_and_exit_2():
     assert "Python %d.%d.%d, uvloop %s)" % (sys.version_info[:3] + (uvloop.__version__,)) \
         in _agent("--version").stdout.splitlines()[0]

@@ -6,7 +6,8 @@ on the project's machine), and changes nothing for a program that imports ``xrce
 - asyncio is imported with ``ssl`` hidden for the length of that import: asyncio imports ``ssl``
   only to offer TLS transports, which the agent never opens, and ``ssl`` with its OpenSSL library
   costs 4.3 MB (``import asyncio`` +9.4 MB with it, +5.0 MB without). Other code may still
-  ``import ssl`` afterwards; only this process's asyncio has no TLS.
+  ``import ssl`` afterwards; only this process's asyncio has no TLS. uvloop, the agent's loop, is
+  kept from ``ssl`` too (xrce/agent/cli/event_loop.py).
 - ``yaml`` is deferred (``xrce.agent.middleware.ros.deferred``): rclpy imports it at start-up for parameter
   files, which the agent's nodes never read; it runs, whole, on first use (1.4 MB with its C
   extension and libyaml otherwise).

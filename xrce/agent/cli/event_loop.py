@@ -2,20 +2,59 @@
 ``XRCE_AGENT_LOOP=asyncio`` asks for the standard library's.
 
 Why uvloop: a board's traffic wakes the agent a few hundred times a second (PX4's 100 Hz topics
-about 230), and at that rate the standard loop's own turn around each wake-up is a measurable part
-of the agent's CPU; libuv's turn costs a fraction of it (docs/PERFORMANCE.md, "PX4 SITL"). The
-agent uses only what both loops provide, and the tests run the same scenarios on both
+about 230), and at that rate the standard loop's own turn around each wake-up is a large part of
+the agent's CPU: with PX4 SITL streaming, the agent used 0.75x the CPU on uvloop that it used on
+the standard loop, for 3.0 MB more resident memory (docs/PERFORMANCE.md, "PX4 SITL"). The agent
+uses only what both loops provide, and the tests run the same scenarios on both
 (tests/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
-installed.
+installed or memory counts more than CPU.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+import types
 
 from xrce.agent.cli.arguments import CliError
 
 LOOP_ENV = "XRCE_AGENT_LOOP"
+
+
+class _NoTls(types.ModuleType):
+    """What uvloop's loop module reads from ``ssl`` at import, for TLS transports the agent never
+    opens: a class for each name, an int for each constant. The real ``ssl`` costs the agent
+    1.2 MB resident beside rclpy (xrce/agent/launcher.py keeps it out of asyncio for the same
+    reason); uvloop's TLS is unusable in this process, and nothing else is touched."""
+
+    def __getattr__(self, name):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        value = -1 if name.isupper() else type(name, (Exception,), {"__module__": "xrce-no-tls"})
+        setattr(self, name, value)
+        return value
+
+
+def _import_uvloop():
+    """uvloop, imported with the stand-in above as ``ssl`` unless something imported the real one
+    already; raises ImportError when uvloop cannot be imported either way."""
+    import asyncio  # noqa: F401  (before the stand-in: whether asyncio has TLS is launcher.py's)
+
+    if "ssl" in sys.modules:
+        import uvloop
+        return uvloop
+    sys.modules["ssl"] = _NoTls("ssl")
+    try:
+        import uvloop
+        return uvloop
+    except Exception:  # a uvloop that needs more of ssl than names at import: the real one
+        for name in [n for n in sys.modules if n == "uvloop" or n.startswith("uvloop.")]:
+            del sys.modules[name]
+    finally:
+        if isinstance(sys.modules.get("ssl"), _NoTls):
+            del sys.modules["ssl"]
+    import uvloop
+    return uvloop
 
 
 def event_loop(environ=None):
@@ -27,7 +66,7 @@ def event_loop(environ=None):
         raise CliError("%s must be uvloop or asyncio, not %r" % (LOOP_ENV, wanted))
     if wanted != "asyncio":
         try:
-            import uvloop
+            uvloop = _import_uvloop()
         except ImportError:
             if wanted:
                 raise CliError("%s=uvloop but uvloop is not installed (pip install uvloop)"
