@@ -26,7 +26,7 @@ eProsima's MicroXRCEAgent
 - "ping": GET_INFO round trips timed around raw socket calls, out of a session (header 0x80) and
   in one, so the figure is the agent's answer plus loopback, not a client library's decode.
 - floors (bench/wakeup_floor.py): what a receiver that does nothing pays per wake-up (asyncio,
-  plain Python, C) at a robot's rate of wake-ups and at 5k/s, and a minimal Python bridge
+  uvloop, plain Python, C) at a robot's rate of wake-ups and at 5k/s, and a minimal Python bridge
   (asyncio reader + rclpy publish per datagram) at 5k and 20k/s into the same subscriber.
 """
 
