@@ -10,13 +10,13 @@ import sys
 from pathlib import Path
 
 import pytest
+import uvloop  # a dependency of xrce: its absence is a failure here, not a skip
 
 from ros_helpers import ros_domain, ros_peer  # noqa: F401
 from test_fastpath import needs_extension, run_reliable_scenario, run_scenario
 from xrce.agent.cli.arguments import CliError
 from xrce.agent.cli.event_loop import event_loop
 
-uvloop = pytest.importorskip("uvloop", reason="uvloop is a dependency of xrce: pip install -e .")
 AGENT = str(Path(sys.executable).parent / "xrce-agent")
 
 

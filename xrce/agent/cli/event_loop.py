@@ -4,10 +4,10 @@
 Why uvloop: a board's traffic wakes the agent a few hundred times a second (PX4's 100 Hz topics
 about 230), and at that rate the standard loop's own turn around each wake-up is a large part of
 the agent's CPU: with PX4 SITL streaming, the agent used 0.75x the CPU on uvloop that it used on
-the standard loop, for 3.0 MB more resident memory (docs/PERFORMANCE.md, "PX4 SITL"). The agent
-uses only what both loops provide, and the tests run the same scenarios on both
-(tests/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
-installed or memory counts more than CPU.
+the standard loop, for 2.1 MB more resident memory under the TurtleBot3 load (docs/PERFORMANCE.md,
+"The event loop"). The agent uses only what both loops provide, and the tests run the same
+scenarios on both (tests/test_event_loop.py), so the standard loop stays a working choice where
+uvloop cannot be installed or memory counts more than CPU.
 """
 
 from __future__ import annotations
