@@ -12,6 +12,7 @@ Usage: ``from ros_helpers import ros_domain, ros_peer  # noqa: F401`` in a test 
 from __future__ import annotations
 
 import fcntl
+import gc
 import os
 import random
 import tempfile
@@ -59,6 +60,10 @@ class DomainLease:
 
     def release(self):
         if self._fd is not None:
+            # rclpy's action clients and servers and the nodes they hold sit in reference cycles:
+            # their DDS entities stay in the graph until a full collection. Collected here, while
+            # the domain is still ours, they cannot show up in the next holder's graph.
+            gc.collect()
             try:
                 os.unlink(self._path)  # still locked: nobody can take the lock on it meanwhile
             except FileNotFoundError:
@@ -125,6 +130,11 @@ class RosPeer:
         self.executor.wake()
         self._thread.join(5)
         self.executor.remove_node(self.node)
+        # Node.destroy_node leaves waitables (action clients and servers) alive, and with them
+        # the node's DDS entities.
+        for waitable in list(self.node.waitables):
+            if hasattr(waitable, "destroy"):
+                waitable.destroy()
         self.node.destroy_node()
         self.executor.shutdown()
         self.context.try_shutdown()
