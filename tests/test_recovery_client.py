@@ -118,3 +118,80 @@ def test_reader_and_writer_resume_after_agent_restart_without_ros():
         reader_session.close()
     finally:
         agent.stop()
+
+
+class RecordingUdp(UdpTransport):
+    """The client's UDP transport, keeping (time, datagram) of everything it sends."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.record = []
+
+    def send_from(self, buf, length):  # send() comes here too
+        self.record.append((time.monotonic(), bytes(memoryview(buf)[:length])))
+        return super().send_from(buf, length)
+
+
+def test_a_lost_link_sends_nothing_of_the_old_session_and_the_new_one_starts_at_zero():
+    # A loaded CI machine once caught this: the writer's HEARTBEAT for samples written just before
+    # the agent died reached the restarted agent right after it accepted the session again, the
+    # agent's fresh reliable stream moved past the re-creations that followed, and the writer
+    # never came back. Here the window is held open on purpose: samples written while the agent
+    # is down, the link lost for a second before the agent returns.
+    port = free_udp_port()
+    states = []
+    agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
+    try:
+        transport = RecordingUdp("127.0.0.1", port)
+        writer_session = Session(transport, history=8,
+                                 on_link_state=lambda s, state: states.append(
+                                     (time.monotonic(), state)))
+        reader_session = Session(UdpTransport("127.0.0.1", port), history=8)
+        got = []
+        for session in (writer_session, reader_session):
+            assert session.create(attempts=5, timeout_ms=500)
+        writer = writer_session.create_writer(writer_session.create_participant(name="w"), "/x", String)
+        reader_session.create_reader(reader_session.create_participant(name="r"), "/x", String, got.append)
+        assert writer_session.run_until_all_status(2000) and reader_session.run_until_all_status(2000)
+
+        def exchange(tag, seconds):
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline and not any(m.data == tag for m in got):
+                writer_session.write(writer, String(data=tag))
+                writer_session.spin_once(20)
+                reader_session.spin_once(20)
+            return any(m.data == tag for m in got)
+
+        assert exchange("before", 5)
+        agent.stop()
+        for n in range(5):  # reliable samples the stopped agent never acknowledges
+            assert writer_session.write(writer, String(data="unheard %d" % n))
+        writer_session.flush()
+        assert wait_until(lambda: writer_session.spin_once(20) is not None and
+                          any(state == "lost" for _, state in states), 20), states
+        lost_at = [t for t, state in states if state == "lost"][0]
+        writer_session.run_until_timeout(1000)  # lost: CREATE_CLIENT every retry_ms meanwhile
+        agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
+        assert exchange("after", 20), states
+        reconnected_at = [t for t, state in states if state == "connected"][-1]
+
+        # While lost: CREATE_CLIENT only (session 0x80, submessage 0x00), then the re-creations,
+        # which start the reliable stream (0x80) at sequence number 0, nothing in between: no
+        # HEARTBEAT or message that names a sequence number of the old session's.
+        window = [data for t, data in transport.record if lost_at <= t <= reconnected_at]
+        creates_client = [data[0] == 0x80 and data[4] == 0x00 for data in window]
+        restore = window[creates_client.index(False):]
+        assert all(creates_client[:len(window) - len(restore)]) and restore, \
+            [data.hex() for data in window]
+        assert [(data[1], int.from_bytes(data[2:4], "little")) for data in restore] == \
+            [(0x80, seq) for seq in range(len(restore))], [data.hex() for data in window]
+        assert restore[0][4] == 0x01, restore[0].hex()  # CREATE
+        after = [data for t, data in transport.record if t > reconnected_at]
+        heartbeats = [data for data in after if data[1] == 0x00 and data[4] == 0x0B]
+        assert all(int.from_bytes(data[10:12], "little") < 0x40 for data in heartbeats), \
+            [data.hex() for data in heartbeats]  # the last sequence number a HEARTBEAT names
+        assert writer_session.link.recoveries == 1
+        writer_session.close()
+        reader_session.close()
+    finally:
+        agent.stop()

@@ -49,6 +49,11 @@ class LinkMonitor:
         session.connected = False
         session.create_status = None
         session._session_unknown = False
+        # What the streams still hold can no longer arrive: a re-created session starts every
+        # stream afresh. Kept until _restore, it went out as HEARTBEATs (and retransmissions)
+        # between CREATE_CLIENT and the re-creations, and an agent that had just accepted the
+        # session moved its new input stream past them, so it never created our entities.
+        session._reset_streams()
         self.next_attempt = now
         self._set(_LINK_LOST)
 
