@@ -64,6 +64,9 @@ for run in 1 2; do
 done
 stop_hog
 sleep 2  # children of the last test exit and unlink what they own
+# tests/hygiene.py's detached cleaner removes what the last run's processes held once they are gone
+# (up to ~5 s after pytest exits): what is still there after it is left behind.
+for _ in $(seq 60); do pgrep -f "hygiene._clean_after" >/dev/null || break; sleep 0.5; done
 AFTER=$(mktemp -p /tmp xrce-loaded-after.XXXXXX)
 snapshot > "$AFTER"
 LEFT=$(comm -13 "$BEFORE" "$AFTER" | grep -v -e "^$BEFORE\$" -e "^$AFTER\$" -e '^/tmp/xrce-loaded-run[12].log$')
