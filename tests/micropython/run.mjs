@@ -446,7 +446,9 @@ async function main() {
   }
   stdout.flush();
   stderr.flush();
-  await reply.worker.terminate();
+  // A loaded CI machine once saw terminate() not settle for 60 s after a script had finished;
+  // process.exit ends the worker as well, so the wait for it is bounded.
+  await Promise.race([reply.worker.terminate(), new Promise((resolve) => setTimeout(resolve, 2000).unref())]);
   process.exit(typeof status === "number" ? status : 1);
 }
 
