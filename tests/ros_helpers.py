@@ -21,6 +21,7 @@ import time
 
 import pytest
 import rclpy
+from rclpy.action import ActionClient, ActionServer
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -130,10 +131,10 @@ class RosPeer:
         self.executor.wake()
         self._thread.join(5)
         self.executor.remove_node(self.node)
-        # Node.destroy_node leaves waitables (action clients and servers) alive, and with them
-        # the node's DDS entities.
+        # Node.destroy_node leaves action clients and servers alive, and with them the node's
+        # DDS entities (event handlers go with their publisher or subscription).
         for waitable in list(self.node.waitables):
-            if hasattr(waitable, "destroy"):
+            if isinstance(waitable, (ActionClient, ActionServer)):
                 waitable.destroy()
         self.node.destroy_node()
         self.executor.shutdown()
