@@ -86,36 +86,49 @@ def test_agent_restart_mid_stream_reaches_ros_again_within_2s(ros_peer, ros_doma
         agent.stop()
 
 
+class WriterAndReader:
+    """Two client sessions on one agent (middleware ced): one writes /x, the other reads it."""
+
+    def __init__(self, writer_transport, port, **writer_options):
+        self.writer_session = Session(writer_transport, history=8, **writer_options)
+        self.reader_session = Session(UdpTransport("127.0.0.1", port), history=8)
+        self.got = []
+        for session in (self.writer_session, self.reader_session):
+            assert session.create(attempts=5, timeout_ms=500)
+        self.writer = self.writer_session.create_writer(
+            self.writer_session.create_participant(name="w"), "/x", String)
+        self.reader_session.create_reader(self.reader_session.create_participant(name="r"), "/x",
+                                          String, self.got.append)
+        assert self.writer_session.run_until_all_status(2000) and \
+            self.reader_session.run_until_all_status(2000)
+
+    def exchange(self, tag, seconds):
+        """Writes ``tag`` until the reader has it; True if it did within ``seconds``."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not any(m.data == tag for m in self.got):
+            self.writer_session.write(self.writer, String(data=tag))
+            self.writer_session.spin_once(20)
+            self.reader_session.spin_once(20)
+        return any(m.data == tag for m in self.got)
+
+    def close(self):
+        self.writer_session.close()
+        self.reader_session.close()
+
+
 def test_reader_and_writer_resume_after_agent_restart_without_ros():
     port = free_udp_port()
     agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
     try:
-        writer_session = Session(UdpTransport("127.0.0.1", port), history=8)
-        reader_session = Session(UdpTransport("127.0.0.1", port), history=8)
-        got = []
-        for session in (writer_session, reader_session):
-            assert session.create(attempts=5, timeout_ms=500)
-        writer = writer_session.create_writer(writer_session.create_participant(name="w"), "/x", String)
-        reader_session.create_reader(reader_session.create_participant(name="r"), "/x", String, got.append)
-        assert writer_session.run_until_all_status(2000) and reader_session.run_until_all_status(2000)
-
-        def exchange(tag, seconds):
-            deadline = time.monotonic() + seconds
-            while time.monotonic() < deadline and not any(m.data == tag for m in got):
-                writer_session.write(writer, String(data=tag))
-                writer_session.spin_once(20)
-                reader_session.spin_once(20)
-            return any(m.data == tag for m in got)
-
-        assert exchange("before", 5)
+        pair = WriterAndReader(UdpTransport("127.0.0.1", port), port)
+        assert pair.exchange("before", 5)
         agent.stop()
         agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
         # The clients notice the restart, recover and exchange again: seconds on a loaded machine
         # (5 s was passed once in a suite beside other work); the bound is a hang's, not speed's.
-        assert exchange("after", 20)
-        assert writer_session.link.recoveries == 1 and reader_session.link.recoveries == 1
-        writer_session.close()
-        reader_session.close()
+        assert pair.exchange("after", 20)
+        assert pair.writer_session.link.recoveries == 1 and pair.reader_session.link.recoveries == 1
+        pair.close()
     finally:
         agent.stop()
 
@@ -143,26 +156,10 @@ def test_a_lost_link_sends_nothing_of_the_old_session_and_the_new_one_starts_at_
     agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
     try:
         transport = RecordingUdp("127.0.0.1", port)
-        writer_session = Session(transport, history=8,
-                                 on_link_state=lambda s, state: states.append(
-                                     (time.monotonic(), state)))
-        reader_session = Session(UdpTransport("127.0.0.1", port), history=8)
-        got = []
-        for session in (writer_session, reader_session):
-            assert session.create(attempts=5, timeout_ms=500)
-        writer = writer_session.create_writer(writer_session.create_participant(name="w"), "/x", String)
-        reader_session.create_reader(reader_session.create_participant(name="r"), "/x", String, got.append)
-        assert writer_session.run_until_all_status(2000) and reader_session.run_until_all_status(2000)
-
-        def exchange(tag, seconds):
-            deadline = time.monotonic() + seconds
-            while time.monotonic() < deadline and not any(m.data == tag for m in got):
-                writer_session.write(writer, String(data=tag))
-                writer_session.spin_once(20)
-                reader_session.spin_once(20)
-            return any(m.data == tag for m in got)
-
-        assert exchange("before", 5)
+        pair = WriterAndReader(transport, port, on_link_state=lambda s, state: states.append(
+            (time.monotonic(), state)))
+        writer_session, writer = pair.writer_session, pair.writer
+        assert pair.exchange("before", 5)
         agent.stop()
         for n in range(5):  # reliable samples the stopped agent never acknowledges
             assert writer_session.write(writer, String(data="unheard %d" % n))
@@ -172,7 +169,7 @@ def test_a_lost_link_sends_nothing_of_the_old_session_and_the_new_one_starts_at_
         lost_at = [t for t, state in states if state == "lost"][0]
         writer_session.run_until_timeout(1000)  # lost: CREATE_CLIENT every retry_ms meanwhile
         agent = AgentProcess("udp4", "-p", str(port), "-m", "ced").__enter__()
-        assert exchange("after", 20), states
+        assert pair.exchange("after", 20), states
         reconnected_at = [t for t, state in states if state == "connected"][-1]
 
         # While lost: CREATE_CLIENT only (session 0x80, submessage 0x00), then the re-creations,
@@ -191,7 +188,6 @@ def test_a_lost_link_sends_nothing_of_the_old_session_and_the_new_one_starts_at_
         assert all(int.from_bytes(data[10:12], "little") < 0x40 for data in heartbeats), \
             [data.hex() for data in heartbeats]  # the last sequence number a HEARTBEAT names
         assert writer_session.link.recoveries == 1
-        writer_session.close()
-        reader_session.close()
+        pair.close()
     finally:
         agent.stop()
