@@ -303,7 +303,10 @@ class ParameterServer:
                 if bounds is not None:
                     kind = entry[1]
                     limits = rcl_interfaces.IntegerRange() if kind == _INTEGER else rcl_interfaces.FloatingPointRange()
-                    wide = 0x7FFFFFFFFFFFFFFF if kind == _INTEGER else 1.7976931348623157e308
+                    # An open side is sent as infinity, not the largest double: a single-precision
+                    # board holds no float past 3.4e38 (the largest double read as inf there anyway), and
+                    # MicroPython's freezer packs every float constant as 32 bits and stops on one.
+                    wide = 0x7FFFFFFFFFFFFFFF if kind == _INTEGER else float("inf")
                     limits.from_value = -wide if bounds[0] is None else bounds[0]
                     limits.to_value = wide if bounds[1] is None else bounds[1]
                     limits.step = bounds[2]
