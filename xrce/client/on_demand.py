@@ -10,6 +10,8 @@
 # globals, imports, file name) on top of its code, and a firmware that syncs time also pings (the
 # minimum core of a session).
 
+import time
+
 from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce import epoch_ns as _wall_ns
 
@@ -74,7 +76,7 @@ def _link_state(session):
 
 _NS = const(1000000000)
 # Longer than this since the clock was last read (ticks_us() wraps after 2**30 µs, ~17 min), the
-# wall clock is read again (that reading allocates).
+# wall clock is read again (that reading allocates); without one, ticks_ms() carries it (_carry).
 _REANCHOR_MS = const(500000)
 
 # session._demand, made at the first time sync or ping:
@@ -115,6 +117,9 @@ def _new_state(session):
 
 
 def _anchor(demand):
+    if not (hasattr(time, "time_ns") or hasattr(time, "time")):
+        _carry(demand)
+        return
     # The wall clock read between two tick readings that agree: a port whose ticks step in
     # milliseconds (the WebAssembly one) would otherwise set the clock up to a step behind.
     for _ in range(3):
@@ -137,6 +142,50 @@ def _anchor_at(demand, now_ns, ticks=None):
     demand[_MS] = ticks_ms()
 
 
+def _carry(demand):
+    # No wall clock: the clock starts at ticks_ms() (every clock on the board then agrees, as far as
+    # ticks_ms() has not wrapped) and runs on from its last reading by what has passed since. That
+    # is ticks_us()'s difference plus some whole number of its 2**30 µs wraps: the number that
+    # brings it within half a wrap of what ticks_ms() says passed, which is exact to the
+    # microsecond as long as ticks_ms() has not wrapped by half (2**29 ms, ~6 days) in between.
+    ms = ticks_ms()
+    us = ticks_us()
+    if demand[_BASE] is None:
+        demand[_BASE] = 0
+        demand[_NOW_S] = ms // 1000
+        demand[_NOW_NS] = (ms % 1000) * 1000000
+    else:
+        gone = ticks_diff(us, demand[_TICKS])
+        gone += ((ticks_diff(ms, demand[_MS]) * 1000 - gone + (1 << 29)) >> 30) << 30
+        _advance(demand, gone)
+    demand[_TICKS] = us
+    demand[_MS] = ms
+
+
+def _advance(demand, elapsed):
+    # demand[_NOW_S], demand[_NOW_NS] moved on by ``elapsed`` µs.
+    ns = demand[_NOW_NS] + (elapsed % 1000000) * 1000
+    seconds = demand[_NOW_S] + elapsed // 1000000
+    if ns >= _NS:
+        ns -= _NS
+        seconds += 1
+    demand[_NOW_S] = seconds
+    demand[_NOW_NS] = ns
+
+
+def board_ns():
+    # xrce.epoch_ns() on a board without a wall clock: nanoseconds on its monotonic clock.
+    global _board
+    clock = _board
+    if clock is None:
+        clock = _board = [None] * 5
+    _now(clock)
+    return ((clock[_BASE] << 16) + clock[_NOW_S]) * _NS + clock[_NOW_NS]
+
+
+_board = None
+
+
 def _now(demand):
     # Read the client's clock into demand[_NOW_S], demand[_NOW_NS].
     if demand[_BASE] is None:
@@ -148,13 +197,7 @@ def _now(demand):
     if elapsed < 0 or ticks_diff(ms, demand[_MS]) > _REANCHOR_MS:
         _anchor(demand)
         return
-    ns = demand[_NOW_NS] + (elapsed % 1000000) * 1000
-    seconds = demand[_NOW_S] + elapsed // 1000000
-    if ns >= _NS:
-        ns -= _NS
-        seconds += 1
-    demand[_NOW_S] = seconds
-    demand[_NOW_NS] = ns
+    _advance(demand, elapsed)
     demand[_TICKS] = ticks
     demand[_MS] = ms
 
