@@ -3,7 +3,8 @@
 a new n-byte buffer and a new bytes, readinto fills the caller's buffer and reads until it is full,
 as MicroPython's unix port does) to peers on real sockets here.
 
-Once set up: nothing allocated per sent datagram, frame or message (UDP, TCP, serial); nothing per
+Once set up: nothing allocated per sent datagram, frame or message (UDP, TCP, serial, and
+CustomTransport with framing, which writes its frames through a piece buffer as serial does); nothing per
 received TCP message or serial frame through ``recv_frame`` (the message stays in the transport's
 buffer); nothing while waiting with nothing there. A UDP datagram received costs what the port's
 recv(mtu + 1) allocates: MicroPython has no recv_into, and readinto on a UDP socket runs datagrams
@@ -41,7 +42,7 @@ class Peer(threading.Thread):
     def __init__(self, kind):
         super().__init__(daemon=True)
         self.kind = kind
-        self.raw = bytearray()  # every byte the client sent (TCP, serial)
+        self.raw = bytearray()  # every byte the client sent (TCP, serial, custom)
         if kind == "udp":
             self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         else:
@@ -73,7 +74,7 @@ class Peer(threading.Thread):
     def _run_stream(self):
         conn, _ = self.sock.accept()
         with conn:
-            serial = self.kind == "serial"
+            serial = self.kind in ("serial", "custom")
             decoder = FrameDecoder(local_addr=0) if serial else LengthPrefixDecoder()
             while True:
                 data = conn.recv(65536)
@@ -154,4 +155,15 @@ def test_serial_sends_and_receives_frames_without_allocating():
     assert lines["crc_errors"] == "1", lines
     messages = _messages()
     expected = b"".join(encode_frame(m, 1, 0) for m in [messages[0]] + messages + messages + [b"AWKWARD"])
+    assert bytes(peer.raw) == expected
+
+
+def test_custom_transport_with_framing_sends_without_allocating():
+    # Its receive side copies each message out of the decoder (as recv does on every transport);
+    # only sending was the per-message frame object that failed a small heap (issue 44).
+    lines, peer = _run("custom")
+    assert lines["crc_errors"] == "1", lines
+    assert lines["counters"] == "%d %d" % (2 + COUNT, 2 + COUNT), lines
+    messages = _messages()
+    expected = b"".join(encode_frame(m, 1, 0) for m in [messages[0]] + messages + [b"AWKWARD"])
     assert bytes(peer.raw) == expected

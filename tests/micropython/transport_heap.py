@@ -5,7 +5,9 @@ to a peer in pytest.
 argv: kind port count [size]
 kind: ``udp`` (UdpTransport; the peer echoes each datagram), ``tcp`` (TcpTransport; the peer echoes
 each length-prefixed message), ``serial`` (SerialTransport over ``PortUart`` below, a UART whose
-line is a TCP connection; the peer answers each frame with the same payload from address 0). To
+line is a TCP connection; the peer answers each frame with the same payload from address 0),
+``custom`` (CustomTransport(framing=True) with read/write callbacks on that same line and the serial
+addresses, the peer answering as for serial). To
 ``AWKWARD`` the peer answers with what a link may do to a message (udp: an oversize datagram first;
 tcp: the message in three segments; serial: noise and a frame with a bad CRC first), then b"good".
 
@@ -67,12 +69,37 @@ def make_transport(kind, port):
         return TcpTransport("127.0.0.1", port)
     import socket
 
-    from xrce.transports.serial import SerialTransport
-
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.connect(("127.0.0.1", port))
     sock.settimeout(0)
+    if kind == "custom":
+        return custom_transport(sock)
+    from xrce.transports.serial import SerialTransport
+
     return SerialTransport(PortUart(sock))
+
+
+def custom_transport(sock):
+    # Callbacks as a board's would be over its own link driver: write what is offered, read what is
+    # there (polled until the timeout), neither allocating.
+    from xrce import ticks_add, ticks_diff, ticks_ms
+    from xrce.transports.custom import CustomTransport
+
+    def write_cb(user, data):
+        return sock.write(data)
+
+    def read_cb(user, buf, size, timeout_ms):
+        deadline = ticks_add(ticks_ms(), timeout_ms)
+        while True:
+            count = sock.readinto(buf, size)
+            if count:
+                return count
+            if ticks_diff(deadline, ticks_ms()) <= 0:
+                return 0
+            sleep_ms(1)
+
+    return CustomTransport(lambda user: True, lambda user: True, write_cb, read_cb, framing=True,
+                           local_addr=1, remote_addr=0)
 
 
 def message(index, size):
@@ -121,7 +148,7 @@ def main():
         print("recv_frame_last_ok", same)
         for msg in messages:
             assert transport.send(msg)
-    if kind == "tcp" or kind == "serial":
+    if kind != "udp":
         sleep_ms(1000)
     received = [None] * count
     before = gc.mem_alloc()
@@ -142,7 +169,7 @@ def main():
     print("awkward", transport.recv(3000))
     if kind == "udp":
         print("oversize", transport.oversize)
-    elif kind == "serial":
+    elif kind != "tcp":
         print("crc_errors", transport.decoder.crc_errors)
     print("counters", transport.sent, transport.received)
     transport.close()

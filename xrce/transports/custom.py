@@ -4,7 +4,9 @@
 #
 # - ``open_cb(user) -> bool`` and ``close_cb(user) -> bool``
 # - ``write_cb(user, data) -> int``: bytes written, possibly fewer than ``len(data)`` (the rest is
-#   offered again); 0 or less means the link failed.
+#   offered again); 0 or less means the link failed. ``data`` is valid only during the call (with
+#   framing it is the transport's own 64-byte piece buffer, refilled for the next piece): a
+#   callback that queues bytes copies them.
 # - ``read_cb(user, buf, size, timeout_ms) -> int``: fill the preallocated bytearray ``buf`` with up
 #   to ``size`` bytes, return the count, 0 on timeout.
 #
@@ -13,7 +15,7 @@
 # ``framing=False`` (packet links): each ``read_cb`` returns one whole message and each ``send`` is
 # a single ``write_cb`` call.
 
-from xrce import EncodeError, ticks_add, ticks_diff, ticks_ms
+from xrce import EncodeError, const, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 
 # Framing and its CRC tables load only for framing=True: a packet link never pays for them.
@@ -21,6 +23,14 @@ from xrce.transports import TransportError
 DEFAULT_MTU = 512
 # Bytes asked of read_cb per call with framing; the C client's ring is smaller still (42).
 _FRAMED_READ_SIZE = 256
+# With framing a frame goes to write_cb in pieces of at most this many bytes, escaped as they are
+# built (SerialTransport's scheme): a frame object per message (up to 2 * (mtu + 6) + 1 bytes in one
+# piece) was what a small heap could not find once it was cut up.
+_PIECE = const(64)
+# framing.py's, folded here at compile time: a per-call import of them allocated 32 bytes a message.
+_FLAG = const(0x7E)
+_ESCAPE = const(0x7D)
+_ESCAPE_XOR = const(0x20)
 
 
 class CustomTransport:
@@ -48,7 +58,7 @@ class CustomTransport:
         "_write_cb",
         "_read_cb",
         "_crc",
-        "_encode_frame",
+        "_out",
         "_is_open",
         "_pending",
         "_buf",
@@ -85,14 +95,16 @@ class CustomTransport:
         self._pending = []
         if framing:
             from xrce.transports.crc import get_crc
-            from xrce.transports.framing import FrameDecoder, encode_frame
+            from xrce.transports.framing import FrameDecoder
 
             self._crc = get_crc(crc)
-            self._encode_frame = encode_frame
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
             self._buf = bytearray(_FRAMED_READ_SIZE)
+            out = self._out = bytearray(_PIECE)
+            # Emptied in place: its block stays, and the pieces are appended into it (see _send_framed).
+            out[0:] = b""
         else:
-            self._crc = self._encode_frame = None
+            self._crc = self._out = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -127,15 +139,48 @@ class CustomTransport:
                 return False
             self.sent += 1
             return True
-        frame = memoryview(self._encode_frame(msg, self.local_addr, self.remote_addr, self._crc))
-        position = 0
-        while position < len(frame):
-            written = self._write_cb(self.user, frame[position:])
-            if not written or written < 0:
-                self.send_errors += 1
-                return False
-            position += written
+        if not self._send_framed(msg):
+            self.send_errors += 1
+            return False
         self.sent += 1
+        return True
+
+    def _send_framed(self, msg):
+        # encode_frame's bytes, escaped into _out as they are made and handed to write_cb a piece at
+        # a time. The piece is _out itself at the piece's length: a bytearray emptied by slice
+        # assignment keeps its block, and appending refills it without a new one, where a slice or
+        # memoryview of a fixed buffer would be an object per piece.
+        out = self._out
+        length = len(msg)
+        check = self._crc(msg)
+        out.append(_FLAG)
+        last = length + 5
+        for k in range(last + 1):
+            if k >= 4 and k < last - 1:
+                byte = msg[k - 4]
+            elif k == 0:
+                byte = self.local_addr
+            elif k == 1:
+                byte = self.remote_addr
+            elif k == 2:
+                byte = length & 0xFF
+            elif k == 3:
+                byte = length >> 8
+            elif k == last - 1:
+                byte = check & 0xFF
+            else:
+                byte = check >> 8
+            if byte == _FLAG or byte == _ESCAPE:
+                out.append(_ESCAPE)
+                byte ^= _ESCAPE_XOR
+            out.append(byte)
+            if len(out) >= _PIECE - 1 or k == last:  # an escaped byte takes two
+                while out:
+                    written = self._write_cb(self.user, out)
+                    if not written or written < 0:
+                        out[0:] = b""
+                        return False
+                    out[0:written] = b""  # what is left moves to the front, offered again
         return True
 
     def recv(self, timeout_ms):

@@ -1,8 +1,18 @@
 # Serial client transport: XRCE messages in HDLC-like frames (XRCE-WIRE.md §11).
 #
-# CPython uses pyserial; MicroPython uses ``machine.UART`` (``device`` is then the UART id, or an
-# already configured UART object). The client's address defaults to 1 and the agent's to 0, as
-# ``uxr_init_serial_transport`` is used by the examples and by rmw's serial transport.
+# ``device`` is a port name for pyserial (CPython), a ``machine.UART`` id (MicroPython), or any
+# byte-stream object, on either: a configured ``machine.UART``, a USB CDC stream, a port's own UART
+# driver. Such an object needs only the three calls the transport makes:
+#
+# - ``any()``: how many received bytes are waiting (0 when none; the transport polls it);
+# - ``readinto(buf, n)``: up to ``n`` of them into ``buf`` (called with ``n <= any()``), their count;
+# - ``write(buf, off, n)``: ``buf[off:off + n]`` out, the count written (0 or None when it cannot
+#   take more yet: offered again 1 ms later). MicroPython's streams (machine.UART, USB_VCP) take
+#   these arguments; the transport never passes a slice, which would be an object per write.
+#
+# Its ``deinit()`` is called only on a UART the transport made from an id. The client's address
+# defaults to 1 and the agent's to 0, as ``uxr_init_serial_transport`` is used by the examples and
+# by rmw's serial transport.
 
 from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
@@ -41,7 +51,8 @@ class SerialTransport:
     # the next receive), or -1 after the timeout: the receive a board makes without allocating
     # (UART.readinto into a preallocated chunk, FrameDecoder.scan). On MicroPython ``recv`` is
     # ``recv_frame`` plus the copy it returns, and ``send`` writes the frame through a 64-byte
-    # buffer, escaping as it goes, with UART.write(buf, off, n): neither allocates.
+    # buffer, escaping as it goes, with UART.write(buf, off, n): neither allocates. A stream object
+    # given as ``device`` is driven the same way on CPython.
 
     __slots__ = (
         "device",
@@ -83,7 +94,7 @@ class SerialTransport:
         self._pending = []
         self._buf = bytearray(_CHUNK)
         self._view = memoryview(self._buf)
-        self._out = bytearray(_OUT_CHUNK) if IS_MICROPYTHON else None
+        self._out = None
         self._chunk_pos = self._chunk_end = 0  # what recv_frame has not scanned yet of _buf
         self._poller = None
         self.open()
@@ -91,13 +102,15 @@ class SerialTransport:
     def open(self):
         if self._port is not None or self._uart is not None:
             return
-        if IS_MICROPYTHON:
+        if IS_MICROPYTHON or hasattr(self.device, "readinto"):
             if isinstance(self.device, int):
                 import machine
 
                 self._uart = machine.UART(self.device, self.baudrate)
             else:
-                self._uart = self.device  # a UART the caller configured (pins, buffers)
+                self._uart = self.device  # a UART the caller configured (pins, buffers), any stream
+            if self._out is None:
+                self._out = bytearray(_OUT_CHUNK)
             self.decoder.reset()
             self._chunk_pos = self._chunk_end = 0
             return
@@ -148,8 +161,6 @@ class SerialTransport:
                 # pyserial writes straight to the fd on POSIX; no flush() (tcdrain would wait for
                 # the bits to leave the UART, which the C client does not do either).
                 written = self._port.write(frame)
-            elif self._uart is not None:
-                written = self._write_uart(frame)
             else:
                 raise TransportError("serial transport is closed")
         except (OSError, _SerialError):
@@ -207,17 +218,6 @@ class SerialTransport:
             else:
                 sleep_ms(1)  # TX buffer full
         return True
-
-    def _write_uart(self, frame):
-        view = memoryview(frame)
-        position = 0
-        while position < len(frame):
-            written = self._uart.write(view[position:])
-            if written:
-                position += written
-            else:
-                sleep_ms(1)  # TX buffer full
-        return position
 
     def _read_available(self, wait_ms):
         # Up to _CHUNK bytes read into _buf within wait_ms (possibly none): their count.
