@@ -7,6 +7,7 @@
     xrce-client sub udp4 -p 8888 --topic cmd_vel --type geometry_msgs/msg/Twist
                 [--count N] [--timeout-ms T] [--reliable | --best-effort]
     xrce-client build-mpy OUTDIR
+    xrce-client gen-msgs PKG_DIR [PKG_DIR ...] -o OUTDIR [--mpy]
 
 Transports (the agent's words): ``udp4``/``udp6``/``tcp4``/``tcp6`` with ``--agent HOST -p PORT``
 (host defaults to 127.0.0.1, or ::1 for the v6 ones), ``serial --dev DEV [-b BAUD] [--crc arc|ccitt]``.
@@ -248,11 +249,29 @@ def run_build_mpy(args):
     return mpy.main(["build-mpy", args.outdir])
 
 
+def run_gen_msgs(args):
+    import os
+
+    from xrce.tools import mpy
+
+    try:
+        written = mpy.gen_msgs(args.packages, args.outdir, compiled=args.mpy)
+    except mpy.GenMsgsError as error:
+        raise UsageError(str(error))
+    for path in written:
+        print(path)
+    _say("%s: %d files for %s in %s; on the board: from xrce.msgs.<package> import <Type>" % (
+        PROG, len(written), ", ".join(os.path.basename(os.path.normpath(d)) for d in args.packages),
+        args.outdir), sys.stderr)
+    return EXIT_OK
+
+
 COMMANDS = {
     "ping": run_ping,
     "pub": run_pub,
     "sub": run_sub,
     "build-mpy": run_build_mpy,
+    "gen-msgs": run_gen_msgs,
 }
 
 
@@ -278,7 +297,7 @@ def main(argv=None):
     from xrce.errors import XrceError
 
     try:
-        if args.command != "build-mpy":
+        if args.command not in ("build-mpy", "gen-msgs"):
             check_transport_arguments(args)
         if getattr(args, "domain", 0) is None:
             args.domain = default_domain()

