@@ -27,6 +27,7 @@ _FRAMED_READ_SIZE = 256
 # built (SerialTransport's scheme): a frame object per message (up to 2 * (mtu + 6) + 1 bytes in one
 # piece) was what a small heap could not find once it was cut up.
 _PIECE = const(64)
+_SPARE = bytes(_PIECE)
 # framing.py's, folded here at compile time: a per-call import of them allocated 32 bytes a message.
 _FLAG = const(0x7E)
 _ESCAPE = const(0x7D)
@@ -100,9 +101,8 @@ class CustomTransport:
             self._crc = get_crc(crc)
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
             self._buf = bytearray(_FRAMED_READ_SIZE)
-            out = self._out = bytearray(_PIECE)
-            # Emptied in place: its block stays, and the pieces are appended into it (see _send_framed).
-            out[0:] = b""
+            out = self._out = bytearray(2 * _PIECE)
+            out[_PIECE:] = b""  # _PIECE long, _PIECE bytes to spare in its block (see _piece)
         else:
             self._crc = self._out = None
             self.decoder = None
@@ -147,41 +147,66 @@ class CustomTransport:
 
     def _send_framed(self, msg):
         # encode_frame's bytes, escaped into _out as they are made and handed to write_cb a piece at
-        # a time. The piece is _out itself at the piece's length: a bytearray emptied by slice
-        # assignment keeps its block, and appending refills it without a new one, where a slice or
-        # memoryview of a fixed buffer would be an object per piece.
+        # a time (SerialTransport's scheme): no frame object. The message's own bytes are walked by
+        # iterating it (no index arithmetic per byte, the loop a board spends its time in).
         out = self._out
         length = len(msg)
         check = self._crc(msg)
-        out.append(_FLAG)
-        last = length + 5
-        for k in range(last + 1):
-            if k >= 4 and k < last - 1:
-                byte = msg[k - 4]
-            elif k == 0:
+        out[0] = _FLAG
+        n = 1
+        for k in range(4):
+            if k == 0:
                 byte = self.local_addr
             elif k == 1:
                 byte = self.remote_addr
             elif k == 2:
                 byte = length & 0xFF
-            elif k == 3:
-                byte = length >> 8
-            elif k == last - 1:
-                byte = check & 0xFF
             else:
-                byte = check >> 8
+                byte = length >> 8
             if byte == _FLAG or byte == _ESCAPE:
-                out.append(_ESCAPE)
+                out[n] = _ESCAPE
+                n += 1
                 byte ^= _ESCAPE_XOR
-            out.append(byte)
-            if len(out) >= _PIECE - 1 or k == last:  # an escaped byte takes two
-                while out:
-                    written = self._write_cb(self.user, out)
-                    if not written or written < 0:
-                        out[0:] = b""
-                        return False
-                    out[0:written] = b""  # what is left moves to the front, offered again
-        return True
+            out[n] = byte
+            n += 1
+        for byte in msg:
+            if byte == _FLAG or byte == _ESCAPE:
+                out[n] = _ESCAPE
+                n += 1
+                byte ^= _ESCAPE_XOR
+            out[n] = byte
+            n += 1
+            if n >= _PIECE - 1:  # an escaped byte takes two
+                if not self._piece(n):
+                    return False
+                n = 0
+        for k in range(2):
+            byte = check >> 8 if k else check & 0xFF
+            if byte == _FLAG or byte == _ESCAPE:
+                out[n] = _ESCAPE
+                n += 1
+                byte ^= _ESCAPE_XOR
+            out[n] = byte
+            n += 1
+        return self._piece(n)
+
+    def _piece(self, n):
+        # _out[:n] to write_cb as _out itself, cut to n in place: a bytearray shortened by slice
+        # assignment keeps its block, and grows back into it (it was made with _PIECE bytes to spare),
+        # where a slice or memoryview of it would be an object per piece. What write_cb leaves is
+        # moved to the front and offered again.
+        out = self._out
+        if n < _PIECE:
+            out[n:] = b""
+        done = True
+        while out:
+            written = self._write_cb(self.user, out)
+            if not written or written < 0:
+                done = False
+                break
+            out[0:written] = b""
+        out[0:] = _SPARE  # back to _PIECE long (the bytes are overwritten before they are sent)
+        return done
 
     def recv(self, timeout_ms):
         if not self._is_open:

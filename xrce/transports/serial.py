@@ -173,40 +173,49 @@ class SerialTransport:
         return True
 
     def _send_uart(self, msg):
-        # encode_frame's bytes, written through _out as they are escaped: no frame object.
+        # encode_frame's bytes, written through _out as they are escaped: no frame object. The
+        # message's own bytes are walked by iterating it (no index arithmetic per byte: this loop
+        # is where a board spends its sending time).
         out = self._out
-        room = _OUT_CHUNK - 1  # an escaped byte takes two
         length = len(msg)
         check = self._crc(msg)
         out[0] = FLAG
         n = 1
-        last = length + 5
-        for k in range(last + 1):
-            if k >= 4 and k < last - 1:
-                byte = msg[k - 4]
-            elif k == 0:
+        for k in range(4):
+            if k == 0:
                 byte = self.local_addr
             elif k == 1:
                 byte = self.remote_addr
             elif k == 2:
                 byte = length & 0xFF
-            elif k == 3:
-                byte = length >> 8
-            elif k == last - 1:
-                byte = check & 0xFF
             else:
-                byte = check >> 8
+                byte = length >> 8
             if byte == FLAG or byte == ESCAPE:
                 out[n] = ESCAPE
                 n += 1
                 byte ^= ESCAPE_XOR
             out[n] = byte
             n += 1
-            if n >= room or k == last:
+        for byte in msg:
+            if byte == FLAG or byte == ESCAPE:
+                out[n] = ESCAPE
+                n += 1
+                byte ^= ESCAPE_XOR
+            out[n] = byte
+            n += 1
+            if n >= _OUT_CHUNK - 1:  # an escaped byte takes two
                 if not self._write_out(n):
                     return False
                 n = 0
-        return True
+        for k in range(2):
+            byte = check >> 8 if k else check & 0xFF
+            if byte == FLAG or byte == ESCAPE:
+                out[n] = ESCAPE
+                n += 1
+                byte ^= ESCAPE_XOR
+            out[n] = byte
+            n += 1
+        return self._write_out(n)
 
     def _write_out(self, count):
         uart = self._uart
