@@ -115,22 +115,38 @@ def test_deferred_rclpy_services_still_start_when_a_node_asks(ros_domain):  # no
         assert service in run.stdout, run.stdout
 
 
-def test_agent_nodes_publish_no_parameter_events(ros_peer):  # noqa: F811
+def test_agent_nodes_publish_no_parameter_events(ros_peer, ros_domain):  # noqa: F811
     """The agent's nodes leave rclpy's /parameter_events publisher out (ros_domain.AgentNode):
-    nothing can change their parameters, and that publisher's history cost memory."""
-    def publishers():
+    nothing can change their parameters, and that publisher's history cost memory. The agent
+    has nodes in a domain once a client has a participant there: the client's, and the hidden
+    ``_xrce_agent`` that publishes /diagnostics."""
+    from xrce.client import Session
+    from xrce.transports.udp import UdpTransport
+
+    def publishers(node):
         try:
             # no_demangle: the wake topic is a DDS-level one, which ROS listings leave out.
-            return dict(ros_peer.node.get_publisher_names_and_types_by_node("_xrce_agent", "/",
+            return dict(ros_peer.node.get_publisher_names_and_types_by_node(node, "/",
                                                                              no_demangle=True))
         except Exception:  # the node is not discovered yet
             return {}
 
-    with AgentProcess("udp4"):
-        # Its wake topic's publisher seen: the node's publishers have been discovered.
-        assert wait_until(lambda: any("/_xrce_agent/wake_" in name for name in publishers()),
-                          timeout_s=20), publishers()
-        assert "rt/parameter_events" not in publishers()
+    with AgentProcess("udp4") as agent:
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            session.create_participant(domain_id=ros_domain, name="footprint_board")
+            assert session.run_until_all_status(5000), session.last_statuses
+            # The wake topic's publisher (on the client's node) and /diagnostics' (on the
+            # hidden one) seen: the nodes' publishers have been discovered.
+            assert wait_until(lambda: any("/_xrce_agent/wake_" in name
+                                          for name in publishers("footprint_board"))
+                              and "rt/diagnostics" in publishers("_xrce_agent"), timeout_s=20), \
+                (publishers("footprint_board"), publishers("_xrce_agent"))
+            assert "rt/parameter_events" not in publishers("footprint_board")
+            assert "rt/parameter_events" not in publishers("_xrce_agent")
+        finally:
+            session.close()
 
 
 def test_agent_node_creates_a_parameter_events_writer_a_client_asks_for(ros_domain):  # noqa: F811
@@ -215,7 +231,8 @@ async def test_the_agents_own_entities_stop_moving_once_a_hosting_board_goes(
     try:
         mw.create_participant(board(0), ros_domain, "board")
         domain = mw._domains[ros_domain]
-        assert domain.call(lambda: domain._wake_item is not None, 20.0)
+        # The domain joined for this board makes its wake-up after the board's first burst.
+        assert wait_until(lambda: domain.call(lambda: domain._wake_item is not None, 20.0), 20)
         mw.create_participant(board(1), ros_domain, "board")
         mw.delete(board(0))  # the first board's node hosted the agent's entities
         assert domain.call(lambda: domain.agent_node is domain._anchor, 20.0)

@@ -9,6 +9,9 @@ discovery answer used to cost up to one Fast DDS announcement period (3 s):
   sent its first announcement before its receivers were attached and lost the subscriber's answer;
   the agent's profile makes the builtin writers asynchronous, so that announcement leaves after.
 
+With the agent idle beside the subscriber before the client comes (it joins the domain only with
+a client's participant), the agent's participant is the newcomer as in (b).
+
 The announcement period is checked directly: a socket on the unicast discovery port of the 32nd
 participant of the test's domain (where the agent's participant sends every announcement under
 LOCALHOST) counts the agent's announcements over 3 s, about 6 with the profile and 1 without.
@@ -36,7 +39,7 @@ import time
 import pytest
 
 from agent_process import AgentProcess
-from ros_helpers import ros_domain  # noqa: F401
+from ros_helpers import ros_domain, wait_until  # noqa: F401
 from xrce.client import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
@@ -45,6 +48,7 @@ SLOW_S = 1.5
 DELIVERY_S = 5.0
 TRIALS_A = 5
 TRIALS_B = 3
+IDLE_S = 3.0
 SPDP_WRITER = 0x000100C2
 
 _SUBSCRIBER = """
@@ -148,6 +152,42 @@ def test_subscriber_then_agent_then_client(ros_domain):  # noqa: F811
     assert_fast_enough(delays, slow_allowed=1)
 
 
+def test_subscriber_then_idle_agent_then_client(ros_domain):  # noqa: F811
+    """The agent joins a domain only with a client's participant: an agent that sat idle beside
+    the subscriber has no participant the subscriber knows, and the first sample must still come
+    within the discovery bound once a client connects (the agent's participant is then the
+    newcomer, as in order (b)). Each trial starts with the domain left again."""
+    delays = []
+    topic = "/discovery_order_idle_%d" % os.getpid()
+    subscriber = Subscriber(topic)
+    try:
+        with AgentProcess("udp4", "-m", "dds", "--domain-linger", "0.5") as agent:
+            for trial in range(TRIALS_B):
+                assert wait_until(lambda: not participant_threads(agent.proc.pid), 20)
+                time.sleep(IDLE_S)
+                delays.append(first_sample_delay(agent.port, ros_domain, topic, subscriber,
+                                                 0x22D00000 + trial))
+                subscriber.arrivals.clear()
+    finally:
+        subscriber.close()
+    assert_fast_enough(delays, slow_allowed=1)
+
+
+def participant_threads(pid):
+    """The Fast DDS threads of participants in process ``pid`` (dds.udp.7400, dds.ev.0,
+    dds.asyn.0.0, dds.shm.7411, ...; Python's threads keep the process's name). Not the
+    shared-memory watchdog (dds.shm.wdog): a process-wide singleton that Fast DDS starts with the
+    first participant and keeps until the process ends (it wakes once a second)."""
+    names = []
+    for tid in os.listdir("/proc/%d/task" % pid):
+        try:
+            with open("/proc/%d/task/%s/comm" % (pid, tid)) as comm:
+                names.append(comm.read().strip())
+        except OSError:
+            pass
+    return [name for name in names if name.startswith("dds.") and name != "dds.shm.wdog"]
+
+
 def assert_fast_enough(delays, slow_allowed):
     assert all(d is not None for d in delays), "a trial saw no sample within %.1f s: %r" % (
         DELIVERY_S, delays)
@@ -180,8 +220,14 @@ def test_agent_announces_its_participant_every_half_second(ros_domain):  # noqa:
     port = 7400 + 250 * ros_domain + 10 + 2 * 31
     listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     listener.bind(("127.0.0.1", port))
+    session = None
     try:
-        with AgentProcess("udp4", "-m", "dds"):
+        with AgentProcess("udp4", "-m", "dds") as agent:
+            # The agent has a participant in a domain once a client has one there.
+            session = Session(UdpTransport("127.0.0.1", agent.port), key=0x22C00000)
+            assert session.create()
+            session.create_participant(domain_id=ros_domain, name="announced")
+            assert session.run_until_all_status(5000), session.last_statuses
             time.sleep(1.0)  # past the participant's 5 initial announcements (100 ms apart)
             listener.setblocking(False)
             while True:  # what queued up since the bind: the initial ones, not the period
@@ -200,7 +246,10 @@ def test_agent_announces_its_participant_every_half_second(ros_domain):  # noqa:
                 sender = spdp_sender(datagram)
                 if sender is not None:
                     announcements[sender] += 1
+            session.delete()
     finally:
+        if session is not None:
+            session.close()
         listener.close()
     assert len(announcements) == 1, announcements  # the agent's participant, alone in the domain
     count = max(announcements.values())

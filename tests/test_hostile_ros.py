@@ -23,6 +23,7 @@ from test_msgs.srv import BasicTypes
 from agent_process import REPO, AgentProcess, child_pids
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce import constants as C
+from xrce.agent.middleware.ros import DOMAIN_LINGER_S
 from xrce.agent.observe.capture import decode_capture, read_capture
 from xrce.agent.observe.stats_view import fetch_stats, format_snapshot
 from xrce.client.session import Session
@@ -349,7 +350,9 @@ def test_a_domain_is_left_with_its_last_participant(ros_domain):  # noqa: F811
                         session.delete_entity(node)
                     assert session.run_until_all_status(20000), session.last_statuses
                 assert peak >= threads_before + len(leases)  # each domain had its threads
-                assert wait_until(lambda: agent_threads(pid) <= threads_before + 1, 15), \
+                # Left once the linger after its last participant has passed.
+                assert wait_until(lambda: agent_threads(pid) <= threads_before + 1,
+                                  DOMAIN_LINGER_S + 15), \
                     (threads_before, peak, agent_threads(pid))
                 print("agent threads %d -> %d with %d more domains -> %d after leaving them; "
                       "RSS %.1f -> %.1f MB" % (threads_before, peak, len(leases),

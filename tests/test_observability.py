@@ -220,28 +220,40 @@ def _main_thread_wakes_over(pid, seconds):
 
 
 def test_the_agent_sleeps_until_someone_subscribes_to_diagnostics(ros_peer, ros_domain):  # noqa: F811
-    """No client, no --stats-port, nobody on /diagnostics: the agent's loop thread does not wake
-    at all (it used to, once a second, to count rates nobody read). A subscription starts the
-    rounds (the publisher's matched event), its end stops them again."""
+    """No --stats-port, nobody on /diagnostics: the agent's loop thread does not wake at all (it
+    used to, once a second, to count rates nobody read), with no client and with a silent
+    client's participant in the domain. A subscription starts the rounds (the publisher's matched
+    event), its end stops them again. (The agent joins the domain, where /diagnostics goes out,
+    only with a client participant there.)"""
     from diagnostic_msgs.msg import DiagnosticArray
 
     with AgentProcess("udp4", "-m", "dds") as agent:
         pid = agent.proc.pid
-        time.sleep(2)  # start-up and DDS discovery settle
+        time.sleep(2)  # start-up settles
         assert _main_thread_wakes_over(pid, 3) <= 1
 
-        arrays = []
-        subscription = ros_peer.node.create_subscription(
-            DiagnosticArray, "/diagnostics", arrays.append,
-            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        assert wait_until(lambda: arrays, timeout_s=15), "no /diagnostics once subscribed"
-        assert arrays[-1].status[0].name == "xrce_agent"
+        session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+        try:
+            assert session.create(attempts=5, timeout_ms=1000)
+            session.create_participant(domain_id=ros_domain, name="silent")
+            assert session.run_until_all_status(5000), session.last_statuses
+            time.sleep(2)  # the domain's start-up and DDS discovery settle
+            assert _main_thread_wakes_over(pid, 3) <= 1
 
-        ros_peer.node.destroy_subscription(subscription)
-        time.sleep(2)  # the unmatch reaches the agent
-        count = len(arrays)
-        assert _main_thread_wakes_over(pid, 3) <= 1
-        assert len(arrays) == count
+            arrays = []
+            subscription = ros_peer.node.create_subscription(
+                DiagnosticArray, "/diagnostics", arrays.append,
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            assert wait_until(lambda: arrays, timeout_s=15), "no /diagnostics once subscribed"
+            assert arrays[-1].status[0].name == "xrce_agent"
+
+            ros_peer.node.destroy_subscription(subscription)
+            time.sleep(2)  # the unmatch reaches the agent
+            count = len(arrays)
+            assert _main_thread_wakes_over(pid, 3) <= 1
+            assert len(arrays) == count
+        finally:
+            session.close()
 
 
 def test_stats_json_finds_a_board_by_key_address_nodes_and_ros_names(ros_domain):  # noqa: F811

@@ -93,13 +93,14 @@ def check_paths(args):
         raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
 
 
-def make_middleware(name):
+def make_middleware(name, linger_s=None):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
         from xrce.agent.middleware.ced import CedMiddleware
         return CedMiddleware()
-    from xrce.agent.middleware.ros.entities import RosMiddleware
-    return RosMiddleware(park_creation=True)
+    from xrce.agent.middleware.ros.entities import DOMAIN_LINGER_S, RosMiddleware
+    return RosMiddleware(park_creation=True,
+                         linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s)
 
 
 def configure_logging(verbosity):
@@ -120,7 +121,7 @@ async def serve(args, refs):
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
 
-    middleware = make_middleware(args.middleware)
+    middleware = make_middleware(args.middleware, getattr(args, "domain_linger", None))
     agent = Agent(middleware, refs=refs, loop=loop,
                   client_dead_time=args.client_dead_time / 1000.0,
                   client_expire_time=args.client_expire_time / 1000.0,
@@ -137,9 +138,8 @@ async def serve(args, refs):
     run_task = None
     observe = None
     try:
-        # The middleware starts (the default ROS domain joined, the agent's node in it) before
-        # any link opens: no client is answered while rclpy builds, and a restarted agent's DDS
-        # participant is already being discovered when its clients come back.
+        # The middleware joins no ROS domain at start: each is joined with its first client
+        # participant (xrce.agent.middleware.ros.membership).
         await agent.start()
         run_task = asyncio.ensure_future(agent.run())
         try:

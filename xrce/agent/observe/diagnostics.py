@@ -4,6 +4,12 @@ where some node subscribes to it: one status for the agent, one per client, name
 client's tag (``names.client_tag``: the key itself is a credential, and the whole domain reads
 this), with its address, its nodes and domains and its topics and types as ROS names. Its
 content is an ``Observer`` snapshot (xrce.agent.observe.observability).
+
+The agent joins a ROS domain only with a client participant there (and stays for the linger after
+the last, ``xrce.agent.middleware.ros.membership``), so an agent without clients publishes no
+``/diagnostics``: publishing it would take the DDS participant the agent does not keep at rest,
+and with no client there is nothing to report but that the agent runs, which the stats port
+(``xrce-agent stats``) and SIGUSR1 still tell.
 """
 
 from __future__ import annotations

@@ -350,29 +350,39 @@ class Observability:
         if self.stats_server is not None:
             await self.stats_server.start()
         if self.diagnostics is not None:
-            self.diagnostics.middleware.add_domain_listener(self._watch_domain)
+            self.diagnostics.middleware.add_domain_listener(self._watch_domain,
+                                                            self._forget_domain)
         self._update_rounds()
 
     def _watch_domain(self, domain_id: int) -> None:
         publisher = self.diagnostics.publisher(domain_id, self._update_rounds)
         if publisher is None:
             return
-        self._diagnostics_publishers.append(publisher)
+        self._diagnostics_publishers.append((domain_id, publisher))
+        self._update_rounds()
+
+    def _forget_domain(self, domain_id: int) -> None:
+        # A domain left takes its subscribers' matches with it, and no unmatched event comes
+        # from a destroyed publisher: without this the round would go on waking the loop.
+        self._diagnostics_publishers = [entry for entry in self._diagnostics_publishers
+                                        if entry[0] != domain_id]
         self._update_rounds()
 
     def _rounds_needed(self) -> bool:
         # A publisher's matched_events is known once it is made (after the domain's first
         # client, whose node goes first), and it calls _update_rounds then.
-        if any(not publisher.matched_events for publisher in self._diagnostics_publishers):
+        if any(not publisher.matched_events for _, publisher in self._diagnostics_publishers):
             self._diagnostics_unmatched_events = True
-        if self._always or self._diagnostics_unmatched_events:
+        if self._always:
             return True
-        for publisher in list(self._diagnostics_publishers):
+        if self._diagnostics_unmatched_events:  # no matched events: a domain joined is enough
+            return bool(self._diagnostics_publishers)
+        for entry in list(self._diagnostics_publishers):
             try:
-                if publisher.subscriber_count():
+                if entry[1].subscriber_count():
                     return True
-            except Exception:  # destroyed with its domain (left, or the agent shutting down)
-                self._diagnostics_publishers.remove(publisher)
+            except Exception:  # destroyed with its domain (the agent shutting down)
+                self._diagnostics_publishers.remove(entry)
         return False
 
     def _update_rounds(self) -> None:

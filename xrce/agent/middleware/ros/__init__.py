@@ -11,5 +11,10 @@
 - ``deferred`` and ``rclpy_services``: what rclpy imports and starts that the agent never uses,
   kept from loading.
 
-Nothing here is imported by a ``-m ced`` agent: this package imports nothing itself.
+Nothing here is imported by a ``-m ced`` agent: this package imports nothing itself, so the
+command line reads its defaults here without loading rclpy.
 """
+
+# Seconds a ROS domain stays joined after its last client participant has gone (``membership``;
+# ``--domain-linger``). Why this long: docs/PERFORMANCE.md, "Agent restart and discovery".
+DOMAIN_LINGER_S = 10.0

@@ -38,7 +38,7 @@ from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.observe.names import client_tag
 from xrce.agent.middleware.ros.creation import ParkedCreation
 from xrce.agent.middleware.ros.graph import GRAPH_SPEC
-from xrce.agent.middleware.ros.membership import RosDomains, default_domain_id
+from xrce.agent.middleware.ros.membership import DOMAIN_LINGER_S, RosDomains
 from xrce.agent.middleware.ros.mismatch import MismatchWatch, TypeWatch
 from xrce.agent.middleware.ros.records import (
     GroupRecord,
@@ -62,10 +62,12 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
 
     def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
-                 idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False):
+                 idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False,
+                 linger_s: float = DOMAIN_LINGER_S):
         """``park_creation``: an entity's creation on the executor thread does not hold up the
         loop (``xrce.agent.middleware.ros.creation``); for the engine, which parks the creating client.
-        Without it, ``create_*`` wait for the executor (direct callers, tests)."""
+        Without it, ``create_*`` wait for the executor (direct callers, tests). ``linger_s``: how
+        long a domain stays joined after its last client participant (``membership``)."""
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (self.executor_kind,))
@@ -73,6 +75,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         self.request_timeout_s = request_timeout_s
         self.entity_timeout_s = entity_timeout_s
         self.idle_wait_s = idle_wait_s
+        self.linger_s = linger_s
         self.requests_timed_out = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._domains: dict[int, DomainRuntime] = {}
@@ -85,7 +88,9 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
         self._agent_publishers: dict[tuple, object] = {}
         self._domain_listeners: list = []  # called with each domain id joined (loop thread)
-        self._home_domain = default_domain_id()  # joined at start, kept (_leave_if_unused)
+        self._leave_listeners: list = []  # and with each domain id left
+        # domain id -> the loop's timer that leaves a domain without participants (membership)
+        self._lingering: dict = {}
         self._leaving: list = []  # threads stopping domains whose last participant went
         self.park_creation = park_creation
         # key -> Creation: entities being created on an executor thread while their client is
@@ -155,9 +160,14 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         try:
             node, _ = self._create_on_executor(key, ParticipantRecord(domain, None), make_node,
                                                destroy_node)
-        except MiddlewareError:
+        except TypeNotReady:
             raise
         except Exception as exc:
+            # A domain joined for a participant whose node was not made (refused, or the
+            # executor did not answer in time) is not kept for nothing.
+            self._leave_if_unused(domain)
+            if isinstance(exc, MiddlewareError):
+                raise
             raise MiddlewareError("cannot create node %r: %s" % (name, exc)) from exc
         finally:
             if started:  # after the node's job: the agent's own entities come after its STATUS
@@ -396,47 +406,26 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
     # -- lifecycle ----------------------------------------------------------------------------
 
     async def start(self) -> None:
+        # No ROS domain is joined here, not even the default one: a DDS participant at rest
+        # discovers and answers every other participant of the network and its Fast DDS threads
+        # wake ~13 times a second. The first client participant of a domain joins it
+        # (``membership``); what that does to the discovery figures is in docs/PERFORMANCE.md,
+        # "Agent restart and discovery".
         self._loop = asyncio.get_running_loop()
-        # Join the default ROS domain now, with the agent's own node in it (the wake-up's anchor,
-        # made by the first job): rmw_fastrtps creates the DDS participant with a context's
-        # first node, not with the context. A client that connects (or reconnects after an agent
-        # restart) then only adds a node to a participant its peers already discovered, instead
-        # of waiting for a new participant to be discovered; one that reconnects the moment the
-        # agent is back finds the domain in ``_domains`` and queues behind this (measured with
-        # bench/restart_gap.py, a cold start with the client already waiting: 2.4-3.3 s to the
-        # first sample in ROS before, 0.4-0.5 s after). The CLI opens its links only after
-        # this, so building the node never competes with answering a client (a robot's first
-        # time sync over a pty came out up to 2 ms off when it did).
-        domain_id = self._home_domain
-        runtime = None
-        try:
-            runtime, _started = self._domain(domain_id)
-            await asyncio.wait_for(asyncio.wrap_future(runtime.submit(runtime.make_wake)),
-                                   self.entity_timeout_s)
-        except (MiddlewareError, asyncio.TimeoutError) as exc:
-            # The agent still serves; a domain that failed is started again on first use.
-            log.warning("ROS domain %d: the agent node is not up yet: %s", domain_id,
-                        exc or "timed out")
-            if runtime is None or runtime.failed is not None:
-                return
-        self._joined(domain_id)
-        # The listeners' entities (/diagnostics) too, before any client is served: they would
-        # hold up the first client's node (by 3-10 ms, measured, bench/entity_creation.py).
-        try:
-            await asyncio.wait_for(asyncio.wrap_future(runtime.submit(lambda: None)),
-                                   self.entity_timeout_s)
-        except (MiddlewareError, asyncio.TimeoutError):
-            log.warning("ROS domain %d: the agent's own entities are not up yet", domain_id)
 
     async def close(self) -> None:
         if self._closed:
             return
         self._closed = True
+        for lingering in self._lingering.values():
+            lingering.cancel()
+        self._lingering.clear()
         self._agent_publishers.clear()
         for feed, _readers in self._graph_feeds.values():
             feed.stop()
         self._graph_feeds.clear()
         self._domain_listeners.clear()
+        self._leave_listeners.clear()
         for record in self._entities.values():
             if record.kind != "participant":
                 self._detach(record)

@@ -2,18 +2,20 @@
 what it keeps per domain besides its clients' entities.
 
 A domain is joined when a client's participant first asks for it (its thread and rclpy context:
-``xrce.agent.middleware.ros.domain``) and left with its last client participant, the default
-domain excepted; listeners hear of each domain joined. Per domain the agent may also have
+``xrce.agent.middleware.ros.domain``), the default domain too: an agent without clients has no DDS
+participant, context or executor thread at all. A domain whose last client participant has gone
+is left ``linger_s`` later (``DOMAIN_LINGER_S``, ``--domain-linger``) unless a participant comes
+back meanwhile; listeners hear of each domain joined and left. Per domain the agent may also have
 publishers of its own (``AgentPublisher``, e.g. /diagnostics) and micro-ROS' graph publication
 (``xrce.agent.middleware.ros.graph``), kept only while a client reads the graph topic there.
 """
 
 from __future__ import annotations
 
-import os
 import threading
 
 from xrce.agent.middleware import EntityKey, MiddlewareError
+from xrce.agent.middleware.ros import DOMAIN_LINGER_S  # noqa: F401  (re-exported for callers)
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
 from xrce.agent.middleware.ros.graph import GRAPH_TYPE, GraphFeed
 from xrce.agent.middleware.ros.raw_types import raw_message_type
@@ -44,14 +46,6 @@ class AgentPublisher:
         return 0 if publisher is None else publisher.get_subscription_count()
 
 
-def default_domain_id() -> int:
-    """The domain joined at start and kept while the agent runs (``RosMiddleware.start``)."""
-    try:
-        return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
-    except ValueError:
-        return 0
-
-
 def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
     domain.stop(timeout_s)
     from xrce.agent.engine.dispatch import _return_free_heap
@@ -61,9 +55,9 @@ def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
 
 class RosDomains:
     """Domains of ``RosMiddleware``, which mixes this class in: the methods use its ``_closed``,
-    ``_domains``, ``_home_domain``, ``_leaving``, ``_domain_listeners``, ``_agent_publishers``,
-    ``_graph_feeds``, ``_entities``, ``_creating``, ``executor_kind``, ``idle_wait_s``,
-    ``entity_timeout_s`` and ``_get_loop``."""
+    ``_domains``, ``_lingering``, ``linger_s``, ``_leaving``, ``_domain_listeners``,
+    ``_leave_listeners``, ``_agent_publishers``, ``_graph_feeds``, ``_entities``, ``_creating``,
+    ``executor_kind``, ``idle_wait_s``, ``entity_timeout_s`` and ``_get_loop``."""
 
     # -- joining and leaving ------------------------------------------------------------------
 
@@ -75,6 +69,9 @@ class RosDomains:
         A domain whose context could not start is started again on the next call."""
         if self._closed:
             raise MiddlewareError("middleware is closed")
+        lingering = self._lingering.pop(domain_id, None)
+        if lingering is not None:  # a participant is back within the linger: the domain stays
+            lingering.cancel()
         domain = self._domains.get(domain_id)
         if domain is not None and domain.failed is None:
             return domain, False
@@ -98,10 +95,12 @@ class RosDomains:
             except Exception:
                 log.warning("domain %d: a listener failed", domain_id, exc_info=True)
 
-    def add_domain_listener(self, listener) -> None:
+    def add_domain_listener(self, listener, left=None) -> None:
         """Call ``listener(domain_id)`` on the loop's thread for every ROS domain the agent has
-        joined and joins from now on."""
+        joined and joins from now on, and ``left(domain_id)`` for each it leaves."""
         self._domain_listeners.append(listener)
+        if left is not None:
+            self._leave_listeners.append(left)
         for domain_id in list(self._domains):
             listener(domain_id)
 
@@ -110,26 +109,56 @@ class RosDomains:
         its DDS participant there exists."""
         return [domain_id for domain_id, domain in self._domains.items() if domain.joined]
 
+    def _in_use(self, domain: DomainRuntime) -> bool:
+        return any(r.kind == "participant" and r.domain is domain
+                   for r in self._entities.values()) or \
+            any(c.domain is domain for c in self._creating.values())
+
     def _leave_if_unused(self, domain: DomainRuntime) -> None:
-        """Tear a domain down with its last client participant: its DDS participant, context and
-        executor thread (one client joining domains 1..20 and deleting its participants there
-        left 32 MB and 180 threads behind; now 3 MB and none, bench/hostile_ros.py). The default
-        domain stays joined (see ``start``). The thread is joined off the loop; ``close`` waits
-        for it."""
+        """Leave a domain once no client participant is in it (or being made there) for
+        ``linger_s``; a participant made there meanwhile keeps it (``_domain``). Not at once: a
+        board that resets or reconnects within seconds (a serial board is replaced by its next
+        life at its first CREATE_CLIENT, an rclc program restarted) would pay a domain join, and
+        its ROS peers a new participant's discovery, each life (the figures behind
+        ``DOMAIN_LINGER_S`` are in docs/PERFORMANCE.md)."""
         domain_id = domain.domain_id
-        if self._closed or domain_id == self._home_domain or \
-                self._domains.get(domain_id) is not domain:
+        if self._closed or self._domains.get(domain_id) is not domain or \
+                domain_id in self._lingering or self._in_use(domain):
             return
-        if any(r.kind == "participant" and r.domain is domain for r in self._entities.values()) \
-                or any(c.domain is domain for c in self._creating.values()):
+        if self.linger_s <= 0:
+            self._leave(domain)
             return
+        log.debug("ROS domain %d has no participant left: leaving it in %.1f s unless one comes",
+                  domain_id, self.linger_s)
+        self._lingering[domain_id] = self._get_loop().call_later(
+            self.linger_s, self._linger_over, domain)
+
+    def _linger_over(self, domain: DomainRuntime) -> None:
+        if self._lingering.get(domain.domain_id) is None:
+            return
+        del self._lingering[domain.domain_id]
+        if not self._closed and self._domains.get(domain.domain_id) is domain and \
+                not self._in_use(domain):
+            self._leave(domain)
+
+    def _leave(self, domain: DomainRuntime) -> None:
+        """Tear a domain down: its DDS participant, context and executor thread (one client
+        joining domains 1..20 and deleting its participants there left 32 MB and 180 threads
+        behind; now 3 MB and none, bench/hostile_ros.py). The thread is joined off the loop;
+        ``close`` waits for it. Leave listeners hear of it first, while nothing is destroyed."""
+        domain_id = domain.domain_id
         del self._domains[domain_id]
         feed = self._graph_feeds.pop(domain_id, None)
         if feed is not None:
             feed[0].stop()  # its periodic check; its writer goes with the domain's nodes
         for publisher_key in [k for k in self._agent_publishers if k[0] == domain_id]:
             del self._agent_publishers[publisher_key]
-        log.debug("ROS domain %d has no participant left: leaving it", domain_id)
+        for listener in list(self._leave_listeners):
+            try:
+                listener(domain_id)
+            except Exception:
+                log.warning("domain %d: a listener failed", domain_id, exc_info=True)
+        log.debug("leaving ROS domain %d", domain_id)
         stopping = threading.Thread(target=_leave_domain, args=(domain, self.entity_timeout_s),
                                     name="xrce-leave-domain-%d" % domain_id, daemon=True)
         stopping.start()
