@@ -188,6 +188,10 @@ class CustomTransport:
                 byte ^= _ESCAPE_XOR
             out[n] = byte
             n += 1
+            if n >= _PIECE - 1 and not k:  # the check byte after it, escaped, must fit too
+                if not self._piece(n):
+                    return False
+                n = 0
         return self._piece(n)
 
     def _piece(self, n):

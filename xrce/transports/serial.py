@@ -215,6 +215,10 @@ class SerialTransport:
                 byte ^= ESCAPE_XOR
             out[n] = byte
             n += 1
+            if n >= _OUT_CHUNK - 1 and not k:  # the check byte after it, escaped, must fit too
+                if not self._write_out(n):
+                    return False
+                n = 0
         return self._write_out(n)
 
     def _write_out(self, count):
