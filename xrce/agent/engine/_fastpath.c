@@ -65,9 +65,13 @@ static Client *find_client(Receiver *self, const uint8_t *data, const struct soc
 void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t seq, size_t length) {
     stream->last_seq = seq;
     if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
-    if (!stream->ack_due && self->pending_count < PENDING_ACKS) {
-        self->pending[self->pending_count].client = client;
-        self->pending[self->pending_count++].stream = stream;
+    if (!stream->ack_due) {
+        if (self->pending_count < PENDING_ACKS) {
+            self->pending[self->pending_count].client = client;
+            self->pending[self->pending_count++].stream = stream;
+        } else {
+            self->pending_overflow = 1;  /* fold's walk finds it: Python acknowledges it */
+        }
     }
     stream->ack_due = 1;
     count_message(self, client, length);
@@ -169,7 +173,7 @@ static int try_fast_timestamp(Receiver *self, Client *c, const uint8_t *data, si
 }
 
 /* Publish the datagram here if all of it is fast; 0 when Python must have it. Called locked. */
-static int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
+int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from) {
     if (!self->enabled || rcl_publish_serialized == NULL || length < 12) return 0;
     uint8_t session_id = data[0];
     if ((session_id & 0x7F) == 0) return 0;
@@ -254,22 +258,29 @@ int send_stream_acknack(Receiver *self, Client *c, Stream *s, uint16_t bitmap) {
 /* The ACKNACK each pending stream owes, sent here as xrce.agent.engine.liveliness._send_acknack
  * would (the same bytes: a test holds them equal), when Python holds nothing out of order for it
  * (last_announced is last_seq: the NACK bitmap is empty). A stream that does not qualify, or whose
- * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch read() handled
- * whole, on the last read of a wake-up, while Python has no ACKNACK of its own queued: so a
- * stream gets one ACKNACK per wake-up, as on the Python path. */
-static void send_due_acknacks(Receiver *self) {
+ * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch handled whole
+ * (read(): on the last read of a wake-up, while Python has no ACKNACK of its own queued), so a
+ * stream gets one ACKNACK per batch, as on the Python path. Returns how many streams still owe
+ * one (Python's to send). */
+int send_due_acknacks(Receiver *self) {
+    int owing = self->pending_overflow;
+    self->pending_overflow = 0;
     for (int i = 0; i < self->pending_count; i++) {
         Client *c = self->pending[i].client;
         Stream *s = self->pending[i].stream;
-        if (!s->ack_due || !c->enabled || s->last_announced != s->last_seq) continue;
-        if (send_stream_acknack(self, c, s, 0)) s->ack_due = 0;  /* 0: nothing missing */
+        if (!s->ack_due) continue;
+        if (c->enabled && s->last_announced == s->last_seq && send_stream_acknack(self, c, s, 0))
+            s->ack_due = 0;  /* 0: nothing missing */
+        else
+            owing++;
     }
     self->pending_count = 0;
+    return owing;
 }
 
 /* ----------------------------------------------------------------------------- Python side */
 
-static PyObject *address_tuple(const struct sockaddr_storage *addr) {
+PyObject *address_tuple(const struct sockaddr_storage *addr) {
     char text[INET6_ADDRSTRLEN];
     if (addr->ss_family == AF_INET) {
         const struct sockaddr_in *a = (const void *)addr;
@@ -286,16 +297,37 @@ static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
     static char *names[] = {"sock", NULL};
     if (!PyArg_ParseTupleAndKeywords(args, kwargs, "i", names, &self->sock)) return -1;
     pthread_mutex_init(&self->mutex, NULL);
+    self->control_fd = self->notify_fd = -1;
     self->enabled = 1;
     self->next_handle = 1;
     return 0;
 }
 
 static void Receiver_dealloc(Receiver *self) {
+    stop_receive_thread(self);  /* before the tables it reads go */
     for (Client *c = self->clients, *n; c; c = n) { n = c->next; free_client(c); }
     if (self->buffers) munmap(self->buffers, (size_t)BATCH * MAX_DATAGRAM);
     pthread_mutex_destroy(&self->mutex);
     Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* The batch's buffers, BATCH * 64 KB mapped once: only the pages datagrams touch become
+ * resident. -1 (errno set) if the mapping failed. */
+int map_buffers(Receiver *self) {
+    if (self->buffers != NULL) return 0;
+    void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
+                     MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (map == MAP_FAILED) return -1;
+    self->buffers = map;
+    for (int i = 0; i < BATCH; i++) {
+        self->vectors[i].iov_base = self->buffers[i];
+        self->vectors[i].iov_len = MAX_DATAGRAM;
+        self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
+        self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
+        self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
+        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
+    }
+    return 0;
 }
 
 /* read([may_acknowledge]) -> (datagrams for Python, more): one recvmmsg batch from the
@@ -311,20 +343,11 @@ static PyObject *Receiver_read(Receiver *self, PyObject *const *args, Py_ssize_t
         return NULL;
     }
     if (nargs == 1 && (may_acknowledge = PyObject_IsTrue(args[0])) < 0) return NULL;
-    if (self->buffers == NULL) {
-        void *map = mmap(NULL, (size_t)BATCH * MAX_DATAGRAM, PROT_READ | PROT_WRITE,
-                         MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-        if (map == MAP_FAILED) return PyErr_SetFromErrno(PyExc_OSError);
-        self->buffers = map;
-        for (int i = 0; i < BATCH; i++) {
-            self->vectors[i].iov_base = self->buffers[i];
-            self->vectors[i].iov_len = MAX_DATAGRAM;
-            self->messages_hdr[i].msg_hdr.msg_iov = &self->vectors[i];
-            self->messages_hdr[i].msg_hdr.msg_iovlen = 1;
-            self->messages_hdr[i].msg_hdr.msg_name = &self->sources[i];
-            self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
-        }
+    if (self->running) {  /* the thread owns the buffers and the socket's reads */
+        PyErr_SetString(PyExc_RuntimeError, "the receive thread reads this socket");
+        return NULL;
     }
+    if (map_buffers(self) < 0) return PyErr_SetFromErrno(PyExc_OSError);
     int count, handled = 0, error = 0;
     Py_BEGIN_ALLOW_THREADS  /* rclpy's executor thread may run meanwhile */
     count = recvmmsg(self->sock, self->messages_hdr, BATCH, MSG_DONTWAIT, NULL);
@@ -419,6 +442,7 @@ static PyObject *Receiver_fold(Receiver *self, PyObject *unused) {
     self->acknacks = self->acknack_bytes = self->timestamp_replies = 0;
     self->timestamp_reply_bytes = 0;
     self->pending_count = 0;  /* every ack_due was just handed to Python */
+    self->pending_overflow = 0;
     pthread_mutex_unlock(&self->mutex);
     if (!failed && totals) result = Py_BuildValue("(NOOO)", totals, clients, writers, acks);
     else Py_XDECREF(totals);
@@ -459,6 +483,13 @@ static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
 static PyMethodDef Receiver_methods[] = {
     {"read", (PyCFunction)(void (*)(void))Receiver_read, METH_FASTCALL,
      "read([may_acknowledge]) -> ([(datagram, address)] for Python, more)"},
+    /* _receive_thread.c */
+    {"start", (PyCFunction)Receiver_start, METH_O, "start(notify_fd): read on a thread of its own"},
+    {"stop", (PyCFunction)Receiver_stop, METH_NOARGS, NULL},
+    {"take", (PyCFunction)Receiver_take, METH_NOARGS, "take() -> [(datagram, address)] for Python"},
+    {"pause", (PyCFunction)Receiver_pause, METH_NOARGS, NULL},
+    {"resume", (PyCFunction)Receiver_resume, METH_NOARGS, NULL},
+    {"handoff_dropped", (PyCFunction)Receiver_handoff_dropped, METH_NOARGS, NULL},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
     {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
     {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},

@@ -116,6 +116,15 @@ typedef struct Client {
     int has_skew;
 } Client;
 
+/* A datagram the receive thread leaves to Python (_receive_thread.c), in arrival order. */
+typedef struct Handed {
+    struct Handed *next;
+    size_t length;
+    struct sockaddr_storage from;
+    socklen_t from_len;
+    uint8_t data[];
+} Handed;
+
 typedef struct {
     PyObject_HEAD
     int sock;
@@ -134,11 +143,22 @@ typedef struct {
      * by fold's walk instead): read() acknowledges these without walking every client. */
     struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
     int pending_count;
+    int pending_overflow;  /* a stream owed one past PENDING_ACKS: only fold's walk has it */
     /* BATCH * 64 KB mapped lazily: only the pages datagrams touch become resident. */
     uint8_t (*buffers)[MAX_DATAGRAM];
     struct mmsghdr messages_hdr[BATCH];
     struct iovec vectors[BATCH];
     struct sockaddr_storage sources[BATCH];
+    /* The receive thread (_receive_thread.c); running: started and not yet stopped. Python
+     * writes control_fd's counter to make the thread look at stopping and the hand-off again; the
+     * thread writes notify_fd (Python's eventfd) once per hand-off not yet taken (notified). */
+    pthread_t thread;
+    int running, stopping, control_fd, notify_fd, notified;
+    int paused;  /* Python's pause() calls not yet resumed: everything is Python's meanwhile */
+    Handed *handoff_head, *handoff_tail;
+    int handoff_count;
+    size_t handoff_bytes;
+    uint64_t handoff_dropped;
 } Receiver;
 
 static inline int64_t now_ns(void) {
@@ -180,7 +200,21 @@ static inline Client *client_by_handle(Receiver *self, long handle) {
     return NULL;
 }
 
-/* _reliable_out.c */
+/* _fastpath.c */
+int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from);
+int send_due_acknacks(Receiver *self);
+int map_buffers(Receiver *self);
+PyObject *address_tuple(const struct sockaddr_storage *addr);
+
+/* _receive_thread.c */
+void stop_receive_thread(Receiver *self);
+PyObject *Receiver_start(Receiver *self, PyObject *arg);
+PyObject *Receiver_stop(Receiver *self, PyObject *unused);
+PyObject *Receiver_take(Receiver *self, PyObject *unused);
+PyObject *Receiver_pause(Receiver *self, PyObject *unused);
+PyObject *Receiver_resume(Receiver *self, PyObject *unused);
+PyObject *Receiver_handoff_dropped(Receiver *self, PyObject *unused);
+
 /* _receiver_tables.c */
 void free_client(Client *client);
 int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_t *len);
@@ -196,6 +230,7 @@ PyObject *Receiver_stream_seq(Receiver *self, PyObject *args);
 PyObject *Receiver_add_writer(Receiver *self, PyObject *args);
 PyObject *Receiver_remove_writer(Receiver *self, PyObject *args);
 
+/* _reliable_out.c */
 int try_fast_acknack(Receiver *self, Client *client, const uint8_t *data, size_t length);
 void free_out_streams(Client *client);
 PyObject *Receiver_add_out_stream(Receiver *self, PyObject *args);

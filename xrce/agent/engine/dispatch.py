@@ -221,7 +221,23 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
         loop timer for the next (``run()`` calls it from there; tests call it directly)."""
         with self.lock:
-            self._tick_locked()
+            # The compiled path's thread hands everything over while liveliness and parking
+            # are judged: it takes no datagram of a client found dead until sync() has told it.
+            for fastpath in self.fastpaths:
+                fastpath.pause()
+            try:
+                self._tick_locked()
+            finally:
+                for fastpath in self.fastpaths:
+                    fastpath.resume()
+
+    def fold_compiled(self) -> None:
+        """Bring the counters of the compiled receive paths' threads into the engine's (before
+        statistics are read: those threads never wake Python to count)."""
+        with self.lock:
+            for fastpath in self.fastpaths:
+                if fastpath.clients:
+                    fastpath.fold()
 
     def _tick_locked(self) -> None:
         self._resume_parked_locked()

@@ -1,10 +1,14 @@
 """The UDP link's optional compiled receive path (``xrce/agent/engine/_fastpath.c``), Python side.
 
-When the extension is built and the middleware is rclpy, the UDP link's read goes through C: one
-``recvmmsg`` batch, best-effort WRITE_DATA of registered writers published straight through rcl
-(and on reliable streams, a datagram of one WRITE_DATA that is the next in order), and from the first datagram that needs Python on, the rest of the batch handed back unchanged and in
-order to the link's usual ``_deliver``. Same thread, same wake-ups as the Python read.
-``XRCE_FASTPATH=0`` (or a missing extension, or another middleware) leaves the pure Python path.
+When the extension is built and the middleware is rclpy, a thread of the extension's own reads
+the UDP link's socket (``_receive_thread.c``): ``recvmmsg`` batches, best-effort WRITE_DATA of
+registered writers published straight through rcl (and on reliable streams, a datagram of one
+WRITE_DATA that is the next in order, or a FRAGMENT of one), the board's HEARTBEATs, plain
+ACKNACKs and TIMESTAMPs answered, all without the interpreter. Whatever C leaves (creation, pings,
+gaps, a client C may not serve) is handed over in arrival order, and from it on every later
+datagram too until Python has handled them: an eventfd wakes the loop, ``handed_over`` delivers
+them to the link's usual ``_deliver``. ``XRCE_FASTPATH=0`` (or a missing extension, or another
+middleware) leaves the pure Python path, the loop reading the socket.
 
 What is fast is decided here, one piece at a time, when the Python path has just handled a
 best-effort or in-order reliable sample (``DataPath._fast_write`` calls ``offer``): the client (by
@@ -14,10 +18,12 @@ C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStre
 ``xrce.agent.engine.compiled_streams``, so the numbers have one owner) and the writer (its rcl
 publisher, which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
-pending) and every client while the capture tap or the -v 6 trace is on are left to Python. C's
-counters are folded into the agent's, the link's, the clients' and the writers' after every read,
-and each reliable stream C delivered on gets its ACKNACK: from C at the end of the wake-up when
-Python has none of its own queued (``read``'s argument), else through ``_acknack_soon``.
+pending) and every client while the capture tap or the -v 6 trace is on are left to Python; the
+thread is paused while Python decides that (``handed_over``, the engine's timed work), so C never
+takes a datagram Python would judge differently. C's counters are folded into the agent's, the
+link's, the clients' and the writers' whenever Python runs for the link (a hand-over, the timed
+work, which folds before it judges liveliness, and every read of the statistics); a reliable
+stream whose ACKNACK only Python can write (a NACK to send) wakes Python for it.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
 A registered client's TIMESTAMPs are answered in C (PX4's time sync counts only fast round trips).
@@ -47,14 +53,6 @@ try:
     from xrce.agent.engine import _fastpath
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
-
-READ_ROUNDS = 4  # recvmmsg batches (64 datagrams each) per readiness event of the socket
-# How long C's counters may wait for Python when C took a whole wake-up's datagrams and no client
-# has a reliable input stream in C: PX4 sends 600+ best-effort datagrams a second, in ~400 wake-ups,
-# and folding after each was a fifth of the loop thread's time (bench/px4_load.py). Statistics,
-# last_seen and the writers' counters are then at most this late; the timed work and a deleted
-# client fold first, and so does every read that hands Python a datagram.
-FOLD_INTERVAL_S = 0.05
 
 
 def enabled_by_environment() -> bool:
@@ -128,8 +126,6 @@ class CompiledClient:
         path.receiver.remove_client(self.handle)
         path.clients.pop(self.handle, None)
         client.fast = None
-        path.reliable_in = any(other.fast is not None and other.fast.reliable
-                               for other in path.clients.values())
 
 
 class FastPath:
@@ -141,15 +137,17 @@ class FastPath:
         self.receiver = _fastpath.Receiver(sock.fileno())
         self.receiver.set_reassembly_limit(agent.max_reassembly_bytes or MAX_REASSEMBLY)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
-        self.reliable_in = False  # a client has a reliable input stream in C: fold every read
-        self.folded_at = 0.0  # time.monotonic() of the last fold
-        self.fold_timer = None  # the loop's handle of a fold due later (FOLD_INTERVAL_S)
+        self._loop = asyncio.get_running_loop()
+        # The thread writes it when it has handed datagrams over or wants a fold.
+        self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         agent.fastpaths.append(self)
+        self._loop.add_reader(self._wake_fd, self.handed_over)
+        self.receiver.start(self._wake_fd)
 
     def close(self) -> None:
-        if self.fold_timer is not None:
-            self.fold_timer.cancel()
-            self.fold_timer = None
+        self.receiver.stop()  # before the clients go: it reads their tables
+        self._loop.remove_reader(self._wake_fd)
+        os.close(self._wake_fd)
         with self.agent.lock:
             for client in list(self.clients.values()):
                 if client.fast is not None:
@@ -157,47 +155,47 @@ class FastPath:
         if self in self.agent.fastpaths:
             self.agent.fastpaths.remove(self)
 
-    def read_ready(self) -> None:
-        """The link's socket is readable (``loop.add_reader``)."""
+    def handed_over(self) -> None:
+        """The receive thread has datagrams for Python, or wants a fold (the loop's reader of the
+        eventfd). They are delivered in arrival order with the thread paused, so it takes none
+        of a client's datagrams while Python still holds an earlier one or is deciding (``sync``)
+        whether C may serve that client."""
+        try:
+            os.eventfd_read(self._wake_fd)
+        except BlockingIOError:
+            pass
         link = self.link
         stats = link.stats
-        read = self.receiver.read
-        handed = False
-        agent = self.agent
-        for _ in range(READ_ROUNDS):  # bounded: TCP and serial links share the loop
-            try:
-                # With no ACKNACK of Python's queued, C sends those it owes itself at the end of
-                # the wake-up, saving a turn of the loop; otherwise they join Python's (fold).
-                rest, more = read(not agent._acks_due)
-            except OSError as exc:
-                # ICMP errors (port unreachable after a client went away) arrive here on Linux.
-                log.debug("%s: socket error %s", link.name, exc)
-                continue
-            if rest and self.clients:
-                # What C did before the first datagram it left counts before Python handles that
-                # one: a reassembly's bytes (the client's budget) and the stream's ACKNACK.
+        receiver = self.receiver
+        receiver.pause()
+        try:
+            while True:
+                rest = receiver.take()
+                if rest and self.clients:
+                    # What C did before the first datagram it left counts before Python handles
+                    # that one: a reassembly's bytes (the client's budget) and the stream's ACKNACK.
+                    self.fold()
+                for data, addr in rest:
+                    stats.bytes_in += len(data)
+                    link._deliver(addr, data)
+                if not rest:
+                    break
+            dropped = receiver.handoff_dropped()
+            if dropped:
+                stats.drops += dropped
+            if self.clients:
                 self.fold()
-            for data, addr in rest:
-                stats.bytes_in += len(data)
-                link._deliver(addr, data)
-                handed = True
-            if not more:
-                break
-        if self.clients:
-            # No lock: these counters are only ever written on the loop's thread.
-            if handed or self.reliable_in or \
-                    time.monotonic() - self.folded_at >= FOLD_INTERVAL_S:
-                self.fold()
-                if handed:
-                    self.sync()
-            elif self.fold_timer is None:
-                self.fold_timer = asyncio.get_running_loop().call_at(
-                    self.folded_at + FOLD_INTERVAL_S, self._fold_later)
+                self.sync()
+        finally:
+            receiver.resume()  # what came meanwhile waits in the hand-off: the eventfd is set
 
-    def _fold_later(self) -> None:
-        self.fold_timer = None
-        if self.clients:
-            self.fold()
+    def pause(self) -> None:
+        """Python's engine is about to judge the clients (timed work): C hands everything over
+        until ``resume``."""
+        self.receiver.pause()
+
+    def resume(self) -> None:
+        self.receiver.resume()
 
     # -- registration ---------------------------------------------------------------------
 
@@ -229,7 +227,7 @@ class FastPath:
             client.in_reliable[stream_id] = CompiledReliableStream(self.receiver, state.handle,
                                                                    stream)
             state.streams.add(stream_id)
-            state.reliable = self.reliable_in = True
+            state.reliable = True
             self.receiver.set_room(state.handle, self.room(client))
             log.debug("client %s: reliable stream 0x%02X: samples in order take the compiled path",
                       client.key.hex(), stream_id)
@@ -277,7 +275,6 @@ class FastPath:
 
     def fold(self) -> None:
         """Move C's counters into the agent's, the link's, the clients' and the writers'."""
-        self.folded_at = time.monotonic()
         (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes, replies,
          reply_bytes), clients, writers, acks = self.receiver.fold()
         if acknacks or replies:

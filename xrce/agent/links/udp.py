@@ -98,9 +98,9 @@ class UdpServer(Link):
         self.port = sock.getsockname()[1]
         self._sock = sock
         from xrce.agent.engine import fastpath  # after the middleware started: it looks for rcl
-        self.fastpath = fastpath.attach(self, sock)
-        self._loop.add_reader(sock.fileno(), self._read_ready if self.fastpath is None
-                              else self.fastpath.read_ready)
+        self.fastpath = fastpath.attach(self, sock)  # its own thread reads the socket
+        if self.fastpath is None:
+            self._loop.add_reader(sock.fileno(), self._read_ready)
 
     def describe(self):
         return "%s agent on port %d" % (self.name, self.port)
@@ -125,10 +125,11 @@ class UdpServer(Link):
 
     async def close(self):
         if self._sock is not None:
-            self._loop.remove_reader(self._sock.fileno())
             if self.fastpath is not None:
                 self.fastpath.close()
                 self.fastpath = None
+            else:
+                self._loop.remove_reader(self._sock.fileno())
             self._sock.close()
             self._sock = None
 

@@ -125,6 +125,9 @@ class Observer:
         ``StatsServer``), None otherwise."""
         now = self.clock()
         agent = self.agent
+        fold = getattr(agent, "fold_compiled", None)
+        if fold is not None:
+            fold()
         clients = []
         for client in list(agent.clients.values()):
             rates = self._rates.get(("client", client.key), (0.0, 0.0, 0.0, 0.0))
