@@ -7,6 +7,7 @@ deleted writer and a restarted session. Then the C parser alone against hostile 
 """
 
 import datetime
+import os
 import random
 import time
 
@@ -438,16 +439,19 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
     server.bind(("127.0.0.1", 0))
     client.bind(("127.0.0.1", 0))
     receiver = fastpath.Receiver(server.fileno())
+    wake = os.eventfd(0, os.EFD_NONBLOCK)
     try:
         address = client.getsockname()
         handle = receiver.add_client(0x01, KEY, address)
         receiver.add_stream(handle, 0x80, 4, 4)
         receiver.add_writer(handle, 0x0015, ctypes.addressof(invalid))
+        receiver.start(wake)  # the receive thread reads the socket from now on
         datagram = keyed_datagram(5, stream_id=0x80)
         client.sendto(datagram, server.getsockname())
-        assert wait_until(lambda: select_readable(server), 5)
-        rest, _more = receiver.read()
-        assert rest == [(datagram, address)]
+        assert wait_until(lambda: select_readable(wake), 5)  # the thread handed it over
+        os.eventfd_read(wake)
+        assert receiver.take() == [(datagram, address)]
+        assert receiver.resume()  # nothing else waits: the thread may take datagrams again
         assert receiver.reliable_state(handle, 0x80) == (4, 4)
         assert receiver.fold() == ((0,) * 9, [], [], [])
 
@@ -457,19 +461,34 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
         totals, clients, writers, acks = receiver.fold()
         assert totals == (1, len(datagram), 1, 0, 0, 0, 0, 0, 0) and acks == [(handle, 0x80)]
 
-        # Read with Python's leave (no ACKNACK of its own queued): the one owed is sent here,
-        # byte for byte what Python sends, and counted; none is left for Python.
+        # Taken by the thread: the ACKNACK owed is sent there at the end of its batch, byte for
+        # byte what Python sends, and counted; none is left for Python, nothing handed over.
         from xrce.submessages import AckNack, encode_message
         receiver.set_reliable_state(handle, 0x80, 4, 4)
         client.sendto(datagram, server.getsockname())
-        assert wait_until(lambda: select_readable(server), 5)
-        assert receiver.read(True) == ([], False)
         acknack = encode_message(0x01, 0, 0, KEY, [AckNack(6, 0, 0x80)])
         client.settimeout(5)
         assert client.recv(64) == acknack
+        assert not select_readable(wake) and receiver.take() == []
         totals, clients, writers, acks = receiver.fold()
         assert totals == (1, len(datagram), 1, 0, 0, 1, len(acknack), 0, 0) and acks == []
         assert clients[0][4:] == (1, len(acknack), None)
+
+        # Paused (Python is deciding which clients C may serve): the same datagram is handed
+        # over untouched, and so is the next one until Python has taken both and resumed.
+        receiver.set_reliable_state(handle, 0x80, 4, 4)
+        receiver.pause()
+        client.sendto(datagram, server.getsockname())
+        assert wait_until(lambda: select_readable(wake), 5)
+        assert not receiver.resume()  # one waits for Python: the thread keeps handing over
+        following = keyed_datagram(6, stream_id=0x80)
+        client.sendto(following, server.getsockname())
+        taken = []
+        assert wait_until(lambda: taken.extend(receiver.take()) or len(taken) == 2, 5)
+        assert taken == [(datagram, address), (following, address)]
+        assert receiver.resume() and receiver.reliable_state(handle, 0x80) == (4, 4)
+        receiver.stop()
+        receiver.set_reliable_state(handle, 0x80, 5, 5)  # as the thread left it before the pause
         assert not receiver.handle(datagram, address)  # the duplicate is Python's to count
         assert not receiver.handle(keyed_datagram(7, stream_id=0x80), address)  # a gap: Python's
         receiver.set_reliable_state(handle, 0x80, 5, 7)  # Python holds 7, waits for 6
@@ -482,15 +501,17 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
         assert not receiver.handle(both, address)  # several submessages: Python's
         assert receiver.reliable_state(handle, 0x80) == (9, 9)
     finally:
+        receiver.stop()
         receiver.remove_writer(handle, 0x0015)
         ros_peer.node.destroy_publisher(publisher)
+        os.close(wake)
         server.close()
         client.close()
 
 
-def select_readable(sock):
+def select_readable(fd):
     import select
-    return bool(select.select([sock], [], [], 0)[0])
+    return bool(select.select([fd], [], [], 0)[0])
 
 
 # ------------------------------------------------------------------------ hostile input, C alone

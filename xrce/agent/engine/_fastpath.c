@@ -1,33 +1,35 @@
 /* Optional compiled receive path of the UDP link: WRITE_DATA straight into rcl.
  *
  * Why it exists: per datagram, the Python data path had reached its floor (bench/agent_cost.py);
- * what is left of the cost is Python work, not the kernel. Here the UDP link's read, on the asyncio
- * loop's thread as before, takes a batch of datagrams with recvmmsg and the GIL released. A datagram
- * whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered, on a
- * best-effort stream Python registered, is published with rcl_publish_serialized_message right
- * here. So is, on a reliable stream Python registered, a datagram holding one such WRITE_DATA that
- * is the next message in order (try_fast_reliable), and the ACKNACK it owes is sent here at the
- * end of the wake-up, or by Python (send_due_acknacks says when). FRAGMENTs of such a stream and
- * the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment, try_fast_heartbeat),
- * a client's TIMESTAMPs are answered here (try_fast_timestamp),
- * the client's plain ACKNACKs for the agent's reliable output streams _reliable_out.c's. The
- * tables Python fills (clients, streams, writers) are _receiver_tables.c's; the extension's ROS
- * helpers beside the receive path are _ros_support.c's and _services.c's.
- * At the first datagram that is none of these (other reliable messages, control, unknown
- * clients, anything malformed, a failed reliable publish) the batch stops being handled here: it and every datagram behind it go back
- * to Python unchanged, in order, so every decision Python makes today it still makes in arrival
- * order. xrce/agent/engine/fastpath.py is the Python side.
+ * what is left of the cost is Python work, not the kernel. Here the UDP link's socket is read on
+ * a thread of the module's own (_receive_thread.c), in recvmmsg batches, without the GIL. A
+ * datagram whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered,
+ * on a best-effort stream Python registered, is published with rcl_publish_serialized_message
+ * right here (try_fast). So is, on a reliable stream Python registered, a datagram holding one
+ * such WRITE_DATA that is the next message in order (try_fast_reliable), and the ACKNACK it owes
+ * is sent here at the end of the batch, or by Python (send_due_acknacks says when). FRAGMENTs of
+ * such a stream and the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment,
+ * try_fast_heartbeat), a client's TIMESTAMPs are answered here (try_fast_timestamp), the client's
+ * plain ACKNACKs for the agent's reliable output streams are _reliable_out.c's. The tables Python
+ * fills (clients, streams, writers) are _receiver_tables.c's; the extension's ROS helpers beside
+ * the receive path are _ros_support.c's and _services.c's.
+ * A datagram that is none of these (other reliable messages, control, unknown clients, anything
+ * malformed, a failed reliable publish) is handed to Python unchanged, and so is every datagram
+ * behind it until Python has handled them, so every decision Python makes it still makes in
+ * arrival order. xrce/agent/engine/fastpath.py is the Python side.
  *
- * Measured and not kept: a thread of its own reading the socket and waking the loop through an
- * eventfd for the rest. Best-effort was cheaper still, but every other datagram then cost two
- * wake-ups instead of one: reliable traffic, ping and the robot load got worse.
+ * History: this path first read on the asyncio loop's thread, and a thread of its own was measured
+ * and dropped then: with only best-effort samples taken here, every other datagram cost two
+ * wake-ups. Once reliable samples, fragments, HEARTBEATs, ACKNACKs and TIMESTAMPs were taken here
+ * too, the loop's wake-ups were the larger cost (the TurtleBot3 load: ~120 a second for datagrams
+ * C took whole), and the thread came back.
  *
  * Ownership: Python decides what is fast (clients, streams, writers and their rcl publishers) and
  * removes a writer before it destroys the publisher. This module owns the input sequence number of
  * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself, and
  * a registered reliable stream's two numbers (reliable_state, set_reliable_state) whenever its
  * InputReliableStream reads or moves them (xrce.agent.engine.compiled_streams.CompiledReliableStream).
- * Counters accumulate here and Python folds them into its own (fold) after each read.
+ * Counters accumulate here and Python folds them into its own (fold) whenever it runs for the link.
  *
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
  * builds with no ROS headers, and without rclpy loaded the Python path simply stays in charge.
@@ -61,7 +63,7 @@ static Client *find_client(Receiver *self, const uint8_t *data, const struct soc
 }
 
 /* The reliable stream handled message ``seq`` (``length`` bytes) here: it moves, owes an ACKNACK
- * (sent at the end of the wake-up) and counts the message as Python would. Called locked. */
+ * (sent at the end of the batch) and counts the message as Python would. Called locked. */
 void stream_delivered(Receiver *self, Client *client, Stream *stream, uint16_t seq, size_t length) {
     stream->last_seq = seq;
     if (seq_less(stream->last_announced, seq)) stream->last_announced = seq;
@@ -258,10 +260,9 @@ int send_stream_acknack(Receiver *self, Client *c, Stream *s, uint16_t bitmap) {
 /* The ACKNACK each pending stream owes, sent here as xrce.agent.engine.liveliness._send_acknack
  * would (the same bytes: a test holds them equal), when Python holds nothing out of order for it
  * (last_announced is last_seq: the NACK bitmap is empty). A stream that does not qualify, or whose
- * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch handled whole
- * (read(): on the last read of a wake-up, while Python has no ACKNACK of its own queued), so a
- * stream gets one ACKNACK per batch, as on the Python path. Returns how many streams still owe
- * one (Python's to send). */
+ * send fails, keeps ack_due: fold hands it to Python. Called locked, after a batch handled whole,
+ * so a stream gets one ACKNACK per batch, as on the Python path. Returns how many streams still
+ * owe one (Python's to send: the thread wakes Python for them). */
 int send_due_acknacks(Receiver *self) {
     int owing = self->pending_overflow;
     self->pending_overflow = 0;
@@ -328,61 +329,6 @@ int map_buffers(Receiver *self) {
         self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
     }
     return 0;
-}
-
-/* read([may_acknowledge]) -> (datagrams for Python, more): one recvmmsg batch from the
- * non-blocking socket, handled here up to the first datagram that is not fast; that one and the
- * rest come back as [(bytes, address)], in order. more: the batch was full, the socket may hold
- * more. may_acknowledge: Python has no ACKNACK queued, so this read, if it handles its whole batch
- * and is the last of the wake-up, sends the ACKNACKs owed (send_due_acknacks). */
-static PyObject *Receiver_read(Receiver *self, PyObject *const *args, Py_ssize_t nargs) {
-    /* METH_FASTCALL: this runs once per wake-up of the loop, no argument tuple to build */
-    int may_acknowledge = 0;
-    if (nargs > 1) {
-        PyErr_SetString(PyExc_TypeError, "read() takes at most one argument");
-        return NULL;
-    }
-    if (nargs == 1 && (may_acknowledge = PyObject_IsTrue(args[0])) < 0) return NULL;
-    if (self->running) {  /* the thread owns the buffers and the socket's reads */
-        PyErr_SetString(PyExc_RuntimeError, "the receive thread reads this socket");
-        return NULL;
-    }
-    if (map_buffers(self) < 0) return PyErr_SetFromErrno(PyExc_OSError);
-    int count, handled = 0, error = 0;
-    Py_BEGIN_ALLOW_THREADS  /* rclpy's executor thread may run meanwhile */
-    count = recvmmsg(self->sock, self->messages_hdr, BATCH, MSG_DONTWAIT, NULL);
-    if (count < 0) error = errno;
-    pthread_mutex_lock(&self->mutex);
-    while (handled < count && try_fast(self, self->buffers[handled],
-                                       self->messages_hdr[handled].msg_len,
-                                       &self->sources[handled]))
-        handled++;
-    if (may_acknowledge && self->enabled && handled == (count < 0 ? 0 : count) && count < BATCH)
-        send_due_acknacks(self);
-    pthread_mutex_unlock(&self->mutex);
-    Py_END_ALLOW_THREADS
-    for (int i = 0; i < count; i++)  /* the kernel wrote the address lengths of these */
-        self->messages_hdr[i].msg_hdr.msg_namelen = sizeof self->sources[i];
-    if (count < 0) {
-        if (error == EAGAIN || error == EWOULDBLOCK || error == EINTR)
-            return Py_BuildValue("([]O)", Py_False);
-        errno = error;  /* e.g. an ICMP error of an earlier send: the caller logs it */
-        return PyErr_SetFromErrno(PyExc_OSError);
-    }
-    PyObject *rest = PyList_New(count - handled);
-    if (rest == NULL) return NULL;
-    for (int i = handled; i < count; i++) {
-        PyObject *address = address_tuple(&self->sources[i]);
-        PyObject *item = address ? Py_BuildValue("(y#N)", self->buffers[i],
-                                                 (Py_ssize_t)self->messages_hdr[i].msg_len,
-                                                 address) : NULL;
-        if (item == NULL) {
-            Py_DECREF(rest);
-            return NULL;
-        }
-        PyList_SET_ITEM(rest, i - handled, item);
-    }
-    return Py_BuildValue("(NO)", rest, count == BATCH ? Py_True : Py_False);
 }
 
 /* fold(): the counters since the previous fold, reset here:
@@ -453,7 +399,7 @@ done:
     return result;
 }
 
-/* handle(data, address): try_fast on one datagram as read() would, for tests and fuzzing without
+/* handle(data, address): try_fast on one datagram as the receive thread would, for tests and fuzzing without
  * a socket; True if it was taken here, False if Python would have it. */
 static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
     Py_buffer data;
@@ -481,8 +427,6 @@ static PyObject *Receiver_handle(Receiver *self, PyObject *args) {
 }
 
 static PyMethodDef Receiver_methods[] = {
-    {"read", (PyCFunction)(void (*)(void))Receiver_read, METH_FASTCALL,
-     "read([may_acknowledge]) -> ([(datagram, address)] for Python, more)"},
     /* _receive_thread.c */
     {"start", (PyCFunction)Receiver_start, METH_O, "start(notify_fd): read on a thread of its own"},
     {"stop", (PyCFunction)Receiver_stop, METH_NOARGS, NULL},

@@ -35,7 +35,7 @@
 #define TIMESTAMP 0x0E
 #define TIMESTAMP_REPLY 0x0F
 #define FLAG_LAST_FRAGMENT 0x02
-#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for read()'s sweep */
+#define PENDING_ACKS 64     /* reliable streams owing an ACKNACK remembered for a batch's sweep */
 
 /* rcutils_allocator_t and rcutils_uint8_array_t (rcl_serialized_message_t), as rcutils declares
  * them; rmw reads only buffer and buffer_length of a message it publishes. */
@@ -128,8 +128,8 @@ typedef struct Handed {
 typedef struct {
     PyObject_HEAD
     int sock;
-    /* Registration runs on the loop's thread, which is also the one reading; the mutex keeps any
-     * other thread that calls in from seeing the tables half changed while the GIL is released. */
+    /* Registration runs on the loop's thread (and under the engine's lock on others), reading on
+     * the receive thread: the mutex keeps either from seeing the tables half changed. */
     pthread_mutex_t mutex;
     Client *clients;
     long next_handle;
@@ -140,7 +140,7 @@ typedef struct {
     uint64_t fragments_in;
     size_t reassembly_limit;  /* Agent.max_reassembly_bytes; 0 (not set): no reassembly here */
     /* The streams whose ack_due went up since the last sweep (a stream past PENDING_ACKS is found
-     * by fold's walk instead): read() acknowledges these without walking every client. */
+     * by fold's walk instead): a batch's end acknowledges these without walking every client. */
     struct { Client *client; Stream *stream; } pending[PENDING_ACKS];
     int pending_count;
     int pending_overflow;  /* a stream owed one past PENDING_ACKS: only fold's walk has it */

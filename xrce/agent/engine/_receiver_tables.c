@@ -1,7 +1,7 @@
 /* The compiled receive path's tables, as Python fills them (xrce.agent.engine.fastpath): the
  * clients it may serve and their addresses, their streams and each stream's state, the writers it
- * may publish for. Registration runs on the loop's thread; the mutex keeps a reader on another
- * thread from seeing a table half changed. */
+ * may publish for. Registration runs on the loop's thread; the mutex keeps the receive thread
+ * from seeing a table half changed. */
 #include "_fastpath.h"
 
 int parse_address(PyObject *tuple, struct sockaddr_storage *out, socklen_t *len) {
