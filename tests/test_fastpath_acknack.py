@@ -194,6 +194,7 @@ def test_plain_acknacks_move_the_acknowledged_point_in_c_and_the_rest_is_python(
         stream = CompiledOutputStream(receiver, handle, OutputReliableStream(0x80, WINDOW), False)
         messages = [bytes(20 + n) for n in range(5)]
         for seq, message in enumerate(messages):
+            assert stream.next_seq() == seq  # taken from C, which may send on the stream too
             stream.commit(seq, message)
         assert stream.stored_bytes == sum(map(len, messages))
         assert not receiver.handle(keyed_acknack(3, 0b1), ADDRESS)  # a NACK: Python's
@@ -220,8 +221,9 @@ def test_plain_acknacks_move_the_acknowledged_point_in_c_and_the_rest_is_python(
         assert stream.on_acknack(3, 0b11) == messages[3:]
         # The window full: the ACKNACK that frees it is Python's (a STATUS or a reader waits).
         for seq in range(5, 3 + WINDOW):
+            assert stream.next_seq() == seq
             stream.commit(seq, b"x" * 8)
-        assert not stream.has_room()
+        assert not stream.has_room() and stream.next_seq() is None
         assert not receiver.handle(keyed_acknack(4), ADDRESS)
         assert stream.on_acknack(4, 0) == () and stream.has_room()
         assert receiver.handle(keyed_acknack(3 + WINDOW), ADDRESS)

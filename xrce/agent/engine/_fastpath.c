@@ -298,7 +298,7 @@ static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
     static char *names[] = {"sock", NULL};
     if (!PyArg_ParseTupleAndKeywords(args, kwargs, "i", names, &self->sock)) return -1;
     pthread_mutex_init(&self->mutex, NULL);
-    self->control_fd = self->notify_fd = -1;
+    self->control_fd = self->notify_fd = self->samples_fd = -1;
     self->enabled = 1;
     self->next_handle = 1;
     return 0;
@@ -306,6 +306,9 @@ static int Receiver_init(Receiver *self, PyObject *args, PyObject *kwargs) {
 
 static void Receiver_dealloc(Receiver *self) {
     stop_receive_thread(self);  /* before the tables it reads go */
+    free_readers(self);         /* rmw calls back no more */
+    if (self->samples_fd >= 0) close(self->samples_fd);
+    free_take_buffer(self);
     for (Client *c = self->clients, *n; c; c = n) { n = c->next; free_client(c); }
     if (self->buffers) munmap(self->buffers, (size_t)BATCH * MAX_DATAGRAM);
     pthread_mutex_destroy(&self->mutex);
@@ -434,6 +437,15 @@ static PyMethodDef Receiver_methods[] = {
     {"pause", (PyCFunction)Receiver_pause, METH_NOARGS, NULL},
     {"resume", (PyCFunction)Receiver_resume, METH_NOARGS, NULL},
     {"handoff_dropped", (PyCFunction)Receiver_handoff_dropped, METH_NOARGS, NULL},
+    /* _reader_out.c */
+    {"add_reader", (PyCFunction)Receiver_add_reader, METH_VARARGS, NULL},
+    {"remove_reader", (PyCFunction)Receiver_remove_reader, METH_O, NULL},
+    {"set_reader_client", (PyCFunction)Receiver_set_reader_client, METH_VARARGS, NULL},
+    {"set_reader_direct", (PyCFunction)Receiver_set_reader_direct, METH_VARARGS, NULL},
+    {"heartbeat_due", (PyCFunction)Receiver_heartbeat_due, METH_O, NULL},
+    {"fold_readers", (PyCFunction)Receiver_fold_readers, METH_NOARGS, NULL},
+    {"add_out_best_effort", (PyCFunction)Receiver_add_out_best_effort, METH_VARARGS, NULL},
+    {"out_best_effort_next", (PyCFunction)Receiver_out_best_effort_next, METH_VARARGS, NULL},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},
     {"remove_client", (PyCFunction)Receiver_remove_client, METH_O, NULL},
     {"set_client_enabled", (PyCFunction)Receiver_set_client_enabled, METH_VARARGS, NULL},
@@ -452,6 +464,10 @@ static PyMethodDef Receiver_methods[] = {
     {"out_acknowledged", (PyCFunction)Receiver_out_acknowledged, METH_VARARGS, NULL},
     {"set_out_state", (PyCFunction)Receiver_set_out_state, METH_VARARGS, NULL},
     {"set_probing", (PyCFunction)Receiver_set_probing, METH_VARARGS, NULL},
+    {"out_state", (PyCFunction)Receiver_out_state, METH_VARARGS, NULL},
+    {"out_reserve", (PyCFunction)Receiver_out_reserve, METH_VARARGS, NULL},
+    {"out_message", (PyCFunction)Receiver_out_message, METH_VARARGS, NULL},
+    {"set_out_held", (PyCFunction)Receiver_set_out_held, METH_VARARGS, NULL},
     /* _reliable_in.c */
     {"take_partial", (PyCFunction)Receiver_take_partial, METH_VARARGS, NULL},
     {"put_partial", (PyCFunction)Receiver_put_partial, METH_VARARGS, NULL},
@@ -485,8 +501,14 @@ static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
     return PyBool_FromLong(rcl_publish_serialized != NULL);
 }
 
+static PyObject *resolve_readers(PyObject *module, PyObject *unused) {
+    return resolve_rcl_readers();
+}
+
 static PyMethodDef module_methods[] = {
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
+    {"resolve_readers", resolve_readers, METH_NOARGS,
+     "True once rcl's serialized take and message callback are found"},
     {NULL},
 };
 

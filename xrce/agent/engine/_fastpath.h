@@ -84,7 +84,42 @@ typedef struct OutStream {
     uint8_t stream_id;
     uint16_t history;  /* the window, a power of two */
     uint16_t last_sent, last_acknowledged;
+    /* The messages this module sent on the stream itself (_reader_out.c: DATA for a reader), kept
+     * until acknowledged for a retransmission Python asks for (out_message); NULL in a slot
+     * whose message is Python's. */
+    uint8_t **slots;
+    uint16_t *lengths;
+    /* Python has output waiting for this stream's window (ClientProxy.out_pending): it goes
+     * first, so nothing is sent here meanwhile. */
+    int held;
 } OutStream;
+
+/* An agent best-effort output stream whose sequence numbers live here once a reader may be
+ * served on it (xrce.agent.engine.compiled_streams.CompiledOutputBestEffort). */
+typedef struct OutBestEffort {
+    struct OutBestEffort *next;
+    uint8_t stream_id;
+    uint16_t last_sent;
+} OutBestEffort;
+
+/* A datareader whose samples reach this module first (_reader_out.c): rmw signals each through
+ * the subscription's on-new-message callback (signalled, the only field written without the
+ * mutex), the receive thread takes them. With request_id set (Python's set_reader_direct, for a
+ * READ_DATA without limits and nothing queued in Python), a sample goes out here as a DATA on
+ * stream_id; otherwise, or when it cannot (window full, too long, client not enabled), it is
+ * handed to Python and direct delivery stops until Python sets it again. */
+typedef struct Reader {
+    struct Reader *next;
+    struct Client *client;
+    struct Receiver *receiver;
+    uint16_t object_id;
+    const void *subscription;  /* rcl_subscription_t *, valid while registered */
+    long token;                /* how Python names it in a hand-over */
+    int request_id;            /* -1: every sample is Python's */
+    uint8_t stream_id;
+    volatile int signalled;    /* rmw said a sample is waiting (atomic builtins) */
+    uint64_t samples, sample_bytes, messages, bytes;  /* sent here since the last fold */
+} Reader;
 
 typedef struct Client {
     struct Client *next;
@@ -101,6 +136,8 @@ typedef struct Client {
     Stream *streams;
     Writer *writers;
     OutStream *out_streams;
+    OutBestEffort *out_best_effort;
+    uint16_t mtu;  /* the client's, for DATA sent here */
     /* Python sent a HEARTBEAT and times the ACKNACK that answers it (ClientProxy.rtt_s): every
      * ACKNACK is Python's until it clears this. */
     int probing;
@@ -116,16 +153,18 @@ typedef struct Client {
     int has_skew;
 } Client;
 
-/* A datagram the receive thread leaves to Python (_receive_thread.c), in arrival order. */
+/* A datagram the receive thread leaves to Python (_receive_thread.c), in arrival order; or, with
+ * a reader token, a sample of that reader's (its CDR with the encapsulation header). */
 typedef struct Handed {
     struct Handed *next;
+    long reader_token;  /* 0: a datagram */
     size_t length;
     struct sockaddr_storage from;
     socklen_t from_len;
     uint8_t data[];
 } Handed;
 
-typedef struct {
+typedef struct Receiver {
     PyObject_HEAD
     int sock;
     /* Registration runs on the loop's thread (and under the engine's lock on others), reading on
@@ -156,6 +195,16 @@ typedef struct {
     int running, stopping, control_fd, notify_fd, notified;
     int paused;  /* Python's pause() calls not yet resumed: everything is Python's meanwhile */
     Handed *handoff_head, *handoff_tail;
+    /* Readers (_reader_out.c): the callback of each writes samples_fd, which the thread polls. */
+    Reader *readers;
+    long next_reader_token;
+    int samples_fd;
+    uint8_t *take_buffer;   /* rcl's serialized message buffer, the rcutils allocator's */
+    size_t take_capacity;
+    /* DATA went out here on a reliable stream since Python last scheduled its HEARTBEAT round
+     * (heartbeat_due): Python is woken once for it, not per message. */
+    int heartbeat_due;
+    uint64_t samples_out, reader_messages, reader_bytes;
     int handoff_count;
     size_t handoff_bytes;
     uint64_t handoff_dropped;
@@ -230,13 +279,37 @@ PyObject *Receiver_stream_seq(Receiver *self, PyObject *args);
 PyObject *Receiver_add_writer(Receiver *self, PyObject *args);
 PyObject *Receiver_remove_writer(Receiver *self, PyObject *args);
 
+/* _reader_out.c */
+void deliver_samples(Receiver *self);
+void detach_readers(Receiver *self, Client *c);
+void free_readers(Receiver *self);
+void free_take_buffer(Receiver *self);
+int handoff_append(Receiver *self, long reader_token, const uint8_t *data, size_t length,
+                   const struct sockaddr_storage *from, socklen_t from_len);
+void wake_python(Receiver *self);
+PyObject *resolve_rcl_readers(void);
+PyObject *Receiver_add_reader(Receiver *self, PyObject *args);
+PyObject *Receiver_remove_reader(Receiver *self, PyObject *args);
+PyObject *Receiver_set_reader_direct(Receiver *self, PyObject *args);
+PyObject *Receiver_set_reader_client(Receiver *self, PyObject *args);
+PyObject *Receiver_heartbeat_due(Receiver *self, PyObject *arg);
+PyObject *Receiver_fold_readers(Receiver *self, PyObject *unused);
+PyObject *Receiver_add_out_best_effort(Receiver *self, PyObject *args);
+PyObject *Receiver_out_best_effort_next(Receiver *self, PyObject *args);
+
 /* _reliable_out.c */
+OutStream *find_out_stream(Client *c, uint8_t stream_id);
+void out_stream_release(OutStream *o, uint16_t acknowledged);
 int try_fast_acknack(Receiver *self, Client *client, const uint8_t *data, size_t length);
 void free_out_streams(Client *client);
 PyObject *Receiver_add_out_stream(Receiver *self, PyObject *args);
 PyObject *Receiver_out_acknowledged(Receiver *self, PyObject *args);
 PyObject *Receiver_set_out_state(Receiver *self, PyObject *args);
 PyObject *Receiver_set_probing(Receiver *self, PyObject *args);
+PyObject *Receiver_out_reserve(Receiver *self, PyObject *args);
+PyObject *Receiver_out_state(Receiver *self, PyObject *args);
+PyObject *Receiver_out_message(Receiver *self, PyObject *args);
+PyObject *Receiver_set_out_held(Receiver *self, PyObject *args);
 
 /* _reliable_in.c */
 int try_fast_fragment(Receiver *self, Client *client, Stream *stream, uint8_t *data,

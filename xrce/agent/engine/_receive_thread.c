@@ -21,7 +21,7 @@
 #define HANDOFF_COUNT 1024            /* datagrams waiting for Python, at most */
 #define HANDOFF_BYTES (4 << 20)       /* and their bytes */
 
-static void wake_python(Receiver *self) {
+void wake_python(Receiver *self) {
     /* Called locked. One eventfd write per hand-off Python has not yet taken. */
     if (self->notified) return;
     self->notified = 1;
@@ -30,16 +30,18 @@ static void wake_python(Receiver *self) {
     (void)written;  /* EAGAIN only when the counter is full: Python is already woken */
 }
 
-/* Append one datagram for Python; 0 when the hand-off is full (the caller stops reading). */
-static int hand_off(Receiver *self, const uint8_t *data, size_t length,
-                    const struct sockaddr_storage *from, socklen_t from_len) {
+/* Append one datagram (reader_token 0) or one reader's sample for Python; 0 when the hand-off is
+ * full (the caller stops reading). */
+int handoff_append(Receiver *self, long reader_token, const uint8_t *data, size_t length,
+                   const struct sockaddr_storage *from, socklen_t from_len) {
     if (self->handoff_count >= HANDOFF_COUNT || self->handoff_bytes + length > HANDOFF_BYTES)
         return 0;
     Handed *item = malloc(sizeof *item + (length ? length : 1));
     if (item == NULL) return 0;
     item->next = NULL;
+    item->reader_token = reader_token;
     item->length = length;
-    memcpy(&item->from, from, from_len);
+    if (from != NULL) memcpy(&item->from, from, from_len);
     item->from_len = from_len;
     memcpy(item->data, data, length);
     if (self->handoff_tail) self->handoff_tail->next = item;
@@ -55,7 +57,8 @@ static void *receive_loop(void *arg) {
     sigset_t all;
     sigfillset(&all);  /* signals stay the main thread's (Python's handlers run there) */
     pthread_sigmask(SIG_BLOCK, &all, NULL);
-    struct pollfd fds[2] = {{self->sock, POLLIN, 0}, {self->control_fd, POLLIN, 0}};
+    struct pollfd fds[3] = {{self->sock, POLLIN, 0}, {self->control_fd, POLLIN, 0},
+                            {self->samples_fd, POLLIN, 0}};
     for (;;) {
         pthread_mutex_lock(&self->mutex);
         int full = self->handoff_count >= HANDOFF_COUNT || self->handoff_bytes >= HANDOFF_BYTES;
@@ -63,7 +66,15 @@ static void *receive_loop(void *arg) {
         pthread_mutex_unlock(&self->mutex);
         if (stopping) break;
         fds[0].events = full ? 0 : POLLIN;  /* full: wait for Python's take (it writes control_fd) */
-        if (poll(fds, 2, -1) < 0 && errno != EINTR) break;
+        if (poll(fds, 3, -1) < 0 && errno != EINTR) break;
+        if (fds[2].revents) {  /* a reader's samples (_reader_out.c) */
+            uint64_t value;
+            ssize_t got = read(self->samples_fd, &value, sizeof value);
+            (void)got;
+            pthread_mutex_lock(&self->mutex);
+            deliver_samples(self);
+            pthread_mutex_unlock(&self->mutex);
+        }
         if (fds[1].revents) {
             uint64_t value;
             ssize_t got = read(self->control_fd, &value, sizeof value);
@@ -87,7 +98,7 @@ static void *receive_loop(void *arg) {
                 handled++;
                 continue;
             }
-            if (!hand_off(self, data, length, &self->sources[i],
+            if (!handoff_append(self, 0, data, length, &self->sources[i],
                           self->messages_hdr[i].msg_hdr.msg_namelen)) {
                 /* the hand-off filled within this batch (or malloc failed): dropped and
                  * counted, as the socket's own buffer drops what overflows it */
@@ -118,6 +129,12 @@ PyObject *Receiver_start(Receiver *self, PyObject *arg) {
     if (map_buffers(self) < 0) return PyErr_SetFromErrno(PyExc_OSError);
     self->control_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
     if (self->control_fd < 0) return PyErr_SetFromErrno(PyExc_OSError);
+    if (self->samples_fd < 0) self->samples_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    if (self->samples_fd < 0) {
+        close(self->control_fd);
+        self->control_fd = -1;
+        return PyErr_SetFromErrno(PyExc_OSError);
+    }
     self->notify_fd = fd;
     self->stopping = 0;
     int error = pthread_create(&self->thread, NULL, receive_loop, self);
@@ -161,7 +178,8 @@ PyObject *Receiver_stop(Receiver *self, PyObject *unused) {
     Py_RETURN_NONE;
 }
 
-/* take() -> [(datagram, address)]: what the thread handed over, in arrival order. */
+/* take() -> [(datagram, address) or (sample, reader token)]: what the thread handed over, in
+ * arrival order. */
 PyObject *Receiver_take(Receiver *self, PyObject *unused) {
     pthread_mutex_lock(&self->mutex);
     Handed *items = self->handoff_head;
@@ -182,9 +200,11 @@ PyObject *Receiver_take(Receiver *self, PyObject *unused) {
     for (Handed *item = items, *next; item; item = next, i++) {
         next = item->next;
         if (out != NULL) {
-            PyObject *address = address_tuple(&item->from);
-            PyObject *row = address ? Py_BuildValue("(y#N)", item->data,
-                                                    (Py_ssize_t)item->length, address) : NULL;
+            /* a datagram with its source address, or a reader's sample with its token */
+            PyObject *second = item->reader_token ? PyLong_FromLong(item->reader_token)
+                                                  : address_tuple(&item->from);
+            PyObject *row = second ? Py_BuildValue("(y#N)", item->data,
+                                                   (Py_ssize_t)item->length, second) : NULL;
             if (row == NULL) Py_CLEAR(out);
             else PyList_SET_ITEM(out, i, row);
         }

@@ -75,6 +75,7 @@ PyObject *Receiver_remove_client(Receiver *self, PyObject *arg) {
             for (int i = 0; i < self->pending_count; i++)
                 if (self->pending[i].client != c) self->pending[kept++] = self->pending[i];
             self->pending_count = kept;
+            detach_readers(self, c);
             free_client(c);
             break;
         }

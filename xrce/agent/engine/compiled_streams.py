@@ -102,20 +102,22 @@ class CompiledReliableStream(InputReliableStream):
 
 
 class CompiledOutputStream(OutputReliableStream):
-    """An ``OutputReliableStream`` whose acknowledged point C owns (``_reliable_out.c``): C moves
-    it for the client's plain ACKNACKs while the window has room, Python reads and moves it
-    through C for everything else (NACKs, a full window, HEARTBEATs). ``last_sent`` stays
-    Python's, told to C as it moves. The history slots and their bytes stay Python's: every
-    look at the window (``in_flight``) first frees the slots C acknowledged, so a slot is never
-    reused before it is freed, and the window Python sees is one C had (full for both, or not).
-    The bytes so freed are given back to the client's budget by the engine (``release``)."""
+    """An ``OutputReliableStream`` whose numbers C owns (``_reliable_out.c``): C sends a reader's
+    DATA on the stream itself (``_reader_out.c``) and moves the acknowledged point for the
+    client's plain ACKNACKs while the window has room; Python takes its sequence numbers from C
+    (``next_seq`` reserves one) and moves the acknowledged point through C for everything else
+    (NACKs, a full window, HEARTBEATs). The history is split by sender: a message Python sent
+    stays in Python's slots, one C sent in C's (``message`` reads either for a retransmission).
+    Every look at the window (``in_flight``) first frees the slots C acknowledged, so a slot is
+    never reused before it is freed; the bytes so freed are given back to the client's budget by
+    the engine (``release``)."""
 
-    __slots__ = ("_receiver", "_handle", "_sent", "_released", "_freed")
+    __slots__ = ("_receiver", "_handle", "_released", "_freed")
 
     def __init__(self, receiver, handle: int, stream: OutputReliableStream, probing: bool):
         self._receiver = receiver
         self._handle = handle
-        self._sent, self._released = stream.last_sent, stream.last_acknowledged
+        self._released = stream.last_acknowledged
         self._freed = 0
         receiver.add_out_stream(handle, stream.stream_id, stream.history, stream.last_sent,
                                 stream.last_acknowledged)
@@ -123,24 +125,48 @@ class CompiledOutputStream(OutputReliableStream):
         super().__init__(stream.stream_id, stream.history)  # reset() writes through to C
         _copy_output(stream, self)
 
+    def _numbers(self):
+        state = self._receiver.out_state(self._handle, self.stream_id)
+        return (self._released, self._released) if state is None else state
+
     @property
     def last_sent(self) -> int:
-        return self._sent
+        return self._numbers()[0]
 
     @last_sent.setter
-    def last_sent(self, seq: int) -> None:
-        self._sent = seq
+    def last_sent(self, seq: int) -> None:  # reset() and _copy_output only
         self._receiver.set_out_state(self._handle, self.stream_id, seq, -1)
 
     @property
     def last_acknowledged(self) -> int:
-        seq = self._receiver.out_acknowledged(self._handle, self.stream_id)
-        return self._released if seq is None else seq
+        return self._numbers()[1]
 
     @last_acknowledged.setter
     def last_acknowledged(self, seq: int) -> None:
         self._released = seq  # Python moves it only with the slot it frees (on_acknack, reset)
         self._receiver.set_out_state(self._handle, self.stream_id, -1, seq)
+
+    def next_seq(self):
+        """The sequence number of Python's next message, taken from C at once (C may send on
+        the stream meanwhile); None while the window is full."""
+        self._release()
+        seq = self._receiver.out_reserve(self._handle, self.stream_id)
+        if seq is not None:
+            self.resent_at[seq & (self.history - 1)] = None
+        return seq
+
+    def commit(self, seq, message):
+        slot = seq & (self.history - 1)
+        self.slots[slot] = message
+        self.resent_at[slot] = None
+        self.stored_bytes += len(message)
+
+    def message(self, seq: int):
+        """The unacknowledged message ``seq``, Python's or C's; None if there is none."""
+        message = self.slots[seq & (self.history - 1)]
+        if message is None:
+            message = self._receiver.out_message(self._handle, self.stream_id, seq)
+        return message
 
     def _release(self) -> None:
         acknowledged = self.last_acknowledged
@@ -149,9 +175,7 @@ class CompiledOutputStream(OutputReliableStream):
         while seq_less(self._released, acknowledged):
             self._released = seq_add(self._released, 1)
             slot = self._released & mask
-            if self.sizes[slot]:
-                self.sizes[slot] = 0
-            elif self.slots[slot] is not None:
+            if self.slots[slot] is not None:
                 freed += len(self.slots[slot])
                 self.slots[slot] = None
         self.stored_bytes -= freed
@@ -159,7 +183,8 @@ class CompiledOutputStream(OutputReliableStream):
 
     def in_flight(self) -> int:
         self._release()
-        return seq_sub(self._sent, self._released)
+        sent, acknowledged = self._numbers()
+        return seq_sub(sent, acknowledged)
 
     def release(self) -> int:
         """Free the history C acknowledged; the bytes freed since the last call (the engine
@@ -169,16 +194,86 @@ class CompiledOutputStream(OutputReliableStream):
         return freed
 
     def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0, session=None):
+        # OutputReliableStream.on_acknack's rules, with each message read from its sender's
+        # history: move the acknowledged point (C frees its own slots), then resend each NACKed
+        # message at most once per hold-off.
         freed = self._freed
         self._release()
         self._freed = freed  # the caller charges the change of stored_bytes across this call
-        return super().on_acknack(first_unacked, nack_bitmap, now_ms, holdoff_ms, session)
+        sent, acknowledged = self._numbers()
+        if not seq_less(seq_add(sent, 1), first_unacked) and \
+                seq_less(acknowledged, seq_add(first_unacked, -1)):
+            self._receiver.set_out_state(self._handle, self.stream_id, -1,
+                                         seq_add(first_unacked, -1))
+            self._release()  # Python's slots up to there
+            self._freed = freed
+            acknowledged = self._released
+        if not nack_bitmap:
+            return ()
+        resend = []
+        for i in range(16):
+            if nack_bitmap & (1 << i):
+                seq = seq_add(first_unacked, i)
+                if seq_less(acknowledged, seq) and not seq_less(sent, seq):
+                    message = self.message(seq)
+                    if message is None:
+                        continue
+                    slot = seq & (self.history - 1)
+                    last = self.resent_at[slot]
+                    if holdoff_ms and last is not None and now_ms - last < holdoff_ms:
+                        self.suppressed += 1
+                        continue
+                    self.resent_at[slot] = now_ms
+                    self.retransmissions += 1
+                    resend.append(message)
+        return resend
+
+    def hold(self, held: bool) -> None:
+        """Python has output waiting for this stream's window: C sends nothing meanwhile."""
+        self._receiver.set_out_held(self._handle, self.stream_id, held)
 
     def detached(self) -> OutputReliableStream:
-        """A plain stream in this one's state (after ``release``), for when C forgets it."""
+        """A plain stream in this one's state (after ``release``), C's unacknowledged messages
+        copied in, for when C forgets the client."""
+        self._release()
         stream = OutputReliableStream(self.stream_id, self.history)
         _copy_output(self, stream)
+        sent, acknowledged = self._numbers()
+        seq = acknowledged
+        while seq_less(seq, sent):
+            seq = seq_add(seq, 1)
+            slot = seq & (self.history - 1)
+            if stream.slots[slot] is None:
+                message = self._receiver.out_message(self._handle, self.stream_id, seq)
+                if message is not None:
+                    stream.slots[slot] = message
+                    stream.stored_bytes += len(message)
         return stream
+
+
+class CompiledOutputBestEffort:
+    """Stands in for an ``OutputBestEffortStream`` whose sequence number C owns, once C may send
+    a reader's DATA on it (``_reader_out.c``)."""
+
+    __slots__ = ("_receiver", "_handle", "stream_id")
+
+    def __init__(self, receiver, handle: int, stream):
+        self._receiver = receiver
+        self._handle = handle
+        self.stream_id = stream.stream_id
+        receiver.add_out_best_effort(handle, stream.stream_id, stream.last_sent)
+
+    @property
+    def last_sent(self) -> int:
+        seq = self._receiver.out_best_effort_next(self._handle, self.stream_id, False)
+        return 0xFFFF if seq is None else seq
+
+    def next_seq(self) -> int:
+        seq = self._receiver.out_best_effort_next(self._handle, self.stream_id)
+        return 0 if seq is None else seq
+
+    def reset(self) -> None:
+        self._receiver.add_out_best_effort(self._handle, self.stream_id, 0xFFFF)
 
 
 def _copy_output(source: OutputReliableStream, target: OutputReliableStream) -> None:

@@ -240,6 +240,9 @@ class DataPath:
         delivery = request.delivery
         now = self.clock()
         reader.active = None  # a new READ_DATA stops the previous one first
+        fastpath = getattr(client.link, "fastpath", None)
+        if fastpath is not None:
+            fastpath.reader_ready(client, entry)  # C stops sending for the old one
         client.blocked_readers.discard(entry.object_id)
         if delivery is None:
             remaining: Optional[int] = 1
@@ -314,6 +317,10 @@ class DataPath:
                 active.remaining -= 1
                 if active.remaining <= 0:
                     reader.active = None
+        fastpath = getattr(client.link, "fastpath", None)
+        if fastpath is not None:
+            # Nothing queued and a READ_DATA without limits: C may send its samples itself
+            fastpath.reader_ready(client, entry)
 
     def _fragment(self, client: ClientProxy, stream_id: int, data: bytes, flags: int, start: int,
                   end: int) -> bool:
@@ -448,6 +455,7 @@ class DataPath:
                 # STATUS) while readers' samples fill the window. It waits for room, ahead of
                 # the readers, which only get room once what is pending has gone.
                 client.out_pending[stream_id] = deque((message,))
+                _hold(stream, True)
                 self._charge(client, len(message))
                 return True
             message = _with_seq(message, seq)
@@ -486,6 +494,7 @@ class DataPath:
                                                       flags)]))
         self.stats.fragments_out += count
         client.out_pending[stream.stream_id] = fragments
+        _hold(stream, True)
         self._charge(client, sum(len(f) for f in fragments))
         self._send_pending(client, stream)
         return True
@@ -508,6 +517,7 @@ class DataPath:
             self._release_acknowledged(client, stream)
         if not pending:
             del client.out_pending[stream.stream_id]
+            _hold(stream, False)
         elif sent:
             # The window is full with more to come: ask for the ACKNACK that frees it now,
             # rather than a heartbeat period later (a 256 KiB sample is ~530 fragments).
@@ -517,6 +527,13 @@ class DataPath:
         if sent:
             self._heartbeat_soon()
 
+
+
+def _hold(stream: OutputReliableStream, held: bool) -> None:
+    """Output waits for the window of a stream C sends on too: C sends nothing there meanwhile
+    (what waits goes first)."""
+    if stream.__class__ is not OutputReliableStream:
+        stream.hold(held)
 
 
 class Reassembled(bytes):

@@ -39,13 +39,15 @@ import asyncio
 import binascii
 import logging
 import os
+import threading
 import time
 from typing import Dict, Optional
 
-from xrce.agent.engine.compiled_streams import CompiledOutputStream, CompiledReliableStream, \
-    CompiledStream
+from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, CompiledOutputStream, \
+    CompiledReliableStream, CompiledStream
 from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
-from xrce.streams import InputBestEffortStream
+from xrce.agent.engine.session import STREAM_WINDOW
+from xrce.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
 
 log = logging.getLogger("xrce.agent")
 
@@ -123,6 +125,13 @@ class CompiledClient:
             if isinstance(stream, CompiledOutputStream):
                 path.agent._charge(client, -stream.release())
                 client.out_reliable[stream_id] = stream.detached()
+        for stream_id, stream in list(client.out_best_effort.items()):
+            if isinstance(stream, CompiledOutputBestEffort):
+                plain = client.out_best_effort[stream_id] = OutputBestEffortStream(stream_id)
+                plain.last_sent = stream.last_sent
+        for token, (owner, _object_id) in path.readers.items():
+            if owner is client:  # C keeps the subscription and hands every sample over
+                path.direct[token] = None
         path.receiver.remove_client(self.handle)
         path.clients.pop(self.handle, None)
         client.fast = None
@@ -137,6 +146,12 @@ class FastPath:
         self.receiver = _fastpath.Receiver(sock.fileno())
         self.receiver.set_reassembly_limit(agent.max_reassembly_bytes or MAX_REASSEMBLY)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
+        # Readers whose samples C takes (_reader_out.c): token -> (ClientProxy, object id), the
+        # token of each (client key, object id), and each token's READ_DATA C serves, if any.
+        self.readers: Dict[int, tuple] = {}
+        self.reader_tokens: Dict[tuple, int] = {}
+        self.direct: Dict[int, Optional[tuple]] = {}
+        self.serves_readers = bool(_fastpath.resolve_readers())
         self._loop = asyncio.get_running_loop()
         # The thread writes it when it has handed datagrams over or wants a fold.
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
@@ -146,6 +161,10 @@ class FastPath:
 
     def close(self) -> None:
         self.receiver.stop()  # before the clients go: it reads their tables
+        for token in list(self.readers):  # the link goes with the agent: its readers too
+            self.receiver.remove_reader(token)
+        self.readers.clear()
+        self.reader_tokens.clear()
         self._loop.remove_reader(self._wake_fd)
         os.close(self._wake_fd)
         with self.agent.lock:
@@ -175,9 +194,12 @@ class FastPath:
                     # What C did before the first datagram it left counts before Python handles
                     # that one: a reassembly's bytes (the client's budget) and the stream's ACKNACK.
                     self.fold()
-                for data, addr in rest:
+                for data, source in rest:
+                    if source.__class__ is int:  # a reader's sample C did not send
+                        self._sample_for_python(source, data)
+                        continue
                     stats.bytes_in += len(data)
-                    link._deliver(addr, data)
+                    link._deliver(source, data)
                 if not rest:
                     break
             dropped = receiver.handoff_dropped()
@@ -186,16 +208,31 @@ class FastPath:
             if self.clients:
                 self.fold()
                 self.sync()
+            if receiver.heartbeat_due(False):  # C sent reliable DATA: its HEARTBEAT round
+                self.agent._heartbeat_soon()
         finally:
             receiver.resume()  # what came meanwhile waits in the hand-off: the eventfd is set
 
     def pause(self) -> None:
-        """Python's engine is about to judge the clients (timed work): C hands everything over
-        until ``resume``."""
+        """Python's engine is about to judge the clients and send the HEARTBEATs (timed work):
+        C hands every datagram over until ``resume``, and asks again for a HEARTBEAT round for
+        reliable DATA it sends from now on."""
         self.receiver.pause()
+        self.receiver.heartbeat_due(True)
 
     def resume(self) -> None:
         self.receiver.resume()
+
+    def _sample_for_python(self, token: int, cdr: bytes) -> None:
+        """A sample C took and left to Python (its READ_DATA is not C's to serve, or the window
+        is full): delivered as the middleware's own callback would. C serves the reader again
+        once Python's queue is empty (``reader_ready`` from ``_pump``)."""
+        reader = self.readers.get(token)
+        if reader is None:
+            return
+        self.direct[token] = None  # C stopped sending for it when it handed this one over
+        client, object_id = reader
+        self.agent._from_middleware(client, object_id, cdr[4:])
 
     # -- registration ---------------------------------------------------------------------
 
@@ -205,19 +242,101 @@ class FastPath:
             client.link is self.link and not (agent.timelines.pending and
                                               client.key in agent.timelines.pending)
 
-    def offer(self, client, stream_id: int, entry) -> None:
-        """The Python path just accepted a sample for ``entry`` on ``stream_id`` (best-effort,
-        or reliable in order): make what is not compiled yet compiled, if the client qualifies."""
-        agent = self.agent
-        if agent.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
-            return
+    def _compiled(self, client, what: str) -> Optional[CompiledClient]:
+        """The client's registration in C, made now if it has none; None if it may not have
+        one (the capture tap or the trace is on, or the client needs the engine's attention)."""
+        if self.agent.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
+            return None
         state: Optional[CompiledClient] = client.fast
         if state is None:
             key = client.key if client.session_id < 0x80 else b"\0\0\0\0"
             handle = self.receiver.add_client(client.session_id, key, client.endpoint)
             state = client.fast = CompiledClient(self, handle)
             self.clients[handle] = client
-            log.debug("client %s: best-effort samples take the compiled path", client.key.hex())
+            for token, (owner, _object_id) in self.readers.items():
+                if owner is client:  # its readers, kept while it was not registered
+                    self.receiver.set_reader_client(token, handle)
+            log.debug("client %s: %s take the compiled path", client.key.hex(), what)
+        return state
+
+    def reader_ready(self, client, entry) -> None:
+        """After Python delivered what it could for a reader (``_pump``) or a READ_DATA
+        replaced the last (``_read_data``): C sends the reader's samples itself while its
+        READ_DATA has no limits (no count, deadline or rate) and nothing waits in Python's
+        queue; otherwise every sample is Python's. Runs per sample Python delivers: the common
+        answer (unchanged) is a dictionary look-up."""
+        reader = entry.reader
+        active = reader.active
+        want = None
+        if active is not None and not reader.queue and active.remaining is None and \
+                active.deadline is None and not active.rate and client.alive:
+            want = (active.request_id, active.stream_id)
+        token = self.reader_tokens.get((client.key_int, entry.object_id))
+        if token is not None and self.direct.get(token) == want:
+            return
+        if want is None:
+            if token is not None:
+                self.direct[token] = None
+                self.receiver.set_reader_direct(token, -1, 0, 0)
+            return
+        if not self.serves_readers or threading.get_ident() != self.agent._loop_thread:
+            return  # registration is the loop's (the rclpy thread's sample leaves it for later)
+        state = self._compiled(client, "samples from ROS")
+        if state is None:
+            return
+        if token is None:
+            address_of = getattr(self.agent.middleware, "subscription_address", None)
+            address = address_of(client.entity(entry.object_id)) if address_of else None
+            if not address:
+                return
+            token = self.receiver.add_reader(state.handle, entry.object_id, address)
+            if not token:
+                return
+            self.readers[token] = (client, entry.object_id)
+            self.reader_tokens[(client.key_int, entry.object_id)] = token
+            log.debug("client %s: reader 0x%04X: samples from ROS take the compiled path",
+                      client.key.hex(), entry.object_id)
+        stream_id = want[1]
+        if stream_id & 0x80:
+            if stream_id not in client.out_reliable:
+                client.out_reliable[stream_id] = OutputReliableStream(stream_id, STREAM_WINDOW)
+            with self.agent.lock:
+                state.compile_output(client)
+            stream = client.out_reliable[stream_id]
+            if not isinstance(stream, CompiledOutputStream):
+                return
+            if stream_id in client.out_pending:
+                stream.hold(True)
+        elif stream_id:
+            stream = client.out_best_effort.get(stream_id)
+            if stream is None:
+                stream = OutputBestEffortStream(stream_id)
+            if not isinstance(stream, CompiledOutputBestEffort):
+                client.out_best_effort[stream_id] = CompiledOutputBestEffort(
+                    self.receiver, state.handle, stream)
+        else:
+            return  # stream none (a cancel's answer): Python's
+        self.direct[token] = want
+        self.receiver.set_reader_direct(token, want[0], stream_id, client.mtu)
+
+    def forget_reader(self, client, object_id: int) -> None:
+        """Before the reader's subscription is destroyed: C lets go of it (and rmw calls C's
+        callback no more)."""
+        token = self.reader_tokens.pop((client.key_int, object_id), None)
+        if token is None:
+            return
+        self.fold()
+        self.receiver.remove_reader(token)
+        self.readers.pop(token, None)
+        self.direct.pop(token, None)
+
+    def offer(self, client, stream_id: int, entry) -> None:
+        """The Python path just accepted a sample for ``entry`` on ``stream_id`` (best-effort,
+        or reliable in order): make what is not compiled yet compiled, if the client qualifies."""
+        state = self._compiled(client, "best-effort samples")
+        if state is None:
+            return
+        agent = self.agent
         if len(client.out_reliable) != len(state.out_streams):
             state.compile_output(client)
         if stream_id not in state.streams and stream_id & 0x80:
@@ -301,6 +420,21 @@ class FastPath:
                 client = self.clients.get(handle)
                 if client is not None:
                     self.agent._charge(client, size)
+        sent = self.receiver.fold_readers()
+        if sent is not None:
+            (samples, count, size), rows = sent
+            stats = self.agent.stats
+            stats.samples_out += samples
+            stats.messages_out += count
+            stats.bytes_out += size
+            self.link.stats.messages_out += count
+            self.link.stats.bytes_out += size
+            for token, object_id, samples, sample_bytes, _count, _size in rows:
+                reader = self.readers.get(token)
+                entry = reader[0].objects.get(object_id) if reader is not None else None
+                if entry is not None:
+                    entry.samples += samples
+                    entry.sample_bytes += sample_bytes
         if publish_errors:
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.

@@ -325,6 +325,15 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             return None
         return getattr(getattr(record.publisher, "handle", None), "pointer", None)
 
+    def subscription_address(self, reader: EntityKey) -> int | None:
+        """The address of a datareader's rcl_subscription_t, for the compiled UDP path
+        (xrce.agent.engine.fastpath), which takes its samples from then on and must let go of it
+        before ``delete``; None if rclpy hides it."""
+        record = self._entities.get(reader)
+        if record is None or record.kind != "datareader":
+            return None
+        return getattr(getattr(record.subscription, "handle", None), "pointer", None)
+
     # -- inspection ---------------------------------------------------------------------------
 
     def reader_stats(self, reader: EntityKey) -> tuple[int, int]:
