@@ -2,8 +2,9 @@
 (xrce/agent/engine/_reliable_out.c, xrce.agent.engine.compiled_streams.CompiledOutputStream).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
-and once with ``XRCE_FASTPATH=0``: a client reads a ROS topic on its reliable stream and answers
-the agent's DATA with hand-made ACKNACKs: each acknowledged at once (the window wraps twice), a
+(which also sends the reader's samples itself, xrce/agent/engine/_reader_out.c) and once with
+``XRCE_FASTPATH=0``: a client reads a ROS topic on its reliable stream and answers the agent's
+DATA with hand-made ACKNACKs: each acknowledged at once (the window wraps twice), a
 NACK naming two messages (retransmitted, byte for byte), a window left to fill with a CREATE's
 STATUS and a reader's samples waiting behind it, then the ACKNACK that frees it. Both paths send
 the same messages and count the same. Then the C side and the stream object alone.
@@ -174,6 +175,9 @@ def test_acknacks_compiled_and_python_paths_send_retransmit_unblock_and_count_th
     assert compiled[2] == python[2], (compiled[2], python[2])
     assert "reliable output stream 0x80: plain ACKNACKs take the compiled path" in compiled[3]
     assert "plain ACKNACKs take the compiled path" not in python[3]
+    # The samples went out from C (the receive thread), the NACKed two from C's history.
+    assert ": samples from ROS take the compiled path" in compiled[3]
+    assert "samples from ROS take the compiled path" not in python[3]
 
 
 # ----------------------------------------------------------------------- the C side, in-process
