@@ -268,8 +268,7 @@ class ObjectRegistry(Mismatches):
             entry.reader.queue.clear()
         if client.fast is not None:  # the compiled path lets go of the publisher first
             client.fast.forget_writer(client, object_id)
-        fastpath = getattr(client.link, "fastpath", None)
-        if fastpath is not None:  # and of the subscription
+        for fastpath in self.fastpaths:  # and of the subscription (on whichever link took it)
             fastpath.forget_reader(client, object_id)
         try:
             self.middleware.delete(client.entity(object_id))
