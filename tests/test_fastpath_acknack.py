@@ -143,7 +143,7 @@ def run_acknack_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
             ros_peer.node.destroy_publisher(publisher)
     deltas = {name: after["agent"][name] - before["agent"][name]
               for name in ("messages_in", "bytes_in", "samples_out", "retransmissions", "dropped",
-                           "decode_errors", "handler_errors")}
+                           "decode_errors", "handler_errors", "samples_out_compiled")}
     row_before, row_after = client_row(before, session), client_row(after, session)
     for name in ("messages_in", "bytes_in", "retransmissions"):
         deltas["client_" + name] = row_after[name] - row_before[name]
@@ -172,6 +172,9 @@ def test_acknacks_compiled_and_python_paths_send_retransmit_unblock_and_count_th
         assert deltas["samples_out"] == 62 and deltas["retransmissions"] == 2, deltas
         assert deltas["client_retransmissions"] == 2 and deltas["dropped"] == 0, deltas
         assert deltas["decode_errors"] == 0 and deltas["handler_errors"] == 0, deltas
+    compiled_out = compiled[2].pop("samples_out_compiled")
+    assert python[2].pop("samples_out_compiled") == 0
+    assert compiled_out >= 40, compiled  # the acknowledged-at-once ones at least went out from C
     assert compiled[2] == python[2], (compiled[2], python[2])
     assert "reliable output stream 0x80: plain ACKNACKs take the compiled path" in compiled[3]
     assert "plain ACKNACKs take the compiled path" not in python[3]

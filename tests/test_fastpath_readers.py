@@ -104,7 +104,8 @@ def run_reader_scenario(ros_peer, ros_domain, topic, env):  # noqa: F811
             session.close()
             ros_peer.node.destroy_publisher(publisher)
     deltas = {name: after["agent"][name] - before["agent"][name]
-              for name in ("samples_out", "messages_out", "dropped", "handler_errors")}
+              for name in ("samples_out", "messages_out", "dropped", "handler_errors",
+                           "samples_out_compiled")}
     return steps, deltas, answered, "".join(agent.output)
 
 
@@ -136,6 +137,10 @@ def test_samples_from_ros_compiled_and_python_paths_deliver_and_count_the_same(
         assert deltas["samples_out"] == 30 and deltas["messages_out"] >= 30, deltas
         assert deltas["dropped"] == 0 and deltas["handler_errors"] == 0, deltas
     assert compiled[1]["samples_out"] == python[1]["samples_out"]
+    # All but the limited READ_DATA's 3 (Python's) and the first of each unlimited one (Python
+    # serves it, then hands the reader to C) went out from C; none from C without it.
+    assert compiled[1]["samples_out_compiled"] >= 30 - 3 - 2 - 2, compiled[1]
+    assert python[1]["samples_out_compiled"] == 0, python[1]
     assert compiled[2] and python[2]  # the deletion under a flood left the agent serving
     assert "reader 0x" in compiled[3] and ": samples from ROS take the compiled path" in compiled[3]
     assert "samples from ROS take the compiled path" not in python[3]

@@ -441,6 +441,7 @@ static PyMethodDef Receiver_methods[] = {
     {"add_reader", (PyCFunction)Receiver_add_reader, METH_VARARGS, NULL},
     {"remove_reader", (PyCFunction)Receiver_remove_reader, METH_O, NULL},
     {"set_reader_client", (PyCFunction)Receiver_set_reader_client, METH_VARARGS, NULL},
+    {"reclaim_reader", (PyCFunction)Receiver_reclaim_reader, METH_O, NULL},
     {"set_reader_direct", (PyCFunction)Receiver_set_reader_direct, METH_VARARGS, NULL},
     {"heartbeat_due", (PyCFunction)Receiver_heartbeat_due, METH_O, NULL},
     {"fold_readers", (PyCFunction)Receiver_fold_readers, METH_NOARGS, NULL},

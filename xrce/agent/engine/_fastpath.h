@@ -292,6 +292,7 @@ PyObject *Receiver_add_reader(Receiver *self, PyObject *args);
 PyObject *Receiver_remove_reader(Receiver *self, PyObject *args);
 PyObject *Receiver_set_reader_direct(Receiver *self, PyObject *args);
 PyObject *Receiver_set_reader_client(Receiver *self, PyObject *args);
+PyObject *Receiver_reclaim_reader(Receiver *self, PyObject *arg);
 PyObject *Receiver_heartbeat_due(Receiver *self, PyObject *arg);
 PyObject *Receiver_fold_readers(Receiver *self, PyObject *unused);
 PyObject *Receiver_add_out_best_effort(Receiver *self, PyObject *args);

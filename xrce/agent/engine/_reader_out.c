@@ -286,6 +286,24 @@ PyObject *Receiver_remove_reader(Receiver *self, PyObject *arg) {
     return counts;
 }
 
+/* reclaim_reader(token): the subscription's callback is C's again. rclpy's events executor sets
+ * its own when it adds a subscription, which can be after C took it (a domain joined with the
+ * client's first CREATEs adds its entities to the executor once that burst is over): Python calls
+ * this when the executor delivers a sample of a reader C holds. */
+PyObject *Receiver_reclaim_reader(Receiver *self, PyObject *arg) {
+    long token = PyLong_AsLong(arg);
+    if (token == -1 && PyErr_Occurred()) return NULL;
+    int found = 0;
+    pthread_mutex_lock(&self->mutex);
+    for (Reader *r = self->readers; r; r = r->next) {
+        if (r->token != token) continue;
+        found = set_message_callback(r->subscription, on_new_message, r) == RCL_RET_OK;
+        break;
+    }
+    pthread_mutex_unlock(&self->mutex);
+    return PyBool_FromLong(found);
+}
+
 /* set_reader_client(token, handle) -> True if both are registered: the reader's samples may be
  * sent to that client (again) once Python sets it direct. */
 PyObject *Receiver_set_reader_client(Receiver *self, PyObject *args) {

@@ -148,7 +148,12 @@ class DataPath:
         return write
 
     def _sample_callback(self, client: ClientProxy, object_id: int):
+        fastpaths = self.fastpaths
+
         def on_data(sample: bytes) -> None:
+            for fastpath in fastpaths:  # (only where C holds the reader: see reclaim_reader)
+                if fastpath.reader_tokens:
+                    fastpath.reclaim_reader(client, object_id)
             self._from_middleware(client, object_id, bytes(sample))
         return on_data
 

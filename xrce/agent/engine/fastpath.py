@@ -319,6 +319,15 @@ class FastPath:
         self.direct[token] = want
         self.receiver.set_reader_direct(token, want[0], stream_id, client.mtu)
 
+    def reclaim_reader(self, client, object_id: int) -> None:
+        """rclpy's executor delivered a sample of a reader C holds: it set the subscription's
+        callback after C did (it adds a new domain's entities once the first client's burst of
+        CREATEs is over), so C takes the callback back; this sample goes Python's way."""
+        token = self.reader_tokens.get((client.key_int, object_id))
+        if token is not None and self.receiver.reclaim_reader(token):
+            log.debug("client %s: reader 0x%04X: taken back from rclpy's executor",
+                      client.key.hex(), object_id)
+
     def forget_reader(self, client, object_id: int) -> None:
         """Before the reader's subscription is destroyed: C lets go of it (and rmw calls C's
         callback no more)."""
@@ -425,6 +434,7 @@ class FastPath:
             (samples, count, size), rows = sent
             stats = self.agent.stats
             stats.samples_out += samples
+            stats.samples_out_compiled += samples
             stats.messages_out += count
             stats.bytes_out += size
             self.link.stats.messages_out += count

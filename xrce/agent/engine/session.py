@@ -81,6 +81,7 @@ class AgentStats:
     status_lost: int = 0  # STATUS not sent (none since a reply waits for room in a full window)
     samples_in: int = 0
     samples_compiled: int = 0  # of samples_in, those the compiled UDP read published
+    samples_out_compiled: int = 0  # of samples_out, those the compiled path sent to a board
     samples_out: int = 0
     samples_overwritten: int = 0  # reader queue full: oldest sample dropped
     clients_created: int = 0
