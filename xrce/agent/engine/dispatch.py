@@ -279,15 +279,16 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         return None if self._timer is None else self._timer_due
 
     async def start(self) -> None:
-        """Start the middleware (join the default ROS domain). Idempotent; ``run`` calls it too,
-        the CLI awaits it before opening any link so that no client is answered meanwhile."""
+        """Start the middleware (it joins no ROS domain until a client's participant asks for
+        one). Idempotent; ``run`` calls it too, the CLI awaits it before opening any link so that
+        no client is answered meanwhile."""
         if self.loop is None:
             self.loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
         if not self._started:
             self._started = True
             await self.middleware.start()
-            # Everything built so far (rclpy, message classes, the ROS context) lives as long as
+            # Everything built so far (rclpy and the modules the agent imported) lives as long as
             # the agent: out of the collector's sight, full collections stay short (ping p99).
             gc.freeze()
             _return_free_heap()
