@@ -1,13 +1,14 @@
 """Which event loop the agent runs on: uvloop (libuv's loop, a dependency of xrce) unless
 ``XRCE_AGENT_LOOP=asyncio`` asks for the standard library's.
 
-Why uvloop: a board's traffic wakes the agent a few hundred times a second (PX4's 100 Hz topics
-about 230), and at that rate the standard loop's own turn around each wake-up is a large part of
-the agent's CPU: with PX4 SITL streaming, the agent used 0.75x the CPU on uvloop that it used on
-the standard loop, for 2.1 MB more resident memory under the TurtleBot3 load (docs/PERFORMANCE.md,
-"The event loop"). The agent uses only what both loops provide, and the tests run the same
-scenarios on both (tests/test_event_loop.py), so the standard loop stays a working choice where
-uvloop cannot be installed or memory counts more than CPU.
+Why uvloop: without the compiled data path every datagram of a board wakes the loop (PX4's 100 Hz
+topics about 230 times a second), and the standard loop's own turn around each wake-up was a large
+part of the agent's CPU (PX4 SITL: 0.75x on uvloop). With the compiled path a board's steady traffic
+no longer wakes the loop: the TurtleBot3 load costs the same on both loops, the PX4 replay 0.93
+against 1.27 % of a core, and uvloop 2.2 MB more resident memory (docs/PERFORMANCE.md, issue 45).
+The agent uses only what both loops provide, and the tests run the same scenarios on both
+(tests/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
+installed or memory counts more than CPU.
 """
 
 from __future__ import annotations
