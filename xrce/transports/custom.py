@@ -28,10 +28,6 @@ _FRAMED_READ_SIZE = 256
 # piece) was what a small heap could not find once it was cut up.
 _PIECE = const(64)
 _SPARE = bytes(_PIECE)
-# framing.py's, folded here at compile time: a per-call import of them allocated 32 bytes a message.
-_FLAG = const(0x7E)
-_ESCAPE = const(0x7D)
-_ESCAPE_XOR = const(0x20)
 
 
 class CustomTransport:
@@ -60,6 +56,8 @@ class CustomTransport:
         "_read_cb",
         "_crc",
         "_out",
+        "_frame",
+        "_flush",
         "_is_open",
         "_pending",
         "_buf",
@@ -96,15 +94,17 @@ class CustomTransport:
         self._pending = []
         if framing:
             from xrce.transports.crc import get_crc
-            from xrce.transports.framing import FrameDecoder
+            from xrce.transports.framing import FrameDecoder, write_frame
 
             self._crc = get_crc(crc)
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
             self._buf = bytearray(_FRAMED_READ_SIZE)
             out = self._out = bytearray(2 * _PIECE)
             out[_PIECE:] = b""  # _PIECE long, _PIECE bytes to spare in its block (see _piece)
+            self._frame = write_frame  # framing.py's, loaded only here (see above)
+            self._flush = self._piece  # bound once: a bound method per send is an allocation
         else:
-            self._crc = self._out = None
+            self._crc = self._out = self._frame = self._flush = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -146,53 +146,10 @@ class CustomTransport:
         return True
 
     def _send_framed(self, msg):
-        # encode_frame's bytes, escaped into _out as they are made and handed to write_cb a piece at
-        # a time (SerialTransport's scheme): no frame object. The message's own bytes are walked by
-        # iterating it (no index arithmetic per byte, the loop a board spends its time in).
-        out = self._out
-        length = len(msg)
-        check = self._crc(msg)
-        out[0] = _FLAG
-        n = 1
-        for k in range(4):
-            if k == 0:
-                byte = self.local_addr
-            elif k == 1:
-                byte = self.remote_addr
-            elif k == 2:
-                byte = length & 0xFF
-            else:
-                byte = length >> 8
-            if byte == _FLAG or byte == _ESCAPE:
-                out[n] = _ESCAPE
-                n += 1
-                byte ^= _ESCAPE_XOR
-            out[n] = byte
-            n += 1
-        for byte in msg:
-            if byte == _FLAG or byte == _ESCAPE:
-                out[n] = _ESCAPE
-                n += 1
-                byte ^= _ESCAPE_XOR
-            out[n] = byte
-            n += 1
-            if n >= _PIECE - 1:  # an escaped byte takes two
-                if not self._piece(n):
-                    return False
-                n = 0
-        for k in range(2):
-            byte = check >> 8 if k else check & 0xFF
-            if byte == _FLAG or byte == _ESCAPE:
-                out[n] = _ESCAPE
-                n += 1
-                byte ^= _ESCAPE_XOR
-            out[n] = byte
-            n += 1
-            if n >= _PIECE - 1 and not k:  # the check byte after it, escaped, must fit too
-                if not self._piece(n):
-                    return False
-                n = 0
-        return self._piece(n)
+        # encode_frame's bytes, escaped into _out and handed to write_cb a piece at a time
+        # (framing.write_frame, SerialTransport's scheme too): no frame object.
+        return self._frame(self._out, _PIECE, msg, self.local_addr, self.remote_addr,
+                           self._crc(msg), self._flush)
 
     def _piece(self, n):
         # _out[:n] to write_cb as _out itself, cut to n in place: a bytearray shortened by slice

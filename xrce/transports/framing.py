@@ -59,6 +59,56 @@ def encode_frame(payload, src, dst, crc=crc16_arc):
     return _FLAG_BYTES + body
 
 
+def write_frame(out, size, msg, src, dst, check, flush):
+    # encode_frame's bytes for ``msg`` (``check`` its CRC), escaped into ``out`` (``size`` bytes) as
+    # they are made and handed to ``flush(n)`` (``out[:n]``) a piece at a time: no frame object, so
+    # nothing allocated per message. False as soon as ``flush`` is. The message's own bytes are
+    # walked by iterating it (no index arithmetic per byte: this loop is where a board spends its
+    # sending time). SerialTransport and CustomTransport(framing=True) send through it.
+    length = len(msg)
+    out[0] = FLAG
+    n = 1
+    for k in range(4):
+        if k == 0:
+            byte = src
+        elif k == 1:
+            byte = dst
+        elif k == 2:
+            byte = length & 0xFF
+        else:
+            byte = length >> 8
+        if byte == FLAG or byte == ESCAPE:
+            out[n] = ESCAPE
+            n += 1
+            byte ^= ESCAPE_XOR
+        out[n] = byte
+        n += 1
+    for byte in msg:
+        if byte == FLAG or byte == ESCAPE:
+            out[n] = ESCAPE
+            n += 1
+            byte ^= ESCAPE_XOR
+        out[n] = byte
+        n += 1
+        if n >= size - 1:  # an escaped byte takes two
+            if not flush(n):
+                return False
+            n = 0
+    for k in range(2):
+        byte = check >> 8 if k else check & 0xFF
+        if byte == FLAG or byte == ESCAPE:
+            out[n] = ESCAPE
+            n += 1
+            byte ^= ESCAPE_XOR
+        out[n] = byte
+        n += 1
+        if n >= size - 1 and not k:  # the check byte after it, escaped, must fit too
+            if not flush(n):
+                return False
+            n = 0
+    return flush(n)
+
+
 class FrameDecoder:
     # Streaming decoder of serial frames, fed arbitrary chunks of the byte stream.
     #

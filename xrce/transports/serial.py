@@ -17,7 +17,7 @@
 from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 from xrce.transports.crc import get_crc
-from xrce.transports.framing import ESCAPE, ESCAPE_XOR, FLAG, FrameDecoder, encode_frame
+from xrce.transports.framing import FrameDecoder, encode_frame, write_frame
 
 try:
     import serial as _pyserial  # pyserial
@@ -73,6 +73,7 @@ class SerialTransport:
         "_view",
         "_poller",
         "_out",
+        "_flush",
         "_chunk_pos",
         "_chunk_end",
     )
@@ -95,6 +96,7 @@ class SerialTransport:
         self._buf = bytearray(_CHUNK)
         self._view = memoryview(self._buf)
         self._out = None
+        self._flush = self._write_out  # bound once: a bound method per send is an allocation
         self._chunk_pos = self._chunk_end = 0  # what recv_frame has not scanned yet of _buf
         self._poller = None
         self.open()
@@ -173,53 +175,8 @@ class SerialTransport:
         return True
 
     def _send_uart(self, msg):
-        # encode_frame's bytes, written through _out as they are escaped: no frame object. The
-        # message's own bytes are walked by iterating it (no index arithmetic per byte: this loop
-        # is where a board spends its sending time).
-        out = self._out
-        length = len(msg)
-        check = self._crc(msg)
-        out[0] = FLAG
-        n = 1
-        for k in range(4):
-            if k == 0:
-                byte = self.local_addr
-            elif k == 1:
-                byte = self.remote_addr
-            elif k == 2:
-                byte = length & 0xFF
-            else:
-                byte = length >> 8
-            if byte == FLAG or byte == ESCAPE:
-                out[n] = ESCAPE
-                n += 1
-                byte ^= ESCAPE_XOR
-            out[n] = byte
-            n += 1
-        for byte in msg:
-            if byte == FLAG or byte == ESCAPE:
-                out[n] = ESCAPE
-                n += 1
-                byte ^= ESCAPE_XOR
-            out[n] = byte
-            n += 1
-            if n >= _OUT_CHUNK - 1:  # an escaped byte takes two
-                if not self._write_out(n):
-                    return False
-                n = 0
-        for k in range(2):
-            byte = check >> 8 if k else check & 0xFF
-            if byte == FLAG or byte == ESCAPE:
-                out[n] = ESCAPE
-                n += 1
-                byte ^= ESCAPE_XOR
-            out[n] = byte
-            n += 1
-            if n >= _OUT_CHUNK - 1 and not k:  # the check byte after it, escaped, must fit too
-                if not self._write_out(n):
-                    return False
-                n = 0
-        return self._write_out(n)
+        return write_frame(self._out, _OUT_CHUNK, msg, self.local_addr, self.remote_addr,
+                           self._crc(msg), self._flush)
 
     def _write_out(self, count):
         uart = self._uart
