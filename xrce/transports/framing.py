@@ -66,6 +66,7 @@ def write_frame(out, size, msg, src, dst, check, flush):
     # walked by iterating it (no index arithmetic per byte: this loop is where a board spends its
     # sending time). SerialTransport and CustomTransport(framing=True) send through it.
     length = len(msg)
+    last = size - 1  # once: the per-byte test below is the loop's cost on a board
     out[0] = FLAG
     n = 1
     for k in range(4):
@@ -90,7 +91,7 @@ def write_frame(out, size, msg, src, dst, check, flush):
             byte ^= ESCAPE_XOR
         out[n] = byte
         n += 1
-        if n >= size - 1:  # an escaped byte takes two
+        if n >= last:  # an escaped byte takes two
             if not flush(n):
                 return False
             n = 0
@@ -102,7 +103,7 @@ def write_frame(out, size, msg, src, dst, check, flush):
             byte ^= ESCAPE_XOR
         out[n] = byte
         n += 1
-        if n >= size - 1 and not k:  # the check byte after it, escaped, must fit too
+        if n >= last and not k:  # the check byte after it, escaped, must fit too
             if not flush(n):
                 return False
             n = 0
