@@ -152,6 +152,11 @@ class FastPath:
         self.reader_tokens: Dict[tuple, int] = {}
         self.direct: Dict[int, Optional[tuple]] = {}
         self.serves_readers = bool(_fastpath.resolve_readers())
+        # While Python handles a hand-over, readers it delivered to wait here to be given back
+        # to C (reader_ready): C would otherwise send a newer sample before Python has sent an
+        # older one still in the same hand-over.
+        self._handing = False
+        self._revisit: Dict[tuple, tuple] = {}
         self._loop = asyncio.get_running_loop()
         # The thread writes it when it has handed datagrams over or wants a fold.
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
@@ -187,6 +192,7 @@ class FastPath:
         stats = link.stats
         receiver = self.receiver
         receiver.pause()
+        self._handing = True
         try:
             while True:
                 rest = receiver.take()
@@ -202,6 +208,9 @@ class FastPath:
                     link._deliver(source, data)
                 if not rest:
                     break
+            self._handing = False
+            while self._revisit:  # every sample C handed over is out: C may send again
+                self.reader_ready(*self._revisit.popitem()[1])
             dropped = receiver.handoff_dropped()
             if dropped:
                 stats.drops += dropped
@@ -211,6 +220,8 @@ class FastPath:
             if receiver.heartbeat_due(False):  # C sent reliable DATA: its HEARTBEAT round
                 self.agent._heartbeat_soon()
         finally:
+            self._handing = False
+            self._revisit.clear()
             receiver.resume()  # what came meanwhile waits in the hand-off: the eventfd is set
 
     def pause(self) -> None:
@@ -273,6 +284,10 @@ class FastPath:
             want = (active.request_id, active.stream_id)
         token = self.reader_tokens.get((client.key_int, entry.object_id))
         if token is not None and self.direct.get(token) == want:
+            return
+        if want is not None and self._handing and \
+                threading.get_ident() == self.agent._loop_thread:
+            self._revisit[(client.key_int, entry.object_id)] = (client, entry)
             return
         if want is None:
             if token is not None:
