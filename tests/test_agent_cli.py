@@ -170,7 +170,8 @@ def test_demo_reports_a_bad_ros_domain_id_in_one_line():
                           capture_output=True, text=True, timeout=START_TIMEOUT)
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.splitlines() == [
-        "xrce-agent demo: error: ROS_DOMAIN_ID=abc is not a domain id (unset it, or pass --domain N)"]
+        "xrce-agent demo: error: ROS_DOMAIN_ID=abc is not a domain id in 0..232 (unset it, or pass "
+        "--domain N)"]
 
 
 def test_help_shows_defaults_and_what_each_option_is_for():

@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 
+from xrce.agent.engine.objects import MAX_DOMAIN_ID
 from xrce.tools.ros_cli import ros2_command
 
 PROG = "xrce-agent demo"
@@ -79,10 +80,16 @@ def _user_domain():
     if not text:
         return 0
     try:
-        return int(text)
+        domain = int(text)
     except ValueError:
-        raise UsageError("ROS_DOMAIN_ID=%s is not a domain id (unset it, or pass --domain N)"
-                         % text) from None
+        domain = -1
+    # Checked before anything starts (--domain is checked by its parser): Fast DDS ends the whole
+    # process (exit 1, no exception) when this process's own node joins a domain over 232, which
+    # left the demo's agent and robot running; the agent itself refuses the robot's participant.
+    if not 0 <= domain <= MAX_DOMAIN_ID:
+        raise UsageError("ROS_DOMAIN_ID=%s is not a domain id in 0..%d (unset it, or pass "
+                         "--domain N)" % (text, MAX_DOMAIN_ID))
+    return domain
 
 
 def choose_network(args):
