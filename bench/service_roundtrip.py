@@ -8,12 +8,8 @@ Measure on a private loopback and /dev/shm, so no other DDS participant of the m
     unshare -nm sh -c 'ip link set lo up && mount -t tmpfs tmpfs /dev/shm && \\
         .venv/bin/python bench/service_roundtrip.py --agent-cmd $PEERS/agent.sh'
 
-The firmware is the real one's set-up (tests/golden/microros/main.jsonl: rclc + rmw_microxrcedds
-creating its node, topics, the ``/add_two_ints`` replier and its READ_DATA, binary, REUSE|REPLACE)
-replayed by tests/microros_replay.py; then it answers as the firmware did in the recording: each
-request's DATA with a WRITE_DATA of the reply on its reliable stream, the request's sample identity
-in front (the recorded message's bytes, sequence number, request id and sum rewritten), and the
-agent's HEARTBEATs with ACKNACKs. The ROS side is an rclpy ``example_interfaces/srv/AddTwoInts``
+The firmware is the real one's set-up (tests/golden/microros/main.jsonl) replayed, then answering
+as the firmware did in the recording (tests/firmware_replier.py). The ROS side is an rclpy ``example_interfaces/srv/AddTwoInts``
 client in this process (a SingleThreadedExecutor on a thread of its own), as in the recording:
 each call is timed from ``call_async`` to its future's callback, one call at a time, ``--calls``
 of them per round after three warm-up calls, a fresh agent per round. Figure: the median of each
@@ -35,101 +31,10 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from agent_process import AgentProcess  # noqa: E402
 from figures import record  # noqa: E402
-from microros_replay import (  # noqa: E402
-    FIRMWARE_STREAM, Capture, Replayer, UdpChannel,
-)
+from firmware_replier import FirmwareReplier  # noqa: E402
 from peer_agent import CommandAgent  # noqa: E402
 
-from xrce import constants as C  # noqa: E402
-
 INTERFACES = REPO / "tests" / "interfaces"
-REPLIER_OBJECT = b"\x00\x08"
-REPLIER_ID = 0x0008  # its object id, which the DATA of its requests carries
-
-
-def _first_sample(capture):
-    return next(i for i, (_b, data) in enumerate(capture.steps)
-                if data[0] > 0x80 and len(data) > 4 and data[4] == C.WRITE_DATA)
-
-
-def _reply_template(capture):
-    """The firmware's first recorded reply: (message bytes, offset of its WRITE_DATA body)."""
-    for _boot, data in capture.steps:
-        if data[0] > 0x80 and data[1] == FIRMWARE_STREAM and len(data) > 8 and \
-                data[4] == C.WRITE_DATA and data[10:12] == REPLIER_OBJECT:
-            return bytearray(data), 8
-    raise RuntimeError("no reply in the capture")
-
-
-class FirmwareReplier:
-    """The firmware after its set-up: answers every request (see the module docstring)."""
-
-    def __init__(self, port, domain_id):
-        self.capture = Capture("main")
-        self.channel = UdpChannel(port)
-        self.replay = Replayer(self.capture, self.channel, domain_id=domain_id)
-        until = _first_sample(self.capture)
-        self.replay.run(until_step=until)
-        statuses = self.replay.answers.statuses
-        if statuses.get((0, 0x0012), (0, None))[1] != C.STATUS_OK:
-            raise RuntimeError("the replier's CREATE was not answered OK: %r" % (statuses,))
-        self.seq = 1 + max(d[2] | (d[3] << 8) for b, d in self.capture.steps[:until]
-                           if d[0] > 0x80 and d[1] == FIRMWARE_STREAM)
-        self.template, self.body = _reply_template(self.capture)
-        self.request_id = 0x0100
-        self.answered = 0
-        self.requests_seen = 0  # of answers.samples[(0, REPLIER_ID)]
-        self.requested_at = {}  # a -> perf_counter when its request's DATA arrived
-        self.replied_at = {}  # a -> perf_counter when its reply left
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="firmware", daemon=True)
-        self._thread.start()
-
-    def _reply(self, identity: bytes, a: int, b: int) -> None:
-        message = self.template
-        message[2:4] = struct.pack("<H", self.seq)
-        message[self.body:self.body + 2] = struct.pack(">H", self.request_id)
-        message[self.body + 4:self.body + 28] = identity
-        message[self.body + 28:self.body + 36] = struct.pack("<q", a + b)
-        data = bytes(message)
-        self.replay.unacked[(0, self.seq)] = data
-        self.replied_at[a] = time.perf_counter()  # before the reply can arrive
-        self.channel.send(0, data)
-        self.seq = (self.seq + 1) & 0xFFFF
-        self.request_id = 0x0100 + ((self.request_id + 1) & 0x7FFF)
-        self.answered += 1
-
-    def _run(self) -> None:
-        replay = self.replay
-        resend_at = time.monotonic() + 0.2
-        while not self._stop.is_set():
-            for boot, message in self.channel.receive(0.05):
-                # The agent's reliable stream in order, as the firmware's client library
-                # receives it (tests/microros_replay.Answers), acknowledged as it does.
-                if replay.answers.note(boot, message):
-                    replay._acknack(boot)
-                acked = replay.answers.acked.get(boot, 0)
-                for key in [k for k in replay.unacked if k[1] < acked]:
-                    del replay.unacked[key]
-                samples = replay.answers.samples[(0, REPLIER_ID)]
-                while self.requests_seen < len(samples):
-                    sample = samples[self.requests_seen]
-                    self.requests_seen += 1
-                    if len(sample) < 40:
-                        continue
-                    a, b = struct.unpack_from("<qq", sample, 24)
-                    self.requested_at[a] = time.perf_counter()
-                    self._reply(bytes(sample[:24]), a, b)
-            now = time.monotonic()
-            if now >= resend_at:  # what the firmware's client does for unacknowledged messages
-                for (boot, _seq), data in sorted(replay.unacked.items()):
-                    self.channel.send(boot, data)
-                resend_at = now + 0.2
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-        self.channel.close()
 
 
 class RosClient:

@@ -79,6 +79,13 @@ def seconds(text):
     return value
 
 
+def positive_seconds(text):
+    value = seconds(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("must be more than 0 seconds, not %s" % text)
+    return value
+
+
 def baudrate(text):
     try:
         value = int(text)

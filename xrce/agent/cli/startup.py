@@ -93,14 +93,17 @@ def check_paths(args):
         raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
 
 
-def make_middleware(name, linger_s=None):
+def make_middleware(name, linger_s=None, request_timeout_s=None):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
         from xrce.agent.middleware.ced import CedMiddleware
         return CedMiddleware()
+    from xrce.agent.middleware.ros import REQUEST_TIMEOUT_S
     from xrce.agent.middleware.ros.entities import DOMAIN_LINGER_S, RosMiddleware
     return RosMiddleware(park_creation=True,
-                         linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s)
+                         linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s,
+                         request_timeout_s=REQUEST_TIMEOUT_S if request_timeout_s is None
+                         else request_timeout_s)
 
 
 def configure_logging(verbosity):
@@ -121,7 +124,8 @@ async def serve(args, refs):
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
 
-    middleware = make_middleware(args.middleware, getattr(args, "domain_linger", None))
+    middleware = make_middleware(args.middleware, getattr(args, "domain_linger", None),
+                                 getattr(args, "request_timeout", None))
     agent = Agent(middleware, refs=refs, loop=loop,
                   client_dead_time=args.client_dead_time / 1000.0,
                   client_expire_time=args.client_expire_time / 1000.0,

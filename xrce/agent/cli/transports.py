@@ -10,8 +10,8 @@ from __future__ import annotations
 import socket
 
 from xrce.agent import links
-from xrce.agent.cli.arguments import (allow_list, baudrate, milliseconds, port, positive, seconds,
-                                      verbosity)
+from xrce.agent.cli.arguments import (allow_list, baudrate, milliseconds, port, positive,
+                                      positive_seconds, seconds, verbosity)
 
 IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
 
@@ -83,12 +83,18 @@ def add_common_options(parser):
     _add_admission_options(parser)
     parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
-    from xrce.agent.middleware.ros import DOMAIN_LINGER_S  # a constant: no rclpy behind it
+    from xrce.agent.middleware.ros import DOMAIN_LINGER_S, REQUEST_TIMEOUT_S  # no rclpy behind
 
     parser.add_argument("--domain-linger", type=seconds, metavar="S", default=DOMAIN_LINGER_S,
                         help="-m dds: a ROS domain is joined with its first client participant "
                              "and left this long after its last one is deleted (default "
                              "%(default)s; 0: at once)")
+    parser.add_argument("--request-timeout", type=positive_seconds, metavar="S",
+                        default=REQUEST_TIMEOUT_S,
+                        help="-m dds: a service request waits this long for its reply (from a "
+                             "board's replier, or from ROS for a board's requester) before it is "
+                             "forgotten (default %(default)s; an action's get_result waits for "
+                             "its goal however long)")
     parser.add_argument("-r", "--refs", metavar="FILE",
                         help="Fast DDS XML profiles file for objects created by reference")
     parser.add_argument("--interfaces", action="append", default=[], metavar="DIR",

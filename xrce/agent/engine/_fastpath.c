@@ -101,8 +101,19 @@ static int try_fast_reliable(Receiver *self, Client *client, Stream *stream, uin
     if (data[pos] != WRITE_DATA || (data[pos + 1] & FORMAT_MASK) != FORMAT_DATA ||
         sub_length < 4 || end > length || length > ((end + 3) & ~(size_t)3))
         return 0;
-    Writer *writer = find_writer(client, (uint16_t)(data[pos + 6] << 8 | data[pos + 7]));
-    if (writer == NULL) return 0;
+    uint16_t object_id = (uint16_t)(data[pos + 6] << 8 | data[pos + 7]);
+    Writer *writer = find_writer(client, object_id);
+    if (writer == NULL) {  /* a reply to a request the receive thread sent (_replier_out.c) */
+        Reader *replier = find_replier(self, client, object_id);
+        if (replier == NULL || replier_reply(self, replier, data + pos + 8, sub_length - 4, 0) != 1)
+            return 0;
+        stream_delivered(self, client, stream, seq, length);
+        self->samples++;
+        replier->samples++;
+        replier->sample_bytes += sub_length - 4;
+        self->readers_counted = 1;
+        return 1;
+    }
     uint8_t *body = data + pos + 4, ids[4];
     memcpy(ids, body, 4);
     body[0] = 0x00, body[1] = 0x01, body[2] = 0x00, body[3] = 0x00;
@@ -445,6 +456,11 @@ static PyMethodDef Receiver_methods[] = {
     {"set_reader_direct", (PyCFunction)Receiver_set_reader_direct, METH_VARARGS, NULL},
     {"heartbeat_due", (PyCFunction)Receiver_heartbeat_due, METH_O, NULL},
     {"fold_readers", (PyCFunction)Receiver_fold_readers, METH_NOARGS, NULL},
+    /* _replier_out.c */
+    {"add_replier", (PyCFunction)Receiver_add_replier, METH_VARARGS, NULL},
+    {"send_reply", (PyCFunction)Receiver_send_reply, METH_VARARGS, NULL},
+    {"replier_sequence", (PyCFunction)Receiver_replier_sequence, METH_O, NULL},
+    {"take_expired", (PyCFunction)Receiver_take_expired, METH_NOARGS, NULL},
     {"add_out_best_effort", (PyCFunction)Receiver_add_out_best_effort, METH_VARARGS, NULL},
     {"out_best_effort_next", (PyCFunction)Receiver_out_best_effort_next, METH_VARARGS, NULL},
     {"add_client", (PyCFunction)Receiver_add_client, METH_VARARGS, NULL},

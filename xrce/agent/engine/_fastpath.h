@@ -108,6 +108,33 @@ typedef struct OutBestEffort {
  * READ_DATA without limits and nothing queued in Python), a sample goes out here as a DATA on
  * stream_id; otherwise, or when it cannot (window full, too long, client not enabled), it is
  * handed to Python and direct delivery stops until Python sets it again. */
+/* A board's replier served here (_replier_out.c): what a Reader of a service needs beyond a
+ * datareader's. Requests go to the board under an identity of this replier's; the DDS request
+ * each answers (rmw_request_id_t) waits here until its reply comes back or it expires. */
+#define PENDING_REQUESTS 256  /* a power of two: requests of one replier awaiting the board */
+typedef struct PendingRequest {
+    uint64_t sequence;    /* the identity's sequence number; 0: answered or expired */
+    int64_t deadline_ns;  /* CLOCK_MONOTONIC; 0: waits however long (an action's get_result) */
+    uint64_t header[3];   /* rmw_request_id_t: the requester's writer GUID, its sequence number */
+} PendingRequest;
+
+typedef struct ServicePart {
+    const void *request_type, *response_type;  /* rosidl message type supports */
+    void *(*create_request)(void);
+    void (*destroy_request)(void *);
+    void *(*create_response)(void);
+    void (*destroy_response)(void *);
+    uint8_t prefix[16];   /* the identities' GUID: guidPrefix, entityKey, entityKind */
+    uint64_t sequence;    /* the last identity given, here or to Python (replier_sequence) */
+    int64_t timeout_ns;   /* 0: requests never expire */
+    unsigned head, count; /* the pending ring, oldest first */
+    PendingRequest pending[PENDING_REQUESTS];
+} ServicePart;
+
+typedef void (*event_callback_fn)(const void *user_data, size_t count);
+typedef int (*set_event_callback_fn)(const void *entity, event_callback_fn callback,
+                                     const void *user_data);
+
 typedef struct Reader {
     struct Reader *next;
     struct Client *client;
@@ -119,6 +146,10 @@ typedef struct Reader {
     uint8_t stream_id;
     volatile int signalled;    /* rmw said a sample is waiting (atomic builtins) */
     uint64_t samples, sample_bytes, messages, bytes;  /* sent here since the last fold */
+    /* A replier's (subscription is then its rcl_service_t *), NULL for a datareader; and the
+     * rcl function that points the entity's new-data callback. */
+    ServicePart *service;
+    set_event_callback_fn set_callback;
 } Reader;
 
 typedef struct Client {
@@ -205,6 +236,9 @@ typedef struct Receiver {
      * (heartbeat_due): Python is woken once for it, not per message. */
     int heartbeat_due;
     uint64_t samples_out, reader_messages, reader_bytes;
+    int readers_counted;        /* some reader's counters moved since the last fold_readers */
+    uint64_t requests_expired;  /* repliers' requests the board never answered, since the last
+                                 * take_expired */
     int handoff_count;
     size_t handoff_bytes;
     uint64_t handoff_dropped;
@@ -280,6 +314,9 @@ PyObject *Receiver_add_writer(Receiver *self, PyObject *args);
 PyObject *Receiver_remove_writer(Receiver *self, PyObject *args);
 
 /* _reader_out.c */
+extern rcutils_allocator_t take_allocator;
+int ensure_take_buffer(Receiver *self);
+void on_new_message(const void *user_data, size_t count);
 void deliver_samples(Receiver *self);
 void detach_readers(Receiver *self, Client *c);
 void free_readers(Receiver *self);
@@ -297,6 +334,19 @@ PyObject *Receiver_heartbeat_due(Receiver *self, PyObject *arg);
 PyObject *Receiver_fold_readers(Receiver *self, PyObject *unused);
 PyObject *Receiver_add_out_best_effort(Receiver *self, PyObject *args);
 PyObject *Receiver_out_best_effort_next(Receiver *self, PyObject *args);
+
+/* _replier_out.c */
+int resolve_rcl_services(void);
+void deliver_requests(Receiver *self, Reader *r);
+Reader *find_replier(Receiver *self, Client *c, uint16_t object_id);
+int replier_reply(Receiver *self, Reader *r, uint8_t *sample, size_t length, int final);
+void free_service_part(Reader *r);
+int send_direct(Receiver *self, Reader *r, const uint8_t *lead, size_t lead_length,
+                const uint8_t *cdr, size_t length);
+PyObject *Receiver_add_replier(Receiver *self, PyObject *args);
+PyObject *Receiver_send_reply(Receiver *self, PyObject *args);
+PyObject *Receiver_replier_sequence(Receiver *self, PyObject *arg);
+PyObject *Receiver_take_expired(Receiver *self, PyObject *unused);
 
 /* _reliable_out.c */
 OutStream *find_out_stream(Client *c, uint8_t stream_id);

@@ -34,18 +34,15 @@
 #define ENCAPSULATION 4
 #define MAX_TAKE_ROUND 64  /* samples of one reader per pass: the others get their turn */
 
-typedef void (*event_callback_fn)(const void *user_data, size_t count);
-typedef int (*set_message_callback_fn)(const void *subscription, event_callback_fn callback,
-                                       const void *user_data);
 typedef int (*take_serialized_fn)(const void *subscription, serialized_message_t *message,
                                   void *message_info, void *allocation);
 typedef rcutils_allocator_t (*default_allocator_fn)(void);
 typedef void *(*allocate_fn)(size_t size, void *state);
 typedef void (*deallocate_fn)(void *pointer, void *state);
 
-static set_message_callback_fn set_message_callback;
+static set_event_callback_fn set_message_callback;
 static take_serialized_fn take_serialized;
-static rcutils_allocator_t allocator;
+rcutils_allocator_t take_allocator;  /* rcutils' default: rmw may grow a buffer of it */
 
 static void *lookup(const char *library_name, const char *symbol) {
     void *library = dlopen(library_name, RTLD_NOW | RTLD_NOLOAD);
@@ -60,12 +57,12 @@ PyObject *resolve_rcl_readers(void) {
     if (take_serialized == NULL) {
         default_allocator_fn get_allocator =
             (default_allocator_fn)lookup("librcutils.so", "rcutils_get_default_allocator");
-        set_message_callback_fn set_callback = (set_message_callback_fn)lookup(
+        set_event_callback_fn set_callback = (set_event_callback_fn)lookup(
             "librcl.so", "rcl_subscription_set_on_new_message_callback");
         take_serialized_fn take = (take_serialized_fn)lookup("librcl.so",
                                                              "rcl_take_serialized_message");
         if (get_allocator && set_callback && take) {
-            allocator = get_allocator();
+            take_allocator = get_allocator();
             set_message_callback = set_callback;
             take_serialized = take;
         }
@@ -73,8 +70,9 @@ PyObject *resolve_rcl_readers(void) {
     return PyBool_FromLong(take_serialized != NULL);
 }
 
-/* Fast DDS's thread, with its listener's lock held: no lock here, one write. */
-static void on_new_message(const void *user_data, size_t count) {
+/* Fast DDS's thread, with its listener's lock held: no lock here, one write. A replier's
+ * requests signal the same way (_replier_out.c). */
+void on_new_message(const void *user_data, size_t count) {
     (void)count;
     Reader *r = (Reader *)user_data;
     __atomic_store_n(&r->signalled, 1, __ATOMIC_RELEASE);
@@ -89,12 +87,14 @@ static OutBestEffort *find_out_best_effort(Client *c, uint8_t stream_id) {
     return NULL;
 }
 
-/* Send ``length`` bytes of CDR (encapsulation first) to the reader's client as one DATA; 0 when
- * Python must have the sample. Called locked. */
-static int send_direct(Receiver *self, Reader *r, const uint8_t *cdr, size_t length) {
+/* Send ``lead`` (a replier's sample identity, else nothing) and ``length`` bytes of CDR
+ * (encapsulation first) to the reader's client as one DATA; 0 when Python must have the sample.
+ * Called locked. */
+int send_direct(Receiver *self, Reader *r, const uint8_t *lead, size_t lead_length,
+                const uint8_t *cdr, size_t length) {
     Client *c = r->client;
     if (c == NULL || r->request_id < 0 || !c->enabled || !self->enabled || length < ENCAPSULATION) return 0;
-    size_t body = length - ENCAPSULATION;
+    size_t body = lead_length + length - ENCAPSULATION;
     size_t head = c->session_id < 0x80 ? 8 : 4;
     size_t total = head + 8 + body;
     if (total > c->mtu || body + 4 > 0xFFFF) return 0;  /* Python fragments or names it */
@@ -123,7 +123,8 @@ static int send_direct(Receiver *self, Reader *r, const uint8_t *cdr, size_t len
     message[n++] = sub_length & 0xFF, message[n++] = sub_length >> 8;
     message[n++] = (uint8_t)(r->request_id >> 8), message[n++] = (uint8_t)r->request_id;
     message[n++] = r->object_id >> 8, message[n++] = r->object_id & 0xFF;
-    memcpy(message + n, cdr + ENCAPSULATION, body);
+    if (lead_length) memcpy(message + n, lead, lead_length);
+    memcpy(message + n + lead_length, cdr + ENCAPSULATION, length - ENCAPSULATION);
     /* A failed send is a datagram lost on the way, as Python's link counts it: a reliable
      * stream retransmits it when the board NACKs. */
     ssize_t sent = sendto(self->sock, message, total, MSG_DONTWAIT,
@@ -151,36 +152,45 @@ static int send_direct(Receiver *self, Reader *r, const uint8_t *cdr, size_t len
     r->samples++;
     r->sample_bytes += body;
     self->samples_out++;
+    self->readers_counted = 1;
+    return 1;
+}
+
+/* The receive thread's buffer for serialized samples, made on first use; 0 without memory. */
+int ensure_take_buffer(Receiver *self) {
+    if (self->take_buffer != NULL) return 1;
+    self->take_buffer = ((allocate_fn)take_allocator.allocate)(1024, take_allocator.state);
+    if (self->take_buffer == NULL) return 0;
+    self->take_capacity = 1024;
     return 1;
 }
 
 void free_take_buffer(Receiver *self) {
     if (self->take_buffer != NULL)
-        ((deallocate_fn)allocator.deallocate)(self->take_buffer, allocator.state);
+        ((deallocate_fn)take_allocator.deallocate)(self->take_buffer, take_allocator.state);
     self->take_buffer = NULL;
     self->take_capacity = 0;
 }
 
 /* The receive thread, locked: every signalled reader's waiting samples. */
 void deliver_samples(Receiver *self) {
-    if (take_serialized == NULL) return;
-    if (self->take_buffer == NULL) {  /* the allocator's, so that rmw may grow it */
-        self->take_buffer = ((allocate_fn)allocator.allocate)(1024, allocator.state);
-        if (self->take_buffer == NULL) return;
-        self->take_capacity = 1024;
-    }
+    if (take_serialized == NULL || !ensure_take_buffer(self)) return;
     uint64_t info[32];  /* rmw_message_info_t, written by rmw and not read here */
     for (Reader *r = self->readers; r; r = r->next) {
         if (!__atomic_exchange_n(&r->signalled, 0, __ATOMIC_ACQ_REL)) continue;
+        if (r->service) {  /* a replier's requests */
+            deliver_requests(self, r);
+            continue;
+        }
         int taken;
         for (taken = 0; taken < MAX_TAKE_ROUND; taken++) {
-            serialized_message_t message = {self->take_buffer, 0, self->take_capacity, allocator};
+            serialized_message_t message = {self->take_buffer, 0, self->take_capacity, take_allocator};
             int ret = take_serialized(r->subscription, &message, info, NULL);
             /* rmw grows the buffer with the allocator when a sample needs more */
             self->take_buffer = message.buffer;
             self->take_capacity = message.buffer_capacity;
             if (ret != RCL_RET_OK) break;  /* nothing left (or the subscription failed) */
-            if (send_direct(self, r, message.buffer, message.buffer_length)) continue;
+            if (send_direct(self, r, NULL, 0, message.buffer, message.buffer_length)) continue;
             r->request_id = -1;  /* Python's until it has delivered what it holds */
             if (!handoff_append(self, r->token, message.buffer, message.buffer_length, NULL, 0))
                 self->handoff_dropped++;  /* counted, as ReaderHandoff drops beyond its depth */
@@ -211,7 +221,8 @@ void detach_readers(Receiver *self, Client *c) {
 void free_readers(Receiver *self) {
     for (Reader *r = self->readers, *n; r; r = n) {
         n = r->next;
-        if (set_message_callback) set_message_callback(r->subscription, NULL, NULL);
+        if (r->set_callback) r->set_callback(r->subscription, NULL, NULL);
+        free_service_part(r);
         free(r);
     }
     self->readers = NULL;
@@ -243,6 +254,7 @@ PyObject *Receiver_add_reader(Receiver *self, PyObject *args) {
         r->object_id = (uint16_t)object_id;
         r->subscription = (const void *)(uintptr_t)address;
         r->request_id = -1;
+        r->set_callback = set_message_callback;
         r->token = token = ++self->next_reader_token;
         r->next = self->readers;
         self->readers = r;
@@ -272,11 +284,12 @@ PyObject *Receiver_remove_reader(Receiver *self, PyObject *arg) {
     for (Reader **link = &self->readers; *link; link = &(*link)->next) {
         Reader *r = *link;
         if (r->token != token) continue;
-        set_message_callback(r->subscription, NULL, NULL);
+        r->set_callback(r->subscription, NULL, NULL);
         *link = r->next;
         counts = Py_BuildValue("(KKKK)", (unsigned long long)r->samples,
                                (unsigned long long)r->sample_bytes,
                                (unsigned long long)r->messages, (unsigned long long)r->bytes);
+        free_service_part(r);
         free(r);
         break;
     }
@@ -297,7 +310,7 @@ PyObject *Receiver_reclaim_reader(Receiver *self, PyObject *arg) {
     pthread_mutex_lock(&self->mutex);
     for (Reader *r = self->readers; r; r = r->next) {
         if (r->token != token) continue;
-        found = set_message_callback(r->subscription, on_new_message, r) == RCL_RET_OK;
+        found = r->set_callback(r->subscription, on_new_message, r) == RCL_RET_OK;
         break;
     }
     pthread_mutex_unlock(&self->mutex);
@@ -360,10 +373,11 @@ PyObject *Receiver_heartbeat_due(Receiver *self, PyObject *arg) {
  * reader by token). */
 PyObject *Receiver_fold_readers(Receiver *self, PyObject *unused) {
     pthread_mutex_lock(&self->mutex);
-    if (self->samples_out == 0) {
+    if (self->samples_out == 0 && !self->readers_counted) {
         pthread_mutex_unlock(&self->mutex);
         Py_RETURN_NONE;
     }
+    self->readers_counted = 0;
     PyObject *rows = PyList_New(0);
     uint64_t messages = 0, bytes = 0;
     for (Reader *r = self->readers; r && rows; r = r->next) {

@@ -33,6 +33,7 @@ from xrce.submessages import Fragment, Heartbeat, ReadData, encode_message
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
 C_DATAWRITER = C.OBJK_DATAWRITER
+C_REPLIER = C.OBJK_REPLIER
 # How long a READ_DATA with max_samples 0 waits for its first sample: eProsima's reader thread's
 # longest single read (see DataPath._read_data).
 ZERO_SAMPLES_FIRST_READ_S = 0.1
@@ -104,7 +105,7 @@ class DataPath:
         entry.samples += 1
         entry.sample_bytes += length - 4
         entry.write(data[start + 8:end])
-        if entry.kind == C_DATAWRITER:
+        if entry.kind == C_DATAWRITER or entry.kind == C_REPLIER:
             fastpath = getattr(link, "fastpath", None)
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
                 fastpath.offer(client, stream_id, entry)
@@ -135,15 +136,23 @@ class DataPath:
             return entry.write(data)
         return False
 
-    def _reply_writer(self, key):
+    def _reply_writer(self, client: ClientProxy, object_id: int):
         """A replier's ``ObjectEntry.write``: its reply (sample identity, then the body) into the
-        middleware. Bound like a writer's so that ``_fast_write`` takes a firmware's replies (one
-        WRITE_DATA per message on its reliable stream) without the general path's decoding."""
+        middleware, or to the compiled path when it took the request. Bound like a writer's so
+        that ``_fast_write`` takes a firmware's replies (one WRITE_DATA per message on its
+        reliable stream) without the general path's decoding."""
         write_reply = self.middleware.write_reply
+        key = client.entity(object_id)
+        fastpaths = self.fastpaths
 
         def write(data: bytes) -> bool:
             if len(data) < 24:
                 return False
+            for fastpath in fastpaths:  # (only where C holds repliers)
+                if fastpath.repliers:
+                    sent = fastpath.send_reply(client, object_id, data)
+                    if sent is not None:
+                        return sent
             return bool(write_reply(key, data[:24], data[24:]))
         return write
 
@@ -158,7 +167,12 @@ class DataPath:
         return on_data
 
     def _request_callback(self, client: ClientProxy, object_id: int):
+        fastpaths = self.fastpaths
+
         def on_request(sample_identity: bytes, request: bytes) -> None:
+            for fastpath in fastpaths:  # (only where C holds the replier: see reclaim_reader)
+                if fastpath.repliers:
+                    fastpath.reclaim_reader(client, object_id)
             self._from_middleware(client, object_id, bytes(sample_identity) + bytes(request))
         return on_request
 

@@ -31,6 +31,10 @@ The board's ACKNACKs for the agent's reliable output streams are taken in C too 
 move the acknowledged point (no NACK, the window not full, no HEARTBEAT being timed): the stream
 becomes a ``CompiledOutputStream`` whose acknowledged point C owns, and whose history Python frees
 as it next looks at the window (``_reliable_out.c`` says why that keeps every rule).
+Samples from ROS to a board's reader, and ROS's requests to a board's replier, are taken by the
+receive thread from rcl (``_reader_out.c``, ``_replier_out.c``) and sent as the DATA Python would
+send while the board's READ_DATA has no limits; a board's reply to a request the thread took goes
+back to ROS from the thread too (``send_reply`` when Python decoded it).
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, Compile
     CompiledReliableStream, CompiledStream
 from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
 from xrce.agent.engine.session import STREAM_WINDOW
+from xrce import constants as C
 from xrce.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
 
 log = logging.getLogger("xrce.agent")
@@ -151,6 +156,7 @@ class FastPath:
         self.readers: Dict[int, tuple] = {}
         self.reader_tokens: Dict[tuple, int] = {}
         self.direct: Dict[int, Optional[tuple]] = {}
+        self.repliers: set = set()  # the tokens of those readers that are repliers
         self.serves_readers = bool(_fastpath.resolve_readers())
         # While Python handles a hand-over, readers it delivered to wait here to be given back
         # to C (reader_ready): C would otherwise send a newer sample before Python has sent an
@@ -170,6 +176,7 @@ class FastPath:
             self.receiver.remove_reader(token)
         self.readers.clear()
         self.reader_tokens.clear()
+        self.repliers.clear()
         self._loop.remove_reader(self._wake_fd)
         os.close(self._wake_fd)
         with self.agent.lock:
@@ -243,7 +250,8 @@ class FastPath:
             return
         self.direct[token] = None  # C stopped sending for it when it handed this one over
         client, object_id = reader
-        self.agent._from_middleware(client, object_id, cdr[4:])
+        # a replier's request comes as its identity and body (C holds the request for the reply)
+        self.agent._from_middleware(client, object_id, cdr if token in self.repliers else cdr[4:])
 
     # -- registration ---------------------------------------------------------------------
 
@@ -300,17 +308,9 @@ class FastPath:
         if state is None:
             return
         if token is None:
-            address_of = getattr(self.agent.middleware, "subscription_address", None)
-            address = address_of(client.entity(entry.object_id)) if address_of else None
-            if not address:
-                return
-            token = self.receiver.add_reader(state.handle, entry.object_id, address)
+            token = self._add_reader(client, state, entry)
             if not token:
                 return
-            self.readers[token] = (client, entry.object_id)
-            self.reader_tokens[(client.key_int, entry.object_id)] = token
-            log.debug("client %s: reader 0x%04X: samples from ROS take the compiled path",
-                      client.key.hex(), entry.object_id)
         stream_id = want[1]
         if stream_id & 0x80:
             if stream_id not in client.out_reliable:
@@ -334,14 +334,65 @@ class FastPath:
         self.direct[token] = want
         self.receiver.set_reader_direct(token, want[0], stream_id, client.mtu)
 
+    def _add_reader(self, client, state: CompiledClient, entry) -> int:
+        """Register the reader's (or replier's) rcl entity in C; its token, 0 if C cannot take
+        it."""
+        middleware = self.agent.middleware
+        key = client.entity(entry.object_id)
+        if entry.kind == C.OBJK_REPLIER:
+            service_of = getattr(middleware, "replier_service", None)
+            service = service_of(key) if service_of is not None else None
+            if service is None:
+                return 0
+            try:
+                token = self.receiver.add_replier(state.handle, entry.object_id, *service)
+            except RuntimeError as exc:  # rcl refused the callback: Python's path goes on
+                log.debug("client %s: replier 0x%04X stays Python's: %s", client.key.hex(),
+                          entry.object_id, exc)
+                return 0
+            if not token:
+                return 0
+            self.repliers.add(token)
+            receiver = self.receiver
+            middleware.replier_sequence_from(key, lambda: receiver.replier_sequence(token))
+            what = "requests from ROS and their replies"
+        else:
+            address_of = getattr(middleware, "subscription_address", None)
+            address = address_of(key) if address_of else None
+            if not address:
+                return 0
+            token = self.receiver.add_reader(state.handle, entry.object_id, address)
+            if not token:
+                return 0
+            what = "samples from ROS"
+        self.readers[token] = (client, entry.object_id)
+        self.reader_tokens[(client.key_int, entry.object_id)] = token
+        log.debug("client %s: %s 0x%04X: %s take the compiled path", client.key.hex(),
+                  "replier" if token in self.repliers else "reader", entry.object_id, what)
+        return token
+
+    def send_reply(self, client, object_id: int, sample: bytes) -> Optional[bool]:
+        """A replier's reply Python decoded (identity, then body): sent by C when it answers a
+        request C holds; None when it is not C's (the middleware's own then)."""
+        token = self.reader_tokens.get((client.key_int, object_id))
+        if token is None or token not in self.repliers:
+            return None
+        sent = self.receiver.send_reply(token, sample)
+        if sent == 0:
+            return None
+        if sent < 0:
+            log.warning("client %s: reply of replier 0x%04X does not deserialize, or ROS refused "
+                        "it", client.key.hex(), object_id)
+        return sent > 0
+
     def reclaim_reader(self, client, object_id: int) -> None:
         """rclpy's executor delivered a sample of a reader C holds: it set the subscription's
         callback after C did (it adds a new domain's entities once the first client's burst of
         CREATEs is over), so C takes the callback back; this sample goes Python's way."""
         token = self.reader_tokens.get((client.key_int, object_id))
         if token is not None and self.receiver.reclaim_reader(token):
-            log.debug("client %s: reader 0x%04X: taken back from rclpy's executor",
-                      client.key.hex(), object_id)
+            log.debug("client %s: %s 0x%04X: taken back from rclpy's executor", client.key.hex(),
+                      "replier" if token in self.repliers else "reader", object_id)
 
     def forget_reader(self, client, object_id: int) -> None:
         """Before the reader's subscription is destroyed: C lets go of it (and rmw calls C's
@@ -350,6 +401,11 @@ class FastPath:
         if token is None:
             return
         self.fold()
+        if token in self.repliers:  # identities are the record's again (it is going anyway)
+            self.repliers.discard(token)
+            set_source = getattr(self.agent.middleware, "replier_sequence_from", None)
+            if set_source is not None:
+                set_source(client.entity(object_id), None)
         self.receiver.remove_reader(token)
         self.readers.pop(token, None)
         self.direct.pop(token, None)
@@ -462,6 +518,15 @@ class FastPath:
                     entry.sample_bytes += sample_bytes
         if publish_errors:
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
+        if self.repliers:
+            expired = self.receiver.take_expired()
+            if expired:
+                middleware = self.agent.middleware
+                middleware.requests_timed_out = getattr(middleware, "requests_timed_out", 0) + \
+                    expired
+                log.warning("%s: %d service requests got no reply from their XRCE client within "
+                            "%.1f s", self.link.name, expired,
+                            getattr(middleware, "request_timeout_s", 0.0))
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
         offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
             else 0.0

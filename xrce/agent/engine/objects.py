@@ -217,7 +217,7 @@ class ObjectRegistry(Mismatches):
             else:
                 mw.create_replier(key, client.entity(entry.parent), spec, qos,
                                   self._request_callback(client, entry.object_id))
-                entry.write = self._reply_writer(key)
+                entry.write = self._reply_writer(client, entry.object_id)
         return C.STATUS_OK
 
     @staticmethod

@@ -18,3 +18,6 @@ command line reads its defaults here without loading rclpy.
 # Seconds a ROS domain stays joined after its last client participant has gone (``membership``;
 # ``--domain-linger``). Why this long: docs/PERFORMANCE.md, "Agent restart and discovery".
 DOMAIN_LINGER_S = 10.0
+# Seconds a service request waits for its reply before it is forgotten (``services``;
+# ``--request-timeout``); an action's get_result waits however long its goal takes.
+REQUEST_TIMEOUT_S = 10.0

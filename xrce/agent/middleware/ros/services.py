@@ -107,7 +107,7 @@ class _ReplierRecord:
 
     __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
                  "identity_prefix", "sequence", "loop", "middleware", "expires",
-                 "in_transit", "raw_reply")
+                 "in_transit", "raw_reply", "next_sequence")
     kind = "replier"
 
     def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
@@ -132,13 +132,19 @@ class _ReplierRecord:
         # The raw reply class when the service exchanges CDR bytes with rclpy
         # (raw_types.raw_service_type), else None: Python messages.
         self.raw_reply = None
+        # Where identities come from once the compiled path serves the replier (it gives them
+        # to the requests it takes itself): None while they are this record's.
+        self.next_sequence = None
 
     def take(self, request, _unused_response) -> _TakenRequest:
         """Service callback (executor thread): ``request`` is its CDR bytes (a raw service
         type), or a Python message."""
-        self.sequence += 1
-        identity = self.identity_prefix + struct.pack("<iI", self.sequence >> 32,
-                                                      self.sequence & 0xFFFFFFFF)
+        sequence = self.next_sequence() if self.next_sequence is not None else None
+        if sequence is None:
+            self.sequence += 1
+            sequence = self.sequence
+        identity = self.identity_prefix + struct.pack("<iI", sequence >> 32,
+                                                      sequence & 0xFFFFFFFF)
         if request.__class__ is bytes:
             return _TakenRequest(identity, request)
         return _TakenRequest(identity, serialize_message(request)[ENCAPSULATION_SIZE:])
@@ -502,6 +508,44 @@ class RosServices:
         finally:
             if lock is not None:
                 lock.release()
+
+    # -- the compiled path's hold on a replier (xrce.agent.engine.fastpath) ---------------------
+
+    # The compiled path starts its identities this far beyond the record's last: a request
+    # rclpy's executor is taking while the path takes the replier over keeps a number of its own.
+    SEQUENCE_GAP = 1 << 16
+
+    def replier_service(self, replier: EntityKey):
+        """What the compiled UDP path needs to take a replier's requests and send its replies
+        itself: (rcl_service_t address, (request type support, create, destroy) capsules, the
+        same of the response, identity prefix, last sequence number, request timeout in s or 0
+        for never); None if rclpy hides any of it. The path then gives the identities, also to
+        the requests rclpy's executor still delivers (``replier_sequence_from``)."""
+        record = self._entities.get(replier)
+        if record is None or record.kind != "replier" or record.closed or record.service is None:
+            return None
+        address = getattr(getattr(record.service, "handle", None), "pointer", None)
+        srv = record.service.srv_type
+        parts = []
+        for message in (srv.Request, srv.Response):
+            capsules = (getattr(message, "_TYPE_SUPPORT", None),
+                        getattr(message, "_CREATE_ROS_MESSAGE", None),
+                        getattr(message, "_DESTROY_ROS_MESSAGE", None))
+            if None in capsules:
+                return None
+            parts.append(capsules)
+        if not address:
+            return None
+        return (address, parts[0], parts[1], record.identity_prefix,
+                record.sequence + self.SEQUENCE_GAP,
+                self.request_timeout_s if record.expires else 0.0)
+
+    def replier_sequence_from(self, replier: EntityKey, next_sequence) -> None:
+        """From now on the replier's identities come from ``next_sequence()`` (None: from the
+        record again)."""
+        record = self._entities.get(replier)
+        if record is not None and record.kind == "replier":
+            record.next_sequence = next_sequence
 
     def write_reply(self, replier: EntityKey, sample_identity: bytes, sample: bytes) -> bool:
         record = self._entities.get(replier)
