@@ -157,6 +157,7 @@ class FastPath:
         self.reader_tokens: Dict[tuple, int] = {}
         self.direct: Dict[int, Optional[tuple]] = {}
         self.repliers: set = set()  # the tokens of those readers that are repliers
+        self._register_soon: set = set()  # (client key, object id) the loop is asked to register
         self.serves_readers = bool(_fastpath.resolve_readers())
         # While Python handles a hand-over, readers it delivered to wait here to be given back
         # to C (reader_ready): C would otherwise send a newer sample before Python has sent an
@@ -302,8 +303,21 @@ class FastPath:
                 self.direct[token] = None
                 self.receiver.set_reader_direct(token, -1, 0, 0)
             return
-        if not self.serves_readers or threading.get_ident() != self.agent._loop_thread:
-            return  # registration is the loop's (the rclpy thread's sample leaves it for later)
+        if not self.serves_readers:
+            return
+        if threading.get_ident() != self.agent._loop_thread:
+            # Registration is the loop's. A sample (or request) delivered on rclpy's thread asks
+            # the loop to try: the entity may not have existed when its READ_DATA came (created
+            # in a burst the domain's executor takes in later), and every later sample could
+            # come this way.
+            key = (client.key_int, entry.object_id)
+            if key not in self._register_soon:
+                self._register_soon.add(key)
+                try:
+                    self._loop.call_soon_threadsafe(self._register_later, key, client, entry)
+                except RuntimeError:  # the loop has closed: the agent is going away
+                    pass
+            return
         state = self._compiled(client, "samples from ROS")
         if state is None:
             return
@@ -333,6 +347,13 @@ class FastPath:
             return  # stream none (a cancel's answer): Python's
         self.direct[token] = want
         self.receiver.set_reader_direct(token, want[0], stream_id, client.mtu)
+
+    def _register_later(self, key: tuple, client, entry) -> None:
+        self._register_soon.discard(key)
+        if client.objects.get(entry.object_id) is not entry:
+            return  # deleted meanwhile
+        with self.agent.lock:  # (reentrant: reader_ready takes it again to compile output)
+            self.reader_ready(client, entry)
 
     def _add_reader(self, client, state: CompiledClient, entry) -> int:
         """Register the reader's (or replier's) rcl entity in C; its token, 0 if C cannot take
