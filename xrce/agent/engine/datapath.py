@@ -325,6 +325,7 @@ class DataPath:
     def pump(self, client: ClientProxy, entry: ObjectEntry) -> None:
         """Deliver queued samples while the active READ_DATA allows and the stream has room."""
         reader = entry.reader
+        budget = self.budget
         while reader.active is not None and reader.queue:
             active = reader.active
             now = self.clock()
@@ -355,7 +356,7 @@ class DataPath:
                 break
             size = len(reader.queue.popleft())
             client.queued_bytes -= size
-            self.budget.queued_total -= size
+            budget.queued_total -= size
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
@@ -519,7 +520,7 @@ class DataPath:
     def _send_fragmented(self, client: ClientProxy, stream: OutputReliableStream,
                          message: bytes) -> bool:
         """Cut ``message`` into FRAGMENTs, as many as it takes: those the window has room for go
-        now, the rest as ACKNACKs free room (``_send_pending``). Other output of the stream
+        now, the rest as ACKNACKs free room (``send_pending``). Other output of the stream
         waits behind them; a reader's later samples wait in its queue meanwhile."""
         head = header_size(message[0])
         inner = memoryview(message)[head:]

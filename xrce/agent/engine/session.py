@@ -186,7 +186,7 @@ class ClientProxy:
         self.out_reliable: Dict[int, OutputReliableStream] = {}
         self.reassembly: Dict[int, bytearray] = {}
         # Reliable output not yet sent, per stream: fragments of a sample longer than the window
-        # has room for, sent as ACKNACKs free room (xrce.agent.engine.datapath._send_pending).
+        # has room for, sent as ACKNACKs free room (xrce.agent.engine.datapath.DataPath.send_pending).
         self.out_pending: Dict[int, Deque[bytes]] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored
