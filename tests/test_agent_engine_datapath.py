@@ -236,7 +236,7 @@ async def test_samples_from_the_middleware_thread(any_thread):
     listener.read(0x80, DeliveryControl())
     listener.take()
     link.threads.clear()
-    on_data = agent._sample_callback(agent.clients[listener.key], 0x0016)
+    on_data = agent.datapath.sample_callback(agent.clients[listener.key], 0x0016)
 
     def middleware_thread():
         with agent.lock:  # what RosMiddleware's hand-off takes before it calls on_data

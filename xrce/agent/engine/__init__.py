@@ -1,13 +1,19 @@
 """The protocol engine: what the agent does with each XRCE message between a link and the middleware.
 
-- ``dispatch``: ``Agent``, the message header, stream admission, submessage dispatch, parking of
-  clients whose types build, and the agent's lifecycle;
-- ``session``: per-client state, CREATE_CLIENT, GET_INFO, deletion; ``admission``: who may open one;
-- ``objects``: CREATE/DELETE of XRCE objects and the middleware entities behind them, with
-  ``reuse`` (REUSE/REPLACE) and ``xmlrep`` (XML representations);
-- ``datapath``: the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
-- ``liveliness``: ACKNACK/HEARTBEAT and the timed work per client; ``timeline``: where the time
-  goes when a client comes back;
+- ``dispatch``: ``Agent``, which builds and wires the parts below (each an object that owns its
+  state and gets its collaborators in its constructor) and keeps the message header, stream
+  admission, submessage dispatch, parking of clients whose types build, and the lifecycle;
+- ``session``: per-client state (``ClientProxy``), the client table, the memory budget and
+  ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion); ``admission``: who
+  may open one;
+- ``objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the middleware entities
+  behind them, with ``reuse`` (REUSE/REPLACE) and ``xmlrep`` (XML representations);
+- ``datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out,
+  and output on a client's streams; ``output``: whole messages out (counted, traced, tapped);
+- ``liveliness``: ``Acknowledgments`` and ``Liveliness``, ACKNACK/HEARTBEAT and the timed work
+  per client; ``scheduler``: the loop and the one timer of that work; ``mismatches``: endpoints
+  that cannot reach their peers, named once; ``timeline``: where the time goes when a client
+  comes back;
 - ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path; the same
   extension's ``_services.c`` converts a replier's requests and replies between rclpy's C
   messages and CDR bytes (``xrce.agent.middleware.ros.raw_types.raw_service_type``), and

@@ -3,16 +3,16 @@
 Everything a sample touches between the dispatcher (``xrce.agent.engine.dispatch``) and the middleware is
 here, so this module is the one to read and profile for throughput:
 
-- in: ``_write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``_fragment`` reassembles
+- in: ``write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``fragment`` reassembles
   FRAGMENTs of a reliable stream and feeds the whole message back to the dispatcher;
-- out: the middleware's callbacks queue samples per reader (``_from_middleware``, ``_enqueue``,
+- out: the middleware's callbacks queue samples per reader (``from_middleware``, ``_enqueue``,
   bounded per client), on the middleware's own thread when the client's link allows it;
-  ``_pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
-  ``_send_on_stream`` numbers, stores (reliable) and fragments output.
+  ``pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
+  ``send_on_stream`` numbers, stores (reliable) and fragments output.
 
 With the optional compiled UDP path (``xrce.agent.engine.fastpath``), WRITE_DATA of writers this path
 has handled once (best-effort, and reliable ones next in order) are published by the UDP link's read
-before they reach Python; what ``_fast_write`` hands it (``offer``) is how it learns which ones.
+before they reach Python; what ``fast_write`` hands it (``offer``) is how it learns which ones.
 """
 
 from __future__ import annotations
@@ -24,31 +24,59 @@ from typing import Hashable, Optional
 
 from xrce import constants as C
 from xrce.agent.engine.session import (
-    MAX_REASSEMBLY, STREAM_WINDOW, TRACE, ClientProxy, Link, ObjectEntry, ReadRequest,
+    MAX_REASSEMBLY, STREAM_WINDOW, ClientProxy, Link, ObjectEntry, ReadRequest,
 )
 from xrce.message import header_size
 from xrce.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
-from xrce.submessages import Fragment, Heartbeat, ReadData, encode_message
+from xrce.submessages import Create, Fragment, Heartbeat, ReadData, Status, encode_message
 
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample
 C_DATAWRITER = C.OBJK_DATAWRITER
 C_REPLIER = C.OBJK_REPLIER
 # How long a READ_DATA with max_samples 0 waits for its first sample: eProsima's reader thread's
-# longest single read (see DataPath._read_data).
+# longest single read (see DataPath.read_data).
 ZERO_SAMPLES_FIRST_READ_S = 0.1
 
 
 class DataPath:
-    """Mixin of ``Agent``: sample input, per-reader queues, READ_DATA delivery and stream output.
+    """Sample input, per-reader queues, READ_DATA delivery and stream output.
 
-    Uses the agent's ``middleware``, ``stats``, ``clock``, ``tap``, ``lock``, ``loop``,
-    ``max_reassembly_bytes`` and ``max_output_queue_bytes``; ``_process_message`` and ``_trace``
-    (dispatcher), ``_status``, ``_quota_warning``, and ``_wake_at``/``_heartbeat_soon``
-    (liveliness: when timed work is due).
+    Collaborators: ``table`` (clients by key and by endpoint, looked up by ``fast_write``),
+    ``middleware``, ``output`` (whole messages out), ``budget`` (the bytes queues and windows
+    hold), ``scheduler`` (when timed work is due, which thread is the loop's), ``acks`` (ACKNACK
+    after a reliable sample), ``mismatches`` (samples a board's stream cannot carry),
+    ``timelines``, ``fastpaths`` (the compiled receive paths) and ``lock`` (held for samples
+    from the middleware's thread). ``process_message``: the dispatcher, for a message put
+    together from FRAGMENTs.
     """
 
-    def _fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
+    def __init__(self, table, middleware, output, budget, scheduler, acks, mismatches, timelines,
+                 fastpaths: list, lock, stats, clock, process_message, *,
+                 max_reassembly_bytes: Optional[int], max_output_queue_bytes: int):
+        # What the per-sample paths use, bound once: no hop through another part per sample.
+        self.clients = table.clients
+        self.endpoints = table.endpoints
+        self.middleware = middleware
+        self.output = output
+        self._send_client = output.send_client
+        self._send_stream0 = output.send_stream0
+        self.budget = budget
+        self.scheduler = scheduler
+        self._wake_at = scheduler.wake_at
+        self._heartbeat_soon = scheduler.heartbeat_soon
+        self._acknack_soon = acks.acknack_soon
+        self.mismatches = mismatches
+        self.timelines = timelines
+        self.fastpaths = fastpaths
+        self.lock = lock
+        self.stats = stats
+        self.clock = clock
+        self._process_message = process_message
+        self.max_reassembly_bytes = max_reassembly_bytes
+        self.max_output_queue_bytes = max_output_queue_bytes
+
+    def fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
         """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) of
         a live session, to a writer created earlier, on a best-effort stream or as the next
         message in order of a reliable one. Anything else (and each stream's first message)
@@ -72,7 +100,7 @@ class DataPath:
                 or len(data) < start + 8:
             return False
         if self.timelines.pending and client.key in self.timelines.pending:
-            return False  # a client coming back: _write_data notes its first sample into ROS
+            return False  # a client coming back: write_data notes its first sample into ROS
         length = data[start + 2] | (data[start + 3] << 8)
         end = start + 4 + length
         # PX4's client pads every datagram to a multiple of 4 bytes: up to 3 bytes after the
@@ -114,7 +142,7 @@ class DataPath:
             self._acknack_soon(client, client.in_reliable.get(stream_id, stream))
         return True
 
-    def _write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
+    def write_data(self, client: ClientProxy, request_id: int, object_id: int, data: bytes) -> bool:
         entry = client.objects.get(object_id)
         if entry is None:
             return False
@@ -136,10 +164,10 @@ class DataPath:
             return entry.write(data)
         return False
 
-    def _reply_writer(self, client: ClientProxy, object_id: int):
+    def reply_writer(self, client: ClientProxy, object_id: int):
         """A replier's ``ObjectEntry.write``: its reply (sample identity, then the body) into the
         middleware, or to the compiled path when it took the request. Bound like a writer's so
-        that ``_fast_write`` takes a firmware's replies (one WRITE_DATA per message on its
+        that ``fast_write`` takes a firmware's replies (one WRITE_DATA per message on its
         reliable stream) without the general path's decoding."""
         write_reply = self.middleware.write_reply
         key = client.entity(object_id)
@@ -156,42 +184,43 @@ class DataPath:
             return bool(write_reply(key, data[:24], data[24:]))
         return write
 
-    def _sample_callback(self, client: ClientProxy, object_id: int):
+    def sample_callback(self, client: ClientProxy, object_id: int):
         fastpaths = self.fastpaths
 
         def on_data(sample: bytes) -> None:
             for fastpath in fastpaths:  # (only where C holds the reader: see reclaim_reader)
                 if fastpath.reader_tokens:
                     fastpath.reclaim_reader(client, object_id)
-            self._from_middleware(client, object_id, bytes(sample))
+            self.from_middleware(client, object_id, bytes(sample))
         return on_data
 
-    def _request_callback(self, client: ClientProxy, object_id: int):
+    def request_callback(self, client: ClientProxy, object_id: int):
         fastpaths = self.fastpaths
 
         def on_request(sample_identity: bytes, request: bytes) -> None:
             for fastpath in fastpaths:  # (only where C holds the replier: see reclaim_reader)
                 if fastpath.repliers:
                     fastpath.reclaim_reader(client, object_id)
-            self._from_middleware(client, object_id, bytes(sample_identity) + bytes(request))
+            self.from_middleware(client, object_id, bytes(sample_identity) + bytes(request))
         return on_request
 
-    def _reply_callback(self, client: ClientProxy, object_id: int):
+    def reply_callback(self, client: ClientProxy, object_id: int):
         def on_reply(correlation_id: int, reply: bytes) -> None:
             # The reply travels behind the BaseObjectRequest of the WRITE_DATA that asked (§6).
             request_id = correlation_id & 0xFFFF
             prefix = bytes((request_id >> 8, request_id & 0xFF, object_id >> 8, object_id & 0xFF))
-            self._from_middleware(client, object_id, prefix + bytes(reply))
+            self.from_middleware(client, object_id, prefix + bytes(reply))
         return on_reply
 
-    def _from_middleware(self, client: ClientProxy, object_id: int, payload: bytes) -> None:
+    def from_middleware(self, client: ClientProxy, object_id: int, payload: bytes) -> None:
         """A sample for a reader, on the loop's thread or on the middleware's holding ``lock``
         (see ``xrce.agent.middleware``). It goes out from the calling thread when the client's
         link can send from any thread (UDP); otherwise it takes the loop's turn, behind what the
         loop already has to send."""
-        if self.loop is not None and threading.get_ident() != self._loop_thread and \
+        scheduler = self.scheduler
+        if scheduler.loop is not None and threading.get_ident() != scheduler.thread and \
                 not getattr(client.link, "sends_from_any_thread", False):
-            self.loop.call_soon_threadsafe(self._from_middleware, client, object_id, payload)
+            scheduler.loop.call_soon_threadsafe(self.from_middleware, client, object_id, payload)
             return
         with self.lock:
             self._enqueue(client, object_id, payload)
@@ -204,6 +233,7 @@ class DataPath:
             return
         queue = entry.reader.queue
         size = len(payload)
+        budget = self.budget
         # The reader's own bound pushes its oldest sample out when the new one is appended.
         pushed_out = len(queue[0]) if queue.maxlen is not None and len(queue) == queue.maxlen else 0
         if client.queued_bytes - pushed_out + size > self.max_output_queue_bytes:
@@ -216,44 +246,44 @@ class DataPath:
             if client.queued_bytes - pushed_out + size > self.max_output_queue_bytes:
                 dropped += 1  # other readers hold the space: the new sample is the one to go
                 self.stats.quota_output_dropped += dropped
-                self._quota_warning(client, "output", "output queue quota (%d bytes) full, "
-                                    "sample for 0x%04X dropped", self.max_output_queue_bytes,
-                                    object_id)
+                client.warn_quota("output", self.clock(), "output queue quota (%d bytes) full, "
+                                  "sample for 0x%04X dropped", self.max_output_queue_bytes,
+                                  object_id)
                 return
             self.stats.quota_output_dropped += dropped
-            self._quota_warning(client, "output", "output queue quota (%d bytes) full, %d oldest "
-                                "samples of 0x%04X dropped", self.max_output_queue_bytes, dropped,
-                                object_id)
+            client.warn_quota("output", self.clock(), "output queue quota (%d bytes) full, %d "
+                              "oldest samples of 0x%04X dropped", self.max_output_queue_bytes,
+                              dropped, object_id)
         grows = size - pushed_out  # the budget test inlined: this runs for every sample out
-        if grows > 0 and (client.buffered + client.queued_bytes + grows > self.max_client_bytes
-                          or self.buffered_total + self.queued_total + grows >
-                          self.max_total_bytes):
+        if grows > 0 and (client.buffered + client.queued_bytes + grows > budget.max_client_bytes
+                          or budget.buffered_total + budget.queued_total + grows >
+                          budget.max_total_bytes):
             self.stats.quota_output_dropped += 1
-            self._quota_warning(client, "budget", "memory budget (%d bytes per client, %d in all) "
-                                "spent: sample for 0x%04X dropped", self.max_client_bytes,
-                                self.max_total_bytes, object_id)
+            client.warn_quota("budget", self.clock(), "memory budget (%d bytes per client, %d in "
+                              "all) spent: sample for 0x%04X dropped", budget.max_client_bytes,
+                              budget.max_total_bytes, object_id)
             return
         if pushed_out:
             self.stats.samples_overwritten += 1
             self._unqueue(client, queue[0])  # append() below pushes it out
         queue.append(payload)
         client.queued_bytes += size
-        self.queued_total += size
+        budget.queued_total += size
         try:
-            self._pump(client, entry)
+            self.pump(client, entry)
         except Exception:
             self.stats.handler_errors += 1
             log.debug("delivering to reader 0x%04X failed", object_id, exc_info=True)
 
     def _unqueue(self, client: ClientProxy, sample: bytes) -> None:
         client.queued_bytes -= len(sample)
-        self.queued_total -= len(sample)
+        self.budget.queued_total -= len(sample)
 
-    def _read_data(self, client: ClientProxy, request: ReadData) -> None:
+    def read_data(self, client: ClientProxy, request: ReadData) -> None:
         entry = client.objects.get(request.object_id)
         if entry is None or entry.reader is None:
             # Failed READ_DATA is answered on the reliable built-in stream whatever it came on.
-            self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, C.BUILTIN_RELIABLE)
+            self.send_status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, C.BUILTIN_RELIABLE)
             return
         reader = entry.reader
         delivery = request.delivery
@@ -290,11 +320,12 @@ class DataPath:
             self._wake_at(deadline)
         if self.timelines.pending:
             self.timelines.read_data(client)
-        self._pump(client, entry)
+        self.pump(client, entry)
 
-    def _pump(self, client: ClientProxy, entry: ObjectEntry) -> None:
+    def pump(self, client: ClientProxy, entry: ObjectEntry) -> None:
         """Deliver queued samples while the active READ_DATA allows and the stream has room."""
         reader = entry.reader
+        budget = self.budget
         while reader.active is not None and reader.queue:
             active = reader.active
             now = self.clock()
@@ -315,17 +346,17 @@ class DataPath:
                                    sample)
             if len(message) > client.mtu:  # the board's stream may not carry it: mismatches.py
                 if not is_reliable(active.stream_id):
-                    self._too_large_for_best_effort(client, entry, len(sample), len(message))
+                    self.mismatches.too_large_for_best_effort(client, entry, len(sample), len(message))
                 elif entry.info is not None:
                     entry.info["fragmented"] = len(sample)
-            if not self._send_on_stream(client, active.stream_id, None, message):
+            if not self.send_on_stream(client, active.stream_id, None, message):
                 if active.rate:
                     active.tokens += len(sample)
                 client.blocked_readers.add(entry.object_id)  # retried when an ACKNACK frees room
                 break
             size = len(reader.queue.popleft())
             client.queued_bytes -= size
-            self.queued_total -= size
+            budget.queued_total -= size
             self.stats.samples_out += 1
             entry.samples += 1
             entry.sample_bytes += len(sample)
@@ -341,7 +372,7 @@ class DataPath:
             # Nothing queued and a READ_DATA without limits: C may send its samples itself
             fastpath.reader_ready(client, entry)
 
-    def _fragment(self, client: ClientProxy, stream_id: int, data: bytes, flags: int, start: int,
+    def fragment(self, client: ClientProxy, stream_id: int, data: bytes, flags: int, start: int,
                   end: int) -> bool:
         if not is_reliable(stream_id):
             return False  # the agent only reassembles on reliable streams
@@ -349,8 +380,8 @@ class DataPath:
             # A FRAGMENT inside a reassembled message: no peer writes that, and following it
             # would recurse once per level (2000 levels in one datagram reached RecursionError).
             self.stats.nested_fragments += 1
-            self._quota_warning(client, "nested", "nested FRAGMENT on stream 0x%02X dropped",
-                                stream_id)
+            client.warn_quota("nested", self.clock(), "nested FRAGMENT on stream 0x%02X dropped",
+                              stream_id)
             return False
         self.stats.fragments_in += 1
         # While the compiled UDP path owns the stream it holds the reassembly (it takes in-order
@@ -364,17 +395,17 @@ class DataPath:
         buffer = client.reassembly.get(stream_id)
         if buffer is None:
             buffer = client.reassembly[stream_id] = bytearray(data[:header_size(data[0])])
-            self._charge(client, len(buffer))
+            self.budget.charge(client, len(buffer))
         limit = self.max_reassembly_bytes or MAX_REASSEMBLY
         if len(buffer) + (end - start) > limit:
             del client.reassembly[stream_id]
-            self._charge(client, -len(buffer))
+            self.budget.charge(client, -len(buffer))
             self.stats.reassembly_overflows += 1
-            self._quota_warning(client, "reassembly", "reassembly on stream 0x%02X exceeds the "
-                                "%d-byte quota, message abandoned", stream_id, limit)
+            client.warn_quota("reassembly", self.clock(), "reassembly on stream 0x%02X exceeds "
+                              "the %d-byte quota, message abandoned", stream_id, limit)
             return False
         buffer += data[start:end]
-        self._charge(client, end - start)
+        self.budget.charge(client, end - start)
         if take_partial is not None and not flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
             if not compiled.put_partial(buffer):  # no memory there: everything back to Python
@@ -383,7 +414,7 @@ class DataPath:
             return True
         if flags & C.FLAG_LAST_FRAGMENT:
             del client.reassembly[stream_id]
-            self._charge(client, -len(buffer))
+            self.budget.charge(client, -len(buffer))
             message = Reassembled(buffer)
             del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
@@ -405,25 +436,17 @@ class DataPath:
 
     # ------------------------------------------------------------------ output --
 
-    def _send_raw(self, link: Link, endpoint: Hashable, message: bytes) -> None:
-        self.stats.messages_out += 1
-        self.stats.bytes_out += len(message)
-        if log.isEnabledFor(TRACE):
-            self._trace("out", link, endpoint, message, header_size(message[0]))
-        if self.tap is not None:
-            self.tap("out", link, endpoint, message)
-        link.send(endpoint, message)
+    def send_status(self, client: ClientProxy, request, status: int, stream_id: int) -> None:
+        """The STATUS answering ``request`` (a CREATE, DELETE or READ_DATA), on the built-in
+        stream of the request's reliability."""
+        reply_stream = C.BUILTIN_RELIABLE if is_reliable(stream_id) else C.BUILTIN_BEST_EFFORT
+        if not self.send_on_stream(client, reply_stream,
+                                   Status(request.request_id, request.object_id, status)):
+            self.stats.status_lost += 1
+        if self.timelines.pending and isinstance(request, Create):
+            self.timelines.created(client, request, status)
 
-    def _send_client(self, client: ClientProxy, message: bytes) -> None:
-        client.messages_out += 1
-        client.bytes_out += len(message)
-        self._send_raw(client.link, client.endpoint, message)
-
-    def _send_stream0(self, client: ClientProxy, payload) -> None:
-        self._send_client(client, encode_message(
-            client.session_id, C.STREAM_NONE, 0, client.header_key, [payload]))
-
-    def _send_on_stream(self, client: ClientProxy, stream_id: int, payload,
+    def send_on_stream(self, client: ClientProxy, stream_id: int, payload,
                         message: Optional[bytes] = None) -> bool:
         """Send one submessage alone in a message on ``stream_id`` (``message``: that message
         already encoded with sequence number 0, e.g. by ``data_message``).
@@ -441,7 +464,7 @@ class DataPath:
             message = encode_message(client.session_id, stream_id, 0, client.header_key, [payload])
         if not is_reliable(stream_id):
             if len(message) > client.mtu:
-                self.stats.oversize_dropped += 1  # a reader's: named once in _pump
+                self.stats.oversize_dropped += 1  # a reader's: named once in pump
                 log.debug("client %s: %d-byte best-effort message exceeds mtu %d, dropped",
                           client.key.hex(), len(message), client.mtu)
                 return True
@@ -460,13 +483,13 @@ class DataPath:
             if payload is None:
                 return False
             pending.append(message)
-            self._charge(client, len(message))
+            self.budget.charge(client, len(message))
             return True
         if len(message) <= client.mtu:
             seq = stream.next_seq()
             if seq is None:
                 if stream.__class__ is not OutputReliableStream:
-                    self._release_acknowledged(client, stream)
+                    self.release_acknowledged(client, stream)
                 if payload is None:
                     return False  # a reader's DATA stays in its queue (blocked_readers)
                 # A reply (a STATUS) answers a request already acknowledged: dropping it would
@@ -475,29 +498,29 @@ class DataPath:
                 # the readers, which only get room once what is pending has gone.
                 client.out_pending[stream_id] = deque((message,))
                 _hold(stream, True)
-                self._charge(client, len(message))
+                self.budget.charge(client, len(message))
                 return True
             message = _with_seq(message, seq)
             stream.commit(seq, message)
-            self._charge(client, len(message))
+            self.budget.charge(client, len(message))
             if stream.__class__ is not OutputReliableStream:
-                self._release_acknowledged(client, stream)
+                self.release_acknowledged(client, stream)
             self._send_client(client, message)
             self._heartbeat_soon()
             return True
         return self._send_fragmented(client, stream, message)
 
-    def _release_acknowledged(self, client: ClientProxy, stream) -> None:
+    def release_acknowledged(self, client: ClientProxy, stream) -> None:
         """Give the bytes of the history the compiled path acknowledged back to the client's
         budget (``compiled_streams.CompiledOutputStream``: freed as the window is looked at)."""
         freed = stream.release()
         if freed:
-            self._charge(client, -freed)
+            self.budget.charge(client, -freed)
 
     def _send_fragmented(self, client: ClientProxy, stream: OutputReliableStream,
                          message: bytes) -> bool:
         """Cut ``message`` into FRAGMENTs, as many as it takes: those the window has room for go
-        now, the rest as ACKNACKs free room (``_send_pending``). Other output of the stream
+        now, the rest as ACKNACKs free room (``send_pending``). Other output of the stream
         waits behind them; a reader's later samples wait in its queue meanwhile."""
         head = header_size(message[0])
         inner = memoryview(message)[head:]
@@ -514,11 +537,11 @@ class DataPath:
         self.stats.fragments_out += count
         client.out_pending[stream.stream_id] = fragments
         _hold(stream, True)
-        self._charge(client, sum(len(f) for f in fragments))
-        self._send_pending(client, stream)
+        self.budget.charge(client, sum(len(f) for f in fragments))
+        self.send_pending(client, stream)
         return True
 
-    def _send_pending(self, client: ClientProxy, stream: OutputReliableStream) -> None:
+    def send_pending(self, client: ClientProxy, stream: OutputReliableStream) -> None:
         """Send what waits for the window of ``stream`` while it has room."""
         pending = client.out_pending.get(stream.stream_id)
         if not pending:
@@ -533,7 +556,7 @@ class DataPath:
             self._send_client(client, message)
             sent = True
         if stream.__class__ is not OutputReliableStream:
-            self._release_acknowledged(client, stream)
+            self.release_acknowledged(client, stream)
         if not pending:
             del client.out_pending[stream.stream_id]
             _hold(stream, False)

@@ -5,20 +5,33 @@ leave through ``link.send(endpoint, bytes)``. The engine never blocks and never 
 ``receive``: a malformed message is counted, logged at debug level with its hex and dropped without
 touching any other client. Everything runs on one asyncio loop.
 
-``Agent`` is assembled from one module per protocol seam, each readable alone:
+``Agent`` is composed of parts, one per protocol seam, each an object with its own state that gets
+its collaborators in its constructor (as eProsima's agent has Root, ProxyClient, Session and
+Processor); each module is readable alone:
 
-- ``xrce.agent.engine.session``: per-client state (``ClientProxy``), CREATE_CLIENT, GET_INFO, deletion;
-- ``xrce.agent.engine.objects``: CREATE/DELETE of XRCE objects and the middleware entities behind them;
-- ``xrce.agent.engine.datapath``: the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
-- ``xrce.agent.engine.liveliness``: ACKNACK/HEARTBEAT and the timed work per client;
-- this module: message header, stream admission and submessage dispatch, parking of clients whose
-  CREATE waits for a type build, and the agent's lifecycle.
+- ``xrce.agent.engine.session``: ``ClientProxy`` (one client: its objects, streams, quotas and
+  counters), ``ClientTable`` (the clients by key, endpoint and host), ``MemoryBudget`` (the bytes
+  their buffers hold) and ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion);
+- ``xrce.agent.engine.objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the
+  middleware entities behind them;
+- ``xrce.agent.engine.datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in,
+  READ_DATA/DATA out, and output on a client's streams;
+- ``xrce.agent.engine.liveliness``: ``Acknowledgments`` (ACKNACK for input) and ``Liveliness``
+  (retransmission on ACKNACK, HEARTBEATs, the timed work per client);
+- ``xrce.agent.engine.mismatches``: ``MismatchReport``, board endpoints that cannot reach their
+  peers, named once;
+- ``xrce.agent.engine.scheduler`` (``Scheduler``: the loop, its thread, the one timer of the
+  timed work) and ``xrce.agent.engine.output`` (``Output``: whole messages out, counted, traced
+  and tapped);
+- this module: ``Agent`` builds and wires those parts and keeps the message header, stream
+  admission and submessage dispatch, parking of clients whose CREATE waits for a type build,
+  and the agent's lifecycle.
 
 What a client's objects map onto is the middleware's business (``xrce.agent.middleware``); the engine
 keeps the XRCE view: ids, parents, REUSE/REPLACE signatures and the READ_DATA state of each reader.
 
 Threads: the engine runs on the asyncio loop's thread, and on the middleware's thread for the
-samples it delivers to UDP clients (``DataPath._from_middleware``): whoever runs it holds
+samples it delivers to UDP clients (``DataPath.from_middleware``): whoever runs it holds
 ``Agent.lock``. Taking that lock costs a fraction of a microsecond per message; waking the loop
 for every sample from ROS cost more than the sample itself (bench/agent_cost.py, TurtleBot3 load).
 """
@@ -31,23 +44,26 @@ import logging
 import threading
 import time
 from collections import deque
-from typing import Any, Callable, Deque, Dict, Hashable, Optional, Tuple
+from typing import Any, Callable, Deque, Dict, Hashable, Optional
 
-from xrce import constants as C, names as wire_names
+from xrce import constants as C
 from xrce.agent.engine.admission import RefusalLog
 from xrce.agent.engine.datapath import DataPath
-from xrce.agent.engine.liveliness import NEVER, Liveliness
-from xrce.agent.middleware import Middleware
+from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
+from xrce.agent.engine.mismatches import MismatchReport
 from xrce.agent.engine.objects import ObjectRegistry, Parked
+from xrce.agent.engine.output import Output, trace
+from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
-    ClientProxy, Link, SessionTable,
+    ClientProxy, ClientTable, Link, MemoryBudget, Sessions,
 )
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines
+from xrce.agent.middleware import Middleware
 from xrce.errors import DecodeError
 from xrce.message import decode_header, header_size, iter_submessages
-from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_add, seq_sub
+from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_sub
 from xrce.submessages import TimestampReply, decode_payload, encode_message, sample_ids, Status
 
 log = logging.getLogger("xrce.agent")
@@ -76,7 +92,7 @@ def _return_free_heap() -> None:
         return_free_heap()
 
 
-class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
+class Agent:
     def __init__(self, middleware: Middleware, *, refs: Optional[Dict[str, str]] = None,
                  heartbeat_period: float = 0.2, client_dead_time: float = CLIENT_DEAD_TIME,
                  client_expire_time: float = CLIENT_EXPIRE_TIME,
@@ -92,54 +108,121 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         the client and all its entities are deleted. Quotas are per client except ``max_clients``;
         None for the first two means the module defaults, looked up when used."""
         self.middleware = middleware
-        self.refs = dict(refs or {})
-        self.heartbeat_period = heartbeat_period
-        self.client_dead_time = client_dead_time
-        self.client_expire_time = client_expire_time
-        self.max_objects_per_client = max_objects_per_client
-        self.max_reassembly_bytes = max_reassembly_bytes
-        self.max_output_queue_bytes = max_output_queue_bytes
-        self.max_clients = max_clients
-        self.max_client_bytes = max_client_bytes
-        self.max_total_bytes = max_total_bytes
-        self.buffered_total = 0  # the clients' ClientProxy.buffered, summed
-        self.queued_total = 0  # the clients' ClientProxy.queued_bytes, summed
-        self.loop = loop
-        self.stats = AgentStats()
-        self._trim_due = False  # clients holding buffers were deleted (see _tick_locked)
+        self.stats = stats = AgentStats()
+        # The agent's clock, handed to every part that reads it (tests substitute a fake one:
+        # see the ``clock`` property).
+        self._clock: Callable[[], float] = time.monotonic
+        clock = self._clock
         self._trimmed_at = -NEVER
-        self.clock: Callable[[], float] = time.monotonic  # tests may substitute a fake clock
-        self.clients: Dict[bytes, ClientProxy] = {}
-        self.endpoints: Dict[Tuple[Any, Hashable], bytes] = {}  # (link, endpoint) → key, sessions ≥ 0x81
-        # Where such a session's TCP connection or serial port closed: the next CREATE there
-        # replaces it (xrce.agent.engine.session). Host → HostRecord: see Liveliness._retirement.
-        self._closed_endpoints: Dict[Tuple[Any, Hashable], bytes] = {}
-        self.hosts: Dict[Hashable, Any] = {}
         self._started = False
         # Held by whichever thread runs the engine (module docstring); reentrant because an
         # in-process middleware (-m ced) delivers samples while the engine is receiving.
-        self.lock = threading.RLock()
-        middleware.engine_lock = self.lock
-        middleware.on_mismatch = self._middleware_mismatch  # engine/mismatches.py
-        self._held_fragments: Dict[tuple, tuple] = {}  # engine/mismatches.py
-        self._loop_thread = threading.get_ident()  # the thread the loop runs on, once started
-        self._timer: Optional[asyncio.TimerHandle] = None  # the next tick(), see liveliness
-        self._timer_due = NEVER
-        self._info_cache: Dict[tuple, bytes] = {}  # see SessionTable._info_message
-        self._acks_due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
+        self.lock = lock = threading.RLock()
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.fastpath) feeding this agent
+        # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
+        # must not fill the operator's log (see ObjectRegistry.create).
+        self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self._clock())
+        self.timelines = RecoveryTimelines(lambda: self._clock())  # clients that come back
+
+        # The parts, each given its collaborators (module docstring).
+        self.table = table = ClientTable()
+        self.scheduler = scheduler = Scheduler(clock, heartbeat_period, self._on_timer, loop)
+        self.budget = budget = MemoryBudget(max_client_bytes, max_total_bytes)
+        self.output = output = Output(stats)
+        self.mismatches = mismatches = MismatchReport(table.clients, scheduler, stats, clock,
+                                                      heartbeat_period)
+        self.acks = acks = Acknowledgments(table.clients, output, budget, scheduler, lock, stats,
+                                           self._process_reliable_message)
+        self.datapath = datapath = DataPath(
+            table, middleware, output, budget, scheduler, acks, mismatches, self.timelines,
+            self.fastpaths, lock, stats, clock, self._process_message,
+            max_reassembly_bytes=max_reassembly_bytes, max_output_queue_bytes=max_output_queue_bytes)
+        self.objects = objects = ObjectRegistry(
+            middleware, datapath, self.fastpaths, self.create_failures, stats, clock,
+            refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
+        self.sessions = sessions = Sessions(
+            table, objects, output, budget, scheduler, self.timelines, stats, clock,
+            max_clients=max_clients, client_dead_time=client_dead_time,
+            client_expire_time=client_expire_time, heartbeat_period=heartbeat_period)
+        self.liveliness = Liveliness(sessions, datapath, output, budget, mismatches, stats, clock,
+                                     heartbeat_period=heartbeat_period,
+                                     client_expire_time=client_expire_time)
+        self._clocked = (scheduler, mismatches, datapath, objects, sessions, self.liveliness)
+        middleware.engine_lock = lock
+        middleware.on_mismatch = mismatches.middleware_mismatch
+
+        # What the dispatcher uses per message, bound once.
+        self.clients = table.clients  # key → ClientProxy (the links, the CLI, the stats read it)
+        self.endpoints = table.endpoints
+        self._fast_write = datapath.fast_write
+        self._write_data = datapath.write_data
+        self._charge = budget.charge
+        self._tap = None  # Output.tap, mirrored: see ``tap``
+        self._admission = None  # Sessions.admission, mirrored: see ``admission``
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # A CREATE was handled in this turn of the loop: the client's next submessage waits for
         # the next turn (see _process_message).
         self._yield_due = False
-        # Called as tap(direction, link, endpoint, message) for every message in ("in") and out
-        # ("out"), e.g. by a capture file (xrce.agent.observe.capture); None costs one test.
-        self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
-        self.admission = None  # who may open a session (xrce.agent.engine.admission); None: anyone
-        # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
-        # must not fill the operator's log (see ObjectRegistry._create).
-        self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self.clock())
-        self.timelines = RecoveryTimelines(lambda: self.clock())  # clients that come back
-        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.fastpath) feeding this agent
+
+    # ------------------------------------------------------------------ configuration --
+
+    @property
+    def clock(self) -> Callable[[], float]:
+        return self._clock
+
+    @clock.setter
+    def clock(self, clock: Callable[[], float]) -> None:
+        """Every part reads the same clock (tests move a fake one by hand)."""
+        self._clock = clock
+        for part in self._clocked:
+            part.clock = clock
+
+    @property
+    def tap(self) -> Optional[Callable[[str, Any, Hashable, bytes], None]]:
+        """Called as tap(direction, link, endpoint, message) for every message in ("in") and out
+        ("out"), e.g. by a capture file (xrce.agent.observe.capture); None costs one test."""
+        return self._tap
+
+    @tap.setter
+    def tap(self, tap) -> None:
+        self._tap = self.output.tap = tap
+
+    @property
+    def admission(self):
+        """Who may open a session (xrce.agent.engine.admission); None: anyone."""
+        return self._admission
+
+    @admission.setter
+    def admission(self, admission) -> None:
+        self._admission = self.sessions.admission = admission
+
+    @property
+    def refs(self) -> Dict[str, str]:
+        return self.objects.refs
+
+    @refs.setter
+    def refs(self, refs: Dict[str, str]) -> None:
+        self.objects.refs = refs
+
+    @property
+    def max_reassembly_bytes(self) -> Optional[int]:
+        return self.datapath.max_reassembly_bytes
+
+    @max_reassembly_bytes.setter
+    def max_reassembly_bytes(self, limit: Optional[int]) -> None:
+        self.datapath.max_reassembly_bytes = limit
+
+    loop = property(lambda self: self.scheduler.loop)
+    heartbeat_period = property(lambda self: self.scheduler.heartbeat_period)
+    client_dead_time = property(lambda self: self.sessions.client_dead_time)
+    client_expire_time = property(lambda self: self.sessions.client_expire_time)
+    max_clients = property(lambda self: self.sessions.max_clients)
+    max_objects_per_client = property(lambda self: self.objects.max_objects_per_client)
+    max_output_queue_bytes = property(lambda self: self.datapath.max_output_queue_bytes)
+    max_client_bytes = property(lambda self: self.budget.max_client_bytes)
+    max_total_bytes = property(lambda self: self.budget.max_total_bytes)
+    buffered_total = property(lambda self: self.budget.buffered_total)
+    queued_total = property(lambda self: self.budget.queued_total)
 
     # ------------------------------------------------------------------ public entry points --
 
@@ -151,13 +234,13 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             self._yield_due = False
             stats.messages_in += 1
             stats.bytes_in += len(data)
-            if self.admission is not None and not self.admission.admits_datagram(link, endpoint,
-                                                                                  data):
+            admission = self._admission
+            if admission is not None and not admission.admits_datagram(link, endpoint, data):
                 stats.sources_refused += 1  # outside --allow-from: no session is looked up
                 stats.dropped += 1
                 return
-            if self.tap is not None:
-                self.tap("in", link, endpoint, data)
+            if self._tap is not None:
+                self._tap("in", link, endpoint, data)
             try:
                 # At -v 6 every message goes the general way, which traces it.
                 if log.isEnabledFor(TRACE) or not self._fast_write(link, endpoint, data):
@@ -176,8 +259,9 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def _build_finished(self, client: ClientProxy) -> None:
         """Called from the build's thread: hand the client back to the loop."""
         self._resumable.append(client)
-        if self.loop is not None:
-            self.loop.call_soon_threadsafe(self._resume_parked)
+        loop = self.scheduler.loop
+        if loop is not None:
+            loop.call_soon_threadsafe(self._resume_parked)
         # Without a loop (synchronous tests), tick() resumes it.
 
     def _resume_parked(self) -> None:
@@ -206,16 +290,10 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     self._charge(client, sum(len(entry[0]) for entry in rest))
                     break
 
-    # ------------------------------------------------------------------ memory budget --
+    # ------------------------------------------------------------------ timed work --
 
-    def _charge(self, client: ClientProxy, delta: int) -> None:
-        if client.alive:  # a deleted client gave all its bytes back at once
-            client.buffered += delta
-            self.buffered_total += delta
-
-    def _over_budget(self, client: ClientProxy, extra: int) -> bool:
-        return client.buffered + client.queued_bytes + extra > self.max_client_bytes or \
-            self.buffered_total + self.queued_total + extra > self.max_total_bytes
+    def _on_timer(self) -> None:
+        self.tick()  # looked up now: a test may wrap the agent's tick
 
     def tick(self) -> None:
         """The timed work that is due: HEARTBEATs, liveliness probes, paced delivery. Sets the
@@ -244,7 +322,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         for fastpath in self.fastpaths:
             if fastpath.clients:  # the compiled path's last_seen, before liveliness judges it
                 fastpath.fold()
-        now = self.clock()
+        now = self._clock()
         due = NEVER
         if self.timelines.pending:
             self.timelines.tick(now)
@@ -252,23 +330,24 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                 due = now + TIMELINE_CHECK_S
         for client in list(self.clients.values()):
             try:
-                client_due = self._tick_client(client, now)
+                client_due = self.liveliness.tick_client(client, now)
             except Exception:
                 self.stats.handler_errors += 1
                 log.debug("periodic work for client %s failed", client.key.hex(), exc_info=True)
-                client_due = now + self.heartbeat_period
+                client_due = now + self.scheduler.heartbeat_period
             if client_due < due:
                 due = client_due
-        if self._trim_due and now - self._trimmed_at >= 1.0:
+        budget = self.budget
+        if budget.trim_due and now - self._trimmed_at >= 1.0:
             # Clients holding buffers were deleted: without this the heap kept their pages
             # (a 60 s flood's expired sessions left RSS at 62 MB, 19 MB before it).
-            self._trim_due = False
+            budget.trim_due = False
             self._trimmed_at = now
             _return_free_heap()
-        elif self._trim_due and due > now + 1.0:
+        elif budget.trim_due and due > now + 1.0:
             due = now + 1.0
         if due < NEVER:
-            self._wake_at(due)
+            self.scheduler.wake_at(due)
         for fastpath in self.fastpaths:
             # Clients found dead just now must come back through Python.
             fastpath.sync()
@@ -276,15 +355,13 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     @property
     def next_wakeup(self) -> Optional[float]:
         """When (agent clock) the timed work next runs; None when nothing is scheduled."""
-        return None if self._timer is None else self._timer_due
+        return self.scheduler.next_wakeup
 
     async def start(self) -> None:
         """Start the middleware (it joins no ROS domain until a client's participant asks for
         one). Idempotent; ``run`` calls it too, the CLI awaits it before opening any link so that
         no client is answered meanwhile."""
-        if self.loop is None:
-            self.loop = asyncio.get_running_loop()
-        self._loop_thread = threading.get_ident()
+        self.scheduler.bind(asyncio.get_running_loop())
         if not self._started:
             self._started = True
             await self.middleware.start()
@@ -299,20 +376,25 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         await self.start()
         self.tick()
         try:
-            await self.loop.create_future()
+            await self.scheduler.loop.create_future()
         finally:
-            self._cancel_timer()
+            self.scheduler.cancel()
+
+    def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
+        """A TCP connection or serial port went away (the links call it): see
+        ``Sessions.endpoint_closed``."""
+        self.sessions.endpoint_closed(link, endpoint)
 
     async def close(self) -> None:
-        self._cancel_timer()
+        self.scheduler.cancel()
         with self.lock:
             for client in list(self.clients.values()):
-                self._delete_client(client)
+                self.sessions.delete_client(client)
             # The counts of refusals not logged since their last line
             self.create_failures.flush()
             if self.admission is not None:
                 self.admission.flush()
-        self._cancel_timer()  # deleting clients may have scheduled replies' HEARTBEATs
+        self.scheduler.cancel()  # deleting clients may have scheduled replies' HEARTBEATs
         await self.middleware.close()
 
     # ------------------------------------------------------------------ input dispatch --
@@ -320,7 +402,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
     def _receive(self, link: Link, endpoint: Hashable, data: bytes) -> None:
         header = decode_header(data)
         if log.isEnabledFor(TRACE):
-            self._trace("in", link, endpoint, data, header.size)
+            trace("in", link, endpoint, data, header.size)
         session_id = header.session_id
         if session_id in (C.SESSION_ID_NONE_WITH_KEY, C.SESSION_ID_NONE_WITHOUT_KEY):
             self._receive_sessionless(link, endpoint, data, header)
@@ -333,13 +415,13 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         if client is None:
             self._receive_unknown_client(link, endpoint, data, header)
             return
-        client.last_seen = self.clock()
+        client.last_seen = self._clock()
         client.probes = 0
         if client.dead:
             client.dead = False
             self.stats.clients_revived += 1
             log.info("client %s is alive again", client.key.hex())
-            self._wake_at(client.last_seen + self._quiet_limit(client))
+            self.scheduler.wake_at(client.last_seen + self.sessions.quiet_limit(client))
         client.messages_in += 1
         client.bytes_in += len(data)
         stream_id = header.stream_id
@@ -377,7 +459,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             client.duplicates += stream.duplicates - duplicates
             if client.alive:  # every reliable message is acknowledged, duplicates included
                 # (a reassembled sample may have handed the stream to the compiled path)
-                self._acknack_soon(client, client.in_reliable.get(stream_id, stream))
+                self.acks.acknack_soon(client, client.in_reliable.get(stream_id, stream))
 
     def _hold_back(self, client: ClientProxy, stream: InputReliableStream, seq: int,
                    data: bytes) -> bool:
@@ -391,30 +473,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             return False  # handled at once, kept nowhere
         if client.parked is not None and len(client.parked) >= MAX_PARKED_MESSAGES:
             return True
-        return self._over_budget(client, len(data))
-
-    def _acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
-        """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
-        cumulative, so one sent after the batch says what one per message would have said last.
-        Without a loop (synchronous use, tests, golden replays) it goes out at once."""
-        if self.loop is None:
-            self._send_acknack(client, stream)
-            return
-        if not self._acks_due:
-            self.loop.call_soon(self._send_due_acknacks)
-        self._acks_due[(client.key, stream.stream_id)] = (client, stream)
-
-    def _send_due_acknacks(self) -> None:
-        with self.lock:
-            due, self._acks_due = self._acks_due, {}
-            for client, stream in due.values():
-                if client.alive and self.clients.get(client.key) is client and \
-                        client.in_reliable.get(stream.stream_id) is stream:
-                    try:
-                        self._send_acknack(client, stream)
-                    except Exception:
-                        self.stats.handler_errors += 1
-                        log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
+        return self.budget.over(client, len(data))
 
     def _process_reliable_message(self, client: ClientProxy, stream_id: int, message: bytes) -> None:
         """One message of a batch the stream handed out: whatever goes wrong with it, the ones
@@ -434,12 +493,12 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             payload = decode_payload(sub_id, flags, data, start, end)
             if sub_id == C.CREATE_CLIENT:
-                self._create_client(link, endpoint, header, payload)
+                self.sessions.create_client(link, endpoint, header, payload)
             elif sub_id == C.GET_INFO:
                 key = self.endpoints.get((link, endpoint))
                 established = key is not None and key in self.clients and \
                     self.clients[key].session_id > C.SESSION_ID_WITHOUT_KEY_MASK
-                self._reply_info(link, endpoint, header, payload, 1 if established else 0)
+                self.sessions.reply_info(link, endpoint, header, payload, 1 if established else 0)
             else:
                 self.stats.dropped += 1
             return  # only the first submessage of a session-less message counts
@@ -454,13 +513,13 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             if sub_id == C.DELETE:
                 payload = decode_payload(sub_id, flags, data, start, end)
                 if payload.object_id == C.OBJECTID_CLIENT:
-                    self._send_raw(link, endpoint, encode_message(
+                    self.output.send_raw(link, endpoint, encode_message(
                         header.session_id, header.stream_id, header.seq, header.key,
                         [Status(payload.request_id, payload.object_id)]))
                     return
             elif sub_id == C.GET_INFO:
                 payload = decode_payload(sub_id, flags, data, start, end)
-                self._reply_info(link, endpoint, header, payload, 0)
+                self.sessions.reply_info(link, endpoint, header, payload, 0)
                 return
             break
         self.stats.dropped += 1
@@ -469,7 +528,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
         """Submessages in order; the first failing one stops the rest of the message."""
         if client.parked is not None and stream_id != C.STREAM_NONE:
             if not is_reliable(stream_id) and (len(client.parked) >= MAX_PARKED_MESSAGES or
-                                               self._over_budget(client, len(data))):
+                                               self.budget.over(client, len(data))):
                 self.stats.dropped += 1  # best effort; reliable ones were held back before
             else:
                 client.parked.append((data, start, stream_id))
@@ -484,7 +543,7 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     # other clients' datagrams before this client's next submessage.
                     self._park(client, data, sub_start - 4, stream_id)
                     self._resumable.append(client)
-                    self.loop.call_soon(self._resume_parked)
+                    self.scheduler.loop.call_soon(self._resume_parked)
                     return
                 try:
                     handled = self._handle_submessage(client, stream_id, data, sub_id, flags,
@@ -496,8 +555,8 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
                     return
                 if not handled:
                     return
-                if sub_id == C.CREATE and self.loop is not None and \
-                        threading.get_ident() == self._loop_thread:
+                if sub_id == C.CREATE and self.scheduler.loop is not None and \
+                        self.scheduler.on_loop_thread():
                     self._yield_due = True
         except DecodeError as exc:
             self.stats.decode_errors += 1
@@ -525,45 +584,44 @@ class Agent(SessionTable, ObjectRegistry, DataPath, Liveliness):
             request_id, object_id = sample_ids(data, start, end)
             return self._write_data(client, request_id, object_id, data[start + 4:end])
         if sub_id == C.FRAGMENT:
-            return self._fragment(client, stream_id, data, flags, start, end)
+            return self.datapath.fragment(client, stream_id, data, flags, start, end)
         if sub_id not in _HANDLED:
             return False  # CREATE_CLIENT in session, STATUS, INFO, DATA, … stop the message
         payload = decode_payload(sub_id, flags, data, start, end)
         if sub_id == C.CREATE or sub_id == C.DELETE:
             queued = client.queued_bytes  # a REPLACE or DELETE of a reader drops its queue
             if sub_id == C.CREATE:
-                self._create(client, payload, stream_id)
+                self.objects.create(client, payload, stream_id)
+            elif payload.object_id == C.OBJECTID_CLIENT:
+                self._delete_session(client, payload)
             else:
-                self._delete(client, payload, stream_id)
-            self.queued_total -= queued - client.queued_bytes
+                self.objects.delete(client, payload, stream_id)
+            self.budget.queued_total -= queued - client.queued_bytes
         elif sub_id == C.READ_DATA:
-            self._read_data(client, payload)
+            self.datapath.read_data(client, payload)
         elif sub_id == C.ACKNACK:
-            self._on_acknack(client, payload)
+            self.liveliness.on_acknack(client, payload)
         elif sub_id == C.HEARTBEAT:
-            self._on_heartbeat(client, payload)
+            self.acks.on_heartbeat(client, payload)
         elif sub_id == C.GET_INFO:
-            self._send_client(client, self._info_message(None, client.session_id, C.STREAM_NONE, 0,
-                                                         client.header_key, payload, 1))
+            self.output.send_client(client, self.sessions.info_message(
+                None, client.session_id, C.STREAM_NONE, 0, client.header_key, payload, 1))
         elif sub_id == C.TIMESTAMP:
             receive_ns = time.time_ns()
             client.timestamp_skew_ns = receive_ns - payload.ns()
-            self._send_stream0(client, TimestampReply(time.time_ns(), receive_ns, payload.ns()))
+            self.output.send_stream0(client, TimestampReply(time.time_ns(), receive_ns,
+                                                            payload.ns()))
         elif sub_id == C.RESET:
-            self._reset_streams(client)
+            self.sessions.reset_streams(client)
         return True
 
-    # ------------------------------------------------------------------ logging --
-
-    def _trace(self, direction: str, link: Link, endpoint: Hashable, data: bytes, start: int) -> None:
-        try:
-            names = [wire_names.SUBMESSAGE_NAMES.get(sub_id, str(sub_id))
-                     for sub_id, _, _, _ in iter_submessages(data, start)]
-        except DecodeError:
-            names = ["<malformed>"]
-        log.log(TRACE, "%s %s %r session 0x%02X stream 0x%02X seq %d: %s | %s", direction, link.name,
-                endpoint, data[0], data[1], data[2] | (data[3] << 8), " ".join(names), data.hex())
-
+    def _delete_session(self, client: ClientProxy, request) -> None:
+        """DELETE of the client itself: the session and everything it created go; the STATUS
+        goes out on stream none (the client's streams are gone with it)."""
+        self.sessions.delete_client(client)
+        self.output.send_raw(client.link, client.endpoint, encode_message(
+            client.session_id, C.STREAM_NONE, 0, client.header_key,
+            [Status(request.request_id, request.object_id)]))
 
 
 def _is_fragment(message: bytes) -> bool:

@@ -11,7 +11,7 @@ them to the link's usual ``_deliver``. ``XRCE_FASTPATH=0`` (or a missing extensi
 middleware) leaves the pure Python path, the loop reading the socket.
 
 What is fast is decided here, one piece at a time, when the Python path has just handled a
-best-effort or in-order reliable sample (``DataPath._fast_write`` calls ``offer``): the client (by
+best-effort or in-order reliable sample (``DataPath.fast_write`` calls ``offer``): the client (by
 its source address and, for sessions with a key in the header, that key: a datagram from anywhere
 else is Python's to judge, e.g. against --allow-from), the stream (its sequence numbers move into
 C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStream`` asking C,
@@ -43,7 +43,6 @@ import asyncio
 import binascii
 import logging
 import os
-import threading
 import time
 from typing import Dict, Optional
 
@@ -82,7 +81,7 @@ class CompiledClient:
 
     def compile_output(self, client) -> None:
         """Hand the acknowledged point of every reliable output stream not yet compiled to C
-        (under the engine's lock: ``_send_on_stream`` uses the streams on other threads)."""
+        (under the engine's lock: ``DataPath.send_on_stream`` uses the streams on other threads)."""
         for stream_id, stream in list(client.out_reliable.items()):
             if stream_id not in self.out_streams:
                 client.out_reliable[stream_id] = CompiledOutputStream(
@@ -128,7 +127,7 @@ class CompiledClient:
         for stream_id in self.out_streams:  # the acknowledged points come back to Python
             stream = client.out_reliable.get(stream_id)
             if isinstance(stream, CompiledOutputStream):
-                path.agent._charge(client, -stream.release())
+                path.agent.budget.charge(client, -stream.release())
                 client.out_reliable[stream_id] = stream.detached()
         for stream_id, stream in list(client.out_best_effort.items()):
             if isinstance(stream, CompiledOutputBestEffort):
@@ -226,7 +225,7 @@ class FastPath:
                 self.fold()
                 self.sync()
             if receiver.heartbeat_due(False):  # C sent reliable DATA: its HEARTBEAT round
-                self.agent._heartbeat_soon()
+                self.agent.scheduler.heartbeat_soon()
         finally:
             self._handing = False
             self._revisit.clear()
@@ -245,14 +244,14 @@ class FastPath:
     def _sample_for_python(self, token: int, cdr: bytes) -> None:
         """A sample C took and left to Python (its READ_DATA is not C's to serve, or the window
         is full): delivered as the middleware's own callback would. C serves the reader again
-        once Python's queue is empty (``reader_ready`` from ``_pump``)."""
+        once Python's queue is empty (``reader_ready`` from ``DataPath.pump``)."""
         reader = self.readers.get(token)
         if reader is None:
             return
         self.direct[token] = None  # C stopped sending for it when it handed this one over
         client, object_id = reader
         # a replier's request comes as its identity and body (C holds the request for the reply)
-        self.agent._from_middleware(client, object_id, cdr if token in self.repliers else cdr[4:])
+        self.agent.datapath.from_middleware(client, object_id, cdr if token in self.repliers else cdr[4:])
 
     # -- registration ---------------------------------------------------------------------
 
@@ -280,8 +279,8 @@ class FastPath:
         return state
 
     def reader_ready(self, client, entry) -> None:
-        """After Python delivered what it could for a reader (``_pump``) or a READ_DATA
-        replaced the last (``_read_data``): C sends the reader's samples itself while its
+        """After Python delivered what it could for a reader (``DataPath.pump``) or a READ_DATA
+        replaced the last (``DataPath.read_data``): C sends the reader's samples itself while its
         READ_DATA has no limits (no count, deadline or rate) and nothing waits in Python's
         queue; otherwise every sample is Python's. Runs per sample Python delivers: the common
         answer (unchanged) is a dictionary look-up."""
@@ -295,7 +294,7 @@ class FastPath:
         if token is not None and self.direct.get(token) == want:
             return
         if want is not None and self._handing and \
-                threading.get_ident() == self.agent._loop_thread:
+                self.agent.scheduler.on_loop_thread():
             self._revisit[(client.key_int, entry.object_id)] = (client, entry)
             return
         if want is None:
@@ -305,7 +304,7 @@ class FastPath:
             return
         if not self.serves_readers:
             return
-        if threading.get_ident() != self.agent._loop_thread:
+        if not self.agent.scheduler.on_loop_thread():
             # Registration is the loop's. A sample (or request) delivered on rclpy's thread asks
             # the loop to try: the entity may not have existed when its READ_DATA came (created
             # in a burst the domain's executor takes in later), and every later sample could
@@ -487,9 +486,9 @@ class FastPath:
         """What the client's byte budget leaves (``Agent._over_budget``): C stores a FRAGMENT
         only within it, as Python's ``_hold_back`` refuses one beyond it. Refreshed whenever
         Python has handled a datagram; between, C counts down what it adds itself."""
-        agent = self.agent
-        return min(agent.max_client_bytes - client.buffered - client.queued_bytes,
-                   agent.max_total_bytes - agent.buffered_total - agent.queued_total)
+        budget = self.agent.budget
+        return min(budget.max_client_bytes - client.buffered - client.queued_bytes,
+                   budget.max_total_bytes - budget.buffered_total - budget.queued_total)
 
     # -- counters -------------------------------------------------------------------------
 
@@ -520,7 +519,7 @@ class FastPath:
             for handle, size in charges:  # reassembly C holds counts against the client's budget
                 client = self.clients.get(handle)
                 if client is not None:
-                    self.agent._charge(client, size)
+                    self.agent.budget.charge(client, size)
         sent = self.receiver.fold_readers()
         if sent is not None:
             (samples, count, size), rows = sent
@@ -573,11 +572,11 @@ class FastPath:
             if entry is not None:
                 entry.samples += count
                 entry.sample_bytes += size
-        for handle, stream_id in acks:  # as DataPath._fast_write after a reliable sample
+        for handle, stream_id in acks:  # as DataPath.fast_write after a reliable sample
             client = self.clients.get(handle)
             stream = client.in_reliable.get(stream_id) if client is not None else None
             if stream is not None and client.alive:
-                self.agent._acknack_soon(client, stream)
+                self.agent.acks.acknack_soon(client, stream)
 
 def stale_build(module) -> Optional[str]:
     """Why ``module`` (the built extension) is not what the C sources beside it build, or None.

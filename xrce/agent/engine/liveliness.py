@@ -1,27 +1,29 @@
 """Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead, retired and expired clients (XRCE-WIRE.md §9, §10).
 
-``Liveliness`` is the part of ``xrce.agent.engine.dispatch.Agent`` that answers a client's HEARTBEAT with
-an ACKNACK, retransmits what a client's ACKNACK asks for, and does the timed work per client:
-HEARTBEATs while reliable output is unacknowledged, hard-liveliness probes, dead, retired and
-expired clients (the rule: "Recovery and liveliness" in docs/ARCHITECTURE.md) and paced READ_DATA
-delivery.
+Two parts of ``xrce.agent.engine.dispatch.Agent``:
 
-Nothing is polled: that work runs from one loop timer (``loop.call_at``) set for the earliest time
-something is due, HEARTBEATs ``heartbeat_period`` after unacknowledged output, a client's dead time
-after it was last heard, a READ_DATA's deadline. With no client, or clients whose output is all
-acknowledged, the agent wakes at most once per dead time per client (and every 0.5 s for a minute
-after a new client appears beside dead ones on their host: ``_retirement``).
+- ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
+  batch of its messages, and in answer to its HEARTBEAT;
+- ``Liveliness``, the output side and the timed work per client: it retransmits what a client's
+  ACKNACK asks for, sends HEARTBEATs while reliable output is unacknowledged, probes
+  hard-liveliness clients, finds dead, retired and expired clients (the rule: "Recovery and
+  liveliness" in docs/ARCHITECTURE.md) and paces READ_DATA delivery.
+
+Nothing is polled: that work runs from one loop timer (``xrce.agent.engine.scheduler``) set for
+the earliest time something is due, HEARTBEATs ``heartbeat_period`` after unacknowledged output,
+a client's dead time after it was last heard, a READ_DATA's deadline. With no client, or clients
+whose output is all acknowledged, the agent wakes at most once per dead time per client (and
+every 0.5 s for a minute after a new client appears beside dead ones on their host:
+``Sessions.retirement``).
 """
 
 from __future__ import annotations
 
 import logging
-import threading
-
-import math
-from typing import Tuple
+from typing import Dict, Tuple
 
 from xrce import constants as C
+from xrce.agent.engine.scheduler import NEVER
 from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
 from xrce.streams import InputReliableStream, OutputReliableStream, is_reliable
 from xrce.submessages import AckNack, GetInfo, Heartbeat
@@ -29,53 +31,94 @@ from xrce.submessages import AckNack, GetInfo, Heartbeat
 log = logging.getLogger("xrce.agent")
 
 HARD_LIVELINESS_PROBES = 3
-NEVER = math.inf
-# After a new client appears on a host, how long (s) its dead neighbours are checked, and how
-# often, for the participant that would show it to be one of them started over.
-SUCCESSOR_WATCH_S = 60.0
-SUCCESSOR_CHECK_S = 0.5
+
+
+class Acknowledgments:
+    """ACKNACKs for the clients' reliable input streams.
+
+    Collaborators: ``clients`` (the agent's table, read only: a client replaced meanwhile gets
+    no ACKNACK), ``output``, ``budget`` (what a stream holds out of order), ``scheduler`` (the
+    loop a batch's ACKNACKs wait for) and ``process_reliable_message`` (the dispatcher, for the
+    messages a HEARTBEAT lets a stream hand out). ``lock``: the engine's, held to send a
+    batch's ACKNACKs from the loop."""
+
+    def __init__(self, clients: dict, output, budget, scheduler, lock, stats,
+                 process_reliable_message):
+        self.clients = clients
+        self.lock = lock
+        self.output = output
+        self.budget = budget
+        self.scheduler = scheduler
+        self.stats = stats
+        self._process_reliable_message = process_reliable_message
+        self._due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
+
+    def acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
+        """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
+        cumulative, so one sent after the batch says what one per message would have said last.
+        Without a loop (synchronous use, tests, golden replays) it goes out at once."""
+        loop = self.scheduler.loop
+        if loop is None:
+            self.send_acknack(client, stream)
+            return
+        if not self._due:
+            loop.call_soon(self._send_due)
+        self._due[(client.key, stream.stream_id)] = (client, stream)
+
+    def _send_due(self) -> None:
+        with self.lock:
+            due, self._due = self._due, {}
+            for client, stream in due.values():
+                if client.alive and self.clients.get(client.key) is client and \
+                        client.in_reliable.get(stream.stream_id) is stream:
+                    try:
+                        self.send_acknack(client, stream)
+                    except Exception:
+                        self.stats.handler_errors += 1
+                        log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
+
+    def send_acknack(self, client: ClientProxy, stream: InputReliableStream) -> None:
+        first, bitmap = stream.acknack()
+        self.stats.acknacks_out += 1
+        self.output.send_stream0(client, AckNack(first, bitmap, stream.stream_id))
+
+    def on_heartbeat(self, client: ClientProxy, heartbeat: Heartbeat) -> None:
+        stream_id = heartbeat.stream_id
+        if not is_reliable(stream_id):
+            return
+        stream = client.in_reliable.get(stream_id)
+        if stream is None:
+            stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
+        stored = stream.stored_bytes
+        try:
+            for message in stream.on_heartbeat(heartbeat.first_unacked, heartbeat.last_unacked):
+                self._process_reliable_message(client, stream_id, message)
+        finally:
+            self.budget.charge(client, stream.stored_bytes - stored)
+        if client.alive:
+            self.send_acknack(client, stream)
 
 
 class Liveliness:
-    """Mixin of ``Agent``. Uses the agent's ``stats``, ``clock``, ``heartbeat_period``,
-    ``client_dead_time`` and ``client_expire_time``; ``_send_client``/``_send_stream0`` and
-    ``_pump`` (data path), ``_process_reliable_message`` (dispatcher), ``_delete_client``."""
+    """Retransmission on ACKNACK and the timed work per client (``tick_client``).
 
-    # ------------------------------------------------------------------ timer --
+    Collaborators: ``sessions`` (dead time, retirement, deletion of a client), ``datapath``
+    (pending output, paced delivery, windows the compiled path acknowledged), ``output``,
+    ``budget``, ``mismatches`` (a board that holds fragments it can never complete)."""
 
-    def _wake_at(self, due: float) -> None:
-        """Run ``tick()`` at ``due`` (agent clock) unless it is already set to run sooner."""
-        if due >= self._timer_due or self.loop is None:
-            return
-        if threading.get_ident() != self._loop_thread:
-            # Output sent from the middleware's thread (datapath): the loop owns its timers.
-            self.loop.call_soon_threadsafe(self._wake_at, due)
-            return
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer_due = due
-        delay = due - self.clock()
-        self._timer = self.loop.call_at(self.loop.time() + (delay if delay > 0 else 0.0),
-                                        self._on_timer)
+    def __init__(self, sessions, datapath, output, budget, mismatches, stats, clock, *,
+                 heartbeat_period: float, client_expire_time: float):
+        self.sessions = sessions
+        self.datapath = datapath
+        self.output = output
+        self.budget = budget
+        self.mismatches = mismatches
+        self.stats = stats
+        self.clock = clock
+        self.heartbeat_period = heartbeat_period
+        self.client_expire_time = client_expire_time
 
-    def _heartbeat_soon(self) -> None:
-        """Reliable output went out: its HEARTBEAT round is due one period from now."""
-        due = self.clock() + self.heartbeat_period
-        if due < self._timer_due:
-            self._wake_at(due)
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self._timer_due = NEVER
-        self.tick()
-
-    def _cancel_timer(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer = None
-        self._timer_due = NEVER
-
-    def _on_acknack(self, client: ClientProxy, acknack: AckNack) -> None:
+    def on_acknack(self, client: ClientProxy, acknack: AckNack) -> None:
         stream = client.out_reliable.get(acknack.stream_id)
         if stream is None:
             return
@@ -90,14 +133,14 @@ class Liveliness:
         stored = stream.stored_bytes
         resend = stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms, holdoff_ms)
         if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatches.py
-            self._acknack_holds_fragments(client, stream, acknack)
-        self._charge(client, stream.stored_bytes - stored)
+            self.mismatches.acknack_holds_fragments(client, stream, acknack)
+        self.budget.charge(client, stream.stored_bytes - stored)
         for message in resend:
             self.stats.retransmissions += 1
             client.retransmissions += 1
-            self._send_client(client, message)
+            self.output.send_client(client, message)
         if client.out_pending:
-            self._send_pending(client, stream)
+            self.datapath.send_pending(client, stream)
         if client.blocked_readers and stream.has_room():
             self._unblock(client)
 
@@ -107,78 +150,21 @@ class Liveliness:
         for object_id in blocked:
             entry = client.objects.get(object_id)
             if entry is not None and entry.reader is not None:
-                self._pump(client, entry)
-
-    def _on_heartbeat(self, client: ClientProxy, heartbeat: Heartbeat) -> None:
-        stream_id = heartbeat.stream_id
-        if not is_reliable(stream_id):
-            return
-        stream = client.in_reliable.get(stream_id)
-        if stream is None:
-            stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
-        stored = stream.stored_bytes
-        try:
-            for message in stream.on_heartbeat(heartbeat.first_unacked, heartbeat.last_unacked):
-                self._process_reliable_message(client, stream_id, message)
-        finally:
-            self._charge(client, stream.stored_bytes - stored)
-        if client.alive:
-            self._send_acknack(client, stream)
+                self.datapath.pump(client, entry)
 
     def _drop_out_of_order(self, client: ClientProxy) -> None:
         """Give back what a silent client's streams hold out of order: not acknowledged (the
         ACKNACK names them missing again), so nothing it sent is lost by it."""
         for stream in client.in_reliable.values():
             if stream.stored:
-                self._charge(client, -stream.stored_bytes)
+                self.budget.charge(client, -stream.stored_bytes)
                 stream.stored.clear()
                 stream.stored_bytes = 0
 
-    def _send_acknack(self, client: ClientProxy, stream: InputReliableStream) -> None:
-        first, bitmap = stream.acknack()
-        self.stats.acknacks_out += 1
-        self._send_stream0(client, AckNack(first, bitmap, stream.stream_id))
-
-    def _quiet_limit(self, client: ClientProxy) -> float:
-        """Silence after which something happens to ``client``: its dead time, or its expiry if
-        that comes first (the timer is set for it)."""
-        dead_time = client.hard_liveliness or self.client_dead_time
-        expire_time = self.client_expire_time
-        return expire_time if expire_time and expire_time < dead_time else dead_time
-
-    def _retirement(self, client: ClientProxy, now: float) -> Tuple[str, float]:
-        """Why a dead client is certainly gone ("" while it may still be there, asleep), and
-        when to look again. Gone: its TCP connection or serial port closed, or a client with
-        another key, created from the same host after it last spoke, created the same
-        participant (what a board does after a reboot or rmw's fini and init under a new
-        ``rand()`` key). A board that sleeps is never retired for its silence alone; see
-        "Recovery and liveliness" in docs/ARCHITECTURE.md for what a spoofed one can do."""
-        if client.closed:
-            return "its %s endpoint %r closed" % (client.link.name, client.endpoint), NEVER
-        record = self.hosts.get(client.host)
-        if record is None or record.born_at <= client.last_seen:
-            return "", NEVER
-        mine = None
-        for other in record.members:
-            if other is client or other.created_at <= client.last_seen:
-                continue
-            if mine is None:
-                mine = _participants(client)
-                if not mine:
-                    return "", NEVER
-            if any(signature in mine for signature in _participants(other)):
-                return "client %s, created since from the same host %s, has its participant" % (
-                    other.key.hex(), _host_text(client.host)), NEVER
-        # A newer neighbour without that participant (yet): it may still be on its way there
-        # (PX4 syncs its clock for ~6 s first). Look again for a while, then wait for the next.
-        if now - record.born_at < SUCCESSOR_WATCH_S:
-            return "", now + SUCCESSOR_CHECK_S
-        return "", NEVER
-
-    def _tick_client(self, client: ClientProxy, now: float) -> float:
+    def tick_client(self, client: ClientProxy, now: float) -> float:
         """The timed work for one client; returns when it next has some (``NEVER``: only when
         the client speaks again)."""
-        dead_time = client.hard_liveliness or self.client_dead_time
+        dead_time = self.sessions.dead_time(client)
         silent = now - client.last_seen
         expire_time = self.client_expire_time
         if expire_time and silent >= expire_time:
@@ -187,7 +173,7 @@ class Liveliness:
             self.stats.clients_expired += 1
             log.info("client %s silent for %d ms: expired, deleting its %d objects",
                      client.key.hex(), int(silent * 1000), len(client.objects))
-            self._delete_client(client)
+            self.sessions.delete_client(client)
             return NEVER
         if silent >= dead_time:
             if not client.dead:
@@ -212,45 +198,45 @@ class Liveliness:
                 self.stats.clients_expired += 1
                 log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
                          int(silent * 1000))
-                self._delete_client(client)
+                self.sessions.delete_client(client)
                 return NEVER
-            reason, recheck = self._retirement(client, now)
+            reason, recheck = self.sessions.retirement(client, now)
             if reason:
                 self.stats.clients_retired += 1
                 log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
                          client.key.hex(), int(silent * 1000), reason, len(client.objects))
-                self._delete_client(client)
+                self.sessions.delete_client(client)
                 return NEVER
             if client.hard_liveliness:
                 if client.probes >= HARD_LIVELINESS_PROBES:
                     log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
-                    self._delete_client(client)
+                    self.sessions.delete_client(client)
                     return NEVER
                 client.probes += 1
-                self._send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
+                self.output.send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
                                                    C.INFO_CONFIGURATION))
                 return now + self.heartbeat_period
             # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
             expiry = client.last_seen + expire_time if expire_time else NEVER
             return recheck if recheck < expiry else expiry
-        due = client.last_seen + self._quiet_limit(client)
+        due = client.last_seen + self.sessions.quiet_limit(client)
         soon = now + self.heartbeat_period
         for stream in list(client.out_reliable.values()):
             if stream.__class__ is not OutputReliableStream:
-                self._release_acknowledged(client, stream)  # nothing may be sent for a while
+                self.datapath.release_acknowledged(client, stream)  # nothing may be sent for a while
             span = stream.heartbeat()
             if span is not None:
                 self.stats.heartbeats_out += 1
                 if client.heartbeat_sent_at is None and client.fast is not None:
                     client.fast.probing(True)  # this ACKNACK is Python's to time
                 client.heartbeat_sent_at = now
-                self._send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
+                self.output.send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
                 due = soon
         for entry in list(client.objects.values()):
             reader = entry.reader
             if reader is not None and reader.active is not None:
                 if reader.queue:
-                    self._pump(client, entry)
+                    self.datapath.pump(client, entry)
                 active = reader.active
                 if active is None:
                     continue
@@ -263,18 +249,6 @@ class Liveliness:
                         due = active.deadline
         return due
 
-
-def _participants(client: ClientProxy) -> list:
-    """The signatures (xrce.agent.engine.reuse) of the client's participants: equal for the same
-    node created again, whatever the key or object ids."""
-    return [entry.signature for entry in client.objects.values()
-            if entry.kind == C.OBJK_PARTICIPANT]
-
-
-def _host_text(host) -> str:
-    if isinstance(host, tuple):  # (link name, serial device)
-        return "%s %s" % host[:2]
-    return str(host)
 
 
 def _still_reading(client) -> bool:

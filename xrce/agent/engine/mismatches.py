@@ -4,7 +4,6 @@ the middleware and the data path find into one WARNING per pair and a count."""
 from __future__ import annotations
 
 import logging
-import threading
 from typing import Optional
 
 from xrce import constants as C
@@ -18,24 +17,39 @@ log = logging.getLogger("xrce.agent")
 MAX_MISMATCHES_KEPT = 8  # texts kept per endpoint for the stats; all are counted and logged
 
 
-class Mismatches:
-    """Mixin of ``Agent``: board endpoints that cannot reach their peers, named once per pair in
-    one WARNING (the board by key and address, the topic, both sides and the fix) and counted in
-    ``stats.mismatches``. The middleware finds QoS and type mismatches (``on_mismatch``, from its
-    own thread); the data path finds samples too large for a board's stream."""
+class MismatchReport:
+    """Board endpoints that cannot reach their peers, named once per pair in one WARNING (the
+    board by key and address, the topic, both sides and the fix) and counted in
+    ``stats.mismatches``. The middleware finds QoS and type mismatches (``middleware_mismatch``,
+    its ``on_mismatch``, from its own thread); the data path finds samples too large for a
+    board's stream (``too_large_for_best_effort``); liveliness, ACKNACKs that show a board
+    holding fragments it can never complete (``acknack_holds_fragments``).
 
-    def _middleware_mismatch(self, entity, text: str) -> None:
-        if self.loop is not None and threading.get_ident() != self._loop_thread:
+    Collaborators: ``clients`` (the agent's table, key → ClientProxy, read only) and
+    ``scheduler`` (the loop a report from another thread is handed to)."""
+
+    def __init__(self, clients: dict, scheduler, stats, clock, heartbeat_period: float):
+        self.clients = clients
+        self.scheduler = scheduler
+        self.stats = stats
+        self.clock = clock
+        self.heartbeat_period = heartbeat_period
+        # (client key, stream id) → (first unacknowledged, fragments held, rounds, since)
+        self._held_fragments: dict = {}
+
+    def middleware_mismatch(self, entity, text: str) -> None:
+        scheduler = self.scheduler
+        if scheduler.loop is not None and not scheduler.on_loop_thread():
             try:
-                self.loop.call_soon_threadsafe(self._middleware_mismatch, entity, text)
+                scheduler.loop.call_soon_threadsafe(self.middleware_mismatch, entity, text)
             except RuntimeError:  # the loop has closed: the agent is going
                 pass
             return
         client = self.clients.get((entity[0] & 0xFFFFFFFF).to_bytes(4, "big"))
         entry = client.objects.get(entity[1]) if client is not None else None
-        self._mismatch(client, entry, text)
+        self.report(client, entry, text)
 
-    def _mismatch(self, client: Optional[ClientProxy], entry: Optional[ObjectEntry],
+    def report(self, client: Optional[ClientProxy], entry: Optional[ObjectEntry],
                   text: str) -> None:
         self.stats.mismatches += 1
         if client is None or entry is None:  # gone since: still worth the line
@@ -50,15 +64,15 @@ class Mismatches:
 
     # -- samples from ROS a board's stream cannot carry ---------------------------------------
 
-    def _too_large_for_best_effort(self, client: ClientProxy, entry: ObjectEntry,
+    def too_large_for_best_effort(self, client: ClientProxy, entry: ObjectEntry,
                                    size: int, message_size: int) -> None:
         """A reader's sample does not fit one best-effort message (those are never cut into
-        FRAGMENTs): it is dropped, now and every time (``_send_on_stream`` counts it)."""
+        FRAGMENTs): it is dropped, now and every time (``DataPath.send_on_stream`` counts it)."""
         info = _info(entry)
         if "too_large" in info:
             return
         info["too_large"] = True
-        self._mismatch(client, entry, (
+        self.report(client, entry, (
             "%s: a %d-byte sample from ROS cannot reach the board: it reads on a best-effort "
             "stream, which carries one message of at most %d bytes (its MTU; this one is %d) "
             "and is never fragmented, so every such sample is dropped; fix: read it with a "
@@ -66,7 +80,7 @@ class Mismatches:
             "(RMW_UXRCE_MAX_TRANSPORT_MTU) or publish smaller samples"
             % (_topic(entry), size, client.mtu, message_size)))
 
-    def _acknack_holds_fragments(self, client: ClientProxy, stream, acknack) -> None:
+    def acknack_holds_fragments(self, client: ClientProxy, stream, acknack) -> None:
         """An ACKNACK whose first unacknowledged message the board has (bit 0 clear) but has
         not handled: the first FRAGMENTs of a sample it holds until the last arrives. A board
         whose stream is shorter than the sample (eProsima's client holds one fragment per slot
@@ -113,7 +127,7 @@ class Mismatches:
         info["stuck"] = True
         size = info.get("fragmented")
         chunk = client.mtu - head - 4
-        self._mismatch(client, entry, (
+        self.report(client, entry, (
             "%s: a %ssample from ROS cannot reach the board: its reliable stream holds %d "
             "fragments of at most %d bytes (about %d bytes with its MTU %d) and the sample needs "
             "more, so the board never completes it and that stream is stuck until the session "

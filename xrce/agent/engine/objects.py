@@ -1,16 +1,17 @@
 """The object registry: CREATE, DELETE and the middleware entities behind each XRCE object (XRCE-WIRE.md §5).
 
 Object ids, parents and REUSE/REPLACE signatures are the engine's business; what an object maps
-onto (an rclpy node, publisher, subscription, …) is the middleware's. ``ObjectRegistry`` is the
-part of ``xrce.agent.engine.dispatch.Agent`` that answers CREATE and DELETE with STATUS and keeps each
-client's ``objects`` table consistent with the middleware.
+onto (an rclpy node, publisher, subscription, …) is the middleware's. ``ObjectRegistry``, one part
+of ``xrce.agent.engine.dispatch.Agent``, answers CREATE and DELETE of a client's objects with
+STATUS and keeps each client's ``objects`` table consistent with the middleware. (DELETE of the
+client itself is the session's: the dispatcher hands it to ``Sessions``.)
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from typing import Optional
+from typing import Dict, Optional
 
 from xrce import constants as C, names as wire_names
 from xrce.agent.engine import reuse
@@ -18,14 +19,12 @@ from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
 )
-from xrce.agent.engine.mismatches import Mismatches
 from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text
 from xrce.errors import DecodeError
 from xrce.objects import PARENT_KIND, with_kind
-from xrce.streams import is_reliable
-from xrce.submessages import Create, Delete, Status, encode_message
+from xrce.submessages import Create, Delete
 
 log = logging.getLogger("xrce.agent")
 
@@ -48,27 +47,32 @@ class Parked(Exception):
         self.future = future
 
 
-class ObjectRegistry(Mismatches):
-    """Mixin of ``Agent``: CREATE/DELETE of XRCE objects and their middleware entities.
+class ObjectRegistry:
+    """CREATE/DELETE of XRCE objects and their middleware entities.
 
-    Uses the agent's ``middleware``, ``refs``, ``stats``, ``max_objects_per_client`` and
-    ``create_failures`` (a rate-limited log: xrce.agent.engine.admission.RefusalLog);
-    ``_send_on_stream``/``_send_raw`` and the sample callbacks (data path) and ``_quota_warning``
-    (sessions).
+    Collaborators: ``middleware`` (the entities), ``datapath`` (STATUS replies, and the sample
+    callbacks and reply writers bound to readers, requesters and repliers), ``fastpaths`` (the
+    compiled receive paths, let go of a deleted object's publisher or subscription first) and
+    ``create_failures`` (a rate-limited log: xrce.agent.engine.admission.RefusalLog). ``refs``:
+    the profiles a by-reference CREATE names.
     """
 
-    def _status(self, client: ClientProxy, request, status: int, stream_id: int) -> None:
-        reply_stream = C.BUILTIN_RELIABLE if is_reliable(stream_id) else C.BUILTIN_BEST_EFFORT
-        if not self._send_on_stream(client, reply_stream,
-                                    Status(request.request_id, request.object_id, status)):
-            self.stats.status_lost += 1
-        if self.timelines.pending and isinstance(request, Create):
-            self.timelines.created(client, request, status)
+    def __init__(self, middleware, datapath, fastpaths: list, create_failures, stats,
+                 clock, *, refs: Dict[str, str], max_objects_per_client: Optional[int]):
+        self.middleware = middleware
+        self.datapath = datapath
+        self.send_status = datapath.send_status
+        self.fastpaths = fastpaths
+        self.create_failures = create_failures
+        self.stats = stats
+        self.clock = clock
+        self.refs = refs
+        self.max_objects_per_client = max_objects_per_client
 
-    def _create(self, client: ClientProxy, request: Create, stream_id: int) -> None:
+    def create(self, client: ClientProxy, request: Create, stream_id: int) -> None:
         kind = request.kind
         if kind in _NO_OP_KINDS:
-            self._status(client, request, C.STATUS_OK, stream_id)  # eProsima creates nothing here
+            self.send_status(client, request, C.STATUS_OK, stream_id)  # eProsima creates nothing here
             return
         if kind not in _CREATABLE:
             raise DecodeError("CREATE of object kind %d" % kind)
@@ -82,17 +86,17 @@ class ObjectRegistry(Mismatches):
                 if reuse.matches(kind, existing.signature, request, self.refs):
                     if log.isEnabledFor(logging.DEBUG):
                         log.debug("%s", words.object_line("reused", client, existing))
-                    self._status(client, request, C.STATUS_OK_MATCHED, stream_id)
+                    self.send_status(client, request, C.STATUS_OK_MATCHED, stream_id)
                     return
                 if not request.replace:
                     self._refused(client, request, object_id, C.STATUS_ERR_MISMATCH, stream_id)
                     return
-            self._delete_object(client, object_id)
+            self.delete_object(client, object_id)
         if len(client.objects) >= (self.max_objects_per_client or MAX_OBJECTS_PER_CLIENT):
             self.stats.quota_objects += 1
-            self._quota_warning(client, "objects", "%d objects, quota reached: CREATE of 0x%04X "
-                                "refused (ERR_RESOURCES)", len(client.objects), object_id)
-            self._status(client, request, C.STATUS_ERR_RESOURCES, stream_id)
+            client.warn_quota("objects", self.clock(), "%d objects, quota reached: CREATE of "
+                              "0x%04X refused (ERR_RESOURCES)", len(client.objects), object_id)
+            self.send_status(client, request, C.STATUS_ERR_RESOURCES, stream_id)
             return
         parent = None if kind == C.OBJK_PARTICIPANT else with_kind(request.tail_id, PARENT_KIND[kind])
         if parent is not None and parent not in client.objects:
@@ -116,14 +120,14 @@ class ObjectRegistry(Mismatches):
                 log.info("%s", words.object_line("created", client, entry))
         elif status != C.STATUS_ERR_DDS_ERROR:
             _log_refusal(client, kind, object_id, status)
-        self._status(client, request, status, stream_id)
+        self.send_status(client, request, status, stream_id)
 
     def _refused(self, client: ClientProxy, request: Create, object_id: int, status: int,
                  stream_id: int) -> None:
         """A CREATE answered with an error the client caused: at debug level, as eProsima's
         agent logs them (``-v 5``)."""
         _log_refusal(client, request.kind, object_id, status)
-        self._status(client, request, status, stream_id)
+        self.send_status(client, request, status, stream_id)
 
     def _reference(self, request: Create) -> str:
         try:
@@ -200,7 +204,7 @@ class ObjectRegistry(Mismatches):
             else:
                 entry.reader = ReaderState(_queue_bound(qos))
                 mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
-                                     self._sample_callback(client, entry.object_id))
+                                     self.datapath.sample_callback(client, entry.object_id))
         elif kind in (C.OBJK_REQUESTER, C.OBJK_REPLIER):
             if fmt == C.REPRESENTATION_IN_BINARY:
                 spec = ServiceSpec(rep.service_name, rep.request_type, rep.reply_type,
@@ -213,11 +217,11 @@ class ObjectRegistry(Mismatches):
             entry.reader = ReaderState(_queue_bound(qos))
             if kind == C.OBJK_REQUESTER:
                 mw.create_requester(key, client.entity(entry.parent), spec, qos,
-                                    self._reply_callback(client, entry.object_id))
+                                    self.datapath.reply_callback(client, entry.object_id))
             else:
                 mw.create_replier(key, client.entity(entry.parent), spec, qos,
-                                  self._request_callback(client, entry.object_id))
-                entry.write = self._reply_writer(client, entry.object_id)
+                                  self.datapath.request_callback(client, entry.object_id))
+                entry.write = self.datapath.reply_writer(client, entry.object_id)
         return C.STATUS_OK
 
     @staticmethod
@@ -229,23 +233,18 @@ class ObjectRegistry(Mismatches):
                 return object_id
         return None
 
-    def _delete(self, client: ClientProxy, request: Delete, stream_id: int) -> None:
-        if request.object_id == C.OBJECTID_CLIENT:
-            self._delete_client(client)
-            self._send_raw(client.link, client.endpoint, encode_message(
-                client.session_id, C.STREAM_NONE, 0, client.header_key,
-                [Status(request.request_id, request.object_id)]))
-            return
+    def delete(self, client: ClientProxy, request: Delete, stream_id: int) -> None:
+        """DELETE of one of the client's objects (not of the client: see the module docstring)."""
         if request.object_id not in client.objects:
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("client %s: DELETE of unknown object %s", client.key.hex(),
                           object_id_text(request.object_id))
-            self._status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
+            self.send_status(client, request, C.STATUS_ERR_UNKNOWN_REFERENCE, stream_id)
             return
-        self._delete_object(client, request.object_id)
-        self._status(client, request, C.STATUS_OK, stream_id)
+        self.delete_object(client, request.object_id)
+        self.send_status(client, request, C.STATUS_OK, stream_id)
 
-    def _delete_object(self, client: ClientProxy, object_id: int) -> None:
+    def delete_object(self, client: ClientProxy, object_id: int) -> None:
         """Delete an object after its own children (a participant's topics and groups, a group's
         writers or readers). Not the writers and readers that use a topic: eProsima's agent
         leaves them, and rmw_microxrcedds deletes a publisher's TOPIC before its DATAWRITER (a
@@ -255,7 +254,7 @@ class ObjectRegistry(Mismatches):
                     if oid != object_id and e.parent == object_id]
         for child in children:
             if child in client.objects:
-                self._delete_object(client, child)
+                self.delete_object(client, child)
         entry = client.objects.get(object_id)
         if entry is None:
             return
@@ -274,6 +273,16 @@ class ObjectRegistry(Mismatches):
             self.middleware.delete(client.entity(object_id))
         except Exception:
             log.warning("middleware failed to delete %r", client.entity(object_id), exc_info=True)
+
+
+    def delete_all(self, client: ClientProxy) -> None:
+        """Every object of a client being deleted: participants first (with their children),
+        then whatever is left."""
+        for object_id in [oid for oid, e in client.objects.items() if e.parent is None]:
+            if object_id in client.objects:
+                self.delete_object(client, object_id)
+        for object_id in list(client.objects):
+            self.delete_object(client, object_id)
 
 
 def _log_refusal(client: ClientProxy, kind: int, object_id: int, status: int) -> None:
