@@ -11,7 +11,3 @@
 - ``c_sources``: whether one of the two optional compiled extensions (the engine's receive path,
   the ROS middleware's type supports) is built from the C sources beside it.
 """
-
-from xrce.agent import _moved
-
-_moved.install()  # the module names from before this layout, for one more release

@@ -11,8 +11,3 @@
 - ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path (the ROS type
   supports and conversions are the middleware's own extension: ``middleware.ros.compiled``).
 """
-
-from xrce.agent import _moved
-
-# ``xrce.agent.engine`` was the module that is ``dispatch`` now: its names, for one more release.
-__getattr__ = _moved.engine_attribute
