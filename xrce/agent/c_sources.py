@@ -31,7 +31,8 @@ def source_crc(folder):
 
 def stale_build(module, folder):
     """Why ``module`` (an extension built from ``folder``) is not what the sources there build,
-    or None. An install without the .c files (a wheel) has nothing to compare: None."""
+    or None. An install without the .c files beside the module has nothing to compare: None (a
+    wheel carries them, and the CRC they were built with)."""
     try:
         if not any(name.endswith(".c") for name in source_names(folder)):
             return None
