@@ -7,45 +7,59 @@ ros-kilted-* wheels (Fast DDS 3) instead of Jazzy's. The rules live in
 xrce/agent/middleware/ros/env.py, loaded by path: the package itself is not importable in pip's
 build environment.
 
-The agent's compiled UDP receive path (xrce/agent/engine/_fastpath.c, see
-xrce/agent/engine/fastpath.py) is an optional extension: without a C compiler pip still installs
-xrce and the agent runs pure Python. XRCE_FASTPATH=0 at build time leaves it out (a pure,
-platform-independent wheel).
+Two optional C extensions, each built from every .c and .h of its folder; without a C compiler
+pip still installs xrce and the agent runs pure Python, each missing one costing only speed or a
+feature:
+- ``xrce.agent.engine._fastpath`` (xrce/agent/engine/, see xrce/agent/engine/fastpath.py): the
+  UDP link's compiled receive path. Without it every datagram goes through Python (the agent's
+  cost per message, bench/agent_cost.py), and the start-up malloc_trim goes through ctypes.
+- ``xrce.agent.middleware.ros._rostypes`` (xrce/agent/middleware/ros/, see compiled.py there):
+  the ROS type supports. Without it the packages' generated Python classes carry samples and
+  service calls (slower entity creation, more memory, two conversions per request), a type
+  known only by its DDS name (PX4's px4_msgs without the package) is refused, and a domain's DDS
+  participant is made with the GIL held.
+XRCE_FASTPATH=0 at build time leaves both out: a pure, platform-independent wheel.
 """
 
-import binascii
 import importlib.util
 import os
 
 from setuptools import Extension, setup
 
-_spec = importlib.util.spec_from_file_location(
-    "_xrce_rosenv", os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                 "xrce", "agent", "middleware", "ros", "env.py"))
-_rosenv = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_rosenv)
+_HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _load_by_path(name, *path):
+    spec = importlib.util.spec_from_file_location(name, os.path.join(_HERE, *path))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_rosenv = _load_by_path("_xrce_rosenv", "xrce", "agent", "middleware", "ros", "env.py")
+_c_sources = _load_by_path("_xrce_c_sources", "xrce", "agent", "c_sources.py")
 
 try:
     _install_requires, _extras_require = _rosenv.install_requirements()
 except ValueError as exc:
     raise SystemExit("xrce: %s" % exc) from None
 
+
+def _extension(name, folder):
+    """The extension ``name`` built from ``folder``'s C sources, their CRC baked in (SOURCE_CRC):
+    the agent leaves a module built from another version of them unused (an editable install's
+    .so outlives edits to the .c; xrce/agent/c_sources.py, which computes it for both sides)."""
+    names = _c_sources.source_names(os.path.join(_HERE, folder))
+    return Extension(name, [folder + "/" + n for n in names if n.endswith(".c")],
+                     depends=[folder + "/" + n for n in names if n.endswith(".h")],
+                     define_macros=[("XRCE_SOURCE_CRC",
+                                     '"%s"' % _c_sources.source_crc(os.path.join(_HERE, folder)))],
+                     extra_compile_args=["-O2"], optional=True)
+
+
 _extensions = []
 if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
-    # The sources' CRC goes into the module: fastpath.attach() leaves a module built from another
-    # version of them unused (an editable install's .so outlives edits to the .c). Every .c and .h
-    # of the engine's folder, by name: the same list fastpath.stale_build reads.
-    _engine = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xrce", "agent", "engine")
-    _names = sorted(n for n in os.listdir(_engine) if n.endswith((".c", ".h")))
-    _source_crc = 0
-    for _name in _names:
-        with open(os.path.join(_engine, _name), "rb") as _source:
-            _source_crc = binascii.crc32(_source.read(), _source_crc)
-    _source_crc = "%08x" % _source_crc
-    _extensions.append(Extension("xrce.agent.engine._fastpath",
-                                 ["xrce/agent/engine/" + n for n in _names if n.endswith(".c")],
-                                 depends=["xrce/agent/engine/" + n for n in _names if n.endswith(".h")],
-                                 define_macros=[("XRCE_FASTPATH_SOURCE_CRC", '"%s"' % _source_crc)],
-                                 extra_compile_args=["-O2"], optional=True))
+    _extensions.append(_extension("xrce.agent.engine._fastpath", "xrce/agent/engine"))
+    _extensions.append(_extension("xrce.agent.middleware.ros._rostypes", "xrce/agent/middleware/ros"))
 
 setup(install_requires=_install_requires, extras_require=_extras_require, ext_modules=_extensions)

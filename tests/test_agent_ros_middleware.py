@@ -362,11 +362,9 @@ async def test_replier_answers_an_rclpy_client(middleware, ros_domain, ros_peer)
 def has_raw_services() -> bool:
     """Whether the compiled helper converts service requests and replies (else, said loudly,
     the tests of the raw path check the Python messages' path only)."""
-    try:
-        from xrce.agent.engine import _fastpath
-    except ImportError:
-        _fastpath = None
-    if getattr(_fastpath, "raw_reply_conversion", None) is None:
+    from xrce.agent.middleware.ros import compiled
+
+    if compiled.helper() is None:
         import warnings
         warnings.warn("the compiled helper is not built: the replier's raw CDR path is not tested")
         return False
@@ -538,7 +536,7 @@ async def main():
     names = [name for name in ("numpy", "lark", "em", "ssl", "hashlib")
              if sys.modules.get(name) is not None]
     try:
-        from xrce.agent.engine._fastpath import message_type_support
+        from xrce.agent.middleware.ros._rostypes import message_type_support
     except ImportError:  # without the compiled helper the packages' Python modules serve
         print("no compiled helper: the raw types came from the Python type support modules")
     else:

@@ -344,11 +344,11 @@ def test_topics_of_two_services_are_refused():
 
 BOUND_SCRIPT = r"""
 import rclpy  # loads rcl and rmw, which the helper looks its functions up in
-from xrce.agent.engine import _fastpath
-made = [_fastpath.named_message_type("made_up_%d_msgs" % i, "msg", "T", True) for i in range(1100)]
+from xrce.agent.middleware.ros import _rostypes
+made = [_rostypes.named_message_type("made_up_%d_msgs" % i, "msg", "T", True) for i in range(1100)]
 kinds = [type(m).__name__ for m in made]
 print(kinds.index("str"), kinds.count("PyCapsule"), made[-1])
-print(_fastpath.named_service_type("one_more_srvs", "srv", "X", True))
+print(_rostypes.named_service_type("one_more_srvs", "srv", "X", True))
 """
 
 
@@ -363,16 +363,15 @@ def test_types_known_by_name_are_bounded_per_process():
 
 
 def test_a_long_name_and_a_missing_helper_are_refused_with_what_is_missing(monkeypatch):
-    import xrce.agent.engine
     from xrce.agent.middleware import UnknownTypeError
-    from xrce.agent.middleware.ros import raw_types
+    from xrce.agent.middleware.ros import compiled, raw_types
 
     long_package = "p" * 250
     with pytest.raises(UnknownTypeError, match="at most 255"):
         raw_types.named_message_type(long_package + "::msg::dds_::T_", long_package, "msg", "T")
     # An install without the compiled helper (no C compiler when xrce was installed).
-    monkeypatch.setitem(sys.modules, "xrce.agent.engine._fastpath", None)
-    monkeypatch.delattr(xrce.agent.engine, "_fastpath", raising=False)
+    monkeypatch.setitem(sys.modules, compiled.MODULE, None)
+    monkeypatch.setattr(compiled, "_helper", compiled._UNSET)  # looked up again, and not found
     # Names no other test uses: a type made by name earlier in this process is cached, and the
     # cache answers before the helper is looked for (test_agent_ros_middleware makes nope_srvs').
     with pytest.raises(UnknownTypeError, match="helperless_msgs is not installed, and carrying a "

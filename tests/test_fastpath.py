@@ -636,9 +636,10 @@ def test_keyless_sessions_are_told_apart_by_source_address(ros_peer):  # noqa: F
 @pytest.mark.parametrize("env, compiled", [({}, True), ({"CC": "false"}, False),
                                            ({"XRCE_FASTPATH": "0"}, False)],
                          ids=["with-a-compiler", "without-a-compiler", "left-out"])
-def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled):
-    """A plain ``pip install`` builds the compiled path when it can and installs xrce anyway when
-    it cannot (no compiler); XRCE_FASTPATH=0 leaves it out: a pure, platform-independent wheel."""
+def test_the_extensions_are_optional_when_pip_builds_xrce(tmp_path, env, compiled):
+    """A plain ``pip install`` builds both compiled extensions (the engine's receive path, the ROS
+    type supports) when it can and installs xrce anyway when it cannot (no compiler);
+    XRCE_FASTPATH=0 leaves both out: a pure, platform-independent wheel."""
     import os
     import shutil
     import subprocess
@@ -662,8 +663,11 @@ def test_the_extension_is_optional_when_pip_builds_xrce(tmp_path, env, compiled)
     assert build.returncode == 0, build.stdout[-3000:]
     (wheel,) = tmp_path.glob("xrce-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert any(n.startswith("xrce/agent/engine/_fastpath.") and n.endswith(".so") for n in names) == compiled
+    for extension in ("xrce/agent/engine/_fastpath.", "xrce/agent/middleware/ros/_rostypes."):
+        assert any(n.startswith(extension) and n.endswith(".so") for n in names) == compiled, \
+            (extension, names)
     assert "xrce/agent/engine/fastpath.py" in names
+    assert "xrce/agent/middleware/ros/compiled.py" in names
     if env.get("XRCE_FASTPATH") == "0":
         assert wheel.name.endswith("-py3-none-any.whl"), wheel.name
 
@@ -697,3 +701,35 @@ def test_attach_leaves_a_stale_build_unused(monkeypatch, caplog):
     with caplog.at_level("WARNING", logger="xrce.agent"):
         assert fastpath.attach(link, sock=None) is None
     assert "built from other C sources" in caplog.text and "pip install -e ." in caplog.text
+
+
+def test_the_ros_type_supports_are_an_extension_of_their_own(monkeypatch, caplog):
+    """The ROS type-support C is the middleware's extension, not the engine's; it too is built
+    from the sources beside it, and a build from others is left unused, with a warning, and named
+    as the reason when a type known only by name is refused."""
+    import importlib
+
+    from xrce.agent.engine import fastpath
+    from xrce.agent.middleware import UnknownTypeError
+    from xrce.agent.middleware.ros import compiled, raw_types
+
+    if fastpath._fastpath is None:
+        pytest.fail("the compiled receive path is not built: the suite's install compiles it")
+    assert not hasattr(fastpath._fastpath, "named_message_type")
+    assert not hasattr(fastpath._fastpath, "message_type_support")
+    monkeypatch.setattr(compiled, "_helper", compiled._UNSET)
+    helper = compiled.helper()
+    if helper is None:
+        pytest.fail("the ROS type supports are not built (%s): the suite's install compiles them"
+                    % compiled.missing)
+    assert helper is importlib.import_module(compiled.MODULE) and hasattr(helper, "named_message_type")
+
+    monkeypatch.setattr(compiled, "_helper", compiled._UNSET)
+    monkeypatch.setattr(helper, "SOURCE_CRC", "00000000")
+    with caplog.at_level("WARNING", logger="xrce.agent"):
+        assert compiled.helper() is None
+    assert "built from other C sources" in caplog.text and "pip install -e ." in caplog.text
+    # A name no other test makes: a type made by name earlier in this process is cached.
+    with pytest.raises(UnknownTypeError, match="which is built from other C sources"):
+        raw_types.named_message_type("stale_helper_msgs::msg::dds_::T_", "stale_helper_msgs",
+                                     "msg", "T")

@@ -7,9 +7,7 @@
 - ``middleware``: what XRCE objects map onto: the interface, ``ced`` (no ROS) and ``ros`` (rclpy);
 - ``interfaces``: finding and building ROS 2 interface packages for the types clients name;
 - ``observe``: stats, ``xrce-agent stats``, ``/diagnostics`` and capture files;
-- ``cli`` (``xrce-agent``), started through ``launcher``; ``demo`` (``xrce-agent demo``).
+- ``cli`` (``xrce-agent``), started through ``launcher``; ``demo`` (``xrce-agent demo``);
+- ``c_sources``: whether one of the two optional compiled extensions (the engine's receive path,
+  the ROS middleware's type supports) is built from the C sources beside it.
 """
-
-from xrce.agent import _moved
-
-_moved.install()  # the module names from before this layout, for one more release

@@ -14,14 +14,6 @@
   per client; ``scheduler``: the loop and the one timer of that work; ``mismatches``: endpoints
   that cannot reach their peers, named once; ``timeline``: where the time goes when a client
   comes back;
-- ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path; the same
-  extension's ``_services.c`` converts a replier's requests and replies between rclpy's C
-  messages and CDR bytes (``xrce.agent.middleware.ros.raw_types.raw_service_type``), and
-  ``_named_types.c`` makes type supports from a type's DDS name alone
-  (``raw_types.named_message_type``).
+- ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path (the ROS type
+  supports and conversions are the middleware's own extension: ``middleware.ros.compiled``).
 """
-
-from xrce.agent import _moved
-
-# ``xrce.agent.engine`` was the module that is ``dispatch`` now: its names, for one more release.
-__getattr__ = _moved.engine_attribute

@@ -11,8 +11,8 @@
  * such a stream and the client's HEARTBEATs for it are _reliable_in.c's (try_fast_fragment,
  * try_fast_heartbeat), a client's TIMESTAMPs are answered here (try_fast_timestamp), the client's
  * plain ACKNACKs for the agent's reliable output streams are _reliable_out.c's. The tables Python
- * fills (clients, streams, writers) are _receiver_tables.c's; the extension's ROS helpers beside
- * the receive path are _ros_support.c's and _services.c's.
+ * fills (clients, streams, writers) are _receiver_tables.c's. The ROS type supports and conversions
+ * the middleware uses are another extension's (xrce/agent/middleware/ros/_rostypes.c).
  * A datagram that is none of these (other reliable messages, control, unknown clients, anything
  * malformed, a failed reliable publish) is handed to Python unchanged, and so is every datagram
  * behind it until Python has handled them, so every decision Python makes it still makes in
@@ -36,9 +36,19 @@
  */
 #include "_fastpath.h"
 
-#include "_services.h"
-
 publish_serialized_fn rcl_publish_serialized;
+
+/* ``symbol`` of a library rclpy already loaded (librcl.so, librcutils.so), NULL without one. A
+ * handle's lookup covers the libraries it depends on: through librcl this finds rmw's functions
+ * in whichever rmw library rcl is linked to, and rcutils'. The ROS extension has its own
+ * (xrce_rcl_symbol): two extensions do not link each other's functions. */
+void *loaded_symbol(const char *library_name, const char *symbol) {
+    void *library = dlopen(library_name, RTLD_NOW | RTLD_NOLOAD);
+    if (library == NULL) return NULL;
+    void *found = dlsym(library, symbol);
+    dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
+    return found;
+}
 
 static int same_address(const struct sockaddr_storage *a, const struct sockaddr_storage *b) {
     if (a->ss_family != b->ss_family) return 0;
@@ -507,14 +517,9 @@ static PyTypeObject ReceiverType = {
 
 /* resolve_rcl(): True once rcl_publish_serialized_message is found in an already loaded librcl. */
 static PyObject *resolve_rcl(PyObject *module, PyObject *unused) {
-    if (rcl_publish_serialized == NULL) {
-        void *library = dlopen("librcl.so", RTLD_NOW | RTLD_NOLOAD);
-        if (library != NULL) {
-            rcl_publish_serialized = (publish_serialized_fn)dlsym(library,
-                                                                  "rcl_publish_serialized_message");
-            dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
-        }
-    }
+    if (rcl_publish_serialized == NULL)
+        rcl_publish_serialized = (publish_serialized_fn)loaded_symbol(
+            "librcl.so", "rcl_publish_serialized_message");
     return PyBool_FromLong(rcl_publish_serialized != NULL);
 }
 
@@ -522,16 +527,29 @@ static PyObject *resolve_readers(PyObject *module, PyObject *unused) {
     return resolve_rcl_readers();
 }
 
+/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through
+ * ctypes: the ctypes package, once imported, stays in the process (0.57 MB of classes). */
+static PyObject *return_free_heap(PyObject *module, PyObject *unused) {
+#if defined(__GLIBC__)
+    malloc_trim(0);
+    Py_RETURN_TRUE;
+#else
+    Py_RETURN_FALSE;
+#endif
+}
+
 static PyMethodDef module_methods[] = {
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
+    {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
     {"resolve_readers", resolve_readers, METH_NOARGS,
      "True once rcl's serialized take and message callback are found"},
     {NULL},
 };
 
-/* CRC-32 of the module's sources, given by setup.py (xrce.agent.engine.fastpath compares it with them). */
-#ifndef XRCE_FASTPATH_SOURCE_CRC
-#define XRCE_FASTPATH_SOURCE_CRC "unknown"
+/* CRC-32 of this folder's C sources, given by setup.py (xrce.agent.engine.fastpath compares it
+ * with them). */
+#ifndef XRCE_SOURCE_CRC
+#define XRCE_SOURCE_CRC "unknown"
 #endif
 
 static struct PyModuleDef module = {
@@ -548,8 +566,7 @@ PyMODINIT_FUNC PyInit__fastpath(void) {
         Py_DECREF(m);
         return NULL;
     }
-    if (xrce_services_add(m) < 0 || xrce_ros_support_add(m) < 0 ||
-        PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_FASTPATH_SOURCE_CRC) < 0) {
+    if (PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_SOURCE_CRC) < 0) {
         Py_DECREF(m);
         return NULL;
     }

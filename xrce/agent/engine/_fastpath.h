@@ -51,6 +51,7 @@ typedef struct {
 typedef int (*publish_serialized_fn)(const void *publisher, const serialized_message_t *message,
                                      void *allocation);
 extern publish_serialized_fn rcl_publish_serialized;  /* _fastpath.c: resolve_rcl */
+typedef void (*reset_error_fn)(void);  /* rcutils_reset_error */
 
 typedef struct Writer {
     struct Writer *next;
@@ -284,6 +285,7 @@ static inline Client *client_by_handle(Receiver *self, long handle) {
 }
 
 /* _fastpath.c */
+void *loaded_symbol(const char *library_name, const char *symbol);
 int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr_storage *from);
 int send_due_acknacks(Receiver *self);
 int map_buffers(Receiver *self);

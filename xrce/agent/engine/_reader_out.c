@@ -44,23 +44,15 @@ static set_event_callback_fn set_message_callback;
 static take_serialized_fn take_serialized;
 rcutils_allocator_t take_allocator;  /* rcutils' default: rmw may grow a buffer of it */
 
-static void *lookup(const char *library_name, const char *symbol) {
-    void *library = dlopen(library_name, RTLD_NOW | RTLD_NOLOAD);
-    if (library == NULL) return NULL;
-    void *found = dlsym(library, symbol);
-    dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
-    return found;
-}
-
 /* True once the functions are found in the rcl and rcutils already loaded. */
 PyObject *resolve_rcl_readers(void) {
     if (take_serialized == NULL) {
         default_allocator_fn get_allocator =
-            (default_allocator_fn)lookup("librcutils.so", "rcutils_get_default_allocator");
-        set_event_callback_fn set_callback = (set_event_callback_fn)lookup(
+            (default_allocator_fn)loaded_symbol("librcutils.so", "rcutils_get_default_allocator");
+        set_event_callback_fn set_callback = (set_event_callback_fn)loaded_symbol(
             "librcl.so", "rcl_subscription_set_on_new_message_callback");
-        take_serialized_fn take = (take_serialized_fn)lookup("librcl.so",
-                                                             "rcl_take_serialized_message");
+        take_serialized_fn take = (take_serialized_fn)loaded_symbol("librcl.so",
+                                                                    "rcl_take_serialized_message");
         if (get_allocator && set_callback && take) {
             take_allocator = get_allocator();
             set_message_callback = set_callback;

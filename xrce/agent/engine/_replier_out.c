@@ -25,7 +25,6 @@
  *
  * rcl and rmw are not linked: their functions are found in the libraries rclpy loaded. */
 #include "_fastpath.h"
-#include "_services.h"
 
 #define RCL_RET_OK 0
 #define ENCAPSULATION 4
@@ -49,13 +48,13 @@ static reset_error_fn reset_error;
 /* 1 once every function is found (and the readers' allocator, resolve_rcl_readers). */
 int resolve_rcl_services(void) {
     if (set_request_callback == NULL) {
-        take_request = (take_request_fn)xrce_rcl_symbol("rcl_take_request");
-        send_response = (send_response_fn)xrce_rcl_symbol("rcl_send_response");
-        serialize = (serialize_fn)xrce_rcl_symbol("rmw_serialize");
-        deserialize = (deserialize_fn)xrce_rcl_symbol("rmw_deserialize");
-        reset_error = (reset_error_fn)xrce_rcl_symbol("rcutils_reset_error");
-        set_event_callback_fn setter = (set_event_callback_fn)xrce_rcl_symbol(
-            "rcl_service_set_on_new_request_callback");
+        take_request = (take_request_fn)loaded_symbol("librcl.so", "rcl_take_request");
+        send_response = (send_response_fn)loaded_symbol("librcl.so", "rcl_send_response");
+        serialize = (serialize_fn)loaded_symbol("librcl.so", "rmw_serialize");
+        deserialize = (deserialize_fn)loaded_symbol("librcl.so", "rmw_deserialize");
+        reset_error = (reset_error_fn)loaded_symbol("librcl.so", "rcutils_reset_error");
+        set_event_callback_fn setter = (set_event_callback_fn)loaded_symbol(
+            "librcl.so", "rcl_service_set_on_new_request_callback");
         if (take_request && send_response && serialize && deserialize && reset_error)
             set_request_callback = setter;
     }
@@ -122,7 +121,7 @@ static uint64_t identity_sequence(const uint8_t *identity) {
 
 /* The request ``message`` as CDR in the take buffer (encapsulation first); its length, 0 when
  * it does not serialize. Fast CDR leaves alignment padding as it finds the buffer: zeroed first,
- * as _services.c does for Python's path, so both send the same bytes. */
+ * as xrce/agent/middleware/ros/_services.c does for Python's path, so both send the same bytes. */
 static size_t serialize_request(Receiver *self, ServicePart *sp, void *message) {
     for (int attempt = 0; attempt < 2; attempt++) {
         size_t capacity = self->take_capacity;

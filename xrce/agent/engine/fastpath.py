@@ -40,7 +40,6 @@ back to ROS from the thread too (``send_reply`` when Python decoded it).
 from __future__ import annotations
 
 import asyncio
-import binascii
 import logging
 import os
 import time
@@ -582,24 +581,10 @@ def stale_build(module) -> Optional[str]:
     """Why ``module`` (the built extension) is not what the C sources beside it build, or None.
 
     An editable install keeps the .so it built while the .c changes under it; a stale receive
-    path would publish by the old rules. The CRC runs over every .c and .h of this folder by name,
-    as setup.py computes it. A wheel ships no .c: nothing to compare, None."""
-    folder = os.path.dirname(os.path.abspath(__file__))
-    try:
-        names = sorted(n for n in os.listdir(folder) if n.endswith((".c", ".h")))
-        if "_fastpath.c" not in names:
-            return None
-        crc = 0
-        for name in names:
-            with open(os.path.join(folder, name), "rb") as handle:
-                crc = binascii.crc32(handle.read(), crc)  # binascii: hashlib would load OpenSSL
-    except OSError:
-        return None
-    crc = "%08x" % crc
-    built = getattr(module, "SOURCE_CRC", "unknown")
-    if built != crc:
-        return "built from other C sources (CRC %s, the files' is %s)" % (built, crc)
-    return None
+    path would publish by the old rules (``xrce.agent.c_sources``)."""
+    from xrce.agent import c_sources
+
+    return c_sources.stale_build(module, os.path.dirname(os.path.abspath(__file__)))
 
 
 def attach(link, sock) -> Optional[FastPath]:

@@ -6,6 +6,9 @@
   agent's own publishers there, micro-ROS' graph feed (``graph``) where a client reads it;
 - ``domain``: one rclpy context and executor thread per ROS domain, and the hand-off to the loop;
 - ``types``: XRCE/DDS names, interface classes and QoS as ROS 2 spells them;
+- ``compiled``: the optional ``_rostypes`` extension built from this folder's C (``_rostypes.c``,
+  ``_services.c``, ``_named_types.c``): the raw types of ``raw_types`` (CDR bytes through rclpy,
+  types known only by their DDS name) and ``participant``'s participant made without the GIL;
 - ``env``: which ROS 2 the agent runs on (also read by setup.py, by path); ``fastdds_profile``
   (and its ``.xml``): the Fast DDS profile used when the user has none;
 - ``deferred`` and ``rclpy_services``: what rclpy imports and starts that the agent never uses,

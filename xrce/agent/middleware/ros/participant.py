@@ -4,7 +4,7 @@ rmw_fastrtps makes a context's DDS participant with the context's first node, an
 GIL throughout that call: measured on the loaded 2-core machine, 6-8 ms in which the loop's thread
 did not run once, so every client of the agent waited while one joined another domain (and 8-19 ms
 at load average 5). Here the executor thread makes that first node as an rmw node through the
-agent's compiled helper (``_fastpath.participant_node``), which releases the GIL for the call: the
+agent's compiled helper (``_rostypes.participant_node``), which releases the GIL for the call: the
 participant is made then (3-4 ms, the loop running meanwhile), the rclpy node made next only joins
 it (0.4-0.6 ms), and the rmw node is destroyed right after (``DomainRuntime.make_node``).
 
@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import logging
 
+from xrce.agent.middleware.ros import compiled
+
 log = logging.getLogger("xrce.agent.ros")  # the ROS bridge's one name (domain.log)
 
 # The rmw node's name: hidden (rclpy.node.HIDDEN_NODE_PREFIX), the agent's (AGENT_NODE_NAME).
@@ -31,13 +33,14 @@ def _load():
     if _helper is None:
         try:
             import rclpy.experimental  # noqa: F401  Jazzy or later (module docstring)
-
-            from xrce.agent.engine import _fastpath
         except ImportError as exc:
             log.debug("DDS participants are made with the GIL held: %s", exc)
             _helper = False
         else:
-            _helper = _fastpath if hasattr(_fastpath, "participant_node") else False
+            _helper = compiled.helper() or False
+            if not _helper:
+                log.debug("DDS participants are made with the GIL held: compiled helper %s",
+                          compiled.missing)
     return _helper or None
 
 

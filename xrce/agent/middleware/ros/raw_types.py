@@ -4,9 +4,10 @@ CDR bytes instead of Python messages (CPython agent only).
 The agent never needs a Python message: samples, requests and replies cross as their CDR bytes.
 rclpy only reads a class's type support and its conversion functions from its metaclass, so a
 class that carries the C type support of ``lib<pkg>__rosidl_typesupport_c.so`` and conversions
-of the compiled helper (``xrce.agent.engine._fastpath``) serves, without importing the package's
-generated Python code (its classes, numpy for arrays, rosidl_generator_py's libraries). Where
-the helper or a library is missing, the generated classes serve (``types``).
+of the compiled helper (``xrce.agent.middleware.ros._rostypes``, see ``compiled``) serves,
+without importing the package's generated Python code (its classes, numpy for arrays,
+rosidl_generator_py's libraries). Where the helper or a library is missing, the generated
+classes serve (``types``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import types
 
 from xrce.agent.middleware import UnknownTypeError
+from xrce.agent.middleware.ros import compiled
 from xrce.agent.middleware.ros.types import (
     _ACTION_MESSAGES, _ACTION_SERVICES, BUILD_HINT, _check_package, _import_module, _split_type,
     log, package_present, split_service_type,
@@ -61,21 +63,18 @@ def _typesupport_c_library(package: str):
 def _library_type_support(package: str, type_name: str):
     """The metaclass attributes of a raw type: the C type support capsule of ``package``'s message
     ``type_name`` straight from ``lib<package>__rosidl_typesupport_c.so`` (``<prefix>/lib`` beside
-    its Python code) through the agent's compiled helper (``_fastpath.message_type_support``), and
-    conversions that refuse to run (``_fastpath.raw_type_conversions``). None when the helper or
+    its Python code) through the agent's compiled helper (``_rostypes.message_type_support``), and
+    conversions that refuse to run (``_rostypes.raw_type_conversions``). None when the helper or
     the library is missing or the name is not found: the package's Python type support module
     serves then. Raw publishers and subscriptions need only the type support; that module also
     loads the rosidl_generator_py libraries of the package and of each one it depends on, 2-3 ms
     of the ~3 ms a firmware's first topic of a package took to create (bench/entity_creation.py)
     and about 0.12 MB resident per package."""
-    try:
-        from xrce.agent.engine import _fastpath
-    except ImportError:
+    helper = compiled.helper()
+    if helper is None:
         return None
-    load = getattr(_fastpath, "message_type_support", None)
-    conversions = getattr(_fastpath, "raw_type_conversions", None)
-    if load is None or conversions is None:
-        return None
+    load = helper.message_type_support
+    conversions = helper.raw_type_conversions
     library = _typesupport_c_library(package)
     if library is None:
         return None
@@ -152,7 +151,7 @@ def raw_message_type(dds_type: str):
 
 class RawReply:
     """A service reply as its CDR bytes (``cdr``, encapsulation first) for rclpy's
-    ``send_response``: the compiled helper's conversion (``_fastpath.raw_reply_conversion``)
+    ``send_response``: the compiled helper's conversion (``_rostypes.raw_reply_conversion``)
     deserializes them straight into the C message rclpy sends."""
 
     __slots__ = ("cdr",)
@@ -220,37 +219,32 @@ def library_service_type(request_type: str):
         return None
     _check_package(package, request_type)
     stand_in = None
-    try:
-        from xrce.agent.engine import _fastpath
-    except ImportError:
-        _fastpath = None
-    needed = ("message_type_support", "library_function", "raw_request_conversion",
-              "raw_reply_conversion")
+    helper = compiled.helper()
     library = _typesupport_c_library(package)
-    if library is not None and all(hasattr(_fastpath, name) for name in needed):
+    if library is not None and helper is not None:
         import os
 
         generator = os.path.join(os.path.dirname(library),
                                  "lib%s__rosidl_generator_c.so" % package)
         prefix = "%s__srv__%s" % (package, type_name)
         try:
-            service_support = _fastpath.message_type_support(
+            service_support = helper.message_type_support(
                 library, "rosidl_typesupport_c__get_service_type_support_handle__" + prefix)
             parts = {}
             for part in ("Request", "Response"):
                 parts[part] = (
-                    _fastpath.message_type_support(
+                    helper.message_type_support(
                         library, "rosidl_typesupport_c__get_message_type_support_handle__%s_%s"
                         % (prefix, part)),
-                    _fastpath.library_function(generator, "%s_%s__create" % (prefix, part)),
-                    _fastpath.library_function(generator, "%s_%s__destroy" % (prefix, part)))
+                    helper.library_function(generator, "%s_%s__create" % (prefix, part)),
+                    helper.library_function(generator, "%s_%s__destroy" % (prefix, part)))
         except ImportError as exc:
             log.debug("%s: no service type in %s's C libraries (%s); its Python classes serve",
                       request_type, package, exc)
             parts = None
         if parts is not None:
-            to_request = _fastpath.raw_request_conversion(parts["Request"][0])
-            to_reply = _fastpath.raw_reply_conversion()
+            to_request = helper.raw_request_conversion(parts["Request"][0])
+            to_reply = helper.raw_reply_conversion()
             if to_request is not None and to_reply is not None:
                 module = "%s.srv" % package
                 meta = type("Metaclass_" + type_name, (_RawServiceMeta,),
@@ -280,18 +274,13 @@ def raw_service_type(srv):
     if srv in _raw_services:
         return _raw_services[srv]
     stand_in = None
-    try:
-        from xrce.agent.engine import _fastpath
-    except ImportError:
-        _fastpath = None
-    request_conversion = getattr(_fastpath, "raw_request_conversion", None)
-    reply_conversion = getattr(_fastpath, "raw_reply_conversion", None)
-    if request_conversion is not None and reply_conversion is not None:
+    helper = compiled.helper()
+    if helper is not None:
         request_meta = type(srv.Request)
         if request_meta._TYPE_SUPPORT is None:
             request_meta.__import_type_support__()
-        to_request = request_conversion(request_meta._TYPE_SUPPORT)
-        to_reply = reply_conversion()
+        to_request = helper.raw_request_conversion(request_meta._TYPE_SUPPORT)
+        to_reply = helper.raw_reply_conversion()
         if to_request is not None and to_reply is not None:
             stand_in = types.SimpleNamespace(
                 __name__=srv.__name__,
@@ -316,21 +305,24 @@ _NAME_MAX = 255  # a DDS type name's limit in ROS' type descriptions
 
 def _named_helper(dds_type: str, package: str):
     """The compiled helper, or UnknownTypeError saying what is missing."""
-    try:
-        from xrce.agent.engine import _fastpath
-    except ImportError:
-        _fastpath = None
-    if _fastpath is None or not hasattr(_fastpath, "named_message_type"):
+    helper = compiled.helper()
+    if helper is None and compiled.missing != "not built":
         raise UnknownTypeError(
             "type %s: %s is not installed, and carrying a type known only by its name needs the "
-            "agent's compiled helper (xrce.agent.engine._fastpath), which this install lacks: a "
-            "platform-independent wheel has none, an install from source with a C compiler (gcc, "
-            "python3-dev) builds it; or build %s for the agent (--interfaces DIR, then %s)"
-            % (dds_type, package, package, BUILD_HINT))
+            "agent's compiled helper (%s), which is %s here: `pip install -e .` rebuilds it; or "
+            "build %s for the agent (--interfaces DIR, then %s)"
+            % (dds_type, package, compiled.MODULE, compiled.missing, package, BUILD_HINT))
+    if helper is None:
+        raise UnknownTypeError(
+            "type %s: %s is not installed, and carrying a type known only by its name needs the "
+            "agent's compiled helper (%s), which this install lacks: a platform-independent wheel "
+            "has none, an install from source with a C compiler (gcc, python3-dev) builds it; or "
+            "build %s for the agent (--interfaces DIR, then %s)"
+            % (dds_type, package, compiled.MODULE, package, BUILD_HINT))
     if len(dds_type) > _NAME_MAX:
         raise UnknownTypeError("type name of %d characters: at most %d" % (len(dds_type),
                                                                            _NAME_MAX))
-    return _fastpath
+    return helper
 
 
 _fastdds_major = None  # of the RMW loaded: read from /proc/self/maps once

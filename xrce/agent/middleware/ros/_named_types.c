@@ -35,7 +35,7 @@
 #include <string.h>
 
 #include "_named_types.h"
-#include "_services.h"
+#include "_rostypes.h"
 
 #define NAMED_TYPES_MAX 1024
 #define ENCAPSULATION 4

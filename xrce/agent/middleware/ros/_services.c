@@ -16,8 +16,8 @@
  * of its own. A type beyond the table keeps the Python conversions (None from
  * raw_request_conversion).
  *
- * rmw and rcutils are not linked, as rcl is not for _fastpath.c: their functions are looked up
- * in the libraries rclpy already loaded.
+ * rmw and rcutils are not linked, as rcl is not for the engine's _fastpath.c: their functions are
+ * looked up in the libraries rclpy already loaded.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -27,7 +27,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#include "_services.h"
+#include "_rostypes.h"
 
 /* rcutils_allocator_t and rcutils_uint8_array_t (rmw_serialized_message_t) as rcutils declares
  * them. */

@@ -1,18 +1,19 @@
-/* The compiled helper's ROS support beside the receive path: type supports and conversions for
- * the agent's raw interface classes (xrce.agent.middleware.ros.raw_types), a DDS participant made
- * without the GIL (xrce.agent.middleware.ros.participant) and giving free heap back. rcl, rmw and
- * rcutils are not linked: their functions are looked up in the librcl rclpy already loaded. */
+/* The agent's ROS type-support extension, xrce.agent.middleware.ros._rostypes: type supports and
+ * conversions for the agent's raw interface classes (xrce.agent.middleware.ros.raw_types), of
+ * types known only by name (_named_types.c), a replier's requests and replies as CDR bytes
+ * (_services.c), and a DDS participant made without the GIL
+ * (xrce.agent.middleware.ros.participant). It is apart from the engine's compiled receive path
+ * (xrce.agent.engine._fastpath): the protocol engine holds no ROS type-support code, and either
+ * extension may be missing without the other (setup.py). rcl, rmw and rcutils are not linked:
+ * their functions are looked up in the librcl rclpy already loaded. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
 #include <dlfcn.h>
-#if defined(__GLIBC__)
-#include <malloc.h>
-#endif
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "_services.h"
+#include "_rostypes.h"
 
 /* Looked up through librcl: a handle's lookup covers the libraries it depends on, so this finds
  * rmw's functions in whichever rmw library rcl is linked to (librmw_implementation where ROS
@@ -23,17 +24,6 @@ void *xrce_rcl_symbol(const char *name) {
     void *found = dlsym(library, name);
     dlclose(library);  /* NOLOAD took a reference; rclpy holds its own */
     return found;
-}
-
-/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through ctypes:
-   the ctypes package, once imported, stays in the process (0.57 MB of classes). */
-static PyObject *return_free_heap(PyObject *self, PyObject *unused) {
-#if defined(__GLIBC__)
-    malloc_trim(0);
-    Py_RETURN_TRUE;
-#else
-    Py_RETURN_FALSE;
-#endif
 }
 
 /* message_type_support(library, symbol): the capsule of a message's C type support (what a
@@ -167,7 +157,6 @@ static PyObject *library_function(PyObject *module, PyObject *args) {
 
 static PyMethodDef ros_support_methods[] = {
     {"raw_type_conversions", raw_type_conversions, METH_NOARGS, NULL},
-    {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
     {"message_type_support", message_type_support, METH_VARARGS, NULL},
     {"library_function", library_function, METH_VARARGS, NULL},
     {"participant_node", participant_node, METH_VARARGS, NULL},
@@ -175,7 +164,23 @@ static PyMethodDef ros_support_methods[] = {
     {NULL},
 };
 
-int xrce_ros_support_add(PyObject *module) {
-    if (xrce_named_types_add(module) < 0) return -1;
-    return PyModule_AddFunctions(module, ros_support_methods);
+/* CRC-32 of this folder's C sources, given by setup.py (xrce.agent.middleware.ros.compiled
+ * compares it with them). */
+#ifndef XRCE_SOURCE_CRC
+#define XRCE_SOURCE_CRC "unknown"
+#endif
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "xrce.agent.middleware.ros._rostypes", NULL, -1, ros_support_methods,
+};
+
+PyMODINIT_FUNC PyInit__rostypes(void) {
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) return NULL;
+    if (xrce_services_add(m) < 0 || xrce_named_types_add(m) < 0 ||
+        PyModule_AddStringConstant(m, "SOURCE_CRC", XRCE_SOURCE_CRC) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -2,8 +2,8 @@
  * declared as rosidl_runtime_c, rosidl_typesupport_fastrtps_cpp and
  * rosidl_typesupport_introspection_c declare them in the headers of Jazzy's and Kilted's wheels
  * (the same in both); nothing of ROS is linked or included. */
-#ifndef XRCE_ENGINE_NAMED_TYPES_H
-#define XRCE_ENGINE_NAMED_TYPES_H
+#ifndef XRCE_ROSTYPES_NAMED_TYPES_H
+#define XRCE_ROSTYPES_NAMED_TYPES_H
 
 #include <stdbool.h>
 #include <stddef.h>
