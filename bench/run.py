@@ -1,25 +1,35 @@
 """Every benchmark, each figure next to a baseline measured in the same run.
 
-    .venv/bin/python bench/run.py [--quick] [--only NAME[,NAME...]]
+The bench's entry: bench/README.md lists the scripts by folder, docs/PERFORMANCE.md the figures by
+the question they answer.
+
+    .venv/bin/python bench/run.py [--quick] [--only NAME[,NAME...]] [--reference DIR]
+    .venv/bin/python bench/run.py --smoke
 
 Prints one JSON line per figure as it is measured ({"name", "value", "unit", "baseline", "ratio",
-"baseline_name", "target", "note"}) and one table at the end. Groups (``--only``): ros, latency,
-cost, serial, sessions, footprint, restart, creation, discovery. ``cost`` (bench/agent/cost.py) is
-what the agent costs the robot's computer: CPU per message at fixed offered rates, idle CPU, the
-TurtleBot3 load, memory, ping; ``--reference DIR`` measures another source tree's agent beside it
-in the same run.
-``creation`` (bench/microros/entity_creation.py): a micro-ROS firmware's entity creation (node + 4
-entities, a replier, the first topic of a type) beside eProsima's agent answering the same CREATEs.
-``restart`` (bench/restart/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a board reset.
-``discovery`` (bench/restart/discovery.py): first sample after either side appears, per start order, 20
-trials each (5 with ``--quick``), with the agent-restart gap beside them.
-``ros`` and ``latency`` live in bench/agent/ros_bridge.py; serial, sessions and footprint here. Figures
-and their table: bench/common/figures.py; child processes and the UDP echo baseline: bench/common/harness.py.
+"baseline_name", "target", "note"}) and one table at the end. Groups (``--only``):
 
-Agents (``xrce-agent``), the rclpy peers (bench/common/ros_peer.py) and client swarms
-(bench/churn/session_swarm.py) each run in their own process; ROS traffic stays on a leased ROS domain
-with LOCALHOST discovery. The machine's cores are shared by the clients, the agent and the ROS
-peers, as they would not be in a deployment: every figure includes that contention.
+- ``ros``, ``latency`` (bench/agent/ros_bridge.py): samples between a client and rclpy through the
+  agent beside two bare rclpy processes, ping beside a raw UDP echo, end-to-end latency;
+- ``cost`` (bench/agent/cost.py): what the agent costs the robot's computer: CPU per message at
+  fixed offered rates, idle CPU, the TurtleBot3 load, memory, ping; ``--reference DIR`` measures
+  another source tree's agent beside it in the same run;
+- ``serial``, ``sessions``, ``footprint`` (here, with bench/agent/serial_flood.py,
+  bench/churn/session_swarm.py, bench/micropython/client_footprint.py);
+- ``restart`` (bench/restart/restart_gap.py): the ROS gap after an agent SIGKILL + restart, and a
+  board reset;
+- ``creation`` (bench/microros/entity_creation.py): a micro-ROS firmware's entity creation beside
+  eProsima's agent answering the same CREATEs;
+- ``discovery`` (bench/restart/discovery.py): first sample after either side appears, per start
+  order, 20 trials each (5 with ``--quick``), with the agent-restart gap beside them.
+
+``--smoke`` runs nothing of that: every script of bench/ once from its path (its ``--help``, or its
+shortest run), every module imported, in about ten seconds (the README's test runs it).
+
+Agents (``xrce-agent``), the rclpy peers (bench/common/ros_peer.py) and client swarms each run in
+their own process; ROS traffic stays on a leased ROS domain with LOCALHOST discovery. The machine's
+cores are shared by the clients, the agent and the ROS peers, as they would not be in a deployment:
+every figure includes that contention.
 """
 
 import argparse
