@@ -6,7 +6,7 @@ reliable stream, the request's sample identity in front (the recorded message's 
 sequence number, request id, identity and sum rewritten), the agent's reliable stream acknowledged
 as the firmware's client library does, its own unacknowledged messages sent again every 0.2 s.
 
-Used by bench/service_roundtrip.py (timed) and tests/test_fastpath_repliers.py (``reply`` changed
+Used by bench/microros/service_roundtrip.py (timed) and tests/test_fastpath_repliers.py (``reply`` changed
 to send what a board gets wrong).
 """
 

@@ -3,8 +3,8 @@ executor thread until a client's participant needs one, in any domain including 
 a domain whose last client participant has gone is left after the linger
 (``xrce.agent.middleware.ros.membership``), and the agent is at rest again.
 
-What a participant at rest cost, and why the linger is what it is: docs/PERFORMANCE.md, "Agent
-restart and discovery". The first sample still reaches ROS within the discovery bound when the
+What a participant at rest cost: docs/PERFORMANCE.md, "At rest"; why the linger is what it is:
+"Agent restart and discovery" there. The first sample still reaches ROS within the discovery bound when the
 agent joins late: tests/test_discovery_order.py.
 """
 

@@ -1,4 +1,4 @@
-"""What the agent process leaves out to stay small (bench/agent_cost.py measures the memory)."""
+"""What the agent process leaves out to stay small (bench/agent/cost.py measures the memory)."""
 
 import importlib.util
 import subprocess

@@ -563,7 +563,7 @@ def test_bridging_common_types_imports_no_python_message_machinery(ros_domain): 
 
 # A replier's first creation: the service type's support imports service_msgs (introspection
 # events the agent never enables), whose ServiceEventInfo imports numpy at its top: 150-340 ms of
-# the CREATE and 11 MB (bench/entity_creation.py). numpy now loads only if such an event is built.
+# the CREATE and 11 MB (bench/microros/entity_creation.py). numpy now loads only if such an event is built.
 _REPLIER_SCRIPT = r"""
 import asyncio, sys
 from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
@@ -944,7 +944,7 @@ async def test_a_deleted_participants_node_is_freed_without_waiting_for_python(r
     """With park_creation (the CLI's agent), what the executor made for a client was held by a
     reference cycle (the creation, its job's future, the future's callback) that only Python's
     cyclic collector frees, and at a board life a second its passes over the oldest generation
-    came minutes apart (bench/churn.py: RSS rising ~20 MB/h). With those passes off, the node
+    came minutes apart (bench/churn/churn.py: RSS rising ~20 MB/h). With those passes off, the node
     of a deleted participant is freed all the same."""
     import gc
     import weakref

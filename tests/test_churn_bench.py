@@ -1,4 +1,4 @@
-"""bench/churn.py's arithmetic: the RSS slope after the warm-up and the CPU per 5-minute window
+"""bench/churn/churn.py's arithmetic: the RSS slope after the warm-up and the CPU per 5-minute window
 (the churn and soak figures of docs/PERFORMANCE.md are these)."""
 
 import sys
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import churn  # noqa: E402  (nothing is started: the agent and ROS only in run())
+from bench.churn import churn  # noqa: E402  (nothing is started: the agent and ROS only in run())
 
 
 def test_the_slope_is_megabytes_an_hour_by_least_squares():

@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parent.parent
 START_TIMEOUT = 30.0
 RUN_TIMEOUT = 30.0
 EXIT_TIMEOUT = 15.0
-INTERRUPT_EXIT_TIMEOUT = 60.0  # generous: the suite runs beside a CPU hog (bench/loaded_suite.sh)
+INTERRUPT_EXIT_TIMEOUT = 60.0  # generous: the suite runs beside a CPU hog (bench/ci/loaded_suite.sh)
 
 # XRCE-WIRE.md §10, "VERIFIED ping reply": header 80 00 00 00, then INFO (availability 1).
 REFERENCE_PING_REPLY = bytes.fromhex(

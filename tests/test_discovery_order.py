@@ -17,7 +17,7 @@ participant of the test's domain (where the agent's participant sends every anno
 LOCALHOST) counts the agent's announcements over 3 s, about 6 with the profile and 1 without.
 
 Each trial of (a) and (b) measures the time from the client's CREATE of the writer to the first
-sample in rclpy (bench/discovery.py gives the figures: under 1 s in 20 of 20 trials of each order
+sample in rclpy (bench/restart/discovery.py gives the figures: under 1 s in 20 of 20 trials of each order
 on an idle machine). Fast DDS still loses a race now and then on a loaded machine: 2 of 40
 trials of (a) under four CPU hogs on 2 cores saw their first sample after ~3 s, when the
 subscriber's own first periodic announcement went out, although both sides had exchanged their

@@ -5,7 +5,7 @@ extreme length fields) from several sockets, or byte soup and mutated frames on 
 line, while a good writer/reader pair keeps publishing reliable and best-effort through it: the
 agent must not crash or stall, the good clients must keep >= 99 % delivery (reliable: all, in
 order), and its decode/drop counters (SIGUSR1 stats line) must have moved. Same code as
-``bench/fuzz_live_agent.py`` at a suite-sized count.
+``bench/hostile/fuzz_live_agent.py`` at a suite-sized count.
 
 In process (hypothesis): serial byte streams through the agent's frame decoder into the engine, and
 session-bound mutations of a good client's own messages (the paths unknown-client fuzzing never
@@ -25,8 +25,8 @@ from xrce.agent.engine.dispatch import Agent
 from xrce.submessages import CreateClient, encode_message
 from xrce.transports.framing import FrameDecoder
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-import fuzz_live_agent  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.hostile import fuzz_live_agent  # noqa: E402
 
 
 def _check(result, min_decode_errors, rss_growth_mib=20):

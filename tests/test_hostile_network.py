@@ -1,6 +1,6 @@
 """Hostile network (issue 26, the engine's rows; issue 21, reliable streams under a parked client).
 
-Live (a real agent process on loopback, raw datagrams from the test, ``bench/hostile_network.py``
+Live (a real agent process on loopback, raw datagrams from the test, ``bench/hostile/network.py``
 at suite size): the robot gets in after a CREATE_CLIENT flood; at most one reply, no larger than
 the request, per datagram from an unknown session or to the discovery port; agent RSS bounded by
 the memory budget under a mixed flood and the strangers' sessions expired afterwards; another
@@ -24,8 +24,8 @@ from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, 
 from xrce.streams import OutputReliableStream
 from xrce.submessages import Create, Fragment, Heartbeat, WriteData, decode_message, encode_message
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-import hostile_network  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.hostile import network as hostile_network  # noqa: E402
 
 MIB = 1024 * 1024
 
@@ -71,7 +71,7 @@ def test_another_clients_ping_during_a_create_storm(ros_domain):  # noqa: F811
                                    rounds=2)
     print(result)
     assert result["all_ok"], result
-    # A generous bound for a loaded 2-core box; bench/hostile_network.py --rows storm prints
+    # A generous bound for a loaded 2-core box; bench/hostile/network.py --rows storm prints
     # p50/p99/max beside the idle figures for a same-run comparison.
     assert result["ping_ms_p99"] < 50, result
 

@@ -323,11 +323,16 @@ def test_readme_cpython_example_runs_and_says_why_without_an_agent(namespace, tm
 
 def test_readme_bench_command_runs_with_the_venvs_python():
     """README's `.venv/bin/python bench/run.py`: its imports and options as written (the run itself
-    takes minutes, bench/ is not the suite)."""
+    takes minutes, bench/ is not the suite), and `bench/run.py --smoke`: every bench script starts
+    from its path (its --help or shortest run, every module imported; no agent, ~10 s)."""
     assert "`.venv/bin/python bench/run.py`" in README.read_text()
     done = subprocess.run([str(VENV_BIN / "python"), "bench/run.py", "--help"], cwd=README.parent,
                           capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and "--quick" in done.stdout, done.stderr
+    assert done.returncode == 0 and "--quick" in done.stdout and "--smoke" in done.stdout, done.stderr
+    smoke = subprocess.run([str(VENV_BIN / "python"), "bench/run.py", "--smoke"], cwd=README.parent,
+                           capture_output=True, text=True, timeout=600)
+    assert smoke.returncode == 0 and "every bench file runs" in smoke.stdout, smoke.stdout + smoke.stderr
+    assert smoke.stdout.count("ok ") >= 30, smoke.stdout  # the scripts of bench/'s folders, not none
 
 
 # ------------------------------------------------------------------ docs/*.md shell blocks
@@ -338,7 +343,7 @@ def test_readme_bench_command_runs_with_the_venvs_python():
 # it from README's test above (move it there) or give it a rule here.
 
 DOCS = sorted((README.parent / "docs").glob("*.md"))
-BENCH_LINE = re.compile(r"\.venv/bin/python (bench/\w+\.py)((?: \S+)*)")
+BENCH_LINE = re.compile(r"\.venv/bin/python (bench/(?:\w+/)*\w+\.py)((?: \S+)*)")
 
 
 def docs_shell_lines():

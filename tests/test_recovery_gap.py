@@ -10,7 +10,7 @@ where the time went.
 - samples that reach the agent's datareader before the client's READ_DATA are delivered when it
   comes, up to the reader's history depth (what eProsima's agent does).
 
-The bench (bench/restart_gap.py) reports the figures; the bounds here only catch regressions such
+The bench (bench/restart/restart_gap.py) reports the figures; the bounds here only catch regressions such
 as the 5-8 s gaps before issue 12 (a best-effort stream that swallowed every sample for seconds).
 """
 

@@ -91,7 +91,7 @@ def check_rate_and_stamps(collected, start_ns, end_ns, hz, stamp_error_ns):
     """The robot publishes at ``hz`` (counted by its own stamps: deliveries bunch up on a loaded
     machine, the robot's schedule does not) and its stamps are the agent's clock to within
     ``stamp_error_ns``, the error its time sync itself admits. How small the stamp-to-receive delay
-    is, is bench/sensor_state_delay.py's figure; here only a sanity bound (issue 23: a fixed -1 ms
+    is, is bench/agent/sensor_state_delay.py's figure; here only a sanity bound (issue 23: a fixed -1 ms
     failed beside a CPU hog, where one sync's round trip took longer)."""
     window = collected.between(start_ns, end_ns)
     assert len(window) >= 10, len(window)

@@ -15,7 +15,7 @@ whole time through the same agent.
 
 Both runs go side by side to keep the test near one minute. Heap caps: issue 10 asks for 64 KB from
 .mpy and 128 KB from .py, issues 25 and 32 at most 84 KiB from .mpy over a real socket, which the
-unix port meets (84 KiB: bench/micropython_unix_heap.py). The .py run meets its 128 KB and is held
+unix port meets (84 KiB: bench/micropython/unix_heap.py). The .py run meets its 128 KB and is held
 to 116 KiB; from .mpy the firmware's live heap alone is ~72.3 KB plus the interpreter's and the
 harness's ~8.6 KB, so the cap is what it fits in this harness, and the test keeps it from growing.
 """
@@ -47,10 +47,10 @@ SETTLE_S = 10
 # from .mpy 86 KiB failed; from .py 106 and 110 KiB failed; the pair 88 / 116 KiB passed 3 runs of
 # 4 (the fourth failed, which of the two not recorded); 90 / 120 KiB passed 3 of 3.
 # These caps are this harness's, stricter than a board's: on MicroPython's 32-bit unix port with a
-# real socket (bench/micropython_unix_heap.py, whose collector runs inside a step and every 4 KB
+# real socket (bench/micropython/unix_heap.py, whose collector runs inside a step and every 4 KB
 # as the firmware asks there) the firmware runs from 84 KiB (.mpy) and 106 KiB (.py); this socket
 # shim allocates 576 bytes more per datagram than the port's recv (the receive buffer the port
-# frees on return, and two views: bench/micropython_unix_heap.py --socket-check).
+# frees on return, and two views: bench/micropython/unix_heap.py --socket-check).
 MPY_HEAP_CAP = 90 * 1024
 PY_HEAP_CAP = 120 * 1024
 DRIFT_BOUND = 1024  # the live heap's low-water mark after the first 10 s may move by at most this much

@@ -1,0 +1,1 @@
+"""Boards that reboot, reconnect and vanish, and many boards at once."""

@@ -1,0 +1,1 @@
+"""The client on a board: its heap and speed under MicroPython."""
