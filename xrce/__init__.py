@@ -6,7 +6,7 @@
 #
 # Modules that run on boards explain themselves in comments, not docstrings: MicroPython keeps what
 # it compiles from a docstring on the heap (5.3 KB on the String + Twist client from .py, measured
-# with bench/client_footprint.py).
+# with bench/micropython/client_footprint.py).
 #
 # The package itself holds the project's error types and the shims that let the shared modules run
 # unchanged on CPython and MicroPython (xrce.errors and xrce.compat re-export them under their

@@ -29,7 +29,7 @@
 # Bounded: a server holds at most ``max_goals`` goals (a finished goal keeps its slot, and its result
 # for a late get_result, until a new goal needs the slot); a client has at most ``max_goals`` goals in
 # flight. A board loads this module only when it makes an action server or client
-# (bench/client_footprint.py states its cost).
+# (bench/micropython/client_footprint.py states its cost).
 
 from xrce import const, ticks_us
 from xrce.msgs import action_msgs

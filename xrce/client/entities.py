@@ -6,7 +6,7 @@
 # On a board the session imports this module for one call and drops it again (_set_up_module in
 # xrce.client.session, as xrce.msgs drops its _plan), so its code is garbage as soon as the call
 # returns: a firmware creates its entities once and then keeps none of this. Each call pays the
-# import instead (bench/client_footprint.py, docs/MICROPYTHON.md), which set-up can afford.
+# import instead (bench/micropython/client_footprint.py, docs/MICROPYTHON.md), which set-up can afford.
 # CPython binds these functions on Session at import (``bind``): there they cost nothing per call.
 #
 # The functions here call each other directly, never through the session: on a board each session

@@ -21,7 +21,7 @@
 # mismatch", "Rejected by server"), with "Value out of range" where rclc says "Set parameter error".
 # Unlike rclc, set_parameters_atomically is served (all or nothing) and string parameters exist.
 #
-# A board loads this module only when it makes a parameter server (bench/client_footprint.py states
+# A board loads this module only when it makes a parameter server (bench/micropython/client_footprint.py states
 # its cost); the rcl_interfaces classes load with it.
 
 from xrce import const

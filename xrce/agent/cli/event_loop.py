@@ -5,7 +5,8 @@ Why uvloop: without the compiled data path every datagram of a board wakes the l
 topics about 230 times a second), and the standard loop's own turn around each wake-up was a large
 part of the agent's CPU (PX4 SITL: 0.75x on uvloop). With the compiled path a board's steady traffic
 no longer wakes the loop: the TurtleBot3 load costs the same on both loops, the PX4 replay 0.93
-against 1.27 % of a core, and uvloop 2.2 MB more resident memory (docs/PERFORMANCE.md, issue 45).
+against 1.27 % of a core, and uvloop 2.2 MB more resident memory (docs/PERFORMANCE.md, "A
+robot's load (TurtleBot3)").
 The agent uses only what both loops provide, and the tests run the same scenarios on both
 (tests/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
 installed or memory counts more than CPU.

@@ -1,6 +1,6 @@
 /* Optional compiled receive path of the UDP link: WRITE_DATA straight into rcl.
  *
- * Why it exists: per datagram, the Python data path had reached its floor (bench/agent_cost.py);
+ * Why it exists: per datagram, the Python data path had reached its floor (bench/agent/cost.py);
  * what is left of the cost is Python work, not the kernel. Here the UDP link's socket is read on
  * a thread of the module's own (_receive_thread.c), in recvmmsg batches, without the GIL. A
  * datagram whose every submessage is a WRITE_DATA (FORMAT_DATA) to a datawriter Python registered,

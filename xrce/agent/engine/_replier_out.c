@@ -3,7 +3,7 @@
  *
  * Why: a service call through a board's replier cost two wake-ups of Python on the way (rclpy's
  * executor for the request, the loop for the reply) and the engine's delivery under its lock on
- * each: about 0.3 ms more per leg than eProsima's agent (bench/service_roundtrip.py).
+ * each: about 0.3 ms more per leg than eProsima's agent (bench/microros/service_roundtrip.py).
  *
  * How, as for a datareader (_reader_out.c, whose Reader this is, with a ServicePart): once rclpy's
  * executor has taken the service in, its on-new-request callback is pointed at on_new_message,
@@ -270,7 +270,8 @@ PyObject *Receiver_add_replier(Receiver *self, PyObject *args) {
     int resolved = readers != NULL && PyObject_IsTrue(readers) && resolve_rcl_services();
     Py_XDECREF(readers);
     if (!resolved || !self->running) {
-        PyErr_SetString(PyExc_RuntimeError, "rcl's service calls not resolved, or no receive thread");
+        PyErr_SetString(PyExc_RuntimeError,
+                        "rcl's service calls not resolved, or no receive thread");
         return NULL;
     }
     void *pointers[6];

@@ -33,7 +33,7 @@ keeps the XRCE view: ids, parents, REUSE/REPLACE signatures and the READ_DATA st
 Threads: the engine runs on the asyncio loop's thread, and on the middleware's thread for the
 samples it delivers to UDP clients (``DataPath.from_middleware``): whoever runs it holds
 ``Agent.lock``. Taking that lock costs a fraction of a microsecond per message; waking the loop
-for every sample from ROS cost more than the sample itself (bench/agent_cost.py, TurtleBot3 load).
+for every sample from ROS cost more than the sample itself (bench/agent/cost.py, TurtleBot3 load).
 """
 
 from __future__ import annotations

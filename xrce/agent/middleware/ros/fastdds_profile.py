@@ -6,7 +6,7 @@ resident memory (640 KB of the agent's ~51 MB under the TurtleBot3 load) althoug
 from only a few threads. The profile asks for one and lets Fast DDS add one when a thread finds
 none free (``SendBuffersAllocationAttributes``: preallocated_number 1, dynamic).
 
-Discovery (issue 22, ``bench/discovery.py``, ``bench/dds_rediscovery.py``): a Fast DDS 2.14
+Discovery (issue 22, ``bench/restart/discovery.py``, ``bench/restart/dds_rediscovery.py``): a Fast DDS 2.14
 participant sends its first announcement before its receivers are attached, so a peer's answer
 that comes back within that moment (0.4-3 ms under LOCALHOST, one datagram to each of 32 ports)
 is dropped, and the peer never answers again: it already knows the participant. Who loses what
@@ -22,11 +22,11 @@ depends on the start order:
   sender thread after the receivers are attached; the answers arrive and are kept (0 of 8
   restarted participants waited, against 5 of 8 with the defaults; the sender thread can still
   beat the receivers now and then: 3 of 110 agent starts next to a busy rclpy publisher waited,
-  bench/discovery.py order d-b). The agent's topic writers stay synchronous: rmw_fastrtps
+  bench/restart/discovery.py order d-b). The agent's topic writers stay synchronous: rmw_fastrtps
   creates them so and Fast DDS leaves synchronous writers out of a participant's throughput
   controller.
 
-Cost (idle agent next to one rclpy node, medians of 3, ``bench/discovery.py --idle-cost``): the
+Cost (idle agent next to one rclpy node, medians of 3, ``bench/restart/discovery.py --idle-cost``): the
 agent 0.05 -> 0.13 % of a core, the rclpy node unchanged (0.04-0.05 %), loopback 21 -> 67
 datagrams/s (11 -> 35 KB/s): each announcement goes to 32 local ports under LOCALHOST, to one
 multicast group under SUBNET. Transports, QoS, ports and the 20 s lease stay as rmw_fastrtps and

@@ -144,7 +144,7 @@ class RosDomains:
     def _leave(self, domain: DomainRuntime) -> None:
         """Tear a domain down: its DDS participant, context and executor thread (one client
         joining domains 1..20 and deleting its participants there left 32 MB and 180 threads
-        behind; now 3 MB and none, bench/hostile_ros.py). The thread is joined off the loop;
+        behind; now 3 MB and none, bench/hostile/ros.py). The thread is joined off the loop;
         ``close`` waits for it. Leave listeners hear of it first, while nothing is destroyed."""
         domain_id = domain.domain_id
         del self._domains[domain_id]

@@ -68,7 +68,7 @@ def _library_type_support(package: str, type_name: str):
     the library is missing or the name is not found: the package's Python type support module
     serves then. Raw publishers and subscriptions need only the type support; that module also
     loads the rosidl_generator_py libraries of the package and of each one it depends on, 2-3 ms
-    of the ~3 ms a firmware's first topic of a package took to create (bench/entity_creation.py)
+    of the ~3 ms a firmware's first topic of a package took to create (bench/microros/entity_creation.py)
     and about 0.12 MB resident per package."""
     helper = compiled.helper()
     if helper is None:
@@ -209,7 +209,7 @@ def library_service_type(request_type: str):
 
     A replier's creation spent most of its time importing the package's Python ``srv`` module
     (every service class of the package, their type support module and the rosidl_generator_py
-    libraries): 3-7 ms of the 7-10 ms (bench/entity_creation.py), against rclpy's
+    libraries): 3-7 ms of the 7-10 ms (bench/microros/entity_creation.py), against rclpy's
     ``create_service`` itself, 0.5 ms."""
     stand_in = _library_services.get(request_type)
     if stand_in is not None:
@@ -270,7 +270,7 @@ def raw_service_type(srv):
 
     Saves a replier two conversions through Python objects per request (taking the request,
     then serializing it; deserializing the reply, then converting it for rcl), measured with
-    bench/service_roundtrip.py."""
+    bench/microros/service_roundtrip.py."""
     if srv in _raw_services:
         return _raw_services[srv]
     stand_in = None

@@ -12,7 +12,7 @@ A request for a replier goes to its XRCE client from the executor thread that to
 engine's lock when that lock is free and none of the replier's requests wait for the loop (as a
 reader's samples do, ``ReaderHandoff``); otherwise through the loop. Unanswered requests expire
 under one timer for the whole agent, armed while any wait, instead of a timer per request, so a
-request costs the loop no wake-up at all. Measured with bench/service_roundtrip.py (the real
+request costs the loop no wake-up at all. Measured with bench/microros/service_roundtrip.py (the real
 firmware's replier, an rclpy client, medians of interleaved rounds beside eProsima's agent).
 """
 

@@ -289,7 +289,7 @@ def _import_service_event_info() -> None:
     service or client of a type) imports ``service_msgs.msg.ServiceEventInfo``, for the service
     introspection events the agent never enables, and that module imports numpy at its top for
     one array field its instances would use. numpy took 150-340 ms of a replier's creation on the
-    2-core dev machine (bench/entity_creation.py) and 11 MB. The stand-in is only that module's:
+    2-core dev machine (bench/microros/entity_creation.py) and 11 MB. The stand-in is only that module's:
     anything else importing numpy gets the real one, and so does that module if it ever builds an
     instance."""
     if "service_msgs.msg" in sys.modules or "numpy" in sys.modules:
