@@ -7,13 +7,13 @@ fixture (offered to every test module by conftest.py) is an engine with CED behi
 
 import pytest
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
-from xrce.objects import (
+from xrce.wire.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin,
 )
-from xrce.submessages import (
+from xrce.wire.submessages import (
     AckNack, Create, CreateClient, ReadData, WriteData, decode_message, encode_message,
 )
 

@@ -18,7 +18,7 @@ import time
 
 from microros_replay import FIRMWARE_STREAM, Capture, Replayer, UdpChannel
 
-from xrce import constants as C
+from xrce.wire import constants as C
 
 REPLIER_OBJECT = b"\x00\x08"
 REPLIER_ID = 0x0008  # its object id, which the DATA of its requests carries

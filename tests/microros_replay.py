@@ -37,10 +37,10 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from xrce import constants as C
-from xrce.errors import DecodeError
-from xrce.streams import InputReliableStream
-from xrce.submessages import AckNack, decode_message, encode_message
+from xrce.wire import constants as C
+from xrce import DecodeError
+from xrce.wire.streams import InputReliableStream
+from xrce.wire.submessages import AckNack, decode_message, encode_message
 
 CAPTURES = Path(__file__).resolve().parent / "golden" / "microros"
 FIRMWARE_STREAM = 0x80  # the firmware's reliable output and the agent's reliable output to it
@@ -437,10 +437,10 @@ class RosSideFeeder:
     ADD_TWO_INTS = "example_interfaces::srv::dds_::AddTwoInts_"
 
     def __init__(self, channel, service: bool = False, period: float = 1 / 30):
-        from xrce.objects import (
+        from xrce.wire.objects import (
             DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, RequesterBin, TopicBin,
         )
-        from xrce.submessages import Create, CreateClient
+        from xrce.wire.submessages import Create, CreateClient
 
         self.channel = channel
         self.period = period
@@ -491,7 +491,7 @@ class RosSideFeeder:
     def _run(self) -> None:
         import struct
 
-        from xrce.submessages import WriteData
+        from xrce.wire.submessages import WriteData
 
         count = 0
         while not self._stop.wait(self.period):
@@ -518,7 +518,7 @@ def decode_graph(body: bytes) -> list:
     """A ``micro_ros_msgs/msg/Graph`` CDR body as [(namespace, name, [(kind, entity name,
     (types...)), ...]), ...], read as rmw_microxrcedds reads it (little endian, as both agents
     send it)."""
-    from xrce.cdr import CdrReader
+    from xrce.wire.cdr import CdrReader
 
     reader = CdrReader(body)
     nodes = []

@@ -24,7 +24,7 @@ import json
 from pathlib import Path
 
 from microros_replay import Answers, Capture, Replayer, _submessages
-from xrce import constants as C
+from xrce.wire import constants as C
 
 CAPTURES = Path(__file__).resolve().parent / "golden" / "px4"
 NAMES = ("px4_main", "px4_restart", "px4_two")

@@ -25,9 +25,9 @@ import threading
 import time
 
 from microros_replay import Capture
-from xrce import constants as C
-from xrce.objects import DataReaderBin, EndpointQos, PubSubBin, RequesterBin
-from xrce.submessages import (
+from xrce.wire import constants as C
+from xrce.wire.objects import DataReaderBin, EndpointQos, PubSubBin, RequesterBin
+from xrce.wire.submessages import (
     AckNack, Create, CreateClient, DeliveryControl, ReadData, WriteData, decode_message,
     encode_message,
 )

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from agent_process import restore_default_signals
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.cli.startup import load_refs
-from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
+from xrce.wire.submessages import GetInfo, Info, Locator, decode_message, encode_message
 from xrce.transports.crc import get_crc
 from xrce.transports.framing import (
     FrameDecoder,

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from engine_peer import BIN, Clock, Link, Peer, data_of, talker_and_listener
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
-from xrce.objects import ParticipantBin, ReplierBin, RequesterBin
-from xrce.submessages import DeliveryControl, WriteData, decode_message, encode_message
+from xrce.wire.objects import ParticipantBin, ReplierBin, RequesterBin
+from xrce.wire.submessages import DeliveryControl, WriteData, decode_message, encode_message
 
 
 def test_two_clients_exchange_data_reliable_and_best_effort(ced_agent):
@@ -169,7 +169,7 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(ced_ag
 def test_the_direct_data_encoding_is_byte_exact(session_id, stream_id, request_id, object_id,
                                                sample):
     from xrce.agent.engine.datapath import data_message
-    from xrce.submessages import Data
+    from xrce.wire.submessages import Data
 
     class Client:
         pass

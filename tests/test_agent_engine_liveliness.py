@@ -6,11 +6,11 @@ import asyncio
 import pytest
 
 from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
-from xrce.objects import ParticipantBin
-from xrce.submessages import AckNack, Create, DeliveryControl, GetInfo, WriteData
+from xrce.wire.objects import ParticipantBin
+from xrce.wire.submessages import AckNack, Create, DeliveryControl, GetInfo, WriteData
 
 
 def test_reliable_window_heartbeat_and_nack(ced_agent):

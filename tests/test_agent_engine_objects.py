@@ -4,12 +4,12 @@ and references), XML and reference representations, and a CREATE that waits for 
 built."""
 
 from engine_peer import BIN, REF, REPLACE, REUSE, XML, Clock, Link, Peer, data_of
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
 from xrce.agent.engine.xmlrep import refs_from_profiles
-from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-from xrce.submessages import Create, Delete, WriteData, encode_message
+from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.wire.submessages import Create, Delete, WriteData, encode_message
 
 
 def test_create_reuse_replace_table(ced_agent):

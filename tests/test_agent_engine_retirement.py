@@ -6,10 +6,10 @@ client whose serial port or TCP connection closed is retired; nothing else delet
 dead time. The same rules through real sockets and rclpy: tests/test_recovery_liveness.py."""
 
 from engine_peer import Clock, Link, Peer, data_of
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.dispatch import Agent
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.submessages import DeliveryControl
+from xrce.wire.submessages import DeliveryControl
 
 OLD, NEW, OTHER = b"\x0b\x0b\x00\x01", b"\x0b\x0b\x00\x02", b"\x0c\x0c\x00\x03"
 

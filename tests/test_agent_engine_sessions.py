@@ -5,11 +5,11 @@ deleting the client, and hostile bytes that must not disturb another session."""
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from engine_peer import BIN, REUSE, XML, Clock, Link, Peer, data_of
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import TRACE, Agent
-from xrce.objects import ParticipantBin
-from xrce.submessages import (
+from xrce.wire.objects import ParticipantBin
+from xrce.wire.submessages import (
     AckNack, Create, CreateClient, DeliveryControl, Delete, Fragment, GetInfo, Heartbeat, ReadData,
     Timestamp, WriteData, encode_message,
 )

@@ -2,9 +2,9 @@
 and fragmentation in both directions."""
 
 from engine_peer import BIN, Peer, data_of, talker_and_listener
-from xrce import constants as C
-from xrce.objects import ParticipantBin
-from xrce.submessages import Create, DeliveryControl, Fragment, Heartbeat, WriteData, encode_message
+from xrce.wire import constants as C
+from xrce.wire.objects import ParticipantBin
+from xrce.wire.submessages import Create, DeliveryControl, Fragment, Heartbeat, WriteData, encode_message
 
 
 def test_reliable_input_acknack_duplicates_and_heartbeat(ced_agent):

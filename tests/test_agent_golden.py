@@ -24,13 +24,13 @@ import pathlib
 
 import pytest
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
-from xrce.submessages import (
+from xrce.wire.submessages import (
     Create, CreateClient, Locator, WriteData, decode_message, encode_message,
 )
-from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 
 CAPTURES = pathlib.Path(__file__).parent / "golden" / "wire_captures.json"
 SCENARIOS = json.loads(CAPTURES.read_text())["scenarios"]

@@ -610,10 +610,10 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
     not finish within entity_timeout_s is answered ERR_DDS_ERROR, and the entity it makes later
     is destroyed."""
     from engine_peer import BIN, Link, Peer
-    from xrce import constants as C
+    from xrce.wire import constants as C
     from xrce.agent.engine.dispatch import Agent
-    from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-    from xrce.submessages import Create, GetInfo
+    from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.wire.submessages import Create, GetInfo
 
     mw = RosMiddleware(park_creation=True, entity_timeout_s=1.0)
     agent = Agent(mw)
@@ -682,10 +682,10 @@ async def test_a_parked_writer_whose_participant_is_made_again_meanwhile_gets_a_
     destroyed node (rclpy InvalidHandle in the entity log line: handler_errors 1 in
     tests/test_hostile_input.py), but make one in the new node."""
     from engine_peer import BIN, Link, Peer
-    from xrce import constants as C
+    from xrce.wire import constants as C
     from xrce.agent.engine.dispatch import Agent
-    from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-    from xrce.submessages import Create, Delete
+    from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.wire.submessages import Create, Delete
 
     mw = RosMiddleware(park_creation=True, entity_timeout_s=2.0)
     agent = Agent(mw)
@@ -744,10 +744,10 @@ async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  #
     another client is answered meanwhile, then the participant is created in that domain."""
     from engine_peer import BIN, Link, Peer
     from ros_helpers import DomainLease
-    from xrce import constants as C
+    from xrce.wire import constants as C
     from xrce.agent.engine.dispatch import Agent
-    from xrce.objects import ParticipantBin
-    from xrce.submessages import Create, GetInfo
+    from xrce.wire.objects import ParticipantBin
+    from xrce.wire.submessages import Create, GetInfo
 
     lease = DomainLease()
     mw = RosMiddleware(park_creation=True)
@@ -794,11 +794,11 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
     import xrce.agent.middleware.ros.domain as ros_domain_module
     from engine_peer import BIN, Link, Peer, data_of
     from ros_helpers import DomainLease, RosPeer
-    from xrce import constants as C
+    from xrce.wire import constants as C
     from xrce.agent.engine.dispatch import Agent
     from xrce.agent.observe.diagnostics import diagnostic_array_type
-    from xrce.objects import DataReaderBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-    from xrce.submessages import Create
+    from xrce.wire.objects import DataReaderBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+    from xrce.wire.submessages import Create
 
     # A first burst that outlasts any loop delay of a loaded machine: the order is then certain.
     monkeypatch.setattr(ros_domain_module, "FIRST_BURST_IDLE_S", 3.0)

@@ -9,9 +9,9 @@ import tty
 
 import pytest
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.links import serial as serial_links, tcp as tcp_links, udp as udp_links
-from xrce.submessages import GetInfo, Info, Locator, decode_message, encode_message
+from xrce.wire.submessages import GetInfo, Info, Locator, decode_message, encode_message
 from xrce.transports.crc import crc16_x25
 from xrce.transports.framing import (
     FrameDecoder,

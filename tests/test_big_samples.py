@@ -16,13 +16,13 @@ from std_msgs.msg import String as RosString
 from agent_process import AgentProcess
 from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
 from xrce.client.session import Session
-from xrce.message import iter_submessages
+from xrce.wire.message import iter_submessages
 from xrce.msgs.std_msgs import String
-from xrce.submessages import (
+from xrce.wire.submessages import (
     AckNack, Create, DeliveryControl, Fragment, Heartbeat, decode_message, encode_message,
 )
 from xrce.transports.udp import UdpTransport
@@ -169,7 +169,7 @@ def test_a_status_waits_for_room_when_readers_samples_fill_the_window(ced_agent)
     (micro-ROS' Graph, fragmented, to a graph-enabled board): the CREATE is acknowledged, so its
     STATUS must reach the board once an ACKNACK frees room, ahead of the samples still queued.
     rmw_microxrcedds waits for that STATUS; it was dropped (the graph replay stalled)."""
-    from xrce.objects import PubSubBin
+    from xrce.wire.objects import PubSubBin
 
     agent, link = ced_agent
     talker, listener = talker_and_listener(agent, link, listener_depth=64)

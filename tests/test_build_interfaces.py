@@ -17,7 +17,7 @@ import pytest
 
 from install_env import clean_env, start_installed_agent, stop_listener_client_and_agent
 from ros_helpers import ros_domain, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import Header
 from xrce.msgs.turtlebot3_msgs import SensorState

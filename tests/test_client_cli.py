@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 
 from agent_process import restore_default_signals
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.client import cli
-from xrce.message import decode_header, iter_submessages
+from xrce.wire.message import decode_header, iter_submessages
 from ros_helpers import ros_domain, ros_peer  # noqa: F401
 
 REPO = Path(__file__).resolve().parent.parent

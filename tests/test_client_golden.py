@@ -14,10 +14,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.client.session import Session, discover_agents, ping_agent
-from xrce.message import decode_header, iter_submessages
-from xrce.submessages import Fragment, Timestamp, decode_message
+from xrce.wire.message import decode_header, iter_submessages
+from xrce.wire.submessages import Fragment, Timestamp, decode_message
 
 GOLDEN = Path(__file__).parent / "golden" / "wire_captures.json"
 CAPTURES = json.loads(GOLDEN.read_text())["scenarios"]

@@ -1,17 +1,17 @@
 """The client's lean encoders (xrce/client/wire.py and entities.py, the session's control
-submessages) write the same bytes as the general codec the agent decodes with (xrce/submessages.py,
-xrce/objects.py)."""
+submessages) write the same bytes as the general codec the agent decodes with (xrce/wire/submessages.py,
+xrce/wire/objects.py)."""
 
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.client import entities, wire
 from xrce.client.session import Session
-from xrce.message import MessageWriter
-from xrce.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-from xrce.session_payloads import Locator
-from xrce.submessages import (
+from xrce.wire.message import MessageWriter
+from xrce.wire.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.wire.session_payloads import Locator
+from xrce.wire.submessages import (
     AckNack, Create, DeliveryControl, Delete, GetInfo, ReadData, Timestamp, decode_message, encode_message,
     write_submessage,
 )
@@ -134,9 +134,9 @@ def test_session_control_submessages_match_the_codec():
 def test_fragments_carry_the_codec_bytes_after_buffered_samples(small):
     """A sample too big for any message is cut from the bytes already written into the open message
     (not encoded again): the fragments must still carry exactly the general codec's submessage."""
-    from xrce.message import iter_submessages
+    from xrce.wire.message import iter_submessages
     from xrce.msgs.std_msgs import String
-    from xrce.submessages import WriteData
+    from xrce.wire.submessages import WriteData
 
     transport = _Capture()
     session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False, history=8)
@@ -175,9 +175,9 @@ def test_fragments_when_the_window_is_short_of_room(in_flight):
     """A sample whose fragments do not all fit the reliable window waits for room between them
     (callbacks may then write to the stream): the fragments still carry the codec's bytes, on
     consecutive sequence numbers."""
-    from xrce.message import iter_submessages
+    from xrce.wire.message import iter_submessages
     from xrce.msgs.std_msgs import String
-    from xrce.submessages import WriteData
+    from xrce.wire.submessages import WriteData
 
     transport = _AckingCapture()
     session = Session(transport, key=b"\x01\x02\x03\x04", auto_recover=False, history=4)
@@ -208,9 +208,9 @@ def test_fragments_when_the_window_is_short_of_room(in_flight):
 def test_info_activity_with_and_without_agent_properties(properties, impl_status, availability):
     # The session reads an INFO's implementation status and availability itself; one whose agent
     # configuration carries properties goes through discovery's INFO reader (xrce.client.discovery).
-    from xrce.cdr import CdrWriter
+    from xrce.wire.cdr import CdrWriter
     from xrce.client.session import _agent_activity
-    from xrce.session_payloads import Info
+    from xrce.wire.session_payloads import Info
 
     w = CdrWriter()
     Info(C.REQUEST_ID_PING, impl_status=impl_status, availability=availability, properties=properties).encode(w)
@@ -257,7 +257,7 @@ def test_discovery_reads_info_as_the_general_codec_writes_it(impl_status, config
     # (little-endian, as agents send it): every field it reports, with configuration, properties,
     # activity and each locator kind present or not; string locators are left out of what it returns.
     from xrce.client.discovery import _info_locators, read_info
-    from xrce.session_payloads import Info
+    from xrce.wire.session_payloads import Info
 
     if config is None:
         properties = None  # properties travel inside the configuration

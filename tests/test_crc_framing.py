@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.transports import crc as crc_module
 from xrce.transports.crc import CRC_FUNCTIONS, crc16_arc, crc16_x25, get_crc
 from xrce.transports.framing import (

@@ -13,7 +13,7 @@ from agent_process import AgentProcess
 from microros_replay import Capture, Replayer, UdpChannel, _submessages
 from ros_helpers import ros_domain  # noqa: F401
 from test_microros_replay import INTERFACES, _ros_types
-from xrce import constants as C
+from xrce.wire import constants as C
 
 CREATED = re.compile(r"INFO +xrce\.agent: client ([0-9a-f]{8}): created (\w+) (0x[0-9A-F]{3}\((\d+)\))"
                      r"(?: in (\w+) (0x[0-9A-F]{3}\(\d\)))?(?:: (.*?))?(?: -> (.*))?$")

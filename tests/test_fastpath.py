@@ -341,7 +341,7 @@ def mutate(data: bytearray, rng, times: int, longest_tail: int) -> None:
 def acknack_messages(transport, stream_id, wait_s=0.3):
     """(first_unacked, nack_bitmap, the message's bytes) of each ACKNACK of ``stream_id`` the
     agent sends within ``wait_s``."""
-    from xrce.submessages import AckNack, decode_message
+    from xrce.wire.submessages import AckNack, decode_message
     out = []
     deadline = time.monotonic() + wait_s
     while time.monotonic() < deadline:
@@ -472,7 +472,7 @@ def test_a_reliable_sample_that_does_not_publish_is_left_to_python_unchanged(ros
 
         # Taken by the thread: the ACKNACK owed is sent there at the end of its batch, byte for
         # byte what Python sends, and counted; none is left for Python, nothing handed over.
-        from xrce.submessages import AckNack, encode_message
+        from xrce.wire.submessages import AckNack, encode_message
         receiver.set_reliable_state(handle, 0x80, 4, 4)
         client.sendto(datagram, server.getsockname())
         acknack = encode_message(0x01, 0, 0, KEY, [AckNack(6, 0, 0x80)])

@@ -25,8 +25,8 @@ from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.entities import create_reader, create_topic
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist
-from xrce.streams import OutputReliableStream
-from xrce.submessages import AckNack, Data, Status, decode_message, encode_message
+from xrce.wire.streams import OutputReliableStream
+from xrce.wire.submessages import AckNack, Data, Status, decode_message, encode_message
 from xrce.transports.udp import UdpTransport
 
 try:
@@ -257,7 +257,7 @@ def timestamp_datagram(session_id, sec, nsec, flags=0x01):
 def test_a_timestamp_is_answered_in_c_with_the_python_paths_bytes(ros_peer, session_id):  # noqa: F811
     """PX4's time sync: a registered client's TIMESTAMP gets its TIMESTAMP_REPLY from C, the
     message the Python path encodes for the same three times; anything else stays Python's."""
-    from xrce.submessages import TimestampReply
+    from xrce.wire.submessages import TimestampReply
     assert fastpath.resolve_rcl()  # the compiled path runs only once rcl is there
     agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     board = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

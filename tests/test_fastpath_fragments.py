@@ -177,7 +177,7 @@ def test_fragments_and_heartbeats_compiled_and_python_paths_deliver_acknowledge_
     assert steps[20] == [(18, 0)], steps  # the second HEARTBEAT: nothing missing
     assert steps[21:] == [[(n, 0)] for n in range(19, 25)], steps
     # The HEARTBEATs' answers, byte for byte, and what Python's encoder makes of them.
-    from xrce.submessages import AckNack, encode_message
+    from xrce.wire.submessages import AckNack, encode_message
     assert compiled[2] == python[2] == [encode_message(0x81, 0, 0, None, [AckNack(
         (compiled[2][0][8] | compiled[2][0][9] << 8), 0b11, 0x80)]), encode_message(
         0x81, 0, 0, None, [AckNack((compiled[2][1][8] | compiled[2][1][9] << 8), 0, 0x80)])]

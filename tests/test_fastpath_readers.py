@@ -23,7 +23,7 @@ from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.entities import create_reader, delete_entity, read_data
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist
-from xrce.submessages import Data, decode_message
+from xrce.wire.submessages import Data, decode_message
 from xrce.transports.udp import UdpTransport
 
 

@@ -18,11 +18,11 @@ from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_fastpath import CapturingTransport, Twist_ros, needs_extension, twist_datagrams, with_seq
 from test_observability import stats_port
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.geometry_msgs import Twist
-from xrce.submessages import Delete, encode_message
+from xrce.wire.submessages import Delete, encode_message
 from xrce.transports.udp import UdpTransport
 
 BOARD_KEY = 0x5AFE0B0A

@@ -16,13 +16,13 @@ from pathlib import Path
 
 from engine_peer import BIN, Clock, Link, Peer
 from ros_helpers import ros_domain  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import MAX_PARKED_MESSAGES, Agent
 from xrce.agent.middleware import TypeNotReady
-from xrce.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
-from xrce.streams import OutputReliableStream
-from xrce.submessages import Create, Fragment, Heartbeat, WriteData, decode_message, encode_message
+from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
+from xrce.wire.streams import OutputReliableStream
+from xrce.wire.submessages import Create, Fragment, Heartbeat, WriteData, decode_message, encode_message
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.hostile import network as hostile_network  # noqa: E402

@@ -22,13 +22,13 @@ from test_msgs.srv import BasicTypes
 
 from agent_process import REPO, AgentProcess, child_pids
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ros import DOMAIN_LINGER_S
 from xrce.agent.observe.capture import decode_capture, read_capture
 from xrce.agent.observe.stats_view import fetch_stats, format_snapshot
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
-from xrce.submessages import CreateClient
+from xrce.wire.submessages import CreateClient
 from xrce.transports.udp import UdpTransport
 
 KEYED = 0x5AFE0001  # a session with its key in every message header (session id < 0x80)

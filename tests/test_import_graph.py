@@ -12,7 +12,7 @@ Two rules:
 - no module-level circle anywhere, a module's import of its own package included: one would leave a
   half-initialised module to whichever of the two is imported first;
 - no circle at all, lazy imports included, outside ``ON_PURPOSE``. Here a module's import of a
-  package it is part of (``from xrce import DecodeError`` in xrce.cdr) does not count: Python runs
+  package it is part of (``from xrce import DecodeError`` in xrce.wire.cdr) does not count: Python runs
   a package before any of its modules, so the package is the layer below them, and a package that
   loads its own modules on first use (xrce.msgs) is not a circle of two layers.
 """
@@ -175,7 +175,7 @@ def _describe(component, graph):
 def test_the_graph_sees_the_tree():
     every, top_level = import_graph(ROOTS)
     # a module-level import, a lazy one, and a bench script's import of the bench's shared code
-    assert "xrce.cdr" in top_level["xrce.client.session"]
+    assert "xrce.wire.cdr" in top_level["xrce.client.session"]
     assert "xrce.client.services" in every["xrce.client.session"]
     assert "xrce.client.services" not in top_level["xrce.client.session"]
     assert "bench.common.figures" in top_level["bench.run"]
@@ -233,3 +233,48 @@ def test_a_synthetic_circle_is_found(tmp_path):
     (tmp_path / "scripts" / "cost.py").write_text("def measure():\n    import run\n")
     every, _ = import_graph([(tmp_path / "scripts", "")])
     assert cycles(every) == [["cost", "run"]]
+
+
+# The layers of xrce/ (issue 46): the wire core below everything that speaks it; the client and its
+# transports beside each other, the agent above them. Lazy imports count: one would still tie the
+# layers together. The package xrce itself (error types, shims) is below them all. The client's
+# command line (CPython only) builds boards' files with xrce.tools: the client may use the tools.
+LAYERS = {
+    "xrce.wire": ("xrce.client", "xrce.agent", "xrce.tools", "xrce.transports", "xrce.msgs",
+                  "xrce.examples"),
+    "xrce.client": ("xrce.agent",),
+    "xrce.transports": ("xrce.agent", "xrce.client", "xrce.tools"),
+    "xrce.msgs": ("xrce.agent", "xrce.client", "xrce.transports"),
+}
+
+
+def _within(module, package):
+    return module == package or module.startswith(package + ".")
+
+
+def layer_crossings(every):
+    """["a -> b"] for every import of a module from a layer above the importer's."""
+    crossings = []
+    for layer, above in LAYERS.items():
+        for module in sorted(every):
+            if _within(module, layer):
+                crossings += ["%s -> %s" % (module, target) for target in sorted(every[module])
+                              if any(_within(target, package) for package in above)]
+    return crossings
+
+
+def test_the_layers_hold():
+    every, _ = import_graph(ROOTS)
+    assert "xrce.wire.cdr" in every["xrce.wire.message"]  # the graph sees the wire package
+    crossings = layer_crossings(every)
+    assert not crossings, "imports against the layers:\n  " + "\n  ".join(crossings)
+    # the top of xrce/ holds packages and at most a few modules (the package's own shims)
+    top_modules = sorted(path.name for path in (REPO / "xrce").glob("*.py"))
+    assert top_modules == ["__init__.py", "_cpython.py"], top_modules
+
+
+def test_a_layer_crossing_is_found():
+    every = {"xrce.wire.cdr": {"xrce.client.session"}, "xrce.client.session": {"xrce.wire.cdr"},
+             "xrce.transports.udp": {"xrce.agent.links.udp"}, "xrce.msgs": {"xrce.wire.cdr"}}
+    assert layer_crossings(every) == ["xrce.wire.cdr -> xrce.client.session",
+                                      "xrce.transports.udp -> xrce.agent.links.udp"]

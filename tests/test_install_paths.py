@@ -24,7 +24,7 @@ from install_env import (
     stop_listener_client_and_agent, venv_site,
 )
 from ros_helpers import ros_domain  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware.ros import env as rosenv
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import Header, String

@@ -35,13 +35,13 @@ def test_runs_real_micropython_1_27():
 def test_mounted_wire_core_imports_and_round_trips():
     script = r"""
 import sys
-from xrce.cdr import CdrReader, CdrWriter
-from xrce.compat import IS_MICROPYTHON, ticks_add, ticks_diff, ticks_ms
-from xrce.errors import DecodeError, XrceError
-import xrce.cdr
+from xrce.wire.cdr import CdrReader, CdrWriter
+from xrce import IS_MICROPYTHON, ticks_add, ticks_diff, ticks_ms
+from xrce import DecodeError, XrceError
+import xrce.wire.cdr
 
 assert IS_MICROPYTHON
-assert xrce.cdr.__file__.startswith("/lib/xrce/"), xrce.cdr.__file__
+assert xrce.wire.cdr.__file__.startswith("/lib/xrce/"), xrce.wire.cdr.__file__
 assert issubclass(DecodeError, XrceError)
 now = ticks_ms()
 assert ticks_diff(ticks_add(now, 25), now) == 25

@@ -16,8 +16,8 @@ import pytest
 
 from agent_process import AgentProcess
 from mp_harness import run_micropython
-from xrce.stream_payloads import TimestampReply
-from xrce.submessages import decode_message
+from xrce.wire.stream_payloads import TimestampReply
+from xrce.wire.submessages import decode_message
 
 SCRIPT = Path(__file__).resolve().parent / "micropython" / "session_alloc.py"
 COUNT = 20

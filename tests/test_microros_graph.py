@@ -20,7 +20,7 @@ from agent_process import AgentProcess
 from microros_replay import BoardView, Capture, Replayer, UdpChannel, decode_graph
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_microros_replay import INTERFACES
-from xrce import constants as C
+from xrce.wire import constants as C
 
 BOARD_NODES = ("/mcu/feat_fw", "/mcu2/feat_aux", "/microros_graph")
 

@@ -21,7 +21,7 @@ import pytest
 from agent_process import AgentProcess
 from microros_replay import Capture, Replayer, RosSideFeeder, SerialChannel, UdpChannel
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 
 CAPTURES = ("main", "big", "teardown", "restart")
 

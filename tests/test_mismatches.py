@@ -14,12 +14,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from agent_process import AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.observe.stats_view import fetch_stats, format_snapshot
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
-from xrce.stream_payloads import AckNack, Heartbeat
-from xrce.submessages import decode_message, encode_message
+from xrce.wire.stream_payloads import AckNack, Heartbeat
+from xrce.wire.submessages import decode_message, encode_message
 from xrce.transports.udp import UdpTransport
 
 

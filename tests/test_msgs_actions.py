@@ -8,7 +8,7 @@ import os
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
-from xrce import msggen
+from xrce.tools import msggen
 from xrce.msgs import lookup
 from xrce.msgs.test_msgs import Fibonacci
 

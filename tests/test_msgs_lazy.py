@@ -5,7 +5,7 @@ infer instead of every class carrying one."""
 import pytest
 from mp_harness import run_micropython
 
-from xrce import msggen
+from xrce.tools import msggen
 from xrce.tools import msg_parser
 from xrce.msgs import lookup
 from xrce.tools import mpy
@@ -53,7 +53,7 @@ print("RESOLVED")
 # collects between steps only; compiling .py sources and building the plans make that garbage).
 FOOTPRINT_SCRIPT = """
 import mpheap
-import xrce.errors, xrce.compat, xrce.cdr
+import xrce, xrce.wire.cdr
 def main():
     yield
     before = mpheap.live

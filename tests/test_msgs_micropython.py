@@ -33,8 +33,8 @@ SAMPLES = [
 
 SCRIPT = """
 import binascii
-from xrce.cdr import CdrReader
-from xrce.errors import DecodeError, EncodeError
+from xrce.wire.cdr import CdrReader
+from xrce import DecodeError, EncodeError
 from xrce.msgs import lookup
 from xrce.msgs._into import decode_into
 SAMPLES = %r
@@ -75,7 +75,7 @@ print("REJECTED", bad)
 
 
 def test_generated_messages_match_cpython_bytes_on_micropython():
-    from xrce.cdr import CdrReader
+    from xrce.wire.cdr import CdrReader
     from xrce.msgs._into import decode_into
 
     for cls, values in SAMPLES:  # decode_into on CPython (struct throughout) gives what decode gives
@@ -99,7 +99,7 @@ def test_generated_messages_match_cpython_bytes_on_micropython():
 # offsets; a type defined on the spot has both, so MicroPython's range checks on them run too.
 RUNS_SCRIPT = """
 import binascii
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.msgs import _define
 Ints = _define("test_msgs/msg/Ints", ("small", "wide", "octet", "arr", "tail"),
                ("h", "i", "B", ("F", 3, "i"), ("F", 2, "H")))

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from xrce import msggen
+from xrce.tools import msggen
 from xrce.tools import msg_parser
 from xrce.msgs import lookup
 

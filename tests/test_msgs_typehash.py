@@ -62,7 +62,7 @@ def test_interfaces_parse_and_hash(package, tmp_path):
 
 
 def test_generated_classes_follow_the_definition_files():
-    from xrce import msggen
+    from xrce.tools import msggen
     from xrce.tools import msg_parser
     from xrce.msgs import lookup
 

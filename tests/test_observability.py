@@ -17,12 +17,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from agent_process import REPO, AgentProcess
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.observe.capture import decode_capture, read_capture
 from xrce.agent.observe.stats_view import fetch_stats
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
-from xrce.submessages import CreateClient, Delete, GetInfo, Info, Status, StatusAgent, encode_message
+from xrce.wire.submessages import CreateClient, Delete, GetInfo, Info, Status, StatusAgent, encode_message
 from xrce.transports.framing import encode_frame
 from xrce.transports.serial import SerialTransport
 from xrce.transports import TransportError

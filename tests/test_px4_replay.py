@@ -25,7 +25,7 @@ from agent_process import REPO, AgentProcess
 from microros_replay import UdpChannel
 from px4_replay import NAMES, REPLIER, Px4Capture, Px4Replayer
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 
 PX4_INTERFACES = Path(__file__).resolve().parent / "px4_interfaces"
 SENSOR_COMBINED_WRITER = 0x0D95  # PX4's datawriter of rt/fmu/out/sensor_combined

@@ -29,7 +29,7 @@ from agent_process import AgentProcess
 from microros_replay import SerialChannel, UdpChannel
 from rclc_action_peer import RclcActionPeer
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
-from xrce import constants as C
+from xrce.wire import constants as C
 
 LINKS = ("udp", "serial")
 FEEDBACKS = [[0, 1, 1], [0, 1, 1, 2], [0, 1, 1, 2, 3], [0, 1, 1, 2, 3, 5]]  # order 6, as recorded

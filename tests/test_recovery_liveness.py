@@ -30,7 +30,7 @@ from agent_process import AgentProcess
 from microros_replay import Capture, Replayer, UdpChannel
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from test_recovery_agent import PtyDevice
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport

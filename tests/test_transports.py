@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.transports import TransportError
 from xrce.transports.crc import crc16_x25
 from xrce.transports.custom import CustomTransport

@@ -10,15 +10,15 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from xrce import cdr, constants as C
-from xrce.errors import DecodeError
-from xrce.message import decode_header, iter_submessages
-from xrce.objects import (
+from xrce.wire import cdr, constants as C
+from xrce import DecodeError
+from xrce.wire.message import decode_header, iter_submessages
+from xrce.wire.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, RequesterBin, TopicBin,
     object_id,
 )
-from xrce.seqnum import seq_add, seq_less
-from xrce.submessages import (
+from xrce.wire.seqnum import seq_add, seq_less
+from xrce.wire.submessages import (
     AckNack, Create, CreateClient, Data, Delete, DeliveryControl, GetInfo, Heartbeat, Info, Locator,
     ReadData, Status, StatusAgent, Timestamp, TimestampReply, WriteData, decode_message,
     encode_message,

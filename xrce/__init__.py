@@ -1,17 +1,19 @@
 # xrce: a Python implementation of the DDS-XRCE wire protocol as spoken by eProsima Micro XRCE-DDS.
 #
-# The modules directly under this package are the wire core shared by the client (which must run on
-# MicroPython) and the agent (CPython/asyncio): they do no I/O and raise only ``DecodeError`` on bad
-# bytes.
+# The tree is the architecture: xrce.wire is the codec the client (which must run on MicroPython)
+# and the agent (CPython/asyncio) share, doing no I/O and raising only ``DecodeError`` on bad bytes;
+# xrce.client and xrce.transports are the board's client and its links, xrce.msgs the ROS message
+# classes, xrce.agent the agent and xrce.tools what only a build machine runs
+# (tests/test_import_graph.py keeps those layers apart).
 #
 # Modules that run on boards explain themselves in comments, not docstrings: MicroPython keeps what
 # it compiles from a docstring on the heap (5.3 KB on the String + Twist client from .py, measured
 # with bench/micropython/client_footprint.py).
 #
-# The package itself holds the project's error types and the shims that let the shared modules run
-# unchanged on CPython and MicroPython (xrce.errors and xrce.compat re-export them under their
-# older names): every import loads this package anyway, and on a board each module of its own costs
-# its object, dictionary and names (two modules: ~0.5 KB).
+# The package itself holds the project's error types and the shims that let every module run
+# unchanged on CPython and MicroPython (wire, client, transports and msgs import them from here):
+# every import loads this package anyway, and on a board each module of its own costs its object,
+# dictionary and names (two modules: ~0.5 KB).
 
 import time
 
@@ -81,17 +83,3 @@ def epoch_ns():
         from xrce.client.on_demand import board_ns
 
         return board_ns()
-
-
-def random_client_key():
-    # Four random bytes, never all zero (the agent rejects key 0).
-    try:
-        import os
-        key = os.urandom(4)
-    except (ImportError, AttributeError, NotImplementedError):
-        import random
-        value = random.getrandbits(32)
-        key = bytes(((value >> 24) & 0xFF, (value >> 16) & 0xFF, (value >> 8) & 0xFF, value & 0xFF))
-    if key == b"\x00\x00\x00\x00":
-        key = b"\x00\x00\x00\x01"
-    return key

@@ -1,6 +1,6 @@
 # What only CPython runs, kept out of the modules a board loads (the code of a function a board
-# never calls would still cost it heap): MicroPython's tick functions (xrce/compat.py imports them
-# on CPython), the message classes' _FIELDS table and what xrce.msgs._define adds on CPython.
+# never calls would still cost it heap): MicroPython's tick functions (xrce/__init__.py imports
+# them on CPython), the message classes' _FIELDS table and what xrce.msgs._define adds on CPython.
 
 import sys
 import time

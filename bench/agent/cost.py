@@ -49,8 +49,8 @@ from bench.common.harness import PYTHON, Child, cpu_seconds, udp_echo_rtts, wait
 from bench.common.peer_agent import CommandAgent  # noqa: E402
 from bench.common.procs import interrupt, read_until  # noqa: E402
 
-from xrce import constants as C  # noqa: E402
-from xrce.submessages import GetInfo, encode_message  # noqa: E402
+from xrce.wire import constants as C  # noqa: E402
+from xrce.wire.submessages import GetInfo, encode_message  # noqa: E402
 
 IDLE_SECONDS = 10.0
 SETTLE_SECONDS = 3.0

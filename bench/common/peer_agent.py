@@ -13,8 +13,8 @@ import socket
 import subprocess
 import time
 
-from xrce import constants as C
-from xrce.submessages import GetInfo, encode_message
+from xrce.wire import constants as C
+from xrce.wire.submessages import GetInfo, encode_message
 
 
 def free_udp_port() -> int:

@@ -100,9 +100,9 @@ class Mutator:
         """Well-formed hostile messages of an established session: nested FRAGMENTs, FRAGMENT
         chains longer than the window, a client parked on a type build with reliable samples
         behind it, out-of-order reliable messages."""
-        from xrce import constants as C
-        from xrce.objects import ParticipantBin, TopicBin
-        from xrce.submessages import Create, CreateClient, Fragment, WriteData, encode_message
+        from xrce.wire import constants as C
+        from xrce.wire.objects import ParticipantBin, TopicBin
+        from xrce.wire.submessages import Create, CreateClient, Fragment, WriteData, encode_message
 
         rng = self.rng
         key = rng.choice(_ATTACK_KEYS)

@@ -39,9 +39,9 @@ from bench.common import REPO  # noqa: E402  (and the test helpers on sys.path)
 from agent_process import AgentProcess  # noqa: E402
 
 from bench.hostile.fuzz_live_agent import StatsReader, rss_kib  # noqa: E402
-from xrce import constants as C  # noqa: E402
+from xrce.wire import constants as C  # noqa: E402
 from xrce.client.session import Session  # noqa: E402
-from xrce.submessages import (  # noqa: E402
+from xrce.wire.submessages import (  # noqa: E402
     CreateClient, Delete, Fragment, GetInfo, WriteData, encode_message,
 )
 from xrce.transports.udp import UdpTransport  # noqa: E402

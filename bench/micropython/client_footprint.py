@@ -32,9 +32,9 @@ from xrce.tools import mpy  # noqa: E402
 # the general codec the agent uses (no client module imports it).
 LAYERED_IMPORTS = (
     "xrce",  # the package: error types and CPython/MicroPython shims
-    "xrce.cdr",
-    "xrce.message",
-    "xrce.streams",
+    "xrce.wire.cdr",
+    "xrce.wire.message",
+    "xrce.wire.streams",
     "xrce.client",  # xrce.client.session and xrce.client.wire
     "xrce.transports",
     "xrce.transports.udp",
@@ -56,9 +56,9 @@ LAYERED_IMPORTS = (
     "xrce.transports.serial",
     "xrce.transports.tcp",
     # the general codec (agent side)
-    "xrce.constants",
-    "xrce.objects",
-    "xrce.submessages",
+    "xrce.wire.constants",
+    "xrce.wire.objects",
+    "xrce.wire.submessages",
 )
 # Message classes load lazily, one module per type: their cost is measured per type.
 MESSAGE_TYPES = (
@@ -123,7 +123,7 @@ def run(report, argv):
 
 CDR_TWIST_SOURCE = r"""
 import gc
-from xrce.cdr import CdrReader, CdrWriter
+from xrce.wire.cdr import CdrReader, CdrWriter
 try:
     from time import ticks_us, ticks_diff
 except ImportError:
@@ -303,7 +303,7 @@ def run(report, argv):
 
 MESSAGES_SOURCE = r"""
 import gc
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 from xrce.msgs.geometry_msgs import Point, Pose, Quaternion, Twist, TwistWithCovariance, Vector3
 from xrce.msgs.nav_msgs import Odometry
 from xrce.msgs.sensor_msgs import Imu

@@ -27,7 +27,7 @@ from microros_replay import Capture, Replayer, UdpChannel  # noqa: E402
 
 from bench.common.figures import record  # noqa: E402
 from bench.common.peer_agent import CommandAgent  # noqa: E402
-from xrce import constants as C  # noqa: E402
+from xrce.wire import constants as C  # noqa: E402
 
 INTERFACES = REPO / "tests" / "interfaces"
 # The agent of another checkout (--reference): an editable install's .pth imports this checkout's

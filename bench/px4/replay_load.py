@@ -25,7 +25,7 @@ import struct
 import threading
 import time
 
-from xrce import constants as C
+from xrce.wire import constants as C
 
 PX4_STREAM = 0x80  # PX4's reliable stream, and the agent's reliable stream to it
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux's value where Python lacks the name

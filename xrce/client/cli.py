@@ -26,7 +26,7 @@ import signal
 import sys
 import time
 
-from xrce import constants as C, names as wire_names
+from xrce.wire import constants as C, names as wire_names
 # The parser and the argument and message values live in cli_arguments; the names this module had
 # before it was split are imported back so that ``xrce.client.cli.parse_data`` etc. keep working.
 from xrce.client.cli_arguments import (  # noqa: F401
@@ -294,7 +294,7 @@ def _stop_on_sigterm():
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
-    from xrce.errors import XrceError
+    from xrce import XrceError
 
     try:
         if args.command not in ("build-mpy", "gen-msgs"):

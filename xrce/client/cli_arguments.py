@@ -302,7 +302,7 @@ def parse_data(msg_class, text):
 
     A leading ``{`` always means YAML, so ``'{data: "x: y"}'`` still reaches a String.
     """
-    from xrce.errors import EncodeError
+    from xrce import EncodeError
 
     if text is None:
         return msg_class()
@@ -332,7 +332,7 @@ def parse_data(msg_class, text):
 
 def _checked_message(msg_class, data):
     """from_dict plus one trial encoding, so wrong values are an argument error, not a crash later."""
-    from xrce.errors import EncodeError
+    from xrce import EncodeError
 
     try:
         message = msg_class.from_dict(data)

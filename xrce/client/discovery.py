@@ -2,13 +2,13 @@
 # agent's address never load it. ``from xrce.client.session import discover_agents`` still works.
 #
 # It writes its one request and reads INFO itself (XRCE-WIRE.md §10) rather than through the general
-# codec of xrce.session_payloads: that codec, the constants table and the CDR methods it calls cost
+# codec of xrce.wire.session_payloads: that codec, the constants table and the CDR methods it calls cost
 # a board 22.7 KB from .mpy, this module alone ~2 KB. tests/test_client_wire.py checks this reader
 # against the general codec's encoder, and the golden discovery capture replays through it.
 
 from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms
-from xrce.cdr import CdrReader
-from xrce.message import header_size, iter_submessages
+from xrce.wire.cdr import CdrReader
+from xrce.wire.message import header_size, iter_submessages
 
 _INFO = const(6)
 _OBJK_AGENT = const(0x0D)
@@ -89,7 +89,7 @@ def read_info(buf, flags, s, e):
     if r.boolean():  # its activity
         if r.u8() != _OBJK_AGENT:
             raise DecodeError("INFO activity is not an agent's")
-        availability = r._get(0, 2)  # int16: the reader's i16 lives in xrce.cdr_more
+        availability = r._get(0, 2)  # int16: the reader's i16 lives in xrce.wire.cdr_more
         count = r.u32()
         if count * 3 > r.end - r.pos:
             raise DecodeError("locator count exceeds the payload")

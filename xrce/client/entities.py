@@ -13,7 +13,7 @@
 # attribute served from here imports the module once more.
 
 from xrce import const
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 
 _STATUS_NONE = const(0xFF)
 _CREATE = const(1)
@@ -105,7 +105,7 @@ def create_body(kind, fmt, blob, tail_id):
     else:
         w.string(blob)
     if kind == _OBJK_PARTICIPANT:
-        w._put("<h", 2, tail_id)  # int16: the writer's i16 lives in xrce.cdr_more
+        w._put("<h", 2, tail_id)  # int16: the writer's i16 lives in xrce.wire.cdr_more
     elif kind <= _OBJK_REPLIER:
         w.u8(tail_id >> 8)
         w.u8(tail_id & 0xFF)
@@ -223,7 +223,7 @@ def create_subscriber(session, participant_id, xml=None, object_id=None, stream_
 
 def endpoint_qos(reliable=True, keep_last=True, depth=10, transient_local=False):
     # ``(flags, history depth)`` for ``create_datawriter``/``create_datareader``, which also
-    # take an ``xrce.objects.EndpointQos`` for QoS beyond these.
+    # take an ``xrce.wire.objects.EndpointQos`` for QoS beyond these.
     flags = (_QOS_RELIABLE if reliable else 0) | (_QOS_KEEP_LAST if keep_last else 0)
     if transient_local:
         flags |= _QOS_TRANSIENT_LOCAL

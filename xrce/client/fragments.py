@@ -4,7 +4,7 @@
 # arrives; a board whose samples always fit never pays for it.
 
 from xrce import DecodeError, const
-from xrce.message import iter_submessages
+from xrce.wire.message import iter_submessages
 
 _FRAGMENT = const(13)
 _FLAG_LITTLE_ENDIAN = const(0x01)

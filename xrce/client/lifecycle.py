@@ -8,11 +8,11 @@
 # instead of 7.4, and the TurtleBot3 firmware's peak 82.6 -> 80.6 KB (tests/test_turtlebot3_heap.py).
 # CPython binds these functions on Session (xrce.client.entities.bind).
 
-from xrce import const, random_client_key, ticks_ms
-from xrce.cdr import CdrReader
+from xrce import const, ticks_ms
+from xrce.wire.cdr import CdrReader
 from xrce.client.wire import _Output
-from xrce.message import MessageWriter, header_size
-from xrce.streams import (
+from xrce.wire.message import MessageWriter, header_size
+from xrce.wire.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )
 
@@ -30,6 +30,23 @@ _REUSE_REPLACE = const(0x06)  # FLAG_REUSE | FLAG_REPLACE
 # message size (transport MTU − 4, i.e. 508 for 512) so that fragment sizes match on the wire.
 _SLOT_OVERHEAD = const(4)
 _FIRST_OUTPUT_BUFFER = const(64)
+
+
+# Here rather than in the package xrce, where it was: only a session's construction draws a key, and
+# a board loads this module for that call only, so it keeps no code for it afterwards (the package
+# stays loaded for good; this move paid for the package object of xrce.wire, issue 46).
+def random_client_key():
+    # Four random bytes, never all zero (the agent rejects key 0).
+    try:
+        import os
+        key = os.urandom(4)
+    except (ImportError, AttributeError, NotImplementedError):
+        import random
+        value = random.getrandbits(32)
+        key = bytes(((value >> 24) & 0xFF, (value >> 16) & 0xFF, (value >> 8) & 0xFF, value & 0xFF))
+    if key == b"\x00\x00\x00\x00":
+        key = b"\x00\x00\x00\x01"
+    return key
 
 
 def init(session, transport, key=None, session_id=_DEFAULT_SESSION_ID, history=4, mtu=None,

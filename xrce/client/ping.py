@@ -7,7 +7,7 @@
 
 from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms, ticks_us
 from xrce.client.session import _agent_activity
-from xrce.message import header_size, iter_submessages
+from xrce.wire.message import header_size, iter_submessages
 
 _INFO = const(6)
 

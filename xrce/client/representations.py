@@ -1,5 +1,5 @@
 # Entity creation beyond the binary representations a firmware uses: XML and reference
-# representations, and datawriters/datareaders with a full ``xrce.objects.EndpointQos``. Loaded by
+# representations, and datawriters/datareaders with a full ``xrce.wire.objects.EndpointQos``. Loaded by
 # Session on first use; a board that creates its entities in binary never pays for it.
 
 from xrce import const
@@ -18,6 +18,6 @@ def textual(xml, ref):
 
 def endpoint_blob(kind, topic_id, qos):
     # The binary representation of a datawriter or datareader with QoS beyond (flags, depth).
-    from xrce.objects import DataReaderBin, DataWriterBin
+    from xrce.wire.objects import DataReaderBin, DataWriterBin
 
     return (DataReaderBin if kind == _OBJK_DATAREADER else DataWriterBin)(topic_id, qos).to_blob()

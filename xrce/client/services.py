@@ -6,7 +6,7 @@
 # uses no service never loads this module.
 
 from xrce import DecodeError, const
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 from xrce.client.session import _decode_sample
 
 _OBJK_REQUESTER = const(0x07)

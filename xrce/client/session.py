@@ -35,10 +35,10 @@
 import sys
 
 from xrce import DecodeError, IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
-from xrce.cdr import CdrReader
+from xrce.wire.cdr import CdrReader
 from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
 
-# Wire numbers (xrce/constants.py names them all; these fold into the code on a board).
+# Wire numbers (xrce/wire/constants.py names them all; these fold into the code on a board).
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 _STREAM_NONE = const(0x00)
 _CREATE_CLIENT = const(0)
@@ -282,7 +282,7 @@ class Session(Outbound):
     def _process(self, buf, end):
         # What a client receives (XRCE-WIRE.md §5), one branch per submessage: one method each
         # would cost a board heap for its code object; anything else is ignored. The submessages
-        # are walked as xrce.message.iter_submessages does, inline: a generator and a tuple per
+        # are walked as xrce.wire.message.iter_submessages does, inline: a generator and a tuple per
         # submessage would be a board's garbage on every message received.
         pos = self.header_size
         while end - pos >= 4:

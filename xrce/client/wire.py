@@ -3,14 +3,14 @@
 # object representations of the entities it creates are in xrce.client.entities, which a board
 # loads only while it creates them.
 #
-# The general codec (xrce/submessages.py, xrce/objects.py) has one class per submessage and per
+# The general codec (xrce/wire/submessages.py, xrce/wire/objects.py) has one class per submessage and per
 # object kind, each with encode and decode and a repr: what the agent needs, and ~22 KB of heap on
 # a board that would only ever use a few encoders. These functions write the same bytes for the
 # cases a client produces; tests/test_client_wire.py checks them against the general codec, so
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
 from xrce import XrceError, const, ticks_add, ticks_ms
-from xrce.message import MessageWriter
+from xrce.wire.message import MessageWriter
 
 _STREAM_NONE = const(0x00)
 _WRITE_DATA = const(7)
@@ -198,7 +198,7 @@ class Outbound:
 
 
 class _Output(MessageWriter):
-    # An output stream: the message open on it and its sequence state (xrce.streams). No __slots__
+    # An output stream: the message open on it and its sequence state (xrce.wire.streams). No __slots__
     # (for this class and LinkMonitor, the client-only ones): MicroPython ignores them and would
     # only keep the tuple of names (headline -112 B for both).
 

@@ -29,7 +29,7 @@ import math
 import sys
 
 from xrce import IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 from xrce.client.session import Session, ping_agent
 from xrce.msgs.geometry_msgs import TransformStamped, Twist
 from xrce.msgs.nav_msgs import Odometry
@@ -72,7 +72,7 @@ _MAX_MESSAGES_PER_STEP = const(16)  # drain a burst of input, but keep publishin
 
 _NS_PER_S = const(1000000000)
 _GC_THRESHOLD = const(4096)
-_STATUS_OK = const(0x00)  # the XRCE STATUS values (xrce.constants)
+_STATUS_OK = const(0x00)  # the XRCE STATUS values (xrce.wire.constants)
 _STATUS_OK_MATCHED = const(0x01)
 _STATUS_NONE = const(0xFF)  # not answered yet
 

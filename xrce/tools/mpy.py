@@ -20,12 +20,13 @@ from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "xrce"
-# Subpackages whose modules run on the board; everything directly under xrce/ is the wire core.
-CLIENT_SUBPACKAGES = ("client", "transports", "msgs")
+# Subpackages whose modules run on the board, beside the package's own xrce/__init__.py (its error
+# types and shims): the wire core, the client, its transports and the message classes.
+CLIENT_SUBPACKAGES = ("wire", "client", "transports", "msgs")
 # Modules that need CPython (argparse, ast, asyncio, rclpy ...) even though they sit in the tree
 # that is otherwise shipped. cli.py and __main__.py are command-line entry points by convention.
 CPYTHON_ONLY_MODULES = (
-    "xrce/msggen.py", "xrce/names.py", "xrce/_cpython.py", "xrce/client/cli_arguments.py",
+    "xrce/wire/names.py", "xrce/_cpython.py", "xrce/client/cli_arguments.py",
     "xrce/examples/turtlebot3_cli.py",
 )
 # Firmware examples shipped beside the client by every install route (not part of client_files,
@@ -132,7 +133,7 @@ def gen_msgs(package_dirs, outdir, compiled=False):
     import shutil
     import tempfile
 
-    from xrce import msggen
+    from xrce.tools import msggen
     from xrce.tools.msg_parser import MsgGenError, load_actions, load_package
 
     compiler = None

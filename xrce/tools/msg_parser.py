@@ -1,6 +1,6 @@
 """Parse ROS 2 ``.msg``/``.srv`` definitions into ``MessageSpec``/``ServiceSpec`` (CPython-only tool).
 
-The first half of ``python -m xrce.msggen``, which turns the specs into code; the tests read field
+The first half of ``python -m xrce.tools.msggen``, which turns the specs into code; the tests read field
 metadata from here too. Errors (``MsgGenError``) name the file and line of the definition.
 """
 

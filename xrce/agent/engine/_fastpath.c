@@ -210,7 +210,7 @@ int try_fast(Receiver *self, uint8_t *data, size_t length, const struct sockaddr
     if (stream == NULL) return 0;
     if (stream->reliable) return try_fast_reliable(self, client, stream, data, length);
     /* Every submessage must be a WRITE_DATA to a registered writer, or Python takes it all:
-     * the same walk as xrce/message.py iter_submessages, every length checked. */
+     * the same walk as xrce/wire/message.py iter_submessages, every length checked. */
     size_t pos = session_id < 0x80 ? 8 : 4, count = 0;
     while (pos + 4 <= length) {
         size_t sub_length = data[pos + 2] | (data[pos + 3] << 8);

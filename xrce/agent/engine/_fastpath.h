@@ -65,7 +65,7 @@ typedef struct Stream {
     uint8_t stream_id;
     uint16_t last_seq;  /* the last accepted (best-effort) or handled (reliable) sequence number */
     /* Reliable streams only: the highest sequence number the client is known to have sent
-     * (xrce.streams.InputReliableStream.last_announced), and whether a message was handled here
+     * (xrce.wire.streams.InputReliableStream.last_announced), and whether a message was handled here
      * since the last fold (Python then sends the stream's ACKNACK). */
     int reliable, ack_due;
     uint16_t last_announced;
@@ -77,7 +77,7 @@ typedef struct Stream {
     size_t frag_len, frag_cap;
 } Stream;
 
-/* The agent's reliable output stream to a client (xrce.streams.OutputReliableStream), as far as
+/* The agent's reliable output stream to a client (xrce.wire.streams.OutputReliableStream), as far as
  * an ACKNACK needs it (_reliable_out.c): Python writes last_sent (its only writer, under the
  * engine's lock) and frees the history; the acknowledged point lives only here. */
 typedef struct OutStream {
@@ -251,7 +251,7 @@ static inline int64_t now_ns(void) {
     return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
 }
 
-/* 16-bit serial-number order (xrce/streams.py seq_less). */
+/* 16-bit serial-number order (xrce/wire/streams.py seq_less). */
 static inline int seq_less(uint16_t a, uint16_t b) {
     if (a == b) return 0;
     return (a < b && b - a < 0x8000) || (a > b && a - b > 0x8000);

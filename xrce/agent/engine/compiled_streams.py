@@ -2,7 +2,7 @@
 
 When ``xrce.agent.engine.fastpath`` hands a client's stream to C (``_fastpath.c``,
 ``_reliable_in.c``, ``_reliable_out.c``), the client's Python stream object is swapped for one of
-these: same interface as the ``xrce.streams`` class it replaces, but its numbers are read from and
+these: same interface as the ``xrce.wire.streams`` class it replaces, but its numbers are read from and
 written to C, so they have one owner while Python still handles everything C leaves to it
 (duplicates, gaps, HEARTBEATs, NACKs). Each has ``detached()`` (or, best-effort, its number read
 back) to hand the state back to a plain stream when C forgets the client.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Optional
 
-from xrce.streams import InputReliableStream, OutputReliableStream, seq_add, seq_less, seq_sub
+from xrce.wire.streams import InputReliableStream, OutputReliableStream, seq_add, seq_less, seq_sub
 
 
 class CompiledStream:

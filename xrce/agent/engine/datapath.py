@@ -22,13 +22,13 @@ import threading
 from collections import deque
 from typing import Hashable, Optional
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.session import (
     MAX_REASSEMBLY, STREAM_WINDOW, ClientProxy, Link, ObjectEntry, ReadRequest,
 )
-from xrce.message import header_size
-from xrce.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
-from xrce.submessages import Create, Fragment, Heartbeat, ReadData, Status, encode_message
+from xrce.wire.message import header_size
+from xrce.wire.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
+from xrce.wire.submessages import Create, Fragment, Heartbeat, ReadData, Status, encode_message
 
 log = logging.getLogger("xrce.agent")
 C_WRITE_DATA = C.WRITE_DATA  # a module global: one attribute lookup less per sample

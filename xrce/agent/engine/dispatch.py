@@ -46,7 +46,7 @@ import time
 from collections import deque
 from typing import Any, Callable, Deque, Dict, Hashable, Optional
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.admission import RefusalLog
 from xrce.agent.engine.datapath import DataPath
 from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
@@ -61,10 +61,10 @@ from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI docu
 )
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.agent.middleware import Middleware
-from xrce.errors import DecodeError
-from xrce.message import decode_header, header_size, iter_submessages
-from xrce.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_sub
-from xrce.submessages import TimestampReply, decode_payload, encode_message, sample_ids, Status
+from xrce import DecodeError
+from xrce.wire.message import decode_header, header_size, iter_submessages
+from xrce.wire.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_sub
+from xrce.wire.submessages import TimestampReply, decode_payload, encode_message, sample_ids, Status
 
 log = logging.getLogger("xrce.agent")
 

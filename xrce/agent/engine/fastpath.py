@@ -49,8 +49,8 @@ from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, Compile
     CompiledReliableStream, CompiledStream
 from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
 from xrce.agent.engine.session import STREAM_WINDOW
-from xrce import constants as C
-from xrce.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
+from xrce.wire import constants as C
+from xrce.wire.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
 
 log = logging.getLogger("xrce.agent")
 

@@ -22,11 +22,11 @@ from __future__ import annotations
 import logging
 from typing import Dict, Tuple
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.scheduler import NEVER
 from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
-from xrce.streams import InputReliableStream, OutputReliableStream, is_reliable
-from xrce.submessages import AckNack, GetInfo, Heartbeat
+from xrce.wire.streams import InputReliableStream, OutputReliableStream, is_reliable
+from xrce.wire.submessages import AckNack, GetInfo, Heartbeat
 
 log = logging.getLogger("xrce.agent")
 

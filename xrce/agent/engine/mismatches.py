@@ -6,11 +6,11 @@ from __future__ import annotations
 import logging
 from typing import Optional
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.session import ClientProxy, ObjectEntry
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import address_text, object_id_text, ros_topic_name
-from xrce.message import header_size
+from xrce.wire.message import header_size
 
 log = logging.getLogger("xrce.agent")
 

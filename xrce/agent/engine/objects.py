@@ -13,7 +13,7 @@ import logging
 import os
 from typing import Dict, Optional
 
-from xrce import constants as C, names as wire_names
+from xrce.wire import constants as C, names as wire_names
 from xrce.agent.engine import reuse
 from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
@@ -22,9 +22,9 @@ from xrce.agent.middleware import (
 from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text
-from xrce.errors import DecodeError
-from xrce.objects import PARENT_KIND, with_kind
-from xrce.submessages import Create, Delete
+from xrce import DecodeError
+from xrce.wire.objects import PARENT_KIND, with_kind
+from xrce.wire.submessages import Create, Delete
 
 log = logging.getLogger("xrce.agent")
 

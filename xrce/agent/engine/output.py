@@ -6,11 +6,11 @@ from __future__ import annotations
 import logging
 from typing import Any, Callable, Hashable, Optional
 
-from xrce import constants as C, names as wire_names
+from xrce.wire import constants as C, names as wire_names
 from xrce.agent.engine.session import TRACE
-from xrce.errors import DecodeError
-from xrce.message import header_size, iter_submessages
-from xrce.submessages import encode_message
+from xrce import DecodeError
+from xrce.wire.message import header_size, iter_submessages
+from xrce.wire.submessages import encode_message
 
 log = logging.getLogger("xrce.agent")
 

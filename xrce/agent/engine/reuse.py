@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, Tuple
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.middleware import XmlRepresentationError
 
 # What an ObjectEntry keeps of its CREATE: (format, representation as decoded, tail).
@@ -40,7 +40,7 @@ def matches(kind: int, stored: Representation, request, refs: Dict[str, str]) ->
     if tail != request.tail_id:
         return False
     if fmt == C.REPRESENTATION_IN_BINARY or request.fmt == C.REPRESENTATION_IN_BINARY:
-        # Decoded blobs compare field by field (xrce.objects), absent fields as None.
+        # Decoded blobs compare field by field (xrce.wire.objects), absent fields as None.
         return fmt == request.fmt and representation == request.representation
     if kind in (C.OBJK_PUBLISHER, C.OBJK_SUBSCRIBER):
         return True

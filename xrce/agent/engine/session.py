@@ -16,14 +16,14 @@ from collections import deque
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set, Tuple
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.engine.admission import endpoint_address
 from xrce.agent.middleware import EntityKey, TopicSpec
 from xrce.agent.observe.names import client_tag
-from xrce.streams import (
+from xrce.wire.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
 )
-from xrce.submessages import GetInfo, Info, StatusAgent, encode_message
+from xrce.wire.submessages import GetInfo, Info, StatusAgent, encode_message
 
 TRACE = 5  # log level of the per-message trace (-v 6)
 logging.addLevelName(TRACE, "TRACE")

@@ -27,7 +27,7 @@ import collections
 import logging
 from typing import Any, Deque, Dict, Hashable, List, Optional
 
-from xrce import constants as C
+from xrce.wire import constants as C
 
 log = logging.getLogger("xrce.agent")
 

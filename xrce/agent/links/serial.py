@@ -12,7 +12,7 @@ import termios
 import tty
 
 from xrce.agent.links import DEFAULT_BAUDRATE, MAX_PENDING_OUTPUT, Link, log
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.transports.crc import get_crc
 from xrce.transports.framing import MAX_FRAME_PAYLOAD, FrameDecoder, encode_frame
 

@@ -10,7 +10,7 @@ import socket
 
 from xrce.agent.links import (DEFAULT_TCP_MAX_CONNECTIONS, MAX_MESSAGE_SIZE, MAX_PENDING_OUTPUT,
                               Link, log)
-from xrce.errors import EncodeError
+from xrce import EncodeError
 from xrce.transports.framing import LengthPrefixDecoder, encode_length_prefixed
 
 

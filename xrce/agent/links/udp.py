@@ -10,11 +10,11 @@ import fcntl
 import socket
 import struct
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.links import MAX_MESSAGE_SIZE, Link, log
-from xrce.errors import DecodeError, EncodeError
-from xrce.message import decode_header, iter_submessages
-from xrce.submessages import GetInfo, Info, Locator, decode_payload, encode_message
+from xrce import DecodeError, EncodeError
+from xrce.wire.message import decode_header, iter_submessages
+from xrce.wire.submessages import GetInfo, Info, Locator, decode_payload, encode_message
 
 # Asked of the kernel for UDP sockets so bursts from many clients survive a busy loop iteration;
 # Linux silently caps it at net.core.rmem_max / wmem_max.

@@ -4,7 +4,7 @@
 
 ``CaptureWriter`` is the engine's tap (``Agent.tap``) that writes the file; ``read_capture`` parses
 it back and ``decode_capture`` runs each message through the wire decoder
-(``xrce.submessages.decode_message``), e.g. to replay a bug report.
+(``xrce.wire.submessages.decode_message``), e.g. to replay a bug report.
 
 Capture files travel (bug reports) and anyone on the network decides what goes into them, so:
 
@@ -23,9 +23,9 @@ from __future__ import annotations
 import os
 import time
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.observe.names import client_pseudonym, endpoint_text
-from xrce.message import header_size, iter_submessages
+from xrce.wire.message import header_size, iter_submessages
 
 _HEADER_LINE = "# xrce-agent capture: time direction link endpoint hex\n"
 _CLIENT_KEY_OFFSET = 8  # in CREATE_CLIENT: cookie (4), version (2), vendor id (2), key (4)
@@ -141,8 +141,8 @@ def read_capture(path: str):
 def decode_capture(path: str):
     """``(CapturedMessage, header, payloads)`` per record, decoded by the wire core; a message
     that does not decode gives ``(record, None, DecodeError)`` so a bug report still reads."""
-    from xrce.errors import DecodeError
-    from xrce.submessages import decode_message
+    from xrce import DecodeError
+    from xrce.wire.submessages import decode_message
 
     for record in read_capture(path):
         try:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 from xrce.agent.observe.entities import endpoints_text, nodes_text
 
 # One logger for everything observability does (xrce.agent.observe.observability wires this module in).

@@ -10,8 +10,8 @@ name them, the DDS spelling beside them where it differs.
 
 from __future__ import annotations
 
-from xrce import constants as C
-from xrce.names import OBJECT_KIND_NAMES
+from xrce.wire import constants as C
+from xrce.wire.names import OBJECT_KIND_NAMES
 from xrce.agent.observe.names import object_id_text, qos_text, ros_topic_name, ros_type_name
 
 DIRECTIONS = {C.OBJK_DATAWRITER: "to_ros", C.OBJK_DATAREADER: "from_ros",

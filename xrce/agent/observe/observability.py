@@ -32,7 +32,7 @@ import socket
 import struct
 import time
 
-from xrce import constants as C
+from xrce.wire import constants as C
 from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
 from xrce.agent.observe.entities import DIRECTIONS, describe
 # In this module's __all__ too, as before they had a module of their own.

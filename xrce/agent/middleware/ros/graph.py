@@ -35,7 +35,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from xrce.agent.middleware import TopicSpec
 from xrce.agent.middleware.ros.domain import AGENT_NODE_NAME, ENCAPSULATION_LE, DomainRuntime, log
-from xrce.cdr import CdrWriter
+from xrce.wire.cdr import CdrWriter
 
 GRAPH_TOPIC = "ros_to_microros_graph"  # the DDS name rmw_microxrcedds reads
 GRAPH_TYPE = "micro_ros_msgs::msg::dds_::Graph_"

@@ -1,14 +1,14 @@
 """Payloads that open a session and manage its objects: CREATE_CLIENT and STATUS_AGENT
 (XRCE-WIRE.md §3), CREATE, DELETE and STATUS (§4, §5), GET_INFO and INFO with its locators (§10).
 
-The payload conventions are in ``xrce.payload``; ``xrce.submessages`` re-exports every class.
+The payload conventions are in ``xrce.wire.payload``; ``xrce.wire.submessages`` re-exports every class.
 """
 
-from xrce import constants as C
-from xrce.cdr import CdrReader
-from xrce.errors import DecodeError, EncodeError
-from xrce.objects import BLOB_CLASSES
-from xrce.payload import Payload, read_id, read_properties, write_id, write_properties
+from xrce.wire import constants as C
+from xrce.wire.cdr import CdrReader
+from xrce import DecodeError, EncodeError
+from xrce.wire.objects import BLOB_CLASSES
+from xrce.wire.payload import Payload, read_id, read_properties, write_id, write_properties
 
 
 def _write_cookie_version_vendor(w, cookie, version, vendor):
@@ -91,7 +91,7 @@ class StatusAgent(Payload):
 class Create(Payload):
     """CREATE: an object representation by reference, XML or binary, plus its kind-specific tail.
 
-    ``representation`` is a str for reference/XML and a blob object (xrce.objects) for binary.
+    ``representation`` is a str for reference/XML and a blob object (xrce.wire.objects) for binary.
     ``tail_id`` is the parent ObjectId, or the domain id for a participant.
     """
     ID = C.CREATE

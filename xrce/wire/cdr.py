@@ -9,7 +9,7 @@
 #
 # The classes here hold what the client core calls; the values it never writes or reads (int8, int16,
 # int32, int64, float, octets, a writer's bool; a reader's uint16, remaining() and rest()) are
-# defined in xrce.cdr_more, which the first use of one of them loads (``_more``): each method costs a
+# defined in xrce.wire.cdr_more, which the first use of one of them loads (``_more``): each method costs a
 # board heap for as long as its class lives, and a firmware that only publishes and subscribes never
 # pays for those. On CPython (the agent, the tools) they are attached at import, so both classes are
 # complete from the start.
@@ -26,10 +26,10 @@ _LE = ("<h", "<H", "<i", "<I", "<q", "<Q", "<f", "<d")
 _BE = (">h", ">H", ">i", ">I", ">q", ">Q", ">f", ">d")
 
 
-# __getattr__ of both classes: a method named in xrce.cdr_more is attached to the classes on first use.
-# xrce.cdr_more is handed the classes rather than importing this module, so neither imports the other.
+# __getattr__ of both classes: a method named in xrce.wire.cdr_more is attached to the classes on first use.
+# xrce.wire.cdr_more is handed the classes rather than importing this module, so neither imports the other.
 def _more(self, name):
-    from xrce.cdr_more import lookup
+    from xrce.wire.cdr_more import lookup
 
     return lookup(self, name, CdrWriter, CdrReader)
 
@@ -181,6 +181,6 @@ class CdrReader:
 
 
 if not IS_MICROPYTHON:
-    from xrce.cdr_more import bind  # noqa: E402
+    from xrce.wire.cdr_more import bind  # noqa: E402
 
     bind(CdrWriter, CdrReader)

@@ -1,7 +1,7 @@
-# The CdrWriter and CdrReader methods the client core never calls, which xrce.cdr attaches to both
+# The CdrWriter and CdrReader methods the client core never calls, which xrce.wire.cdr attaches to both
 # classes with ``bind``: at its import on CPython, at the first call of one of them on MicroPython
-# (see xrce.cdr's _more). Each is defined here only, so encoding and decoding still live in one place.
-# This module is handed the classes instead of importing xrce.cdr, so the two do not import each other.
+# (see xrce.wire.cdr's _more). Each is defined here only, so encoding and decoding still live in one place.
+# This module is handed the classes instead of importing xrce.wire.cdr, so the two do not import each other.
 
 from xrce import EncodeError
 
@@ -109,7 +109,7 @@ def bind(writer_class, reader_class):
 
 
 def lookup(codec, name, writer_class, reader_class):
-    # xrce.cdr's _more, the classes' __getattr__ (a board's first call of one of these methods loads
+    # xrce.wire.cdr's _more, the classes' __getattr__ (a board's first call of one of these methods loads
     # this module through it): attach the methods, then answer.
     # Dunder names (``__dict__`` of a slotted instance, ``__length_hint__``...) are never this
     # module's, and the class may hold one the instance lacks: asking again would recurse.

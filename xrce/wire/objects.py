@@ -4,12 +4,12 @@ Binary representations are CDR blobs with their own alignment origin (the blob s
 class encodes and decodes symmetrically; ``to_blob``/``from_blob`` give the bytes carried in CREATE.
 """
 
-from xrce.cdr import CdrReader, CdrWriter
-from xrce.constants import (
+from xrce.wire.cdr import CdrReader, CdrWriter
+from xrce.wire.constants import (
     OBJK_DATAREADER, OBJK_DATAWRITER, OBJK_PARTICIPANT, OBJK_PUBLISHER, OBJK_REPLIER,
     OBJK_REQUESTER, OBJK_SUBSCRIBER, OBJK_TOPIC, QOS_KEEP_LAST, QOS_RELIABLE, QOS_TRANSIENT_LOCAL,
 )
-from xrce.errors import DecodeError, EncodeError
+from xrce import DecodeError, EncodeError
 
 
 def object_id(index, kind):

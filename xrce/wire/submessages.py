@@ -2,26 +2,26 @@
 
 ``decode_payload`` dispatches one submessage by id, ``encode_message``/``decode_message`` turn a
 list of payloads into a message and back. The payload classes live along the protocol's seams and
-are re-exported here, so ``from xrce.submessages import ...`` reaches every one of them:
+are re-exported here, so ``from xrce.wire.submessages import ...`` reaches every one of them:
 
-- ``xrce.payload``: the ``Payload`` base, id and property encodings, ``write_submessage``;
-- ``xrce.session_payloads``: CREATE_CLIENT, STATUS_AGENT, CREATE, DELETE, STATUS, GET_INFO, INFO;
-- ``xrce.stream_payloads``: WRITE_DATA, DATA, READ_DATA, ACKNACK, HEARTBEAT, RESET, FRAGMENT,
+- ``xrce.wire.payload``: the ``Payload`` base, id and property encodings, ``write_submessage``;
+- ``xrce.wire.session_payloads``: CREATE_CLIENT, STATUS_AGENT, CREATE, DELETE, STATUS, GET_INFO, INFO;
+- ``xrce.wire.stream_payloads``: WRITE_DATA, DATA, READ_DATA, ACKNACK, HEARTBEAT, RESET, FRAGMENT,
   TIMESTAMP, TIMESTAMP_REPLY.
 """
 
-from xrce import constants as C
-from xrce.cdr import CdrReader
-from xrce.errors import DecodeError, EncodeError  # noqa: F401 (importable from here before the split)
-from xrce.objects import BLOB_CLASSES  # noqa: F401 (importable from here before the split)
-from xrce.payload import (  # noqa: F401 (re-exported)
+from xrce.wire import constants as C
+from xrce.wire.cdr import CdrReader
+from xrce import DecodeError, EncodeError  # noqa: F401 (importable from here before the split)
+from xrce.wire.objects import BLOB_CLASSES  # noqa: F401 (importable from here before the split)
+from xrce.wire.payload import (  # noqa: F401 (re-exported)
     Payload, read_id as _read_id, read_properties as _read_properties, write_id as _write_id,
     write_properties as _write_properties, write_submessage,
 )
-from xrce.session_payloads import (  # noqa: F401 (re-exported)
+from xrce.wire.session_payloads import (  # noqa: F401 (re-exported)
     Create, CreateClient, Delete, GetInfo, Info, Locator, Status, StatusAgent,
 )
-from xrce.stream_payloads import (  # noqa: F401 (re-exported)
+from xrce.wire.stream_payloads import (  # noqa: F401 (re-exported)
     AckNack, Data, DeliveryControl, Fragment, Heartbeat, ReadData, Reset, Timestamp, TimestampReply,
     WriteData, sample_ids,
 )
@@ -44,7 +44,7 @@ def decode_payload(sub_id, flags, buf, start, end):
 
 def encode_message(session_id, stream_id, seq, key, payloads, pad=False):
     """One whole message as bytes; ``pad`` adds the client's trailing padding to a multiple of 4."""
-    from xrce.message import MessageWriter
+    from xrce.wire.message import MessageWriter
     mw = MessageWriter(64)
     mw.begin(session_id, stream_id, seq, key)
     for payload in payloads:
@@ -56,7 +56,7 @@ def encode_message(session_id, stream_id, seq, key, payloads, pad=False):
 
 def decode_message(buf):
     """``(Header, [payload objects])`` of a whole message; DecodeError on anything malformed."""
-    from xrce.message import decode_header, iter_submessages
+    from xrce.wire.message import decode_header, iter_submessages
     header = decode_header(buf)
     payloads = [decode_payload(sub_id, flags, buf, start, end)
                 for sub_id, flags, start, end in iter_submessages(buf, header.size)]

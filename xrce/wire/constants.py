@@ -1,6 +1,6 @@
 """Numbers of the XRCE wire (XRCE-WIRE.md §1, §2, §4, §5, §10)."""
 
-from xrce.compat import const
+from xrce import const
 
 # Session ids (§1)
 SESSION_ID_NONE_WITH_KEY = const(0x00)

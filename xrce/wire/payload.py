@@ -4,13 +4,13 @@ message.
 
 Each payload class has ``ID``, a ``flags`` attribute, ``encode(w)`` writing the payload into a
 CdrWriter whose origin is the message start, and ``decode(r, flags)`` reading it back. The classes
-live in ``xrce.session_payloads`` and ``xrce.stream_payloads``; ``xrce.submessages`` decodes whole
+live in ``xrce.wire.session_payloads`` and ``xrce.wire.stream_payloads``; ``xrce.wire.submessages`` decodes whole
 messages. A client feature that needs a few payloads (discovery) imports them from their module and
 ``write_submessage`` from here, so a board does not load the whole codec.
 """
 
-from xrce import constants as C
-from xrce.errors import DecodeError
+from xrce.wire import constants as C
+from xrce import DecodeError
 
 
 def write_id(w, value):

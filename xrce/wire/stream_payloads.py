@@ -1,12 +1,12 @@
 """Payloads that travel on the streams: WRITE_DATA, DATA and READ_DATA (XRCE-WIRE.md §6), ACKNACK,
 HEARTBEAT and RESET (§7), FRAGMENT (§8), TIMESTAMP and TIMESTAMP_REPLY (§9).
 
-The payload conventions are in ``xrce.payload``; ``xrce.submessages`` re-exports every class.
+The payload conventions are in ``xrce.wire.payload``; ``xrce.wire.submessages`` re-exports every class.
 """
 
-from xrce import constants as C
-from xrce.errors import DecodeError
-from xrce.payload import Payload, read_id, write_id
+from xrce.wire import constants as C
+from xrce import DecodeError
+from xrce.wire.payload import Payload, read_id, write_id
 
 
 class WriteData(Payload):

@@ -1,4 +1,4 @@
-"""Readable names for the wire numbers of ``xrce.constants``, for logs, traces and tools.
+"""Readable names for the wire numbers of ``xrce.wire.constants``, for logs, traces and tools.
 
 Kept apart from the constants so that the MicroPython client does not carry these tables.
 """

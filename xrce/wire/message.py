@@ -6,9 +6,10 @@
 
 import struct
 
-from xrce import DecodeError, EncodeError, IS_MICROPYTHON, cdr, const
+from xrce import DecodeError, EncodeError, IS_MICROPYTHON, const
+from xrce.wire import cdr
 
-# xrce.constants names these too; local constants fold into the code and spare a board that module.
+# xrce.wire.constants names these too; local constants fold into the code and spare a board that module.
 _CREATE_CLIENT = const(0)
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
 _SUBHEADER_SIZE = const(4)
@@ -25,11 +26,11 @@ def header_size(session_id):
     return _HEADER_SIZE_WITH_KEY if session_id < _SESSION_ID_WITHOUT_KEY_MASK else _HEADER_SIZE_NO_KEY
 
 
-# Header and decode_header live in xrce/message_header.py and load on first use: the agent decodes
+# Header and decode_header live in xrce/wire/message_header.py and load on first use: the agent decodes
 # headers, a client checks the few header bytes it needs inline and never pays for them.
 def __getattr__(name):
     if name == "Header" or name == "decode_header":
-        from xrce import message_header
+        from xrce.wire import message_header
 
         value = getattr(message_header, name)
         globals()[name] = value

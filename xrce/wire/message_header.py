@@ -1,9 +1,9 @@
 # The XRCE message header as an object (XRCE-WIRE.md §1), for the agent and the tools.
 #
-# Importable as xrce.message.Header and xrce.message.decode_header, whose __getattr__ loads this
-# module on first use; a client never does. It imports nothing from xrce.message, so the two do not
+# Importable as xrce.wire.message.Header and xrce.wire.message.decode_header, whose __getattr__ loads this
+# module on first use; a client never does. It imports nothing from xrce.wire.message, so the two do not
 # import each other: the header's size follows from its first byte by the rule decode_header applies
-# (xrce.message.header_size states it for the client, which never loads this module).
+# (xrce.wire.message.header_size states it for the client, which never loads this module).
 
 from xrce import DecodeError
 
