@@ -1,6 +1,6 @@
 """Fixtures shared by several test modules, defined here once: pytest builds a session-scoped one
 once per run (an import into two modules would make two), and a test module gets the engine
-fixture without importing it. The run leaves nothing in ~/.ros or /dev/shm (tests/hygiene.py)."""
+fixture without importing it. The run leaves nothing in ~/.ros or /dev/shm (tests/helpers/hygiene.py)."""
 
 import os
 import shutil
@@ -49,11 +49,11 @@ def pytest_unconfigure(config):
 # time"): on xdist workers they start first, so that none of them is the last test of a worker while
 # the other worker has finished. A test missing from here only runs in its usual place.
 LONG_TESTS_FIRST = (
-    "tests/test_turtlebot3_heap.py::test_turtlebot3_runs_a_minute_in_a_capped_heap",
-    "tests/test_microros_graph.py::test_graph_capture_replayed_gets_micro_ros_agents_graph",
-    "tests/test_microros_replay.py::test_rclc_actions_and_parameters_replayed_into_ros",
-    "tests/test_hostile_network.py::test_memory_budget_holds_under_a_mixed_flood",
-    "tests/test_readme_example.py::test_every_readme_shell_line_runs_as_written",
+    "tests/board/test_turtlebot3_heap.py::test_turtlebot3_runs_a_minute_in_a_capped_heap",
+    "tests/microros/test_microros_graph.py::test_graph_capture_replayed_gets_micro_ros_agents_graph",
+    "tests/microros/test_microros_replay.py::test_rclc_actions_and_parameters_replayed_into_ros",
+    "tests/hostile/test_hostile_network.py::test_memory_budget_holds_under_a_mixed_flood",
+    "tests/repo/test_readme_example.py::test_every_readme_shell_line_runs_as_written",
 )
 
 
@@ -62,7 +62,7 @@ def pytest_collection_modifyitems(config, items):
     """README's command runs the suite on pytest-xdist workers (``-n 2 --dist loadgroup``). Tests
     that share an expensive fixture of this tree go to one worker, so that it is built once: those
     of a module-scoped fixture (an agent and its ROS graph, an mpy build), and those of the session
-    fixtures of tests/install_env.py, which also keeps two ~250 MB installs of ROS wheels from
+    fixtures of tests/helpers/install_env.py, which also keeps two ~250 MB installs of ROS wheels from
     running at once. Other tests are spread one by one, the longest first."""
     for item in items:
         groups = set()

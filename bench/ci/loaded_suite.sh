@@ -64,7 +64,7 @@ for run in 1 2; do
 done
 stop_hog
 sleep 2  # children of the last test exit and unlink what they own
-# tests/hygiene.py's detached cleaner removes what the last run's processes held once they are gone
+# tests/helpers/hygiene.py's detached cleaner removes what the last run's processes held once they are gone
 # (up to ~5 s after pytest exits): what is still there after it is left behind.
 for _ in $(seq 60); do pgrep -f "hygiene._clean_after" >/dev/null || break; sleep 0.5; done
 AFTER=$(mktemp -p /tmp xrce-loaded-after.XXXXXX)

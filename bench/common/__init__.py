@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-TEST_HELPERS = REPO / "tests"
+TEST_HELPERS = REPO / "tests" / "helpers"
 
 for _folder in (REPO, TEST_HELPERS):  # the helpers first, as every script had them
     if str(_folder) in sys.path:

@@ -9,7 +9,7 @@ UDP sockets (``--serial``: as byte soup and mutated frames into a second pseudot
 ``multiserial`` agent), while a writer session publishes to a reader session through the same
 agent, alternating reliable and best-effort samples. Printed at the end: datagrams sent, the
 agent's decode errors and drops (its SIGUSR1 stats line), the good client's delivery, the agent's
-RSS before and after, and whether it crashed. ``tests/test_hostile_input.py`` runs the same code at
+RSS before and after, and whether it crashed. ``tests/hostile/test_hostile_input.py`` runs the same code at
 a smaller count.
 """
 

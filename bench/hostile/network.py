@@ -17,7 +17,7 @@ the previous commit, for a same-run baseline) and prints one JSON line:
   client creates ten participants, each with a topic, a publisher and seven data writers (100
   CREATEs), as fast as the agent's STATUS window allows, ``rounds`` times.
 
-``tests/test_hostile_network.py`` runs the same functions at suite size (a 20 s memory flood).
+``tests/hostile/test_hostile_network.py`` runs the same functions at suite size (a 20 s memory flood).
 """
 
 from __future__ import annotations

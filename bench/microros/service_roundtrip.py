@@ -9,7 +9,7 @@ Measure on a private loopback and /dev/shm, so no other DDS participant of the m
         .venv/bin/python bench/microros/service_roundtrip.py --agent-cmd $PEERS/agent.sh'
 
 The firmware is the real one's set-up (tests/golden/microros/main.jsonl) replayed, then answering
-as the firmware did in the recording (tests/firmware_replier.py). The ROS side is an rclpy ``example_interfaces/srv/AddTwoInts``
+as the firmware did in the recording (tests/helpers/firmware_replier.py). The ROS side is an rclpy ``example_interfaces/srv/AddTwoInts``
 client in this process (a SingleThreadedExecutor on a thread of its own), as in the recording:
 each call is timed from ``call_async`` to its future's callback, one call at a time, ``--calls``
 of them per round after three warm-up calls, a fresh agent per round. Figure: the median of each

@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_client_actions.py: a node with an action server or an action
+"""Run under MicroPython by tests/client/test_client_actions.py: a node with an action server or an action
 client (xrce.client.actions) for test_msgs/action/Fibonacci, over a custom transport bridged to
 Node's UDP socket, against a real xrce-agent.
 

@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_micropython_client.py: the unmodified client over a custom
+"""Run under MicroPython by tests/board/test_micropython_client.py: the unmodified client over a custom
 transport bridged to Node's UDP socket, against a real xrce-agent.
 
 argv: agent_port  (the CPython side of the test publishes Twist on /mp_cmd and reads /mp_chatter)

@@ -1,5 +1,5 @@
 """Set-up and teardown through xrce.client.entities and xrce.client.lifecycle, run by
-tests/test_micropython_entities.py under MicroPython (run.mjs --stepped, from .py and from .mpy)
+tests/board/test_micropython_entities.py under MicroPython (run.mjs --stepped, from .py and from .mpy)
 and under CPython, over a transport that records what the session sends and answers CREATE_CLIENT.
 
 Prints "SENT <hex>" for each message sent (compared between the interpreters), "GONE <call> <bool>"

@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_micropython_no_wall_clock.py: the board has no wall clock.
+"""Run under MicroPython by tests/board/test_micropython_no_wall_clock.py: the board has no wall clock.
 
 Before anything imports it, ``time`` is replaced in sys.modules by a stand-in that has the port's
 monotonic calls only (ticks_*, sleep*), as a bare-metal port without a real-time clock has: xrce and

@@ -12,7 +12,7 @@ The callbacks follow the shape of micro-ROS' ``rmw_uros_set_custom_transport`` a
 returning -1 (see README.md), which the callbacks turn into the micro-ROS failure values. Bytes
 go through ``nodeudp.send_at``/``recv_into``, which read and write them in place on the heap
 (``uctypes.addressof``): a send or a receive allocates nothing here, as a board's socket does not,
-so a capped run (tests/test_turtlebot3_heap.py) counts the firmware's heap and not the bridge's.
+so a capped run (tests/board/test_turtlebot3_heap.py) counts the firmware's heap and not the bridge's.
 
 Packet mode (``stream=False``, for ``framing=False``) hands over one datagram per read and, like
 ``recvfrom`` on a short buffer, drops whatever does not fit in ``size``. Stream mode (``stream=True``,

@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_client_parameters.py: a node with a parameter server
+"""Run under MicroPython by tests/client/test_client_parameters.py: a node with a parameter server
 (xrce.client.parameters) over a custom transport bridged to Node's UDP socket, against a real
 xrce-agent -m dds, until rclpy sets its ``done`` parameter (or ``seconds`` pass).
 

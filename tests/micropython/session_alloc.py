@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_micropython_session_alloc.py: what a set-up client session
+"""Run under MicroPython by tests/board/test_micropython_session_alloc.py: what a set-up client session
 allocates per sample it publishes (best-effort and reliable), per sample it receives (decoded into
 a preallocated message: create_reader's ``into``), per time sync and per ping, against a real
 xrce-agent, over the real UdpTransport and the harness' port-like socket (tests/micropython/socket.py).

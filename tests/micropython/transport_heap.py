@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_micropython_transport_heap.py: what the real client transports
+"""Run under MicroPython by tests/board/test_micropython_transport_heap.py: what the real client transports
 allocate per message once set up, over the harness' port-like ``socket`` (tests/micropython/socket.py)
 to a peer in pytest.
 

@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_turtlebot3_heap.py with run.mjs --stepped, i.e. with a real
+"""Run under MicroPython by tests/board/test_turtlebot3_heap.py with run.mjs --stepped, i.e. with a real
 heap cap: the unmodified xrce/examples/turtlebot3.py over the real xrce.transports.udp.UdpTransport,
 against a real xrce-agent. Its ``socket`` is tests/micropython/socket.py, which allocates what a
 port's does: ``recv(n)`` a new n-byte buffer and a new bytes per datagram, so a board's per-datagram

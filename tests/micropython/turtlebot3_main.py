@@ -1,4 +1,4 @@
-"""Run under MicroPython by tests/test_turtlebot3.py: the unmodified xrce/examples/turtlebot3.py
+"""Run under MicroPython by tests/turtlebot3/test_turtlebot3.py: the unmodified xrce/examples/turtlebot3.py
 over a custom transport bridged to Node's UDP socket, against a real xrce-agent -m dds.
 
 argv: agent_port domain_id run_seconds cmd_vel_reliable(0|1)

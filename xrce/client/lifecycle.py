@@ -5,7 +5,7 @@
 # On a board the session imports this module for one call and drops it again (_set_up_module in
 # xrce.client.session), like xrce.client.entities: apart from each other, so that creating an
 # entity, a firmware's largest set-up step, loads only the code it runs: 5.1 KB of garbage per call
-# instead of 7.4, and the TurtleBot3 firmware's peak 82.6 -> 80.6 KB (tests/test_turtlebot3_heap.py).
+# instead of 7.4, and the TurtleBot3 firmware's peak 82.6 -> 80.6 KB (tests/board/test_turtlebot3_heap.py).
 # CPython binds these functions on Session (xrce.client.entities.bind).
 
 from xrce import const, ticks_ms

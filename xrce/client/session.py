@@ -26,7 +26,7 @@
 # restoring the session itself (xrce.client.lifecycle). The submessages a session sends are written
 # by the lean encoders of xrce.client.wire, not by the general codec the agent uses.
 #
-# That makes the one import circle the project keeps on purpose (tests/test_import_graph.py names
+# That makes the one import circle the project keeps on purpose (tests/repo/test_import_graph.py names
 # it): services, on_demand and ping build on this module (its sample decoding, its agent-info
 # parsing) and import it at their top, while it imports them only inside the functions that first
 # need them. The other way round every board would load them with the session. Everything below

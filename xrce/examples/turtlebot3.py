@@ -62,7 +62,7 @@ _POWER_SUPPLY_HEALTH_GOOD = const(1)
 _POWER_SUPPLY_TECHNOLOGY_LIPO = const(3)
 
 # The serialized size of the largest sample (/odom: fixed frame ids, no sequences that grow), which
-# sizes the session's buffers before anything else is allocated; tests/test_turtlebot3.py checks it.
+# sizes the session's buffers before anything else is allocated; tests/turtlebot3/test_turtlebot3.py checks it.
 LARGEST_SAMPLE = const(720)
 TIME_SYNC_PERIOD_MS = const(10000)
 FAILSAFE_MS = const(500)

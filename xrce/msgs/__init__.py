@@ -23,7 +23,7 @@
 #
 # A class encodes into an xrce.wire.cdr.CdrWriter and decodes from an xrce.wire.cdr.CdrReader whose origin is
 # the sample start (XRCE carries bare XCDR1 bodies, no encapsulation header). Plain CDR alignment of
-# each field gives the same bytes as the rosidl typesupports; tests/test_msgs_roundtrip.py checks
+# each field gives the same bytes as the rosidl typesupports; tests/msgs/test_msgs_roundtrip.py checks
 # every shipped type against rclpy's serializer. lookup() is in _lookup.py, to_dict/from_dict in
 # _dict.py; each loads when first used. Runs on MicroPython: no dataclasses, typing or f-strings,
 # and comments instead of docstrings (MicroPython keeps the text of docstrings it compiles).

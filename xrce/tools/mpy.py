@@ -9,7 +9,7 @@ Install on a board with ``mpremote mip install github:OWNER/REPO`` (reads packag
 to the board's manifest. Every route carries the client and the board examples (xrce/examples:
 ``from xrce.examples.turtlebot3 import TurtleBot3``), which cost a board nothing until imported.
 The file set is computed from the tree, so the generated files must be regenerated when client
-modules are added (tests/test_mpy_packaging.py checks this).
+modules are added (tests/board/test_mpy_packaging.py checks this).
 """
 
 import json

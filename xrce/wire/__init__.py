@@ -1,6 +1,6 @@
 # The DDS-XRCE wire core: the codec the client (on MicroPython) and the agent (CPython/asyncio) share.
 # Its modules do no I/O and raise only xrce.DecodeError on bad bytes; they import nothing from
-# xrce.client, xrce.agent, xrce.transports or xrce.tools (tests/test_import_graph.py checks it).
+# xrce.client, xrce.agent, xrce.transports or xrce.tools (tests/repo/test_import_graph.py checks it).
 #
 # - ``cdr``: the XCDR1 reader and writer (``cdr_more``: the methods the client core never calls,
 #   bound on first use).

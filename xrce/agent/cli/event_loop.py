@@ -8,7 +8,7 @@ no longer wakes the loop: the TurtleBot3 load costs the same on both loops, the 
 against 1.27 % of a core, and uvloop 2.2 MB more resident memory (docs/PERFORMANCE.md, "A
 robot's load (TurtleBot3)").
 The agent uses only what both loops provide, and the tests run the same scenarios on both
-(tests/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
+(tests/agent/test_event_loop.py), so the standard loop stays a working choice where uvloop cannot be
 installed or memory counts more than CPU.
 """
 

@@ -45,7 +45,7 @@ It goes in only when nothing says the user configures Fast DDS themselves: no pr
 either variable, no ``DEFAULT_FASTRTPS_PROFILES.xml`` or ``DEFAULT_FASTDDS_PROFILES.xml`` in the
 working directory (Fast DDS loads those too), and the RMW is rmw_fastrtps. ``ROS_DISCOVERY_SERVER``
 does not keep it out: the profile sets no discovery protocol and no server, so Fast DDS still makes
-the participant that variable's client (tests/test_discovery_server.py). A user's profile is never
+the participant that variable's client (tests/ros/test_discovery_server.py). A user's profile is never
 replaced or merged: with one, discovery is as that profile says (``install`` logs that the agent's
 settings stay out).
 Other RMWs (Cyclone DDS, Zenoh) are left alone too; their discovery is their own.

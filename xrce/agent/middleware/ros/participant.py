@@ -9,7 +9,7 @@ participant is made then (3-4 ms, the loop running meanwhile), the rclpy node ma
 it (0.4-0.6 ms), and the rmw node is destroyed right after (``DomainRuntime.make_node``).
 
 The compiled helper rather than ctypes: a serving agent imports no ctypes (its classes stay
-resident, tests/test_agent_footprint.py), and importing it took 11 ms on the loaded machine, more
+resident, tests/agent/test_agent_footprint.py), and importing it took 11 ms on the loaded machine, more
 than the call saves. The helper's three-argument ``rmw_create_node(context, name, namespace)`` is
 Humble's and later; ``rclpy.experimental`` (the EventsExecutor) is Jazzy's and later. Without the
 helper the first rclpy node makes the participant as before, GIL held.

@@ -1,0 +1,162 @@
+"""The agent's engine is made of parts that own their state (issue 46), not of mixins sharing it.
+
+``xrce.agent.engine.dispatch.Agent`` used to be ``class Agent(SessionTable, ObjectRegistry,
+DataPath, Liveliness)``, five mixins reading some forty attributes that other mixins set. Now each
+part (``Sessions``, ``ObjectRegistry``, ``DataPath``, ``Acknowledgments``, ``Liveliness``,
+``MismatchReport``, ``Scheduler``, ``Output``, ...) is an object that gets its collaborators in its
+constructor, and ``Agent`` builds and wires them. Three rules keep it so, read from the source with
+``ast`` (so no import is needed to see them):
+
+- no class of the engine inherits from another class of the engine (no mixins; ``Agent``'s only
+  base is ``object``);
+- every ``self.name`` a class of the engine reads is one that class itself defines (assigns in one
+  of its methods, or defines as a method, property or class attribute): a class that reads what
+  another sets is a mixin in disguise. Classes built on a base from outside the engine (an
+  exception, ``bytes``, the wire module's stream classes) are left out: their attributes are the
+  base's;
+- no module of the engine but the dispatcher and the compiled path's attach point (``fastpath``,
+  which a UDP link hands the agent) knows the agent: none imports ``dispatch`` or names ``agent``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
+KNOWS_THE_AGENT = {"dispatch.py", "fastpath.py"}  # the composer, and what a link attaches to it
+# The parts the agent is composed of: each must stay a class of its own.
+PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "ObjectRegistry",
+         "DataPath", "Acknowledgments", "Liveliness", "MismatchReport", "Scheduler", "Output"}
+
+
+def _engine_classes():
+    """{class name: (module file name, ast.ClassDef)} for every class in the engine's modules."""
+    found = {}
+    for path in sorted(ENGINE.glob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                assert node.name not in found, "two engine classes called %s" % node.name
+                found[node.name] = (path.name, node)
+    return found
+
+
+def _base_names(node):
+    names = []
+    for base in node.bases:
+        if isinstance(base, ast.Name):
+            names.append(base.id)
+        elif isinstance(base, ast.Attribute):
+            names.append(base.attr)
+        else:
+            names.append(ast.dump(base))
+    return names
+
+
+def _defined_by(node):
+    """Names a class defines for its instances: its methods, properties and class attributes,
+    and every ``self.name`` assigned in its methods (``self`` being each method's first
+    argument)."""
+    names = set()
+    for item in node.body:
+        if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            names.add(item.name)
+        elif isinstance(item, ast.Assign):
+            names |= {t.id for t in item.targets if isinstance(t, ast.Name)}
+        elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
+            names.add(item.target.id)
+    for method, me in _methods(node):
+        for sub in ast.walk(method):
+            targets = []
+            if isinstance(sub, ast.Assign):
+                targets = sub.targets
+            elif isinstance(sub, (ast.AugAssign, ast.AnnAssign)):
+                targets = [sub.target]
+            for target in targets:
+                for element in (target.elts if isinstance(target, ast.Tuple) else [target]):
+                    if isinstance(element, ast.Attribute) and isinstance(element.value, ast.Name) \
+                            and element.value.id == me:
+                        names.add(element.attr)
+    return names
+
+
+def _methods(node):
+    """(method, name of its instance argument) for the class's own methods."""
+    for item in node.body:
+        if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)) and item.args.args and \
+                not any(isinstance(d, ast.Name) and d.id == "staticmethod"
+                        for d in item.decorator_list):
+            yield item, item.args.args[0].arg
+
+
+def _read_by(node):
+    """{name: line} of every ``self.name`` the class's methods read."""
+    reads = {}
+    for method, me in _methods(node):
+        for sub in ast.walk(method):
+            if isinstance(sub, ast.Attribute) and isinstance(sub.value, ast.Name) and \
+                    sub.value.id == me and isinstance(sub.ctx, ast.Load):
+                reads.setdefault(sub.attr, sub.lineno)
+    return reads
+
+
+def test_the_parts_are_there():
+    classes = _engine_classes()
+    assert PARTS <= set(classes), PARTS - set(classes)
+    # and the rules below see what they look for: a method, an attribute set in __init__, a read
+    _, agent = classes["Agent"]
+    assert {"receive", "tick", "sessions", "datapath"} <= _defined_by(agent)
+    assert "datapath" in _read_by(agent)
+
+
+def test_no_engine_class_is_built_from_another():
+    classes = _engine_classes()
+    mixed = {name: [b for b in _base_names(node) if b in classes]
+             for name, (_, node) in classes.items()}
+    mixed = {name: bases for name, bases in mixed.items() if bases}
+    assert not mixed, "engine classes built from other engine classes (mixins): %s" % mixed
+    for name in PARTS:
+        assert not classes[name][1].bases, "%s has bases: %s" % (name, _base_names(classes[name][1]))
+
+
+def test_the_agent_is_a_class_of_its_own_at_run_time():
+    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.datapath import DataPath
+    from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
+    from xrce.agent.engine.mismatches import MismatchReport
+    from xrce.agent.engine.objects import ObjectRegistry
+    from xrce.agent.engine.session import Sessions
+
+    for part in (Agent, Sessions, ObjectRegistry, DataPath, Acknowledgments, Liveliness,
+                 MismatchReport):
+        assert part.__bases__ == (object,), part
+
+
+def test_each_class_reads_only_what_it_defines():
+    strays = []
+    for name, (module, node) in sorted(_engine_classes().items()):
+        if node.bases and not (len(node.bases) == 1 and _base_names(node) == ["object"]):
+            continue  # built on an outside base (an exception, bytes, a stream, a Protocol)
+        defined = _defined_by(node)
+        for attribute, line in sorted(_read_by(node).items()):
+            if attribute not in defined and not attribute.startswith("__"):
+                strays.append("%s:%d %s reads self.%s, which it never sets" % (
+                    module, line, name, attribute))
+    assert not strays, "\n".join(strays)
+
+
+def test_no_part_reaches_through_the_agent():
+    offenders = []
+    for path in sorted(ENGINE.glob("*.py")):
+        if path.name in KNOWS_THE_AGENT:
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and \
+                    node.module.endswith("engine.dispatch"):
+                offenders.append("%s:%d imports the dispatcher" % (path.name, node.lineno))
+            elif isinstance(node, ast.Name) and node.id == "agent" or \
+                    isinstance(node, ast.Attribute) and node.attr == "agent":
+                offenders.append("%s:%d names the agent" % (path.name, node.lineno))
+    assert not offenders, "\n".join(offenders)
