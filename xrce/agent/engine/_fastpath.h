@@ -319,6 +319,8 @@ PyObject *Receiver_remove_writer(Receiver *self, PyObject *args);
 extern rcutils_allocator_t take_allocator;
 int ensure_take_buffer(Receiver *self);
 void on_new_message(const void *user_data, size_t count);
+long link_reader(Receiver *self, Reader *r, long handle, int object_id,
+                 unsigned long long address, set_event_callback_fn set_callback);
 void deliver_samples(Receiver *self);
 void detach_readers(Receiver *self, Client *c);
 void free_readers(Receiver *self);

@@ -222,6 +222,33 @@ void free_readers(Receiver *self) {
 
 /* ----------------------------------------------------------------------------- Python side */
 
+/* Put ``r`` in the readers of client ``handle`` for the rcl entity at ``address`` and point the
+ * entity's callback here (rmw calls it at once for what already waits): its token; 0 when the
+ * client is not registered, -1 when rcl refused the callback (``r`` is the caller's to free). */
+long link_reader(Receiver *self, Reader *r, long handle, int object_id,
+                 unsigned long long address, set_event_callback_fn set_callback) {
+    long token = 0;
+    pthread_mutex_lock(&self->mutex);
+    Client *c = client_by_handle(self, handle);
+    if (c != NULL) {
+        r->client = c;
+        r->receiver = self;
+        r->object_id = (uint16_t)object_id;
+        r->subscription = (const void *)(uintptr_t)address;
+        r->request_id = -1;
+        r->set_callback = set_callback;
+        r->token = token = ++self->next_reader_token;
+        r->next = self->readers;
+        self->readers = r;
+        if (set_callback(r->subscription, on_new_message, r) != RCL_RET_OK) {
+            self->readers = r->next;
+            token = -1;
+        }
+    }
+    pthread_mutex_unlock(&self->mutex);
+    return token;
+}
+
 /* add_reader(handle, object_id, subscription address) -> token (> 0), or 0 when the client is
  * not registered: from now on the reader's samples reach the receive thread first. Call it once
  * rclpy's executor has taken the subscription in (it sets the callback when it does). */
@@ -236,30 +263,9 @@ PyObject *Receiver_add_reader(Receiver *self, PyObject *args) {
     }
     Reader *r = calloc(1, sizeof *r);
     if (r == NULL) return PyErr_NoMemory();
-    long token = 0;
-    int failed = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    if (c != NULL) {
-        r->client = c;
-        r->receiver = self;
-        r->object_id = (uint16_t)object_id;
-        r->subscription = (const void *)(uintptr_t)address;
-        r->request_id = -1;
-        r->set_callback = set_message_callback;
-        r->token = token = ++self->next_reader_token;
-        r->next = self->readers;
-        self->readers = r;
-        /* rmw calls the callback at once for samples already waiting */
-        failed = set_message_callback(r->subscription, on_new_message, r) != RCL_RET_OK;
-        if (failed) {
-            self->readers = r->next;
-            token = 0;
-        }
-    }
-    pthread_mutex_unlock(&self->mutex);
-    if (token == 0) free(r);
-    if (failed) {
+    long token = link_reader(self, r, handle, object_id, address, set_message_callback);
+    if (token <= 0) free(r);
+    if (token < 0) {
         PyErr_SetString(PyExc_RuntimeError, "rcl refused the subscription's callback");
         return NULL;
     }

@@ -297,33 +297,12 @@ PyObject *Receiver_add_replier(Receiver *self, PyObject *args) {
     sp->sequence = last_sequence;
     sp->timeout_ns = timeout_s > 0 ? (int64_t)(timeout_s * 1e9) : 0;
     r->service = sp;
-    long token = 0;
-    int failed = 0;
-    pthread_mutex_lock(&self->mutex);
-    Client *c = client_by_handle(self, handle);
-    if (c != NULL) {
-        r->client = c;
-        r->receiver = self;
-        r->object_id = (uint16_t)object_id;
-        r->subscription = (const void *)(uintptr_t)address;
-        r->request_id = -1;
-        r->set_callback = set_request_callback;
-        r->token = token = ++self->next_reader_token;
-        r->next = self->readers;
-        self->readers = r;
-        /* rmw calls the callback at once for requests already waiting */
-        failed = set_request_callback(r->subscription, on_new_message, r) != RCL_RET_OK;
-        if (failed) {
-            self->readers = r->next;
-            token = 0;
-        }
-    }
-    pthread_mutex_unlock(&self->mutex);
-    if (token == 0) {
+    long token = link_reader(self, r, handle, object_id, address, set_request_callback);
+    if (token <= 0) {
         free(sp);
         free(r);
     }
-    if (failed) {
+    if (token < 0) {
         reset_error();
         PyErr_SetString(PyExc_RuntimeError, "rcl refused the service's callback");
         return NULL;
