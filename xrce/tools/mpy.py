@@ -126,8 +126,9 @@ class GenMsgsError(Exception):
 
 def gen_msgs(package_dirs, outdir, compiled=False):
     """Board classes for the user's own interface packages: OUTDIR/xrce/msgs/<package>/ (.py, or
-    .mpy when ``compiled``) and, for .py, OUTDIR/manifest.py that freezes them. Returns the paths
-    written. Types of the packages the client ships may be nested; those are not generated again
+    .mpy when ``compiled``) and, for .py, OUTDIR/manifest.py that freezes them (a firmware build
+    compiles what it freezes with its own mpy-cross, so .mpy output has no manifest). Returns the
+    paths written and, per package, the line a board imports its types with. Types of the packages the client ships may be nested; those are not generated again
     (the board has them), and a package of the same name as one of them is refused: copied to
     the board it would replace the shipped one, which the client's own modules import."""
     import shutil
@@ -198,7 +199,10 @@ def gen_msgs(package_dirs, outdir, compiled=False):
         lines += ["    ),", '    base_path=".",', ")", ""]
         manifest.write_text("\n".join(lines), encoding="utf-8")
         written.append(manifest)
-    return written
+    imports = ["from xrce.msgs.%s import %s" % (package, ", ".join(
+        msggen.package_class_names(messages, services, actions[package])))
+        for package, messages, services in packages]
+    return written, imports
 
 
 def mip_package(root=REPO_ROOT):

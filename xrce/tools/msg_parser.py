@@ -82,6 +82,7 @@ class MessageSpec:
         self.package = package
         self.name = name  # class name: "Twist", "GetMap_Request"
         self.kind = kind  # "msg" or "srv"
+        self.where = None  # the definition's file, as errors name it ("pkg/msg/Name.msg")
         self.fields = []
         self.constants = []
 
@@ -263,6 +264,7 @@ def parse_message_text(text, package, name, kind="msg", where=None):
     """Parse the body of a .msg (or one half of a .srv) into a MessageSpec."""
     where = where or "%s/%s/%s" % (package, kind, name)
     spec = MessageSpec(package, name, kind)
+    spec.where = where
     for lineno, raw in enumerate(text.splitlines(), 1):
         loc = "%s:%d" % (where, lineno)
         stripped = raw.strip()
@@ -270,7 +272,7 @@ def parse_message_text(text, package, name, kind="msg", where=None):
             continue
         m = re.match(r"^(\S+)\s+([A-Za-z][A-Za-z0-9_]*)\s*=\s*(.*)$", stripped)
         if m:
-            ftype = _parse_type(m.group(1), package, loc)
+            ftype = _parse_type(m.group(1), package, "%s: constant %s" % (loc, m.group(2)))
             if ftype.array or ftype.is_nested:
                 raise MsgGenError("%s: constants must be primitive scalars or strings" % loc)
             value_text = m.group(3)
@@ -282,7 +284,7 @@ def parse_message_text(text, package, name, kind="msg", where=None):
         parts = line.split(None, 2)
         if len(parts) < 2:
             raise MsgGenError("%s: expected 'TYPE NAME [DEFAULT]'" % loc)
-        ftype = _parse_type(parts[0], package, loc)
+        ftype = _parse_type(parts[0], package, "%s: field %s" % (loc, parts[1]))
         if not _NAME_RE.match(parts[1]):
             raise MsgGenError("%s: bad field name %r" % (loc, parts[1]))
         default = _convert_default(ftype, parts[2], loc) if len(parts) == 3 else None

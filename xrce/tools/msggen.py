@@ -266,6 +266,22 @@ def generate_package_init(package, service_classes, command=SHIPPED_COMMAND, act
     return "\n".join(lines) + "\n"
 
 
+def action_class_name(action, message_names, service_classes):
+    """Like service_class_name: an "_Action" suffix when a message or service has the name."""
+    if action.name in message_names or action.name in service_classes:
+        return action.name + "_Action"
+    return action.name
+
+
+def package_class_names(messages, services, actions=()):
+    """The names a board imports from the generated package: its messages, then the service and
+    action descriptors (each service's Name_Request/Name_Response come with its descriptor)."""
+    message_names = set(m.name for m in messages)
+    service_classes = [service_class_name(srv, message_names) for srv in services]
+    action_classes = [action_class_name(a, message_names, service_classes) for a in actions]
+    return [m.name for m in messages] + service_classes + action_classes
+
+
 def generate_package(package, messages, services, registry, command=SHIPPED_COMMAND, actions=()):
     """{file name inside xrce/msgs/<package>/: source text} for one ROS package."""
     message_names = set(m.name for m in messages)
@@ -279,9 +295,7 @@ def generate_package(package, messages, services, registry, command=SHIPPED_COMM
         service_classes.append(class_name)
         files[module_name(class_name) + ".py"] = generate_service_module(srv, class_name, registry, command)
     for action in actions:
-        class_name = action.name
-        if class_name in message_names or class_name in service_classes:
-            class_name += "_Action"
+        class_name = action_class_name(action, message_names, service_classes)
         action_classes.append(class_name)
         files[module_name(class_name) + ".py"] = generate_action_module(action, class_name, registry, command)
     action_specs = [s for action in actions for s in (action.goal, action.result, action.feedback)]
@@ -355,7 +369,7 @@ def check_references(packages, actions=None, outdir=None):
             for f in spec.fields:
                 if f.type.is_nested and f.type.base not in known and not _generated_already(f.type.base, outdir):
                     raise MsgGenError("%s: field %s uses %s, which no input package defines" % (
-                        spec.ros_type, f.name, f.type.base))
+                        spec.where or spec.ros_type, f.name, f.type.base))
 
 
 def shipped_package_dirs():
