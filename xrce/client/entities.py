@@ -67,6 +67,9 @@ def bind(cls):
     for name in _LIFECYCLE.split():
         setattr(cls, name, getattr(lifecycle, name))
     cls.__init__ = lifecycle.init
+    from xrce.client import on_demand
+
+    on_demand.bind(cls)
 
 
 def new_object_id(session, kind):

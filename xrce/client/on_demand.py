@@ -52,6 +52,18 @@ def session_attr(session, name):
     return getattr(session, name)
 
 
+def bind(cls):
+    """CPython: every name served here becomes Session's own at import, as xrce.client.entities'
+    are, so ``help(Session)`` and ``inspect.signature(Session.create_service_server)`` find them
+    before any first use (a board, which pays per loaded module, keeps loading them on demand)."""
+    import xrce.client.services as services
+
+    for name in (_HERE + _SERVICES).split():
+        setattr(cls, name, globals()[name] if " %s " % name in _HERE else getattr(services, name))
+    cls.time_offset_ns = property(_time_offset_ns)
+    cls.link_state = property(_link_state)
+
+
 def _link_state(session):
     # 'connected', 'silent' (the agent is quiet, pings are out) or 'lost' (re-creating).
     link = session.link

@@ -52,18 +52,25 @@ def create_replier(session, participant_id, service_name=None, request_type=None
 
 def create_service_client(session, participant_id, service, srv, callback, stream_id=None,
                           data_stream_id=None):
-    # A requester for a ROS service ('/add_two_ints') named the way micro-ROS names it.
-    #
-    # ``srv`` is a generated service descriptor (``Request``, ``Response``, ``TYPE_NAME_*``);
-    # ``callback(request_id, response)`` gets each reply with the id ``send_request`` returned.
+    """A client of the ROS service ``service`` ('/add_two_ints'), named as micro-ROS names it.
+
+    ``srv`` is a generated service descriptor (``from xrce.msgs.example_interfaces import
+    AddTwoInts``: ``Request``, ``Response``, ``TYPE_NAME_*``). Returns the requester's id for
+    ``session.send_request(requester_id, srv.Request(...))``, which returns a request id;
+    ``callback(request_id, response)`` gets each reply with that id while the session spins.
+    """
     return _service_endpoint(session, create_requester, participant_id, service, srv, callback,
                              srv.Response, stream_id, data_stream_id)
 
 
 def create_service_server(session, participant_id, service, srv, callback, stream_id=None,
                           data_stream_id=None):
-    # A replier for a ROS service; ``callback(sample_identity, request)`` answers with
-    # ``send_reply(replier_id, sample_identity, response)``.
+    """A server of the ROS service ``service`` ('/set_led'); returns the replier's id.
+
+    ``callback(sample_identity, request)`` gets each request (a ``srv.Request``) while the session
+    spins and answers with ``session.send_reply(replier_id, sample_identity, srv.Response(...))``,
+    then or later (keep ``sample_identity``, 24 bytes, to answer after the callback returns).
+    """
     return _service_endpoint(session, create_replier, participant_id, service, srv, callback,
                              srv.Request, stream_id, data_stream_id)
 
@@ -80,12 +87,14 @@ def _service_endpoint(session, create, participant_id, service, srv, callback, m
 
 
 def send_request(session, requester_id, data, stream_id=None):
-    # A service request; the reply reaches the requester's callback with the returned id.
+    """Send a request (a ``srv.Request``); its reply reaches the client's callback with the
+    request id returned here."""
     return session._write_sample(requester_id, data, None, stream_id)
 
 
 def send_reply(session, replier_id, sample_identity, data, stream_id=None):
-    # Answer the request ``sample_identity`` (as given to the replier's callback).
+    """Answer the request ``sample_identity`` (as given to the server's callback) with ``data``
+    (a ``srv.Response``)."""
     return session._write_sample(replier_id, data, sample_identity, stream_id)
 
 
