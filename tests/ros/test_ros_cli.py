@@ -546,7 +546,10 @@ def test_interface_show_prints_the_definition_and_nested_ones_as_ros2_does():
                                          "int32[] sequence"], piped
     for name, says in (("std_msgs/String", "Invalid name 'std_msgs/String'. Expected three "
                                            "parts separated by '/'"),
-                       ("nowhere_msgs/msg/X", "Unknown package 'nowhere_msgs'")):
+                       ("nowhere_msgs/msg/X", "Unknown package 'nowhere_msgs' (package nowhere_msgs is "
+                                              "not built for this venv: `xrce-agent build-interfaces DIR "
+                                              "--package nowhere_msgs`, DIR holding nowhere_msgs/ with its "
+                                              "package.xml)")):
         done = subprocess.run(xrce_ros_command() + ["interface", "show", name], cwd=REPO,
                               text=True, capture_output=True, timeout=CLI_TIMEOUT_S)
         assert (done.returncode, done.stdout, done.stderr) == (1, "", says + "\n"), done

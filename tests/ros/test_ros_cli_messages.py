@@ -13,7 +13,7 @@ from std_msgs.msg import Header, String
 from test_msgs.msg import BoundedSequences, UnboundedSequences
 
 from xrce.tools.ros_cli.arguments import UsageError
-from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, parse_yaml_values,
+from xrce.tools.ros_cli.messages import (build_command, interface_class, missing_type_reason, message_to_yaml, parse_yaml_values,
                                          set_message_fields)
 
 
@@ -94,3 +94,43 @@ def test_type_names_as_ros2_takes_them():
                        ("os/msg/path", "msg"), ("a/b/c/d", "msg"), ("../x", "msg")):
         with pytest.raises(UsageError, match="invalid"):
             interface_class(name, kind)
+
+
+def test_a_type_this_venv_lacks_is_named_with_the_build_that_fixes_it():
+    with pytest.raises(UsageError) as missing:
+        interface_class("wheel_msgs/msg/WheelTicks", "msg")
+    assert str(missing.value) == (
+        "The passed message type is invalid: 'wheel_msgs/msg/WheelTicks' (package wheel_msgs is not built "
+        "for this venv: `xrce-agent build-interfaces DIR --package wheel_msgs`, DIR holding wheel_msgs/ "
+        "with its package.xml)")
+    with pytest.raises(UsageError, match="xrce-agent build-interfaces DIR --package wheel_msgs"):
+        interface_class("wheel_msgs/srv/SetLed", "srv")
+    # A package xrce ships the files of (xrce/ros_interfaces/) builds with no directory given.
+    assert build_command("turtlebot3_msgs") == "xrce-agent build-interfaces --package turtlebot3_msgs"
+    assert build_command("wheel_msgs") == "xrce-agent build-interfaces DIR --package wheel_msgs"
+    # A package of the ROS in use that lacks the type: no build of ours fixes that.
+    assert missing_type_reason("std_msgs", "Nope") == "no such type in this venv"
+
+
+def test_yaml_words_read_as_booleans_get_the_hint_to_quote_them():
+    from test_msgs.srv import BasicTypes
+
+    # {led: 1, on: true}: YAML 1.1 reads the key `on` as True.
+    with pytest.raises(AttributeError) as key:
+        set_message_fields(BasicTypes.Request(), parse_yaml_values("{int32_value: 1, on: true}"))
+    assert str(key.value) == ("'BasicTypes_Request' object has no attribute 'True': YAML reads an unquoted "
+                              "on as the boolean True: quote the key ('\"on\": ...')")
+    with pytest.raises(AttributeError, match="unquoted off as the boolean False"):
+        set_message_fields(BasicTypes.Request(), parse_yaml_values("{off: 1}"))
+    # A string field given yes: it would be sent as "True".
+    with pytest.raises(TypeError, match="field 'string_value' wants str, and YAML read the unquoted value "
+                                        "as the boolean True .*quote it"):
+        set_message_fields(BasicTypes.Request(), parse_yaml_values("{string_value: yes}"))
+    with pytest.raises(TypeError, match="field 'data' wants str"):
+        set_message_fields(String(), parse_yaml_values("{data: on}"))
+    # Quoted, each is what was written; numbers into strings and booleans into numbers stay as ros2 takes them.
+    request = BasicTypes.Request()
+    set_message_fields(request, parse_yaml_values('{string_value: "yes"}'))
+    assert request.string_value == "yes"
+    set_message_fields(request, parse_yaml_values("{string_value: 12, int32_value: true, bool_value: 1}"))
+    assert (request.string_value, request.int32_value, request.bool_value) == ("12", 1, True)

@@ -57,7 +57,9 @@ def interface_path(name):
                     raise CommandError("Could not find the interface '%s.idl'"
                                        % os.path.join(share, kind, leaf))
                 return path
-    raise CommandError("Unknown package '%s'" % package)
+    from xrce.tools.ros_cli.messages import missing_type_reason
+
+    raise CommandError("Unknown package '%s' (%s)" % (package, missing_type_reason(package, leaf)))
 
 
 def _parsed(package, message, text):

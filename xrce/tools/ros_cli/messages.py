@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import array
 import importlib
+import importlib.util
+import os
 import sys
 
 import numpy
@@ -33,13 +35,49 @@ def interface_class(type_name, kind):
     try:
         cls = getattr(importlib.import_module("%s.%s" % (parts[0], kind)), parts[2])
     except (AttributeError, ImportError, ValueError):
-        raise UsageError("The passed %s type is invalid: %r (no such type in this venv)"
-                         % (what, type_name)) from None
+        raise UsageError("The passed %s type is invalid: %r (%s)"
+                         % (what, type_name, missing_type_reason(parts[0], parts[2]))) from None
     members = {"msg": ("get_fields_and_field_types",), "srv": ("Request", "Response"),
                "action": ("Goal", "Result", "Feedback")}[kind]
     if not all(hasattr(cls, member) for member in members):
         raise UsageError("The passed type is not a %s: %r" % (what, type_name))
     return cls
+
+
+# The interface packages that come with xrce (xrce/ros_interfaces/): build-interfaces' default.
+_SHIPPED_INTERFACES = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
+    __file__)))), "ros_interfaces")
+
+
+def build_command(package):
+    """The ``xrce-agent build-interfaces`` line that builds ``package`` for this venv's rclpy (the
+    agent's and every other program's: xrce.agent.interfaces.registry)."""
+    if os.path.isfile(os.path.join(_SHIPPED_INTERFACES, package, "package.xml")):
+        return "xrce-agent build-interfaces --package %s" % package
+    return "xrce-agent build-interfaces DIR --package %s" % package
+
+
+def missing_type_reason(package, type_name):
+    """Why ``package``'s ``type_name`` cannot be imported here, with the command that fixes it
+    when a build can: the package is in no place this venv imports from, or it is one xrce built
+    and the type was added to its files since."""
+    try:
+        present = importlib.util.find_spec(package) is not None
+    except (ImportError, ValueError):
+        present = False
+    if not present:
+        where = "" if build_command(package).startswith("xrce-agent build-interfaces --") else (
+            ", DIR holding %s/ with its package.xml" % package)
+        return "package %s is not built for this venv: `%s`%s" % (package, build_command(package), where)
+    try:
+        from xrce.agent.interfaces.registry import is_registered
+
+        built_by_xrce = is_registered(package)
+    except ImportError:
+        built_by_xrce = False
+    if built_by_xrce:
+        return "%s has no %s: if it was added since, rebuild: `%s`" % (package, type_name, build_command(package))
+    return "no such type in this venv"
 
 
 def _nested_class(namespaced_type):
@@ -118,6 +156,23 @@ def message_to_yaml(msg, truncate_length=None, no_arr=False, no_str=False, flow_
 
 # ----------------------------------------------------------------------------- YAML → message
 
+# The words YAML 1.1 (PyYAML's safe_load) reads as booleans when unquoted, by the value they give.
+_YAML_BOOLEAN_WORDS = {True: ("y", "yes", "on", "true"), False: ("n", "no", "off", "false")}
+
+
+def _unquoted_key_hint(key, slot_types):
+    """For a key YAML did not read as a string (``{on: true}`` gives the key True), the field it
+    most likely was and how to write it."""
+    if isinstance(key, str):
+        return ""
+    if isinstance(key, bool):
+        fields = [f for f in slot_types if f.lower() in _YAML_BOOLEAN_WORDS[key]]
+        named = fields[0] if fields else _YAML_BOOLEAN_WORDS[key][2]
+        return (": YAML reads an unquoted %s as the boolean %s: quote the key ('\"%s\": ...')"
+                % (named, key, named))
+    return ": YAML read the key as a %s: quote it ('\"%s\": ...')" % (type(key).__name__, key)
+
+
 def parse_yaml_values(text):
     """The YAML a verb was given, which must be a mapping (``{}`` when none was given)."""
     try:
@@ -147,7 +202,8 @@ def _fill(msg, values, header_auto, time_now, stamp_setters):
     slot_types = dict(zip(msg.get_fields_and_field_types(), msg.SLOT_TYPES))
     for name, given in values.items():
         if name not in slot_types:
-            raise AttributeError("'%s' object has no attribute '%s'" % (type(msg).__name__, name))
+            raise AttributeError("'%s' object has no attribute '%s'%s" % (
+                type(msg).__name__, name, _unquoted_key_hint(name, slot_types)))
         current = getattr(msg, name)
         slot_type = slot_types[name]
         if _is_message(current):
@@ -179,6 +235,19 @@ def _fill(msg, values, header_auto, time_now, stamp_setters):
             value = numpy.array(given, dtype=current.dtype)
         elif type(given) is type(current):
             value = given
+        elif isinstance(given, bool) and not isinstance(current, (bool, int, float)):
+            # str(True) would send "True" for a string field given yes, on or true unquoted.
+            raise TypeError("field '%s' wants %s, and YAML read the unquoted value as the "
+                            "boolean %s (so it reads yes, no, on, off, true, false): quote it"
+                            % (name, type(current).__name__, given))
         else:
-            value = type(current)(given)  # 7 for a float field, a YAML string for a bytes one
+            try:
+                value = type(current)(given)  # 7 for a float field, a YAML string for a bytes one
+            except (TypeError, ValueError) as error:
+                if isinstance(given, (bool, int, float)):
+                    raise TypeError("field '%s' wants %s, and YAML read %r as a %s (%s): quote it "
+                                    "or give a value of the field's type"
+                                    % (name, type(current).__name__, given,
+                                       "boolean" if isinstance(given, bool) else "number", error)) from None
+                raise
         setattr(msg, name, value)

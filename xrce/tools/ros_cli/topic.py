@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 
-from xrce.tools.ros_cli.arguments import (CommandError, UsageError, add_graph_arguments,
+from xrce.tools.ros_cli.arguments import (PROG, CommandError, UsageError, add_graph_arguments,
                                           add_qos_arguments, nonnegative_int, positive_float,
                                           positive_int, qos_from_arguments, qos_overridden)
 from xrce.tools.ros_cli.graph import CliNode, checked_name
-from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, parse_yaml_values,
-                                         set_message_fields)
+from xrce.tools.ros_cli.messages import (interface_class, message_to_yaml, missing_type_reason,
+                                         parse_yaml_values, set_message_fields)
 
 NAME = "topic"
 HELP = "Various topic related sub-commands"
@@ -146,6 +147,16 @@ def info(args):
         print("%s count: %d" % (label, count), end=end)
         for endpoint in endpoints:
             print(endpoint, end=end)
+    if args.verbose:
+        # ros2's lines as they are on stdout; what an INVALID hash of a type this venv lacks means,
+        # and its fix, beside them.
+        for type_name in types:
+            try:
+                interface_class(type_name, "msg")
+            except UsageError:
+                sys.stderr.write("%s: %s is not a type this venv has (%s); its endpoints carried by "
+                                 "name show Topic type hash: INVALID\n"
+                                 % (PROG, type_name, _missing_reason(type_name)))
 
 
 # ----------------------------------------------------------------------------- echo
@@ -174,7 +185,13 @@ def _topic_class(cli, topic_name, wait_s=None):
     try:
         return interface_class(types[0], "msg")
     except UsageError:
-        raise CommandError("The message type '%s' is invalid" % types[0]) from None
+        raise CommandError("The message type '%s' is invalid (%s)" % (
+            types[0], _missing_reason(types[0]))) from None
+
+
+def _missing_reason(type_name):
+    parts = type_name.split("/")
+    return missing_type_reason(parts[0], parts[-1])
 
 
 def _echo_qos(cli, args):
