@@ -18,6 +18,7 @@ package(
         "client/representations.py",
         "client/services.py",
         "client/session.py",
+        "client/type_drift.py",
         "client/wire.py",
         "msgs/__init__.py",
         "msgs/_dict.py",

@@ -371,12 +371,19 @@ class Session(Outbound):
             r.buf = buf
             r.pos = r.origin = s + 4
             r.end = e
-            if type(msg_class) is type:
-                sample = msg_class.decode(r)
-            else:  # an instance (create_reader's ``into``): decoded in place
-                _decode_into(msg_class, r)
-                sample = msg_class
+            try:
+                if type(msg_class) is type:
+                    sample = msg_class.decode(r)
+                else:  # an instance (create_reader's ``into``): decoded in place
+                    _decode_into(msg_class, r)
+                    sample = msg_class
+                unread = e - r.pos
+            except DecodeError:  # past the sample's end
+                unread = -1
             r.buf = b""  # the datagram is not kept alive until the next one
+            if not 0 <= unread <= 3:  # more than alignment padding unread: another definition
+                from xrce.client.type_drift import drifted
+                drifted(self, oid, msg_class, unread)  # raises DecodeError for a sample past its end
             callback(sample)
 
 

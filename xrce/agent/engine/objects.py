@@ -14,7 +14,7 @@ import os
 from typing import Dict, Optional
 
 from xrce.wire import constants as C, names as wire_names
-from xrce.agent.engine import reuse
+from xrce.agent.engine import reuse, type_drift
 from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
@@ -201,6 +201,8 @@ class ObjectRegistry:
             if writer:
                 mw.create_datawriter(key, client.entity(entry.parent), client.entity(topic), qos)
                 entry.write = mw.writer(key)
+                # Its first sample is checked against the agent's type (xrce.agent.engine.type_drift)
+                type_drift.arm(mw, self.datapath.mismatches, self.datapath.scheduler, client, entry, key)
             else:
                 entry.reader = ReaderState(_queue_bound(qos))
                 mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,

@@ -317,6 +317,17 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             return True
         return write
 
+    def sample_check(self, writer: EntityKey, dds_type: str):
+        """``check(sample) -> None | why`` for the datawriter's type as this agent has it, or None
+        where it cannot tell (a type known by name only): xrce.agent.engine.type_drift."""
+        from xrce.agent.middleware.ros import raw_types
+        from xrce.agent.middleware.ros.sample_check import checker
+
+        record = self._entities.get(writer)
+        if record is None or record.kind != "datawriter" or dds_type in raw_types._named_messages:
+            return None
+        return checker(dds_type)
+
     def publisher_address(self, writer: EntityKey) -> int | None:
         """The address of a datawriter's rcl_publisher_t, for the compiled UDP path
         (xrce.agent.engine.fastpath), which must forget it before ``delete``; None if rclpy hides it."""

@@ -1,0 +1,84 @@
+"""Type drift: a board's samples that cannot be the type the agent has for their topic, named.
+
+The agent moves CDR as it comes; when the board's classes were generated from another version of
+a ``.msg`` than the agent's package (issue 52: ``float64 voltage`` against ``float32``, 98 of 100
+samples in ROS with ``voltage 0.0`` and no word anywhere), nothing else notices. The middleware's
+``sample_check(writer)`` (rclpy deserialization: ``xrce.agent.middleware.ros.sample_check``) can
+tell; this module decides which samples it sees, so that checking costs nothing per sample:
+
+- ``arm`` puts a one-shot function in the writer's ``entry.write`` at creation. The first sample
+  goes through it: checked, published, and ``entry.write`` is the middleware's own publish again,
+  so every later sample takes exactly the path it took before (``DataPath.fast_write``, and the
+  compiled UDP path, which learns the writer from that first sample and never calls Python).
+- A sample that passes re-arms the check ``RECHECK_S`` later (a timer, not a test per sample): a
+  sequence or string can make a drifted type deserialize by chance once. On the compiled path the
+  re-armed check waits for the next sample Python sees, so it is at most one per endpoint per
+  ``RECHECK_S``, and most often none after the first.
+- A sample that fails is named once per endpoint (``MismatchReport``: the board's key and
+  address, the topic, the type, the fix) and counted in the stats; the endpoint is not checked
+  again (its samples still go to ROS, as they did: the agent does not judge a board's data).
+
+Types the agent carries by name have no package to compare with: not armed.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from xrce.agent.engine.session import ClientProxy, ObjectEntry
+from xrce.agent.observe.names import ros_topic_name, ros_type_name
+
+log = logging.getLogger("xrce.agent")
+
+RECHECK_S = 60.0  # at most one sample per endpoint per minute is deserialized for the check
+FIX = ("the board's classes and the agent's package come from different definitions of the type; "
+       "fix: regenerate the board's classes (xrce-client gen-msgs DIR/%s) or rebuild the agent's "
+       "package (xrce-agent build-interfaces DIR --package %s) from the same .msg")
+
+
+def arm(middleware, mismatches, scheduler, client: ClientProxy, entry: ObjectEntry, key) -> None:
+    """Check the next sample of the datawriter ``entry`` against the middleware's type for it
+    (nothing happens when the middleware cannot tell)."""
+    sample_check = getattr(middleware, "sample_check", None)
+    if sample_check is None or entry.topic_spec is None:
+        return
+    check = sample_check(key, entry.topic_spec.type_name)
+    if check is None:
+        return
+    publish = entry.write
+
+    def first_sample(sample: bytes) -> bool:
+        if entry.write is first_sample:
+            entry.write = publish  # the following samples go straight to the middleware again
+        why = check(sample)
+        if why is None:
+            _recheck_later(scheduler, client, entry, first_sample, publish)
+        else:
+            type_name = _type(entry)
+            package = type_name.split("/")[0]
+            mismatches.report(client, entry, "type drift on %s: a sample the board wrote cannot be %s "
+                              "as this agent has it: %s; %s" % (_topic(entry), type_name, why,
+                                                                FIX % (package, package)))
+        return publish(sample)
+
+    entry.write = first_sample
+
+
+def _recheck_later(scheduler, client, entry, check_next, publish) -> None:
+    loop = scheduler.loop
+    if loop is None:
+        return
+
+    def rearm() -> None:
+        # Still the same writer, publishing as before: its next sample is checked.
+        if client.objects.get(entry.object_id) is entry and entry.write is publish:
+            entry.write = check_next
+    loop.call_later(RECHECK_S, rearm)
+
+
+def _topic(entry: ObjectEntry) -> str:
+    return ros_topic_name(entry.topic_spec.name) if entry.topic_spec is not None else "?"
+
+
+def _type(entry: ObjectEntry) -> str:
+    return ros_type_name(entry.topic_spec.type_name) if entry.topic_spec is not None else "?"
