@@ -1,8 +1,9 @@
 """Record tests/golden/eprosima/: eProsima's client (programs/, built against XRCE_EPROSIMA_CLIENT)
-against eProsima's agent (``--agent``, /work/peers/agent.sh by default, -m ced), through a
-transparent UDP relay that writes down every datagram. Run by hand, as root, where both are built:
+against eProsima's agent (``--agent``, default $XRCE_EPROSIMA_AGENT: the ``agent.sh`` the peers
+build script writes, run with -m ced), through a transparent UDP relay that writes down
+every datagram. Run by hand, as root, where both are built (PEERS: where they were built):
 
-    XRCE_EPROSIMA_CLIENT=/work/peers/install unshare -n sh -c \\
+    XRCE_EPROSIMA_CLIENT=$PEERS/install XRCE_EPROSIMA_AGENT=$PEERS/agent.sh unshare -n sh -c \\
         'ip link set lo up multicast on; ip route add 224.0.0.0/4 dev lo; .venv/bin/python tests/eprosima/record_eprosima.py'
 
 (a private loopback, with a route for multicast: eProsima's discovery port does not open without
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import select
 import signal
 import socket
@@ -103,9 +105,12 @@ def record(name, header, relay, run):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--agent", default="/work/peers/agent.sh")
+    parser.add_argument("--agent", default=os.environ.get("XRCE_EPROSIMA_AGENT"),
+                        help="eProsima's MicroXRCEAgent (default $XRCE_EPROSIMA_AGENT)")
     parser.add_argument("only", nargs="*", help="scenario names (default: all)")
     args = parser.parse_args()
+    if not args.agent:
+        parser.error("name eProsima's agent: --agent or XRCE_EPROSIMA_AGENT")
     reason = eprosima_client.missing_reason()
     if reason:
         sys.exit(reason)
