@@ -10,7 +10,7 @@ import tty
 
 import pytest
 
-from engine_peer import ced_agent  # noqa: F401
+from engine_peer import ced_agent, eprosima_ced_agent  # noqa: F401
 from hygiene import PrivateRosLogDir, remove_dead_fastdds_segments_after_exit, shm_names
 from install_env import sourced_ros, wheel_venv, xrce_wheels  # noqa: F401
 

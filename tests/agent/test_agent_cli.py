@@ -579,6 +579,38 @@ def test_discovery_answers_with_the_agents_port(agent):
     assert process.stop() == 0
 
 
+@pytest.mark.parametrize("transport", ["udp6", "tcp6", "udp4"])
+def test_discovery_answers_locators_of_the_agents_family(agent, transport):
+    """eProsima's agent answers discovery with its own transport's family: `[::1]:PORT` style LARGE
+    locators for udp6/tcp6 (an IPv4 one would be of no use to that agent's clients), MEDIUM for
+    udp4; asked over IPv4 as eProsima's clients ask, and over IPv6 where the agent is IPv6."""
+    from xrce.agent.links.udp import local_ipv6_addresses
+
+    loopback6 = socket.inet_pton(socket.AF_INET6, "::1")
+    if transport.endswith("6") and loopback6 not in local_ipv6_addresses():
+        pytest.skip("this host has no IPv6 loopback address")
+    discovery_port = _free_udp_port()
+    process = agent(transport, "-p", "0", "-d", str(discovery_port), "-m", "ced")
+    agent_port = process.port()
+    request = encode_message(0x80, 0, 0, None, [GetInfo(C.REQUEST_ID_DISCOVERY, C.OBJECTID_AGENT, 3)])
+    askers = [(socket.AF_INET, "127.0.0.1")]
+    if transport.endswith("6"):
+        askers.append((socket.AF_INET6, "::1"))
+    for family, host in askers:
+        with socket.socket(family, socket.SOCK_DGRAM) as client:
+            client.settimeout(REPLY_TIMEOUT)
+            client.sendto(request, (host, discovery_port))
+            reply, _ = client.recvfrom(65536)
+        _, (info,) = decode_message(reply)
+        if transport.endswith("6"):
+            assert Locator(C.LOCATOR_LARGE, loopback6, agent_port) in info.locators
+            assert {loc.fmt for loc in info.locators} == {C.LOCATOR_LARGE}
+        else:
+            assert Locator(C.LOCATOR_MEDIUM, socket.inet_aton("127.0.0.1"), agent_port) in info.locators
+            assert {loc.fmt for loc in info.locators} == {C.LOCATOR_MEDIUM}
+    assert process.stop() == 0
+
+
 def test_the_ros_middleware_runs_section_13_and_exits_0(agent):
     pytest.importorskip("rclpy")
     process = agent("udp4", "-p", "0")  # -m dds is the default

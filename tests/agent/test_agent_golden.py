@@ -1,7 +1,8 @@
-"""Replay every golden capture through Agent(CedMiddleware()) and compare what it sends.
+"""Replay every golden capture through Agent(ReadingCed()) and compare what it sends.
 
 The captured agent (eProsima v2.4.3 with Fast DDS, rclpy on the DDS side) is replaced by ours with
-the CED middleware. For each scenario the C->A datagrams are fed in capture order (those marked
+CED's routing, reading representations as ``-m dds`` does (engine_peer.ReadingCed: the captures'
+XML names its topics the Fast DDS way). For each scenario the C->A datagrams are fed in capture order (those marked
 ``C->A DROPPED`` never reached the agent and are skipped). Where the capture shows a DATA the agent
 produced on its own, i.e. a sample that came from a DDS writer, a second CED client on another
 endpoint publishes the captured sample bytes at that point; its traffic is ignored.
@@ -25,7 +26,7 @@ import pathlib
 import pytest
 
 from xrce.wire import constants as C
-from xrce.agent.middleware.ced import CedMiddleware
+from engine_peer import ReadingCed
 from xrce.agent.engine.dispatch import Agent
 from xrce.wire.submessages import (
     Create, CreateClient, Locator, WriteData, decode_message, encode_message,
@@ -119,7 +120,7 @@ def split(messages):
 def replay(name):
     datagrams = SCENARIOS[name]
     link = RecordingLink([Locator(C.LOCATOR_MEDIUM, b"\x7f\x00\x00\x01", 8888)])
-    middleware = CedMiddleware()
+    middleware = ReadingCed()
     agent = Agent(middleware)
     clock = CaptureClock()
     agent.clock = clock

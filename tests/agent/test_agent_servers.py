@@ -424,6 +424,43 @@ async def test_discovery_reply_matches_the_verified_capture():
         await server.close()
 
 
+needs_ipv6 = pytest.mark.skipif(socket.inet_pton(socket.AF_INET6, "::1")
+                                not in udp_links.local_ipv6_addresses(),
+                                reason="this host has no IPv6 loopback address")
+
+
+@needs_ipv6
+async def test_discovery_for_an_ipv6_agent_answers_ipv6_locators_on_either_family():
+    """eProsima's udp6/tcp6 agent answers discovery with LARGE locators of its IPv6 addresses: an
+    IPv4 locator is one a client of an IPv6 agent cannot use. Asked over IPv6 too (dual stack)."""
+    server = udp_links.DiscoveryServer(agent_port=2022, port=0, family=socket.AF_INET6)
+    await server.start()
+    loop = asyncio.get_running_loop()
+    try:
+        for family, host in ((socket.AF_INET, "127.0.0.1"), (socket.AF_INET6, "::1")):
+            with socket.socket(family, socket.SOCK_DGRAM) as client:
+                client.setblocking(False)
+                client.connect((host, server.port))
+                client.send(_get_info())
+                reply = await asyncio.wait_for(loop.sock_recv(client, 2048), TIMEOUT)
+            _, (info,) = decode_message(reply)
+            assert Locator(C.LOCATOR_LARGE, socket.inet_pton(socket.AF_INET6, "::1"), 2022) \
+                in info.locators, family
+            assert {loc.fmt for loc in info.locators} == {C.LOCATOR_LARGE}
+            assert len(info.locators) == len(udp_links.local_ipv6_addresses())
+        assert server.stats.messages_out == 2
+    finally:
+        await server.close()
+
+
+def test_an_ipv6_large_locator_has_the_bytes_eprosima_sends():
+    # TransportLocator LARGE: kind 02, 16 address bytes, then the uint32 port aligned to 4.
+    from xrce.wire.cdr import CdrWriter
+    w = CdrWriter()
+    Locator(C.LOCATOR_LARGE, socket.inet_pton(socket.AF_INET6, "::1"), 2022).encode(w)
+    assert w.getvalue() == bytes.fromhex("02" + "00" * 15 + "01" + "000000" + "E6070000")
+
+
 def test_local_ipv4_addresses_include_loopback():
     addresses = udp_links.local_ipv4_addresses()
     assert socket.inet_aton("127.0.0.1") in addresses

@@ -7,6 +7,7 @@ import pytest
 
 from agent_process import AgentProcess
 from xrce.client.session import Session, ping_agent
+from xrce.wire import constants as C
 from xrce.msgs.std_msgs import String
 from xrce.transports.serial import SerialTransport
 from xrce.transports.tcp import TcpTransport
@@ -55,45 +56,25 @@ def test_session_echo_through_the_agent(kind, session_id):
             transport.close()
 
 
-REFS = """<?xml version="1.0"?>
-<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <profiles>
-    <participant profile_name="robot_participant"><rtps><name>robot</name></rtps></participant>
-    <topic profile_name="chatter_topic"><name>rt/chatter</name>
-      <dataType>std_msgs::msg::dds_::String_</dataType></topic>
-    <data_writer profile_name="chatter_writer">
-      <topic><kind>NO_KEY</kind><name>rt/chatter</name><dataType>std_msgs::msg::dds_::String_</dataType></topic>
-      <qos><reliability><kind>RELIABLE</kind></reliability></qos>
-    </data_writer>
-    <data_reader profile_name="chatter_reader">
-      <topic><kind>NO_KEY</kind><name>rt/chatter</name><dataType>std_msgs::msg::dds_::String_</dataType></topic>
-      <qos><reliability><kind>RELIABLE</kind></reliability></qos>
-    </data_reader>
-  </profiles>
-</dds>
-"""
-
-
-def test_entities_created_by_reference_and_by_xml(tmp_path):
-    """The client's three representations against one agent: by reference (profiles from -r),
-    XML, and binary — all interoperating on one topic."""
-    refs = tmp_path / "refs.xml"
-    refs.write_text(REFS)
-    with AgentProcess("udp4", "-m", "ced", "-r", str(refs)) as agent:
+def test_entities_created_by_reference_and_by_xml():
+    """The client's three representations against one agent in ``-m ced``, read as eProsima's CED
+    reads them: a participant's reference names nothing, a topic's reference (``__t`` dropped) is
+    the topic's name, an endpoint's reference (``__dw``/``__dr`` dropped) or XML string names its
+    topic; all interoperate on one topic with a binary reader."""
+    with AgentProcess("udp4", "-m", "ced") as agent:
         session = Session(UdpTransport("127.0.0.1", agent.port), history=8)
         try:
             assert session.create(attempts=3, timeout_ms=1000)
             node = session.create_participant(ref="robot_participant")
-            # Endpoints defined by XML or reference name their topic: it must exist first.
-            topic = session.create_topic(node, xml="<dds><topic><name>rt/chatter</name><dataType>"
-                                         "std_msgs::msg::dds_::String_</dataType></topic></dds>")
+            topic = session.create_topic(node, ref="rt/chatter__t")
             publisher = session.create_publisher(node, xml="")
-            writer = session.create_datawriter(publisher, ref="chatter_writer")
+            writer = session.create_datawriter(publisher, ref="rt/chatter__dw")
             subscriber = session.create_subscriber(node, xml="")
-            by_ref = session.create_datareader(subscriber, ref="chatter_reader")
+            by_ref = session.create_datareader(subscriber, ref="rt/chatter__dr")
+            by_xml = session.create_datareader(subscriber, xml="rt/chatter")
             binary = session.create_datareader(subscriber, topic, session.endpoint_qos(True))
             assert session.run_until_all_status(3000), session.last_statuses
-            got = {by_ref: [], binary: []}
+            got = {by_ref: [], by_xml: [], binary: []}
             for reader in got:
                 session.set_reader_callback(reader, got[reader].append, String)
                 session.read_data(reader)
@@ -102,11 +83,11 @@ def test_entities_created_by_reference_and_by_xml(tmp_path):
             deadline = time.monotonic() + 5
             while not all(got.values()) and time.monotonic() < deadline:
                 session.spin_once(20)
-            assert [m.data for m in got[by_ref]] == ["by reference"] == [m.data for m in got[binary]]
-            # An unknown profile is refused with the reference error, not silently created.
-            session.create_datawriter(publisher, ref="no_such_profile")
+            assert [[m.data for m in got[r]] for r in got] == [["by reference"]] * 3
+            # A writer naming a topic the participant does not have is refused, not created.
+            session.create_datawriter(publisher, ref="rt/no_such_topic__dw")
             assert not session.run_until_all_status(2000)
-            assert list(session.last_statuses.values()) != [0]
+            assert list(session.last_statuses.values()) == [C.STATUS_ERR_DDS_ERROR]
             assert session.delete(attempts=3, timeout_ms=500)
         finally:
             session.close()

@@ -2,12 +2,14 @@
 
 ``Peer`` encodes what a client would send and feeds it to ``Agent.receive`` through a ``Link`` that
 records the agent's replies; ``Clock`` is the engine's clock, moved by hand. The ``ced_agent``
-fixture (offered to every test module by conftest.py) is an engine with CED behind it.
+fixture (offered to every test module by conftest.py) is an engine with CED's routing behind it
+reading representations as ``-m dds`` does; ``eprosima_ced_agent`` the same with ``-m ced`` as is.
 """
 
 import pytest
 
 from xrce.wire import constants as C
+from xrce.agent.middleware import Middleware
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.engine.dispatch import Agent
 from xrce.wire.objects import (
@@ -140,9 +142,27 @@ def talker_and_listener(agent, link, reliable=True, listener_depth=10, listener_
     return talker, listener
 
 
+class ReadingCed(CedMiddleware):
+    """CED's routing, with representations read as ``-m dds`` reads them (Fast DDS XML, ``-r``
+    profiles, REUSE by meaning: ``Middleware.routed_name``'s default), so the engine's own reading
+    is tested without ROS. ``-m ced`` itself reads strings as names, as eProsima's CED does."""
+
+    routed_name = Middleware.routed_name
+
+
 @pytest.fixture
 def ced_agent():
-    """An engine with CED behind it on a hand-moved clock, and a link that records its replies."""
+    """An engine with CED's routing behind it (``ReadingCed``) on a hand-moved clock, and a link
+    that records its replies."""
+    link = Link()
+    agent = Agent(ReadingCed())
+    agent.clock = Clock()
+    return agent, link
+
+
+@pytest.fixture
+def eprosima_ced_agent():
+    """The same with ``-m ced``'s middleware as it is: strings are names, as eProsima's CED."""
     link = Link()
     agent = Agent(CedMiddleware())
     agent.clock = Clock()

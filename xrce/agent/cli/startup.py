@@ -152,7 +152,8 @@ async def serve(args, refs):
                 started.append(link)
             if getattr(args, "discovery", None) is not None:  # an IP link's option
                 from xrce.agent.links import udp
-                discovery = udp.DiscoveryServer(links[0].port, args.discovery)
+                discovery = udp.DiscoveryServer(links[0].port, args.discovery,
+                                                 family=getattr(links[0], "family", None))
                 await discovery.start()
                 started.append(discovery)
             observe = observability.Observability.from_args(args, agent, started, middleware)

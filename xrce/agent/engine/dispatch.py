@@ -450,6 +450,7 @@ class Agent:
             return
         duplicates = stream.duplicates
         stored = stream.stored_bytes
+        answered = client.messages_out
         try:
             for message in stream.receive(seq, data):
                 self._process_reliable_message(client, stream_id, message)
@@ -460,6 +461,10 @@ class Agent:
             if client.alive:  # every reliable message is acknowledged, duplicates included
                 # (a reassembled sample may have handed the stream to the compiled path)
                 self.acks.acknack_soon(client, client.in_reliable.get(stream_id, stream))
+                if client.messages_out != answered:
+                    # It was answered (a STATUS): the client may react at once, so its ACKNACK
+                    # follows the answer now, as eProsima's agent sends it, not at the batch's end.
+                    self.acks.settle(client)
 
     def _hold_back(self, client: ClientProxy, stream: InputReliableStream, seq: int,
                    data: bytes) -> bool:

@@ -214,6 +214,9 @@ class FastPath:
                     link._deliver(source, data)
                 if not rest:
                     break
+                # The thread is paused, so what a client sent in answer to this round comes in
+                # the next: what this round owes goes out first (Acknowledgments.acknack_soon).
+                self.agent.acks.flush()
             self._handing = False
             while self._revisit:  # every sample C handed over is out: C may send again
                 self.reader_ready(*self._revisit.popitem()[1])

@@ -3,7 +3,8 @@
 Two parts of ``xrce.agent.engine.dispatch.Agent``:
 
 - ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
-  batch of its messages, and in answer to its HEARTBEAT;
+  batch of its messages or before anything else is sent to it, whichever comes first, and in
+  answer to its HEARTBEAT;
 - ``Liveliness``, the output side and the timed work per client: it retransmits what a client's
   ACKNACK asks for, sends HEARTBEATs while reliable output is unacknowledged, probes
   hard-liveliness clients, finds dead, retired and expired clients (the rule: "Recovery and
@@ -51,31 +52,56 @@ class Acknowledgments:
         self.scheduler = scheduler
         self.stats = stats
         self._process_reliable_message = process_reliable_message
-        self._due: Dict[Tuple[bytes, int], Tuple[ClientProxy, InputReliableStream]] = {}
+        # client key -> (client, {stream id: stream}) of the ACKNACKs owed; shared with the
+        # output, which settles a client's before anything else goes to it.
+        self._due: Dict[bytes, Tuple[ClientProxy, Dict[int, InputReliableStream]]] = {}
+        output.owed = self._due
+        output.settle = self.settle
 
     def acknack_soon(self, client: ClientProxy, stream: InputReliableStream) -> None:
-        """ACKNACK once per stream for all the messages of one read batch: the ACKNACK is
-        cumulative, so one sent after the batch says what one per message would have said last.
-        Without a loop (synchronous use, tests, golden replays) it goes out at once."""
+        """ACKNACK a stream's messages no later than the first of: the end of the read batch,
+        or anything else the agent sends that client. The ACKNACK is cumulative, so one sent
+        then says what one per message would have said last; and as a client can only react to
+        what it receives, it never waits a round trip for it (a client answering each STATUS at
+        once with its next CREATE kept one batch open across round trips, and its history of 8
+        filled before any ACKNACK came). So at most one per reliable message, as eProsima's agent
+        sends. Without a loop (synchronous use, tests, golden replays) it goes out at once."""
         loop = self.scheduler.loop
         if loop is None:
             self.send_acknack(client, stream)
             return
-        if not self._due:
-            loop.call_soon(self._send_due)
-        self._due[(client.key, stream.stream_id)] = (client, stream)
+        due = self._due
+        if not due:
+            loop.call_soon(self.flush)
+        owed = due.get(client.key)
+        if owed is None or owed[0] is not client:
+            due[client.key] = (client, {stream.stream_id: stream})
+        else:
+            owed[1][stream.stream_id] = stream
 
-    def _send_due(self) -> None:
+    def flush(self) -> None:
+        """Every owed ACKNACK, now (the end of a read batch, or of a hand-over's round)."""
         with self.lock:
-            due, self._due = self._due, {}
-            for client, stream in due.values():
-                if client.alive and self.clients.get(client.key) is client and \
-                        client.in_reliable.get(stream.stream_id) is stream:
-                    try:
-                        self.send_acknack(client, stream)
-                    except Exception:
-                        self.stats.handler_errors += 1
-                        log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
+            for key in list(self._due):
+                owed = self._due.get(key)
+                if owed is not None:
+                    self.settle(owed[0])
+
+    def settle(self, client: ClientProxy) -> None:
+        """The ACKNACKs ``client`` is owed, now (the output calls it first for such a client)."""
+        owed = self._due.pop(client.key, None)
+        if owed is None:
+            return
+        client = owed[0]
+        if not client.alive or self.clients.get(client.key) is not client:
+            return
+        for stream_id, stream in owed[1].items():
+            if client.in_reliable.get(stream_id) is stream:
+                try:
+                    self.send_acknack(client, stream)
+                except Exception:
+                    self.stats.handler_errors += 1
+                    log.debug("ACKNACK to client %s failed", client.key.hex(), exc_info=True)
 
     def send_acknack(self, client: ClientProxy, stream: InputReliableStream) -> None:
         first, bitmap = stream.acknack()

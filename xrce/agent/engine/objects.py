@@ -33,6 +33,8 @@ MAX_DOMAIN_ID = 232  # the highest DDS domain id with the default RTPS port mapp
 DEFAULT_PARTICIPANT_NAME = "MicroXRCEParticipant"
 
 _GROUP_KINDS = (C.OBJK_PUBLISHER, C.OBJK_SUBSCRIBER)
+_ROUTED_KINDS = {C.OBJK_PARTICIPANT: "participant", C.OBJK_TOPIC: "topic",
+                 C.OBJK_DATAWRITER: "datawriter", C.OBJK_DATAREADER: "datareader"}
 _NO_OP_KINDS = (C.OBJK_TYPE, C.OBJK_QOSPROFILE, C.OBJK_APPLICATION)
 _CREATABLE = frozenset(PARENT_KIND) | {C.OBJK_PARTICIPANT}
 _DURABILITY_FLAGS = ((C.QOS_PERSISTENT, "persistent"), (C.QOS_TRANSIENT, "transient"),
@@ -83,7 +85,8 @@ class ObjectRegistry:
                 self._refused(client, request, object_id, C.STATUS_ERR_ALREADY_EXISTS, stream_id)
                 return
             if request.reuse:
-                if reuse.matches(kind, existing.signature, request, self.refs):
+                if reuse.matches(kind, existing, request, self.refs, client.objects,
+                                 self.middleware.routed_name):
                     if log.isEnabledFor(logging.DEBUG):
                         log.debug("%s", words.object_line("reused", client, existing))
                     self.send_status(client, request, C.STATUS_OK_MATCHED, stream_id)
@@ -145,7 +148,15 @@ class ObjectRegistry:
         kind, fmt, rep = request.kind, request.fmt, request.representation
         key = client.entity(entry.object_id)
         mw = self.middleware
-        if kind == C.OBJK_PARTICIPANT:
+        routed = None if fmt == C.REPRESENTATION_IN_BINARY else \
+            mw.routed_name(_ROUTED_KINDS.get(kind, ""), rep)
+        if kind == C.OBJK_PARTICIPANT and mw.routed_name("participant", "") is not None:
+            # A middleware that routes by strings (CED) keeps the domain as sent, 255 too.
+            name = rep.name if fmt == C.REPRESENTATION_IN_BINARY and rep.name else \
+                DEFAULT_PARTICIPANT_NAME
+            entry.info.update(name=name, domain=request.tail_id)
+            mw.create_participant(key, request.tail_id, name)
+        elif kind == C.OBJK_PARTICIPANT:
             domain = request.tail_id
             if fmt == C.REPRESENTATION_IN_BINARY:
                 name = rep.name or DEFAULT_PARTICIPANT_NAME
@@ -169,6 +180,8 @@ class ObjectRegistry:
         elif kind == C.OBJK_TOPIC:
             if fmt == C.REPRESENTATION_IN_BINARY:
                 spec = TopicSpec(rep.topic_name, rep.type_name or rep.type_reference or "")
+            elif routed is not None:
+                spec = TopicSpec(routed, "")
             else:
                 spec = _xml().parse_topic(self._xml_text(request))
             entry.topic_spec = spec
@@ -189,6 +202,11 @@ class ObjectRegistry:
                 if topic not in client.objects:
                     return C.STATUS_ERR_UNKNOWN_REFERENCE
                 qos = _binary_qos(rep.qos, writer)
+            elif routed is not None:
+                topic = self._find_topic(client, entry.parent, routed)
+                if topic is None:
+                    raise MiddlewareError("no topic %r in this participant" % routed)
+                qos = WRITER_DEFAULTS if writer else READER_DEFAULTS
             else:
                 parsed = _xml().parse_endpoint(self._xml_text(request), writer)
                 topic = self._find_topic(client, entry.parent, parsed.topic.name)

@@ -27,6 +27,12 @@ class Output:
         # ("out"), e.g. by a capture file (xrce.agent.observe.capture); None costs one test.
         # ``Agent.tap`` sets it.
         self.tap: Optional[Callable[[str, Any, Hashable, bytes], None]] = None
+        # The clients (by key) whose reliable input owes an ACKNACK, and what sends it
+        # (Acknowledgments, which sets both): anything else sent to such a client goes after its
+        # ACKNACK, so no reply the client reacts to can outrun the acknowledgment its history
+        # waits for.
+        self.owed: dict = {}
+        self.settle: Optional[Callable[[Any], None]] = None
 
     def send_raw(self, link, endpoint: Hashable, message: bytes) -> None:
         stats = self.stats
@@ -39,6 +45,8 @@ class Output:
         link.send(endpoint, message)
 
     def send_client(self, client, message: bytes) -> None:
+        if self.owed and client.key in self.owed:
+            self.settle(client)
         client.messages_out += 1
         client.bytes_out += len(message)
         self.send_raw(client.link, client.endpoint, message)

@@ -156,23 +156,46 @@ def local_ipv4_addresses():
     return addresses
 
 
+def local_ipv6_addresses():
+    """Every IPv6 address of the local interfaces (loopback and link-local ones too, as eProsima's
+    agent lists them), in interface index order; none where the host has IPv6 off."""
+    try:
+        with open("/proc/net/if_inet6") as table:
+            rows = [line.split() for line in table]
+    except OSError:
+        return []
+    addresses = []
+    for row in sorted((r for r in rows if len(r) >= 6), key=lambda r: int(r[1], 16)):
+        address = bytes.fromhex(row[0])
+        if len(address) == 16 and address not in addresses:
+            addresses.append(address)
+    return addresses
+
+
 class DiscoveryServer(Link):
-    """Answers GET_INFO on the discovery port, unicast, with one MEDIUM locator per local IPv4
-    address and the agent's service port (XRCE-WIRE.md §10)."""
+    """Answers GET_INFO on the discovery port, unicast, with a locator per local address of the
+    agent's own family and its service port (XRCE-WIRE.md §10): MEDIUM ones (IPv4) for a udp4 or
+    tcp4 agent, LARGE ones (IPv6) for udp6 or tcp6, as eProsima's agent answers, so a client finds
+    an address it can reach the agent at. The requests come on IPv4 (eProsima's clients discover
+    over IPv4 only, multicast group 239.255.0.2); an IPv6 agent also takes them on IPv6, unicast,
+    on the same port."""
 
     name = "discovery"
 
     def __init__(self, agent_port, port=DISCOVERY_PORT, *, host="0.0.0.0",
-                 group=DISCOVERY_MULTICAST_GROUP):
+                 group=DISCOVERY_MULTICAST_GROUP, family=socket.AF_INET):
         super().__init__(receiver=None)
         self.agent_port = agent_port
         self.requested_port = port
         self.port = None
         self.host = host
         self.group = group
+        # The agent link's family: the locators' (a link without one, IPv4).
+        self.family = socket.AF_INET6 if family == socket.AF_INET6 else socket.AF_INET
         self.joined_group = False
-        self._transport = None
+        self._transports = []
         self._sock = None
+        self._sock6 = None
 
     async def start(self):
         loop = asyncio.get_running_loop()
@@ -186,18 +209,44 @@ class DiscoveryServer(Link):
             log.warning("discovery: cannot join multicast group %s (%s); unicast only",
                         self.group, exc)
         self.port = sock.getsockname()[1]
-        self._transport, _ = await loop.create_datagram_endpoint(
-            lambda: _DatagramHandler(self._on_datagram), sock=sock)
+        transport, _ = await loop.create_datagram_endpoint(
+            lambda: _DatagramHandler(lambda data, addr: self._on_datagram(data, addr, sock)),
+            sock=sock)
+        self._transports.append(transport)
         self._sock = sock
+        if self.family == socket.AF_INET6:
+            sock6 = self._open_ipv6()
+            if sock6 is not None:
+                transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _DatagramHandler(lambda data, addr: self._on_datagram(data, addr, sock6)),
+                    sock=sock6)
+                self._transports.append(transport)
+                self._sock6 = sock6
+
+    def _open_ipv6(self):
+        sock = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)  # IPv4 has its own socket
+            sock.bind(("::", self.port))
+            sock.setblocking(False)
+        except OSError as exc:
+            sock.close()
+            log.info("discovery: no IPv6 socket on port %d (%s); IPv4 only", self.port, exc)
+            return None
+        return sock
 
     def describe(self):
         return "discovery on port %d" % self.port
 
     def info_locators(self):
+        if self.family == socket.AF_INET6:
+            return [Locator(C.LOCATOR_LARGE, address, self.agent_port)
+                    for address in local_ipv6_addresses()]
         return [Locator(C.LOCATOR_MEDIUM, address, self.agent_port)
                 for address in local_ipv4_addresses()]
 
-    def _on_datagram(self, data, addr):
+    def _on_datagram(self, data, addr, sock=None):
         self.stats.bytes_in += len(data)
         self.stats.messages_in += 1
         try:
@@ -216,17 +265,20 @@ class DiscoveryServer(Link):
             return
         request = payloads[0]
         info = Info(request.request_id, request.object_id, locators=self.info_locators())
-        self.send(addr, encode_message(header.session_id, 0, 0, header.key, [info]))
+        _send_datagram(self, sock or self._sock, addr,
+                       encode_message(header.session_id, 0, 0, header.key, [info]))
 
     def send(self, endpoint, data):
-        return _send_datagram(self, self._sock, endpoint, data)
+        sock = self._sock6 if len(endpoint) == 4 and self._sock6 is not None else self._sock
+        return _send_datagram(self, sock, endpoint, data)
 
     async def close(self):
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
-            self._sock = None
+        for transport in self._transports:
+            transport.close()
+        self._transports = []
+        self._sock = self._sock6 = None
 
 
 
-__all__ = ["UdpServer", "DiscoveryServer", "local_ipv4_addresses", "DISCOVERY_PORT"]
+__all__ = ["UdpServer", "DiscoveryServer", "local_ipv4_addresses", "local_ipv6_addresses",
+           "DISCOVERY_PORT"]

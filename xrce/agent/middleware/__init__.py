@@ -139,6 +139,14 @@ class Middleware:
         """Delete one entity. The engine deletes children before parents."""
         raise NotImplementedError
 
+    def routed_name(self, kind: str, text: str) -> Optional[str]:
+        """What an XML or reference representation of ``kind`` (``participant``, ``topic``,
+        ``datawriter``, ``datareader``) names, for a middleware that routes by the string itself
+        (CED, as eProsima's: a participant's string names nothing, ``""``; a topic's string is its
+        name, an endpoint's the name of its topic). None, the default: the engine reads the string
+        as Fast DDS XML, a reference through the ``-r`` profiles."""
+        return None
+
     def ros_entity(self, key: EntityKey) -> Optional[str]:
         """What the entity became outside the agent, in a user's words (``node /talker``,
         ``publisher /chatter of node /talker``), for logs and stats; None where nothing."""

@@ -1,5 +1,12 @@
 """CED middleware: the agent routes samples between its own clients, with no DDS behind it.
 
+As eProsima's CED, it routes by names only: a topic created by XML or by reference is named by that
+string itself (a reference's ``__t`` suffix dropped), a datawriter's or datareader's string names its
+topic in the same participant (``__dw``, ``__dr`` dropped), a participant's string is ignored and its
+domain is the number the client sent (255 included), and an XML or reference string gives no QoS
+(the endpoint has Fast DDS' defaults). REUSE compares those names (and a participant's domain),
+whatever representation each came in; groups always match.
+
 A sample written by a datawriter reaches every datareader of the same topic name whose participant
 is in the same domain, whichever client owns it. Requests go from a requester to every replier of
 the same service in the same domain; a reply finds its way back through the SampleIdentity the
@@ -65,8 +72,20 @@ def _service_key(name: str) -> str:
     return name.lstrip("/")
 
 
+# eProsima's CED reads no XML: a representation's string, up to the suffix its references carry
+# (``chatter__t`` the topic, ``chatter__dw`` a writer of it, ``chatter__dr`` a reader), is the name.
+_NAME_SUFFIXES = {"topic": "__t", "datawriter": "__dw", "datareader": "__dr"}
+
+
 class CedMiddleware(Middleware):
     name = "ced"
+
+    def routed_name(self, kind: str, text: str) -> Optional[str]:
+        suffix = _NAME_SUFFIXES.get(kind)
+        if suffix is None:
+            return ""  # a participant's string: eProsima's CED keeps only the domain
+        end = text.find(suffix)
+        return text if end < 0 else text[:end]
 
     def __init__(self) -> None:
         self.participants: Dict[EntityKey, int] = {}

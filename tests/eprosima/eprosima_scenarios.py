@@ -1,0 +1,79 @@
+"""The exchanges tests/eprosima/ drives eProsima's client through, and that record_eprosima.py captured
+between eProsima's client and eProsima's agent into tests/golden/eprosima/.
+
+Each creation scenario is a script for programs/script.c (its docstring: one CREATE a line); each
+discovery scenario names the agent's transport. What eProsima's agent answered each line (its
+STATUS codes, as the program printed them) is in the recording's first line; the live tests hold
+our agent to it.
+"""
+
+PARTICIPANT_XML = "<dds><participant><rtps><name>default_xrce_participant</name></rtps></participant></dds>"
+TOPIC_XML = "<dds><topic><name>HelloWorldTopic</name><dataType>HelloWorld</dataType></topic></dds>"
+WRITER_XML = ("<dds><data_writer><topic><kind>NO_KEY</kind><name>HelloWorldTopic</name>"
+              "<dataType>HelloWorld</dataType></topic></data_writer></dds>")
+READER_XML = ("<dds><data_reader><topic><kind>NO_KEY</kind><name>HelloWorldTopic</name>"
+              "<dataType>HelloWorld</dataType></topic></data_reader></dds>")
+
+# CED by XML and by reference, as eProsima's examples send them (PublishHelloWorld and its
+# profiles): the participant's strings mean nothing to CED, a topic's string is its name, an
+# endpoint's string names its topic.
+CED_XML_REF = [
+    "participant xml 1 0 create " + PARTICIPANT_XML,
+    "participant ref 2 0 create participant",
+    "participant xml 3 0 create <dds><participant",
+    "topic ref 1 1 create helloworld_topic__t",
+    "topic xml 2 1 create " + TOPIC_XML,
+    "publisher xml 1 1 create",
+    "subscriber xml 1 1 create",
+    "datawriter ref 1 1 create helloworld_topic__dw",
+    "datareader ref 1 1 create helloworld_topic__dr",
+    "datawriter xml 2 1 create " + WRITER_XML,
+    "datareader xml 2 1 create " + READER_XML,
+    "datawriter xml 3 1 create " + TOPIC_XML,
+    "datawriter ref 4 1 create no_such_topic__dw",
+]
+
+# REUSE and REPLACE, each comparison eProsima's CED makes.
+CED_REUSE_REPLACE = [
+    "participant xml 1 0 create " + PARTICIPANT_XML,
+    "participant ref 1 0 create participant",
+    "participant ref 1 0 reuse other_participant",
+    "participant ref 1 1 reuse participant",
+    "participant ref 1 0 reuse+replace anything",
+    "topic ref 1 1 create chatter__t",
+    "topic ref 1 1 reuse chatter__t",
+    "topic xml 1 1 reuse chatter",
+    "topic ref 1 1 reuse other__t",
+    "topic ref 1 1 reuse+replace chatter__t",
+    "topic ref 1 1 replace chatter__t",
+    "topic ref 2 1 create other__t",
+    "publisher xml 1 1 create",
+    "publisher xml 1 1 reuse <dds><publisher/></dds>",
+    "publisher xml 1 1 create",
+    "datawriter ref 1 1 create chatter__dw",
+    "datawriter ref 1 1 reuse chatter__dw",
+    "datawriter xml 1 1 reuse chatter",
+    "datawriter ref 1 1 reuse other__dw",
+    "datawriter ref 1 1 reuse+replace other__dw",
+    "datawriter ref 1 1 reuse chatter__dw",
+    "datawriter ref 1 1 reuse+replace missing__dw",
+    "datawriter ref 1 1 replace chatter__dw",
+]
+
+# Nine and more reliable creations back to back: each next CREATE the moment its STATUS comes.
+BACK_TO_BACK = ["participant ref 1 0 create participant"] + [
+    "topic ref %d 1 create topic%d__t" % (n, n) for n in range(1, 15)]
+# And sixteen buffered at once, with a history of 8: the client waits for room as its ACKNACKs
+# come, never for an answer.
+BATCH = ["participant ref 1 0 create participant", "batch 8"] + [
+    "topic ref %d 1 create topic%d__t" % (n, n) for n in range(1, 9)]
+
+CREATIONS = {
+    "ced_xml_ref_udp4": ("udp4", CED_XML_REF),
+    "ced_xml_ref_udp6": ("udp6", CED_XML_REF),
+    "ced_reuse_replace_udp4": ("udp4", CED_REUSE_REPLACE),
+    "back_to_back_udp4": ("udp4", BACK_TO_BACK),
+    "back_to_back_udp6": ("udp6", BACK_TO_BACK),
+    "batch_udp4": ("udp4", BATCH),
+}
+DISCOVERY = {"discovery_udp4": "udp4", "discovery_udp6": "udp6"}
