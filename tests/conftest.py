@@ -26,6 +26,9 @@ def pytest_configure(config):
         # /tmp/pytest-of-USER/pytest-N: its "remove when done" (retention "none") takes no lock, so
         # any other pytest run ending meanwhile on the machine deleted this run's tmp_path trees.
         config.option.basetemp = _run["basetemp"] = tempfile.mkdtemp(prefix="xrce-tests-")
+    # Every agent a test starts keeps its state store (issue 51) under this run's base, not in
+    # the user's ~/.local/state: nothing of one run's sessions is restored into another's agent.
+    os.environ["XDG_STATE_HOME"] = os.path.join(str(config.option.basetemp), "xdg-state")
     # One clean-up of /dev/shm per run, the controller's once its workers are gone: a worker's at
     # its own end would probe the lock files of the other worker's live participants (hygiene.py
     # takes a lock to see whether anyone holds it), and a Fast DDS process opening one right then

@@ -26,6 +26,9 @@ def restore_default_signals():
         signal.signal(signum, signal.SIG_DFL)
 
 
+_TRANSPORTS = ("udp4", "udp6", "tcp4", "tcp6", "serial", "multiserial", "pseudoterminal")
+
+
 def _is_banner(line):
     return line.startswith("xrce-agent:") and ("agent on port" in line or "pseudoterminal at" in line
                                                or "serial" in line)
@@ -39,6 +42,11 @@ class AgentProcess:
         self.args = list(args)
         if self.args and self.args[0] in ("udp4", "udp6", "tcp4", "tcp6") and "-p" not in self.args:
             self.args += ["-p", "0"]
+        if self.args and self.args[0] in _TRANSPORTS and "--state" not in self.args and \
+                "--no-state" not in self.args:
+            # A test's agent keeps no state unless the test gives it a file of its own: nothing
+            # of one test's sessions may be restored into another's agent.
+            self.args.append("--no-state")
         self.env = dict(os.environ, **(env or {}))
         self.start_timeout = start_timeout
         self.cwd = cwd  # the checkout's xrce is importable from there; an installed one elsewhere

@@ -142,9 +142,20 @@ async def serve(args, refs):
     run_task = None
     observe = None
     try:
+        state = open_state(args, agent, links)
+    except CliError as exc:
+        sys.stderr.write("%s: error: %s\n" % (PROG, exc))
+        sys.stderr.flush()
+        return 1
+    try:
         # The middleware joins no ROS domain at start: each is joined with its first client
         # participant (xrce.agent.middleware.ros.membership).
         await agent.start()
+        if state is not None:
+            # Before any link opens: a board's first message finds its session restored.
+            agent.state = state
+            state.start(loop)
+            await state.restore()
         run_task = asyncio.ensure_future(agent.run())
         try:
             for link in links:
@@ -194,6 +205,30 @@ async def serve(args, refs):
             await link.close()
         for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
             loop.remove_signal_handler(signum)
+
+
+def open_state(args, agent, links):
+    """The state store's recorder for ``args`` (None with --no-state); CliError when its file
+    cannot be opened at all (an unreadable one is moved aside and started clean)."""
+    from xrce.agent.cli.transports import state_path
+
+    path = state_path(args)
+    if path is None:
+        say = logging.getLogger("xrce.agent.state")
+        (say.debug if getattr(args, "no_state", False) else say.info)(
+            "no state store (%s): a restarted agent will not know this one's sessions",
+            "--no-state" if getattr(args, "no_state", False) else "no port or device to key "
+            "a default by; --state FILE")
+        return None
+    from xrce.agent.state.recorder import StateRecorder
+    from xrce.agent.state.store import StateStore, StoreError
+
+    try:
+        store = StateStore(path)
+    except StoreError as exc:
+        raise CliError("%s (--state FILE elsewhere, or --no-state)" % exc)
+    logging.getLogger("xrce.agent.state").debug("state store %s", path)
+    return StateRecorder(store, agent, links)
 
 
 def _open_error(args, links, started, exc):

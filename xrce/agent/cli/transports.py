@@ -74,6 +74,19 @@ def _add_admission_options(parser):
                             "(udp4/udp6/tcp4/tcp6)")
 
 
+def _add_state_options(parser):
+    group = parser.add_argument_group("state that outlives the agent (docs/RECOVERY.md)")
+    choice = group.add_mutually_exclusive_group()
+    choice.add_argument("--state", metavar="FILE",
+                        help="keep what clients told the agent (sessions, entities, standing "
+                             "READ_DATAs) in this SQLite file, so that a restarted agent resumes "
+                             "boards that never re-create their session (default: "
+                             "$XDG_STATE_HOME/xrce/TRANSPORT-PORT.sqlite3, one per transport and "
+                             "port or device; none for -p 0 or a pseudoterminal)")
+    choice.add_argument("--no-state", action="store_true",
+                        help="keep nothing: a restarted agent knows no session")
+
+
 def add_common_options(parser):
     from xrce.agent.observe import observability
 
@@ -81,6 +94,7 @@ def add_common_options(parser):
                         help="log level 0 (off) .. 4 (info, default) .. 5 (debug) .. 6 (trace)")
     _add_session_options(parser)
     _add_admission_options(parser)
+    _add_state_options(parser)
     parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
                         help="dds: ROS 2 through rclpy (default); ced: route between clients only")
     from xrce.agent.middleware.ros import DOMAIN_LINGER_S, REQUEST_TIMEOUT_S  # no rclpy behind
@@ -185,6 +199,31 @@ def multiserial_links(args, agent):
 def pty_links(args, agent):
     from xrce.agent.links import serial
     return [serial.PseudoterminalServer(agent, symlink=args.dev, crc=args.crc)]
+
+
+def state_path(args):
+    """The state store's file for ``args``: --state, else the default for the transport and
+    its port or device; None with --no-state, and where nothing lasts across a restart to key a
+    default by (a free port, -p 0, or a pseudoterminal made anew at each start)."""
+    if getattr(args, "no_state", False):
+        return None
+    if getattr(args, "state", None):
+        return args.state
+    from xrce.agent.state.store import default_directory, default_name
+    import os
+
+    subcommand = args.subcommand
+    if subcommand in IP_SUBCOMMANDS:
+        if not args.port:
+            return None
+        where = str(args.port)
+    elif subcommand == "serial":
+        where = args.dev
+    elif subcommand == "multiserial":
+        where = "+".join(args.devs.split())
+    else:
+        return None
+    return os.path.join(default_directory(), default_name(subcommand, where))
 
 
 # (name, help, add_options, make_links) of every transport, in the order --help lists them.

@@ -57,20 +57,29 @@ from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
     MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
-    ClientProxy, ClientTable, Link, MemoryBudget, Sessions,
+    ClientProxy, ClientTable, Link, MemoryBudget, ResumingStream, Sessions,
 )
-from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines
+from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
 from xrce.agent.middleware import Middleware
 from xrce import DecodeError
 from xrce.wire.message import decode_header, header_size, iter_submessages
 from xrce.wire.streams import InputBestEffortStream, InputReliableStream, is_reliable, seq_sub
-from xrce.wire.submessages import TimestampReply, decode_payload, encode_message, sample_ids, Status
+from xrce.wire.submessages import (
+    Heartbeat, TimestampReply, decode_payload, encode_message, sample_ids, Status,
+)
 
 log = logging.getLogger("xrce.agent")
 
 # Messages a parked client may queue while its type builds. Beyond, its reliable streams stop
 # advancing (the client retransmits: nothing acknowledged is lost); best-effort ones are dropped.
 MAX_PARKED_MESSAGES = 512
+
+# Traffic of sessions the agent does not know: one line per source per this many seconds, and
+# at most UNKNOWN_LOG_BURST lines per UNKNOWN_LOG_PERIOD_S in all (a spoofed flood's sources).
+UNKNOWN_SOURCE_LOG_S = 60.0
+UNKNOWN_LOG_BURST = 5
+UNKNOWN_LOG_PERIOD_S = 10.0
+MAX_UNKNOWN_SOURCES = 1024
 
 _HANDLED = frozenset((C.CREATE, C.DELETE, C.READ_DATA, C.ACKNACK, C.HEARTBEAT, C.GET_INFO,
                       C.TIMESTAMP, C.RESET))
@@ -159,6 +168,10 @@ class Agent:
         self._charge = budget.charge
         self._tap = None  # Output.tap, mirrored: see ``tap``
         self._admission = None  # Sessions.admission, mirrored: see ``admission``
+        self._state = None  # Sessions.state, mirrored: see ``state``
+        self.unknown_log = RefusalLog(log, "lines about unknown sessions", lambda: self._clock(),
+                                      burst=UNKNOWN_LOG_BURST, period=UNKNOWN_LOG_PERIOD_S)
+        self._unknown_logged: Dict[Any, float] = {}  # source -> when its line was logged
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # A CREATE was handled in this turn of the loop: the client's next submessage waits for
         # the next turn (see _process_message).
@@ -195,6 +208,16 @@ class Agent:
     @admission.setter
     def admission(self, admission) -> None:
         self._admission = self.sessions.admission = admission
+
+    @property
+    def state(self):
+        """The state store's recorder (xrce.agent.state.recorder), told of every control-plane
+        change; None: nothing outlives the process."""
+        return self._state
+
+    @state.setter
+    def state(self, state) -> None:
+        self._state = self.sessions.state = state
 
     @property
     def refs(self) -> Dict[str, str]:
@@ -388,6 +411,11 @@ class Agent:
     async def close(self) -> None:
         self.scheduler.cancel()
         with self.lock:
+            # The store first, and let go of: closing deletes every client here, which must
+            # not delete them from the store (a restarted agent restores them).
+            state, self.state = self._state, None
+            if state is not None:
+                state.close()
             for client in list(self.clients.values()):
                 self.sessions.delete_client(client)
             # The counts of refusals not logged since their last line
@@ -415,6 +443,8 @@ class Agent:
         if client is None:
             self._receive_unknown_client(link, endpoint, data, header)
             return
+        if client.restored and not client.spoken:
+            self._restored_spoke(client, link, endpoint)
         client.last_seen = self._clock()
         client.probes = 0
         if client.dead:
@@ -433,6 +463,8 @@ class Agent:
             stream = client.in_best_effort.get(stream_id)
             if stream is None:
                 stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
+                if client.resume_inputs:  # restored: the board's numbers go on from where they are
+                    stream.last_handled = (header.seq - 1) & 0xFFFF
             if stream.accept(header.seq):
                 self._process_message(client, data, header.size, stream_id)
             else:
@@ -442,6 +474,11 @@ class Agent:
         stream = client.in_reliable.get(stream_id)
         if stream is None:
             stream = client.in_reliable[stream_id] = InputReliableStream(stream_id, STREAM_WINDOW)
+            if client.resume_inputs:
+                # Restored: this process never saw the board's earlier numbers, and an ACKNACK
+                # behind what the board has had acknowledged would make it count the whole
+                # sequence space as acknowledged. Its first message here is the next one.
+                stream.last_handled = stream.last_announced = (seq - 1) & 0xFFFF
         if self._hold_back(client, stream, seq, data):
             # Not accepted, so not acknowledged: the client sends it again after its next
             # HEARTBEAT, and nothing the agent acknowledged is ever dropped. No ACKNACK now: one
@@ -498,7 +535,8 @@ class Agent:
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             payload = decode_payload(sub_id, flags, data, start, end)
             if sub_id == C.CREATE_CLIENT:
-                self.sessions.create_client(link, endpoint, header, payload)
+                self.sessions.create_client(link, endpoint, header, payload,
+                                            (flags, data, start, end))
             elif sub_id == C.GET_INFO:
                 key = self.endpoints.get((link, endpoint))
                 established = key is not None and key in self.clients and \
@@ -514,6 +552,7 @@ class Agent:
         are spoofable, and answering each of a datagram's submessages made the agent a
         reflector (5000 replies, 2-4x the bytes, for one 60 KB datagram)."""
         self.timelines.unknown_traffic(link, endpoint, header)
+        self._log_unknown_session(link, endpoint, header)
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             if sub_id == C.DELETE:
                 payload = decode_payload(sub_id, flags, data, start, end)
@@ -602,11 +641,24 @@ class Agent:
             else:
                 self.objects.delete(client, payload, stream_id)
             self.budget.queued_total -= queued - client.queued_bytes
+            if self._state is not None and client.alive:
+                self._state.objects_changed(client, sub_id, flags, data, start, end, payload)
         elif sub_id == C.READ_DATA:
             self.datapath.read_data(client, payload)
+            if self._state is not None:
+                self._state.read_data(client, flags, data, start, end, payload)
         elif sub_id == C.ACKNACK:
+            if client.resuming:
+                self._resume_output(client, payload)
             self.liveliness.on_acknack(client, payload)
         elif sub_id == C.HEARTBEAT:
+            if client.resume_inputs and is_reliable(payload.stream_id) and \
+                    payload.stream_id not in client.in_reliable:
+                # Restored: what the board still holds unacknowledged starts at first_unacked
+                # (see _receive_reliable for why the stream cannot start anywhere else).
+                stream = client.in_reliable[payload.stream_id] = InputReliableStream(
+                    payload.stream_id, STREAM_WINDOW)
+                stream.last_handled = stream.last_announced = (payload.first_unacked - 1) & 0xFFFF
             self.acks.on_heartbeat(client, payload)
         elif sub_id == C.GET_INFO:
             self.output.send_client(client, self.sessions.info_message(
@@ -619,6 +671,63 @@ class Agent:
         elif sub_id == C.RESET:
             self.sessions.reset_streams(client)
         return True
+
+    # ------------------------------------------------------------------ restored sessions --
+
+    def _restored_spoke(self, client: ClientProxy, link: Link, endpoint: Hashable) -> None:
+        """The first message of a client restored from the state store: its session carries
+        on. A session with its key in its headers may speak from another port now."""
+        client.spoken = True
+        if client.header_key is not None and (link, endpoint) != (client.link, client.endpoint):
+            client.link, client.endpoint = link, endpoint
+            if self._state is not None:
+                self._state.client_moved(client)
+        now = self._clock()
+        log.info("client %s (restored from the store) spoke on %s %r: its session carries on "
+                 "without a CREATE_CLIENT", client.key.hex(), link.name, endpoint)
+        self.timelines.pending[client.key] = Timeline(client.key, "restored from the store",
+                                                      now, now)
+        for stream in list(client.out_reliable.values()):
+            if stream.__class__ is ResumingStream:  # ask now rather than at the next tick
+                span = stream.heartbeat()
+                self.stats.heartbeats_out += 1
+                self.output.send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
+        self.scheduler.wake_at(now + self.scheduler.heartbeat_period)
+
+    def _resume_output(self, client: ClientProxy, acknack) -> None:
+        """The board's ACKNACK says where a restored reliable output stream goes on
+        (``ResumingStream``): a plain stream takes its place there; once none is left, the
+        client is like any other (the compiled path may take it)."""
+        stream = client.out_reliable.get(acknack.stream_id)
+        if stream.__class__ is ResumingStream:
+            client.out_reliable[acknack.stream_id] = ResumingStream.resumed_at(
+                acknack.stream_id, STREAM_WINDOW, acknack.first_unacked)
+            log.debug("client %s: output stream 0x%02X resumes at %d", client.key.hex(),
+                      acknack.stream_id, acknack.first_unacked)
+        client.resuming = any(s.__class__ is ResumingStream for s in client.out_reliable.values())
+
+    def _log_unknown_session(self, link: Link, endpoint: Hashable, header) -> None:
+        """One line per source and minute: a board that kept its session while this agent
+        restarted without its state goes quiet otherwise, with nothing in the log saying why."""
+        keyed = header.session_id < C.SESSION_ID_WITHOUT_KEY_MASK
+        source = (header.key if keyed else None, link, endpoint)
+        now = self._clock()
+        last = self._unknown_logged.get(source)
+        if last is not None and now - last < UNKNOWN_SOURCE_LOG_S:
+            return
+        if len(self._unknown_logged) >= MAX_UNKNOWN_SOURCES:
+            self._unknown_logged.clear()
+        self._unknown_logged[source] = now
+        from xrce.agent.observe.names import endpoint_text
+
+        who = "client key %s" % bytes(header.key).hex() if keyed else \
+            "no client key in its headers (session 0x%02X)" % header.session_id
+        self.unknown_log.warning(
+            "traffic for session 0x%02X from %s %s (%s) that this agent does not know: the "
+            "board kept its session while the agent restarted without its state. Reset the "
+            "board, or run the agent with its state store (on unless --no-state; --state FILE) "
+            "so that a restarted agent resumes the session", header.session_id, link.name,
+            endpoint_text(getattr(endpoint, "peer", endpoint)), who)
 
     def _delete_session(self, client: ClientProxy, request) -> None:
         """DELETE of the client itself: the session and everything it created go; the STATUS

@@ -261,7 +261,7 @@ class FastPath:
     def _eligible(self, client) -> bool:
         agent = self.agent
         return client.alive and not client.dead and client.parked is None and \
-            client.link is self.link and not (agent.timelines.pending and
+            not client.resuming and client.link is self.link and not (agent.timelines.pending and
                                               client.key in agent.timelines.pending)
 
     def _compiled(self, client, what: str) -> Optional[CompiledClient]:

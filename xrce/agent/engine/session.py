@@ -209,6 +209,15 @@ class ClientProxy:
         self.heartbeat_sent_at: Optional[float] = None
         self.rtt_s: Optional[float] = None
         self.timestamp_skew_ns: Optional[int] = None
+        # Restored from the state store by a restarted agent (xrce.agent.state.recorder): the
+        # board does not know the agent went away. ``spoken``: it has sent something since.
+        # ``resume_inputs``: its input streams start where the board's first message or
+        # HEARTBEAT says (until its next CREATE_CLIENT). ``resuming``: its reliable output
+        # streams still wait for the board's ACKNACK to say where they are (ResumingStream).
+        self.restored = False
+        self.spoken = False
+        self.resume_inputs = False
+        self.resuming = False
 
     def entity(self, object_id: int) -> EntityKey:
         return (self.key_int, object_id)
@@ -238,6 +247,53 @@ class ClientProxy:
             sum(len(b) for b in self.reassembly.values()) + \
             sum(len(m) for q in self.out_pending.values() for m in q)
 
+
+
+class ResumingStream(OutputReliableStream):
+    """A restored client's reliable output stream until the board says where it is.
+
+    The board's input stream expects the sequence number after the last one the previous agent
+    process sent, which this process cannot know (it is not stored per sample). eProsima's client
+    ignores a HEARTBEAT's first sequence number, and answers every HEARTBEAT with an ACKNACK whose
+    first unacknowledged number is exactly that one. So until that ACKNACK arrives this stream
+    sends nothing (its window is "full": samples wait in their readers' queues, replies in
+    ``out_pending``) and asks with ``heartbeat``; ``Agent`` then puts a plain stream starting
+    there in its place (``resumed_at``).
+
+    The HEARTBEAT names ``last`` (the number stored at the last checkpoint) as its last
+    unacknowledged one, never one ahead of the board's: a board raises what it was announced to
+    that, and would then count as missing every number up to it."""
+
+    __slots__ = ()
+
+    def __init__(self, stream_id: int, history: int, last: int):
+        super().__init__(stream_id, history)
+        self.last_sent = self.last_acknowledged = last & 0xFFFF
+
+    def has_room(self):
+        return False
+
+    def next_seq(self):
+        return None
+
+    def heartbeat(self):
+        return (self.last_sent + 1) & 0xFFFF, self.last_sent
+
+    def on_acknack(self, first_unacked, nack_bitmap, now_ms=0, holdoff_ms=0, session=None):
+        return ()
+
+    def release(self) -> int:  # (the compiled streams' interface: nothing is held here)
+        return 0
+
+    def hold(self, held: bool) -> None:
+        pass
+
+    @staticmethod
+    def resumed_at(stream_id: int, history: int, first_unacked: int) -> OutputReliableStream:
+        """The plain stream that carries on from the board's ``first_unacked``."""
+        stream = OutputReliableStream(stream_id, history)
+        stream.last_sent = stream.last_acknowledged = (first_unacked - 1) & 0xFFFF
+        return stream
 
 
 class ClientTable:
@@ -313,6 +369,9 @@ class Sessions:
         self.client_expire_time = client_expire_time
         self.heartbeat_period = heartbeat_period
         self.admission = None
+        # The state store's recorder (xrce.agent.state.recorder), None without one: told of
+        # every session established and deleted. Set by the agent.
+        self.state = None
         self._info_cache: Dict[tuple, bytes] = {}  # see info_message
 
     def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
@@ -334,7 +393,9 @@ class Sessions:
         if key is not None and key not in self.clients:
             log.debug("endpoint %s %r was mapped to unknown client %s", link.name, endpoint, key.hex())
 
-    def create_client(self, link: Link, endpoint: Hashable, header, request) -> None:
+    def create_client(self, link: Link, endpoint: Hashable, header, request,
+                      raw: Optional[tuple] = None) -> None:
+        """``raw``: (flags, message, start, end) of the CREATE_CLIENT, for the state store."""
         session_id = request.session_id
         reply_key = bytes(request.client_key) if session_id < C.SESSION_ID_WITHOUT_KEY_MASK else None
         status = C.STATUS_OK
@@ -348,11 +409,12 @@ class Sessions:
         elif not self._room_for_client(bytes(request.client_key), link, endpoint, session_id):
             status = C.STATUS_ERR_RESOURCES
         if status == C.STATUS_OK:
-            self._establish(link, endpoint, request)
+            self._establish(link, endpoint, request, raw)
         self.output.send_raw(link, endpoint, encode_message(session_id, C.STREAM_NONE, 0, reply_key,
                                                             [StatusAgent(status)]))
 
-    def _establish(self, link: Link, endpoint: Hashable, request) -> None:
+    def _establish(self, link: Link, endpoint: Hashable, request, raw: Optional[tuple] = None
+                   ) -> None:
         key = bytes(request.client_key)
         session_id = request.session_id
         now = self.clock()
@@ -396,8 +458,13 @@ class Sessions:
             self._join_host(client, host, now)
         if session_id >= C.SESSION_ID_WITHOUT_KEY_MASK:
             self.endpoints[(link, endpoint)] = key
+        # A CREATE_CLIENT says where the board's streams are (at their start): a restored
+        # session stops guessing (xrce.agent.state.recorder).
+        client.resume_inputs = client.resuming = False
         self.scheduler.wake_at(now + self.quiet_limit(client))
         self.timelines.established(client, restarted)
+        if self.state is not None and raw is not None:
+            self.state.client_established(client, *raw, restarted)
 
     def _join_host(self, client: ClientProxy, host: Hashable, born: Optional[float]) -> None:
         """Count ``client`` among ``host``'s; ``born``: it is a new client there (not a restart),
@@ -529,6 +596,8 @@ class Sessions:
             del self.clients[client.key]
             self._leave_host(client)
         self.stats.clients_deleted += 1
+        if self.state is not None:
+            self.state.client_deleted(client)
         if self.timelines.pending:
             self.timelines.forget(client)
         log.info("client %s deleted", client.key.hex())
