@@ -18,14 +18,9 @@ the loaded library, no C++ compiler (``$CXX`` or ``c++``).
 from __future__ import annotations
 
 import binascii
-import concurrent.futures
-import importlib.machinery
-import importlib.util
 import logging
 import os
-import subprocess
 import sys
-import sysconfig
 import threading
 
 from xrce.agent.middleware import MiddlewareError, TypeNotReady
@@ -38,7 +33,9 @@ COMPILE_TIMEOUT_S = 300
 _FASTDDS_LIBRARIES = ("libfastrtps.so.", "libfastdds.so.")
 
 _lock = threading.Lock()
-_future: concurrent.futures.Future | None = None
+# The build's (or load's) concurrent.futures.Future, once asked for. The modules that build and
+# load it are imported then: an agent without plain DDS topics never loads them.
+_future = None
 
 
 class BridgeUnavailable(MiddlewareError):
@@ -67,6 +64,9 @@ def cache_root() -> str:
 
 def _plan():
     """What to compile with: (output path, compiler command), or raise BridgeUnavailable."""
+    import importlib.machinery
+    import sysconfig
+
     found = loaded_fastdds()
     if found is None:
         raise BridgeUnavailable("plain DDS topics need Fast DDS (the rmw_fastrtps_cpp RMW); "
@@ -98,6 +98,8 @@ def _plan():
 
 
 def _compile(output: str, command: list) -> None:
+    import subprocess
+
     os.makedirs(os.path.dirname(output), exist_ok=True)
     partial = "%s.%d.tmp" % (output, os.getpid())
     try:
@@ -120,6 +122,9 @@ def _compile(output: str, command: list) -> None:
 
 
 def _load(output: str):
+    import importlib.machinery
+    import importlib.util
+
     loader = importlib.machinery.ExtensionFileLoader(MODULE, output)
     spec = importlib.util.spec_from_file_location(MODULE, output, loader=loader)
     module = importlib.util.module_from_spec(spec)
@@ -147,6 +152,8 @@ def bridge():
     with _lock:
         future = _future
         if future is None:
+            import concurrent.futures
+
             future = _future = concurrent.futures.Future()
             try:
                 output, command = _plan()
@@ -166,7 +173,7 @@ def bridge():
     return future.result()
 
 
-def _run(future: concurrent.futures.Future, output: str, command: list) -> None:
+def _run(future, output: str, command: list) -> None:
     if not future.set_running_or_notify_cancel():
         return
     try:
