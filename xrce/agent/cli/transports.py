@@ -7,7 +7,9 @@ serial link modules are imported only by the subcommands that serve them.
 
 from __future__ import annotations
 
+import argparse
 import socket
+import sys
 
 from xrce.agent import links
 from xrce.agent.cli.arguments import (allow_list, baudrate, milliseconds, port, positive,
@@ -87,6 +89,20 @@ def _add_state_options(parser):
                         help="keep nothing: a restarted agent knows no session")
 
 
+class _MiddlewareAction(argparse.Action):
+    """``-m rtps`` is served as ``-m dds``, with one line saying so. eProsima's agent puts a
+    client's entities on Fast DDS's RTPS layer for rtps and on its DDS layer for dds; peers on
+    the network see the same RTPS writers and readers either way, and this agent has one Fast
+    DDS path (the ROS 2 one, and plain DDS topics beside it)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if values == "rtps":
+            sys.stderr.write("%s: -m rtps is served as -m dds (the same DDS entities on the "
+                             "network as eProsima's RTPS-layer middleware)\n" % parser.prog)
+            values = "dds"
+        setattr(namespace, self.dest, values)
+
+
 def add_common_options(parser):
     from xrce.agent.observe import observability
 
@@ -95,8 +111,10 @@ def add_common_options(parser):
     _add_session_options(parser)
     _add_admission_options(parser)
     _add_state_options(parser)
-    parser.add_argument("-m", "--middleware", choices=("dds", "ced"), default="dds",
-                        help="dds: ROS 2 through rclpy (default); ced: route between clients only")
+    parser.add_argument("-m", "--middleware", choices=("dds", "rtps", "ced"), default="dds",
+                        action=_MiddlewareAction,
+                        help="dds: ROS 2 through rclpy, other types as plain DDS topics "
+                             "(default); rtps: the same as dds; ced: route between clients only")
     from xrce.agent.middleware.ros import DOMAIN_LINGER_S, REQUEST_TIMEOUT_S  # no rclpy behind
 
     parser.add_argument("--domain-linger", type=seconds, metavar="S", default=DOMAIN_LINGER_S,

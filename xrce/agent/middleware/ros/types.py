@@ -132,6 +132,12 @@ def service_ros_name(service_name: str, request_topic: str | None = None,
     raise MiddlewareError("service has neither a name nor a request or reply topic")
 
 
+def is_ros_type_name(dds_type: str) -> bool:
+    """Whether ``dds_type`` names a ROS interface type (``pkg::msg::dds_::T_``, ``pkg/msg/T``):
+    rclpy's to carry. Any other name is a plain DDS type (``xrce.agent.middleware.dds``)."""
+    return _DDS_TYPE.match(dds_type) is not None
+
+
 def _split_type(dds_type: str) -> tuple[str, str, str]:
     match = _DDS_TYPE.match(dds_type)
     if match is None:
