@@ -28,7 +28,9 @@ from xrce.agent.middleware import MiddlewareError, TypeNotReady
 log = logging.getLogger("xrce.agent.dds")
 
 MODULE = "xrce.agent.middleware.dds._plaindds"
-SOURCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_plaindds.cpp")
+_HERE = os.path.dirname(os.path.abspath(__file__))
+SOURCE = os.path.join(_HERE, "_plaindds.cpp")
+SOURCES = (SOURCE, os.path.join(_HERE, "_plaindds_types.hpp"))  # what the build's key covers
 COMPILE_TIMEOUT_S = 300
 _FASTDDS_LIBRARIES = ("libfastrtps.so.", "libfastdds.so.")
 
@@ -82,8 +84,10 @@ def _plan():
                                        "DomainParticipant.hpp")):
         raise BridgeUnavailable("plain DDS topics need Fast DDS's headers, which are not in %s "
                                 "beside the loaded %s" % (include, library))
-    with open(SOURCE, "rb") as handle:
-        source = handle.read()
+    source = b""
+    for path in SOURCES:
+        with open(path, "rb") as handle:
+            source += handle.read()
     crc = "%08x" % binascii.crc32(source)
     key = "%08x" % binascii.crc32(("%s\0%s\0%s" % (library, version, sys.version)).encode(),
                                   binascii.crc32(source))
