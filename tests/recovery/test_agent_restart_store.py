@@ -295,3 +295,26 @@ def test_default_store_path(monkeypatch, tmp_path):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert path("udp6", "-p", "9") == str(tmp_path / "home" / ".local" / "state" / "xrce" /
                                           "udp6-9.sqlite3")
+
+
+def test_stats_show_restored_clients_and_whether_they_have_spoken(tmp_path):
+    """``xrce-agent stats`` (the observer's snapshot, drawn by stats_view) names the clients that
+    came back from the store: silent until the board's first message after the restart."""
+    from xrce.agent.observe.observability import Observer
+    from xrce.agent.observe.stats_view import format_snapshot
+
+    link = Link()
+    agent = _agent(_store(tmp_path), link)
+    talker, listener = talker_and_listener(agent, link)
+    assert [c["restored"] for c in Observer(agent).snapshot()["clients"]] == [None, None]
+    agent2, restored = _restart(agent, tmp_path, link)
+    assert restored == 2
+    assert [c["restored"] for c in Observer(agent2).snapshot()["clients"]] == ["silent", "silent"]
+    talker.agent = agent2
+    talker.write(b"after")
+    snapshot = Observer(agent2).snapshot(show_keys=True)
+    spoke = [c["key"] for c in snapshot["clients"] if c["restored"] == "spoke"]
+    assert spoke == [talker.key.hex()]
+    assert sorted(c["restored"] for c in snapshot["clients"]) == ["silent", "spoke"]
+    view = format_snapshot(snapshot)
+    assert "restored" in view and "yes, spoke" in view and "yes, silent" in view, view

@@ -137,6 +137,9 @@ class Observer:
                 "key": client.key.hex() if show_keys else None,
                 "tag": client_tag(client.key),
                 "session_id": client.session_id,
+                # Restored from the state store (issue 51): "silent" until the board's first
+                # message after the restart, then "spoke"; None for a client created in this run.
+                "restored": ("spoke" if client.spoken else "silent") if client.restored else None,
                 "link": client.link.name,
                 "endpoint": endpoint_text(client.endpoint),
                 "address": address_text(client.link.name, client.endpoint),

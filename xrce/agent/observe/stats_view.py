@@ -44,6 +44,11 @@ def client_name(row: dict) -> str:
     return row.get("key") or row["tag"]
 
 
+def _restored_text(restored) -> str:
+    """Whether a client came back from the state store, and whether it has spoken since."""
+    return {"spoke": "yes, spoke", "silent": "yes, silent"}.get(restored, "-")
+
+
 def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5,
                     max_endpoints: int = 60) -> str:
     """The stats view: links, clients (busiest first) with their addresses and nodes, their
@@ -65,9 +70,10 @@ def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int =
                                                           + c["messages_out_per_s"]))
     shown = clients[:max_clients]
     lines.append("")
-    lines += _table(("client", "tag", "address", "session", "nodes (ROS domain)"),
+    lines += _table(("client", "tag", "address", "session", "restored", "nodes (ROS domain)"),
                     [(client_name(c), c["tag"], c["address"], "0x%02X" % c["session_id"],
-                      nodes_text(c) or "-") for c in shown], words=True)
+                      _restored_text(c.get("restored")), nodes_text(c) or "-") for c in shown],
+                    words=True)
     lines.append("")
     lines += _table(("client", "msg/s in", "msg/s out", "msg in", "msg out", "B/s in",
                      "B/s out", "decode", "dup", "retx", "rtt ms", "skew ms", "seen s"),
