@@ -157,12 +157,12 @@ def _forward_output(proc, prefix):
     return thread
 
 
-def stop_child(proc, timeout_s=10.0):
+def stop_child(proc, timeout_s=10.0, signum=signal.SIGINT):
     """SIGINT ``proc`` as Ctrl-C would (an agent then destroys its ROS entities), wait, and kill it
     if it hangs. The benches stop their child processes with it too."""
     if proc is None or proc.poll() is not None:
         return
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     try:
         proc.wait(timeout_s)
     except subprocess.TimeoutExpired:
@@ -318,7 +318,10 @@ def run(args):
         _ros_side(domain, have_sensor_state, stop, args.duration)
         return EXIT_CODES[stopped_by[0]] if stopped_by else 0
     finally:
-        stop_child(robot)
+        # SIGTERM for the robot: one still starting (importing, before its handler is set) ends
+        # quietly by default, where SIGINT would print a KeyboardInterrupt traceback; one that
+        # runs logs out after its current step, as on Ctrl-C.
+        stop_child(robot, signum=signal.SIGTERM)
         stop_child(agent)
         for signum, handler in previous.items():
             signal.signal(signum, handler)

@@ -82,9 +82,13 @@ def main(robot_class, argv=None):
 
     signal.signal(signal.SIGTERM, on_sigterm)
     log = lambda text: (sys.stdout.write(text + "\n"), sys.stdout.flush())  # noqa: E731
-    transport = _make_transport(args)
-    robot = robot_class(transport, domain_id=domain, cmd_vel_reliable=not args.cmd_vel_best_effort,
-                       log=log, ros_extras=args.ros_extras)
+    try:
+        transport = _make_transport(args)
+        robot = robot_class(transport, domain_id=domain,
+                            cmd_vel_reliable=not args.cmd_vel_best_effort, log=log,
+                            ros_extras=args.ros_extras)
+    except KeyboardInterrupt:  # stopped before it had anything to log out of
+        return 0
     try:
         if robot.connect(attempts=args.connect_attempts) is None:
             log("turtlebot3: no agent answered")

@@ -215,8 +215,10 @@ def open_state(args, agent, links):
 
     path = state_path(args)
     if path is None:
-        say = logging.getLogger("xrce.agent.state")
-        (say.debug if getattr(args, "no_state", False) else say.info)(
+        # Debug, not info: without --no-state this is a free port (-p 0) or a pseudoterminal made
+        # anew, which a restarted agent does not listen on again, so a store would bring no board
+        # back; and a line before the banner would break scripts that read the banner first.
+        logging.getLogger("xrce.agent.state").debug(
             "no state store (%s): a restarted agent will not know this one's sessions",
             "--no-state" if getattr(args, "no_state", False) else "no port or device to key "
             "a default by; --state FILE")
