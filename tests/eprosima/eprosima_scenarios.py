@@ -75,5 +75,45 @@ CREATIONS = {
     "back_to_back_udp4": ("udp4", BACK_TO_BACK),
     "back_to_back_udp6": ("udp6", BACK_TO_BACK),
     "batch_udp4": ("udp4", BATCH),
+    "ced_xml_ref_tcp4": ("tcp4", CED_XML_REF),
+    "ced_xml_ref_tcp6": ("tcp6", CED_XML_REF),
+    "ced_xml_ref_serial": ("serial", CED_XML_REF),
+    "ced_reuse_replace_tcp4": ("tcp4", CED_REUSE_REPLACE),
+    "ced_reuse_replace_serial": ("serial", CED_REUSE_REPLACE),
+    "back_to_back_tcp4": ("tcp4", BACK_TO_BACK),
+    "back_to_back_tcp6": ("tcp6", BACK_TO_BACK),
+    "back_to_back_serial": ("serial", BACK_TO_BACK),
 }
 DISCOVERY = {"discovery_udp4": "udp4", "discovery_udp6": "udp6"}
+
+# Two clients (programs/exchange.c: a writer and a reader of one topic of a type name that is no
+# ROS one) exchanging samples through the agent, over each transport, with the program's own
+# transport dropping a share of the messages both ways (seeded: the same datagrams each run, as
+# long as the exchange itself goes the same way). (stream, count, body bytes, drop %, format):
+# 768 body bytes are 1.5 x the MTU of 512, fragmented by the library; a best-effort stream cannot
+# carry a fragmented sample (XRCE fragments only on reliable streams), so that cell does not exist.
+# Binary entities on the reliable stream, references on the best-effort one (CED has both).
+FRAGMENTED = 768
+EXCHANGE_CELLS = {
+    "reliable_1": ("reliable", 1, 64, 0, "bin"),
+    "reliable_10": ("reliable", 10, 64, 0, "bin"),
+    "reliable_10_drop5": ("reliable", 10, 64, 5, "bin"),
+    "reliable_10_drop10": ("reliable", 10, 64, 10, "bin"),
+    "reliable_frag": ("reliable", 4, FRAGMENTED, 0, "bin"),
+    "reliable_frag_drop5": ("reliable", 4, FRAGMENTED, 5, "bin"),
+    "reliable_frag_drop10": ("reliable", 4, FRAGMENTED, 10, "bin"),
+    "best_effort_1": ("best-effort", 1, 64, 0, "ref"),
+    "best_effort_10": ("best-effort", 10, 64, 0, "ref"),
+    "best_effort_10_drop5": ("best-effort", 10, 64, 5, "ref"),
+    "best_effort_10_drop10": ("best-effort", 10, 64, 10, "ref"),
+}
+EXCHANGE_TRANSPORTS = ("udp4", "tcp4", "tcp6", "serial", "udp6")
+EXCHANGE_SEED = 50
+EXCHANGES = {"exchange_%s_%s" % (cell, transport): (transport, args)
+             for transport in EXCHANGE_TRANSPORTS for cell, args in EXCHANGE_CELLS.items()}
+
+
+def exchange_argv(args, settle_ms=0):
+    """The arguments after the transport's own for programs/exchange.c."""
+    stream, count, size, drop, fmt = args
+    return [stream, str(count), str(size), str(drop), str(EXCHANGE_SEED), fmt, str(settle_ms)]

@@ -6,8 +6,14 @@ against ours, every answer compared; no eProsima library needed.
 - nine and more reliable creations back to back, and a batch of them: the same STATUS, each
   answered message acknowledged by the time its answer is out (the whole capture fed within one
   read batch of the agent), and no more ACKNACKs or HEARTBEATs than eProsima's agent sent;
+- two clients, a writer and a reader, exchanging 1, 10 and fragmented (1.5 x MTU) samples on
+  best-effort and reliable streams with 0, 5 and 10 % of their messages dropped by their own
+  transport, over UDP4, UDP6, TCP4, TCP6 and serial: both clients' messages fed as recorded, every
+  STATUS each client got and every sample the reader was given equal to eProsima's;
 - discovery from a UDP4 and a UDP6 agent: our INFO has eProsima's bytes, given the addresses the
-  recording host had (127.0.0.1, ::1).
+  recording host had (127.0.0.1, ::1);
+- TCP's length prefix and serial's frames: ours take eProsima's apart into the recorded messages
+  and frame each message into eProsima's very bytes.
 """
 
 import asyncio
@@ -26,7 +32,8 @@ CREATIONS = golden.names("ced_") + golden.names("back_to_back_") + golden.names(
 def test_every_scenario_was_recorded():
     import eprosima_scenarios as scenarios
 
-    assert set(golden.names()) == set(scenarios.CREATIONS) | set(scenarios.DISCOVERY)
+    assert set(golden.names()) == (set(scenarios.CREATIONS) | set(scenarios.DISCOVERY)
+                                   | set(scenarios.EXCHANGES))
 
 
 @pytest.mark.parametrize("name", CREATIONS)
@@ -80,3 +87,45 @@ async def test_discovery_answer_is_eprosimas(name, monkeypatch):
     assert {loc.fmt for loc in info.locators} == kinds  # what eProsima's client was told
     assert "AGENT %s" % ("ipv6 ::1" if family == socket.AF_INET6 else "ipv4 127.0.0.1") in \
         " ".join(header["stdout"])
+
+
+@pytest.mark.parametrize("name", golden.names("exchange_"))
+async def test_two_clients_get_eprosimas_answers(name):
+    header, rows = golden.load(name)
+    import eprosima_scenarios as scenarios
+
+    stream, count, size, _, _ = scenarios.EXCHANGES[name][1]
+    assert header["argv"] == scenarios.exchange_argv(scenarios.EXCHANGES[name][1])
+    theirs = golden.by_client(rows, "A->C")
+    ours = await golden.replay_exchange(rows)
+    assert sorted(theirs) == sorted(ours) == [0, 1]  # the reader spoke first
+    for client in (0, 1):
+        # Each client's session, its four creations and (the reader) its READ_DATA; the DELETE.
+        assert golden.statuses(ours[client]) == golden.statuses(theirs[client]), client
+    reader_theirs, reader_ours = golden.delivered(theirs[0]), golden.delivered(ours[0])
+    assert reader_ours == reader_theirs
+    indices = [int.from_bytes(sample[:4], "little") for _, sample in reader_theirs]
+    assert all(len(sample) == 8 + size for _, sample in reader_theirs)
+    assert indices == sorted(set(indices)) and set(indices) <= set(range(1, count + 1))
+    if stream == "reliable":  # eProsima's agent got every sample through: so must ours
+        assert indices == list(range(1, count + 1)) and header["stdout"][-1] == "exit 0"
+    assert golden.delivered(ours[1]) == []  # the writer reads nothing
+
+
+FRAMED = [n for n in golden.names() if n.endswith(("_tcp4", "_tcp6", "_serial"))]
+
+
+@pytest.mark.parametrize("name", FRAMED)
+def test_framing_is_eprosimas(name):
+    from xrce.transports.framing import encode_frame, encode_length_prefixed
+
+    _, rows = golden.load(name)
+    framed = golden.unframe(rows)
+    assert len(framed) == len(rows) > 0
+    for row, messages in framed:
+        message = bytes.fromhex(row["hex"])
+        assert messages == [message]
+        frame = bytes.fromhex(row["frame"])
+        ours = (encode_frame(message, frame[1], frame[2]) if name.endswith("_serial")
+                else encode_length_prefixed(message))
+        assert ours == frame

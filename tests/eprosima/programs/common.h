@@ -1,5 +1,6 @@
 /* What the suite's programs against eProsima's Micro XRCE-DDS Client share: a session over the
- * transport named on the command line (udp4 | udp6 | tcp4 | tcp6, host, port), with a reliable
+ * transport named on the command line (udp4 | udp6 | tcp4 | tcp6, host, port; or serial, the
+ * descriptor of a pseudo-terminal the caller opened in place of the host, any port), with a reliable
  * output stream of HISTORY slots (8 by default, as eProsima's examples) and a reliable input one. */
 #ifndef XRCE_TESTS_EPROSIMA_COMMON_H
 #define XRCE_TESTS_EPROSIMA_COMMON_H
@@ -8,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <termios.h>
 
 #ifndef HISTORY
 #define HISTORY 8
@@ -19,8 +21,9 @@ typedef struct {
     union {
         uxrUDPTransport udp;
         uxrTCPTransport tcp;
+        uxrSerialTransport serial;
     } t;
-    int tcp;
+    int tcp, serial;
     uxrSession session;
     uxrStreamId out;
     uxrStreamId in;
@@ -33,7 +36,20 @@ static int open_client(Client *c, const char *kind, const char *host, const char
     uxrIpProtocol family = (kind[3] == '6') ? UXR_IPv6 : UXR_IPv4;
     uxrCommunication *comm;
     c->tcp = kind[0] == 't';
-    if (c->tcp) {
+    c->serial = kind[0] == 's';
+    if (c->serial) {
+        int fd = atoi(host);
+        struct termios tio;
+        if (tcgetattr(fd, &tio) == 0) {
+            cfmakeraw(&tio);
+            tcsetattr(fd, TCSANOW, &tio);
+        }
+        if (!uxr_init_serial_transport(&c->t.serial, fd, 0, 1)) {  /* agent 0, client 1 */
+            printf("ERROR transport\n");
+            return 1;
+        }
+        comm = &c->t.serial.comm;
+    } else if (c->tcp) {
         if (!uxr_init_tcp_transport(&c->t.tcp, family, host, port)) {
             printf("ERROR transport\n");
             return 1;
@@ -58,7 +74,8 @@ static int open_client(Client *c, const char *kind, const char *host, const char
 
 static void close_client(Client *c) {
     uxr_delete_session(&c->session);
-    if (c->tcp) uxr_close_tcp_transport(&c->t.tcp);
+    if (c->serial) uxr_close_serial_transport(&c->t.serial);
+    else if (c->tcp) uxr_close_tcp_transport(&c->t.tcp);
     else uxr_close_udp_transport(&c->t.udp);
 }
 

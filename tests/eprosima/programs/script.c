@@ -60,7 +60,7 @@ static uint16_t buffer_create(Client *c, const char *kind, const char *format, i
 
 int main(int argc, char **argv) {
     if (argc < 4) {
-        fprintf(stderr, "usage: %s udp4|udp6|tcp4|tcp6 host port < script\n", argv[0]);
+        fprintf(stderr, "usage: %s udp4|udp6|tcp4|tcp6 host port | serial FD 0 < script\n", argv[0]);
         return 2;
     }
     static Client c;
