@@ -2,7 +2,7 @@
 # the heap each type keeps on the board once imported, and with its plan after a first encode and
 # decode, on top of what a firmware has loaded before its own types (the message runtime, a first
 # type, the string, sequence and array helpers), as bench/micropython/own_types_heap.py measures
-# them on the WebAssembly port. At the REPL:
+# them on the WebAssembly port; then what declaring a type hash (xrce.client.type_hash) keeps. At the REPL:
 #   import app_own; app_own.main("my_robot_msgs", "WheelTicks SetLed")
 import gc
 
@@ -38,4 +38,16 @@ def main(package, names):
         cls = None
         print("TYPE %s/%s import=%d with_plan=%d" % (package, name, imported, live() - before))
     print("HEAP own types alloc=%d (+%d)" % (live(), live() - total))
+    # Declaring a type hash at creation (xrce.client.type_hash, only for a board that uses it): the
+    # modules it keeps loaded and one EndpointQos with the hash, as a create_writer makes it.
+    before = live()
+    try:
+        from xrce.client.type_hash import endpoint_qos
+        cls = getattr(__import__("xrce.msgs." + package, None, None, (names.split()[0],)), names.split()[0])
+        qos = endpoint_qos(cls)
+        print("TYPE_HASH %s %s" % (cls.ROS_TYPE, bytes(qos.user_data).decode()))
+        qos = cls = None
+        print("HEAP type_hash used +%d" % (live() - before))
+    except ValueError as error:  # classes generated without rosidl: no hashes to declare
+        print("TYPE_HASH none: %s" % error)
     print("DONE")
