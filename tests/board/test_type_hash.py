@@ -128,3 +128,20 @@ def test_the_hash_gen_msgs_writes_is_rosidls_and_the_agent_names_a_different_one
         in warning), warning
     assert "fix: regenerate the board's classes (xrce-client gen-msgs DIR/%s)" % PACKAGE in warning, warning
     assert not [line for line in log if "type drift" in line]  # named at creation: no sample was written
+
+
+def test_the_declared_hash_is_written_as_the_wire_codec_writes_a_full_endpoint_qos():
+    """xrce.client.type_hash writes its blob with the core's CdrWriter (a board declaring a hash
+    does not load xrce.wire.objects): byte for byte the codec's DataWriter/DataReader with an
+    EndpointQos and user data, which the agent decodes back."""
+    from xrce.client.type_hash import endpoint_blob
+    from xrce.wire.objects import DataReaderBin, DataWriterBin, EndpointQos
+
+    data = b"typehash=RIHS01_" + b"0123456789abcdef" * 4 + b";"
+    for reader, cls in ((False, DataWriterBin), (True, DataReaderBin)):
+        for flags, depth in ((0x0003, 10), (0x0002, None), (0x000B, 1)):
+            blob = endpoint_blob(0x0125, flags, depth, data, reader)
+            assert blob == cls(0x0125, EndpointQos(flags, depth, user_data=data)).to_blob()
+            decoded = cls.from_blob(blob)
+            assert bytes(decoded.qos.user_data) == data and decoded.qos.flags == flags
+            assert decoded.qos.history_depth == depth and decoded.topic_id == 0x0125

@@ -33,35 +33,67 @@ def type_hash(msg_class):
     return hashes[name]
 
 
-def endpoint_qos(msg_class, reliable=True, depth=10, transient_local=False):
-    # The EndpointQos of Session.create_writer/create_reader's flags, with the hash as user data.
-    from xrce.wire.constants import QOS_KEEP_LAST, QOS_RELIABLE, QOS_TRANSIENT_LOCAL
-    from xrce.wire.objects import EndpointQos
+def user_data(msg_class):
+    # rmw's USER_DATA form of the hash: b"typehash=RIHS01_<hex>;".
+    return b"typehash=" + type_hash(msg_class).encode() + b";"
 
-    flags = QOS_KEEP_LAST | (QOS_RELIABLE if reliable else 0) | (QOS_TRANSIENT_LOCAL if transient_local else 0)
-    return EndpointQos(flags, depth or None, user_data=b"typehash=" + type_hash(msg_class).encode() + b";")
+
+def endpoint_blob(topic_id, flags, depth, data, reader):
+    # A datawriter's or datareader's binary representation with the QoS of Session.create_writer
+    # and user data: what xrce.wire.objects writes for them, written here with the core's
+    # CdrWriter so that a board declaring a hash does not load that module (~7 KB frozen).
+    from xrce.wire.cdr import CdrWriter
+
+    w = CdrWriter(bytearray(24 + len(data)))
+    w.u8(topic_id >> 8)
+    w.u8(topic_id & 0xFF)
+    w.u8(1)  # QoS
+    w.u16(flags)
+    w.u8(depth is not None)
+    if depth is not None:
+        w.u16(depth)
+    w.u8(0)  # deadline
+    w.u8(0)  # lifespan
+    w.u8(1)  # user data
+    w.u32(len(data))
+    for byte in data:
+        w.u8(byte)
+    w.u8(0)  # ownership strength / time-based filter
+    if reader:
+        w.u8(0)  # content filter
+    return w.getvalue()
 
 
 def _dds_topic(topic):
-    # As Session.create_writer names a ROS topic in DDS (rt/...); not imported from
-    # xrce.client.entities, which the session loads and drops per call itself.
+    # As Session.create_writer names a ROS topic in DDS (rt/...).
     return "rt" + (topic if topic.startswith("/") else "/" + topic)
+
+
+def _endpoint(session, kind, tail_id, topic_id, msg_class, reliable, depth, transient_local, stream_id):
+    # The session's own creation (xrce.client.entities, loaded for the call as the session loads
+    # it, or the one hold_set_up() holds), given the blob with the hash.
+    from xrce.client.session import _set_up_module
+
+    flags = 0x0002 | (0x0001 if reliable else 0) | (0x0008 if transient_local else 0)  # keep last
+    blob = endpoint_blob(topic_id, flags, depth or None, user_data(msg_class), kind == 0x06)
+    entities = session._held or _set_up_module("entities")
+    return entities._create(session, kind, blob, tail_id, None, stream_id, 0x06)  # reuse | replace
 
 
 def create_writer(session, node, topic, msg_class, reliable=True, depth=10, transient_local=False,
                   stream_id=None):
-    qos = endpoint_qos(msg_class, reliable, depth, transient_local)
     topic_id = session.create_topic(node, _dds_topic(topic), msg_class.TYPE_NAME, stream_id=stream_id)
     publisher = session.create_publisher(node, stream_id=stream_id)
-    return session.create_datawriter(publisher, topic_id, qos, stream_id=stream_id)
+    return _endpoint(session, 0x05, publisher, topic_id, msg_class, reliable, depth, transient_local,
+                     stream_id)
 
 
 def create_reader(session, node, topic, msg_class, callback, reliable=True, depth=10,
                   transient_local=False, stream_id=None, data_stream_id=None, into=None):
-    qos = endpoint_qos(msg_class, reliable, depth, transient_local)
     topic_id = session.create_topic(node, _dds_topic(topic), msg_class.TYPE_NAME, stream_id=stream_id)
     subscriber = session.create_subscriber(node, stream_id=stream_id)
-    reader = session.create_datareader(subscriber, topic_id, qos, stream_id=stream_id)
+    reader = _endpoint(session, 0x06, subscriber, topic_id, msg_class, reliable, depth, transient_local,
+                       stream_id)
     session.set_reader_callback(reader, callback, msg_class if into is None else into)
     if data_stream_id is None:
         data_stream_id = session.reliable if reliable else session.best_effort
