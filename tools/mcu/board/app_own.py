@@ -39,15 +39,17 @@ def main(package, names):
         print("TYPE %s/%s import=%d with_plan=%d" % (package, name, imported, live() - before))
     print("HEAP own types alloc=%d (+%d)" % (live(), live() - total))
     # Declaring a type hash at creation (xrce.client.type_hash, only for a board that uses it): the
-    # modules it keeps loaded and one EndpointQos with the hash, as a create_writer makes it.
+    # module kept loaded and one endpoint blob with the hash, as its create_writer writes it (the
+    # session keeps that blob in its re-creation log).
     before = live()
     try:
-        from xrce.client.type_hash import endpoint_qos
+        from xrce.client.type_hash import endpoint_blob, user_data
         cls = getattr(__import__("xrce.msgs." + package, None, None, (names.split()[0],)), names.split()[0])
-        qos = endpoint_qos(cls)
-        print("TYPE_HASH %s %s" % (cls.ROS_TYPE, bytes(qos.user_data).decode()))
-        qos = cls = None
-        print("HEAP type_hash used +%d" % (live() - before))
+        data = user_data(cls)
+        print("TYPE_HASH %s %s" % (cls.ROS_TYPE, data.decode()))
+        blob = endpoint_blob(0x0015, 0x0003, 10, data, False)
+        data = cls = None
+        print("HEAP type_hash used +%d (blob %d bytes)" % (live() - before, len(blob)))
     except ValueError as error:  # classes generated without rosidl: no hashes to declare
         print("TYPE_HASH none: %s" % error)
     print("DONE")
