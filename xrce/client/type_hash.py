@@ -26,8 +26,11 @@ def type_hash(msg_class):
     except ImportError:
         raise ValueError("%s has no type hashes: generate its classes with xrce-client gen-msgs on "
                          "a host with ROS's rosidl" % package)
-    finally:
+    finally:  # dropped again, from the package's namespace too (where the import put it)
         sys.modules.pop(module, None)
+        parent = sys.modules.get("xrce.msgs." + package)
+        if parent is not None:
+            parent.__dict__.pop("_hashes", None)
     if name not in hashes:
         raise ValueError("no type hash for %s" % msg_class.ROS_TYPE)
     return hashes[name]
