@@ -19,6 +19,7 @@ package(
         "client/services.py",
         "client/session.py",
         "client/type_drift.py",
+        "client/type_hash.py",
         "client/wire.py",
         "msgs/__init__.py",
         "msgs/_dict.py",

@@ -205,3 +205,51 @@ def test_the_check_runs_on_the_first_sample_then_once_a_minute_and_never_per_sam
     # A type the agent has no package for (carried by name): nothing is armed.
     type_drift.arm(SimpleNamespace(sample_check=lambda key, dds_type: None), mismatches, scheduler, client, entry, (1, 0x15))
     assert entry.write is publish
+
+
+def test_a_declared_type_hash_is_compared_with_the_agents_package_at_creation(ros_domain):  # noqa: F811
+    """rmw's ``typehash=RIHS01_...;`` in a binary datawriter's or datareader's QoS user data (what
+    xrce.client.type_hash sends): the same hash as the installed package is said at INFO, another
+    one is a mismatch named before any sample, a type carried by name has nothing to compare."""
+    import json
+    import sys
+    from pathlib import Path
+
+    from xrce.msgs.std_msgs import Float32
+    from xrce.wire.objects import EndpointQos
+
+    def installed(name):
+        with open(Path(sys.prefix) / "share" / "std_msgs" / "msg" / (name + ".json")) as description:
+            return json.load(description)["type_hashes"][0]["hash_string"]
+    right, wrong = installed("Float32"), installed("String")
+
+    def qos(hash_string):
+        return EndpointQos(0x0002, 10, user_data=b"typehash=" + hash_string.encode() + b";")
+
+    with AgentProcess("udp4", "-m", "dds", "-v", "4", "--stats-port", "0") as agent:
+        port = stats_port(agent)
+        with board(agent, ros_domain, "hash_board") as (session, node):
+            ok = session.create_topic(node, "rt/volts_ok", Float32.TYPE_NAME)
+            session.create_datawriter(session.create_publisher(node), ok, qos(right))
+            bad = session.create_topic(node, "rt/volts_bad", Float32.TYPE_NAME)
+            session.create_datareader(session.create_subscriber(node), bad, qos(wrong))
+            named = session.create_topic(node, "rt/ticks", "nowhere_msgs::msg::dds_::Ticks_")
+            session.create_datawriter(session.create_publisher(node), named, qos(right))
+            assert session.run_until_all_status(10000), session.last_statuses
+            assert wait_until(lambda: agent.drain() or "carried by name" in "".join(agent.output), 10)
+            snapshot = fetch_stats(port)
+    log = "".join(agent.output).splitlines()
+    [warning] = [line for line in log if "WARNING" in line and "type hash" in line]
+    assert "client %s at udp4 127.0.0.1:" % session.key.hex() in warning and "datareader" in warning, warning
+    assert ("type hash mismatch on /volts_bad: the board's classes of std_msgs/msg/Float32 were generated from a "
+            "definition with %s, this agent's package has %s; " % (wrong, right)
+            + type_drift.FIX % ("std_msgs", "std_msgs")) in warning, warning
+    assert [line for line in log if "/volts_ok std_msgs/msg/Float32: type hash %s, as this agent's package" % right
+            in line], log
+    assert [line for line in log if "/ticks nowhere_msgs/msg/Ticks: the board declares type hash %s; this agent "
+            "has no package of the type to compare it with (carried by name)" % right in line], log
+    assert snapshot["agent"]["mismatches"] == 1, snapshot["agent"]
+    assert type_drift._declared(b"typehash=" + right.encode() + b";") == right
+    assert type_drift._declared(b"other=1;typehash=" + right.encode() + b";") == right
+    for user_data in (None, b"", b"\xff\xfe", b"typehash=RIHS01_short;", b"typehash=RIHS02_" + b"0" * 64 + b";"):
+        assert type_drift._declared(user_data) is None, user_data

@@ -133,14 +133,17 @@ def test_gen_msgs_writes_board_classes_and_a_freeze_manifest(tmp_path):
     result = _gen_msgs(package_dir, tmp_path / "out")
     assert result.returncode == 0, result.stderr
     generated = tmp_path / "out" / "xrce" / "msgs" / PACKAGE
-    assert sorted(p.name for p in generated.iterdir()) == ["_Command.py", "_Reading.py", "__init__.py"]
+    # _hashes.py: rosidl's RIHS01 hash of each message, which only xrce.client.type_hash loads.
+    assert sorted(p.name for p in generated.iterdir()) == ["_Command.py", "_Reading.py", "__init__.py", "_hashes.py"]
     assert "from xrce.msgs import geometry_msgs, std_msgs" in (generated / "_Reading.py").read_text()
     manifest = (tmp_path / "out" / "manifest.py").read_text()
     listed = []
     exec(manifest, {"package": lambda name, files, base_path: listed.extend(name + "/" + f for f in files)})
-    assert sorted(listed) == ["xrce/msgs/%s/%s" % (PACKAGE, n) for n in ("_Command.py", "_Reading.py", "__init__.py")]
+    assert sorted(listed) == ["xrce/msgs/%s/%s" % (PACKAGE, n) for n in ("_Command.py", "_Reading.py", "__init__.py",
+                                                                          "_hashes.py")]
     # What it wrote and how the board imports it: the lines it prints run as printed.
-    assert sorted(result.stdout.split()) == sorted([str(generated / n) for n in ("_Command.py", "_Reading.py", "__init__.py")]
+    assert sorted(result.stdout.split()) == sorted([str(generated / n) for n in ("_Command.py", "_Reading.py", "__init__.py",
+                                                                                "_hashes.py")]
                                                    + [str(tmp_path / "out" / "manifest.py")]), result.stdout
     assert "<package>" not in result.stderr and "<Type>" not in result.stderr, result.stderr
     [import_line] = [line.strip() for line in result.stderr.splitlines() if line.strip().startswith("from ")]
@@ -196,7 +199,7 @@ def test_generated_classes_on_micropython_talk_to_an_rclpy_node_with_the_package
     result = _gen_msgs(package_dir, tmp_path / "out", "--mpy")
     assert result.returncode == 0, result.stderr
     generated = tmp_path / "out" / "xrce" / "msgs" / PACKAGE
-    assert sorted(p.name for p in generated.iterdir()) == ["_Command.mpy", "_Reading.mpy", "__init__.mpy"]
+    assert sorted(p.name for p in generated.iterdir()) == ["_Command.mpy", "_Reading.mpy", "__init__.mpy", "_hashes.mpy"]
     env = _node_side_env(tmp_path)
     with AgentProcess("udp4", "-m", "dds") as agent:
         peer = subprocess.Popen([sys.executable, "-c", NODE_SCRIPT], env=env, text=True,

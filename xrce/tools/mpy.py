@@ -165,12 +165,22 @@ def gen_msgs(package_dirs, outdir, compiled=False):
         raise GenMsgsError("a package given twice: %s" % ", ".join(names))
     registry = msggen.build_registry(packages, actions)
     command = "xrce-client gen-msgs " + " ".join(names)
+    # Each package's RIHS01 hashes (rosidl's own computation) in a module nothing imports unless a
+    # board declares its topics' hashes (xrce.client.type_hash): no heap for a board that does not.
+    from xrce.tools import msg_hashes
+    try:
+        hashes = msg_hashes.type_hashes(package_dirs)
+    except msg_hashes.HashesUnavailable as error:
+        hashes = {}
+        sys.stderr.write("xrce-client: no type hashes written (%s); the classes work without\n" % error)
     target = Path(outdir) / PACKAGE / "msgs"
     staging = Path(tempfile.mkdtemp(prefix="xrce-gen-msgs-")) if compiled else target
     written = []
     try:
         for package, messages, services in packages:
             files = msggen.generate_package(package, messages, services, registry, command, actions[package])
+            if any(name.startswith(package + "/msg/") for name in hashes):
+                files[msg_hashes.HASH_MODULE] = msg_hashes.hash_module(package, hashes, command)
             msggen.write_package(str(staging), package, files)
             for name in sorted(files):
                 source = staging / package / name

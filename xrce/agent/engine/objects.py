@@ -225,6 +225,8 @@ class ObjectRegistry:
                 entry.reader = ReaderState(_queue_bound(qos))
                 mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
                                      self.datapath.sample_callback(client, entry.object_id))
+            if fmt == C.REPRESENTATION_IN_BINARY:  # a type hash the board declared, checked at creation
+                type_drift.declared_hash(mw, self.datapath.mismatches, client, entry, rep.qos)
         elif kind in (C.OBJK_REQUESTER, C.OBJK_REPLIER):
             if fmt == C.REPRESENTATION_IN_BINARY:
                 spec = ServiceSpec(rep.service_name, rep.request_type, rep.reply_type,

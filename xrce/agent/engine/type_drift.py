@@ -19,6 +19,13 @@ tell; this module decides which samples it sees, so that checking costs nothing 
   again (its samples still go to ROS, as they did: the agent does not judge a board's data).
 
 Types the agent carries by name have no package to compare with: not armed.
+
+Before any sample, ``declared_hash`` compares the RIHS01 type hash a board may declare at
+creation (``xrce.client.type_hash``: ``typehash=RIHS01_<hex>;``, rmw's USER_DATA form, in the
+optional user data of the binary representation's EndpointQos) with the hash of this agent's
+package (``middleware.type_hash``); a different one is a mismatch report like a drifted sample's,
+named as the endpoint is created. Boards that declare nothing (eProsima's client,
+rmw_microxrcedds: neither sends a hash) are checked by their samples only.
 """
 
 from __future__ import annotations
@@ -26,7 +33,8 @@ from __future__ import annotations
 import logging
 
 from xrce.agent.engine.session import ClientProxy, ObjectEntry
-from xrce.agent.observe.names import ros_topic_name, ros_type_name
+from xrce.agent.observe import entities as words
+from xrce.agent.observe.names import object_id_text, ros_topic_name, ros_type_name
 
 log = logging.getLogger("xrce.agent")
 
@@ -62,6 +70,44 @@ def arm(middleware, mismatches, scheduler, client: ClientProxy, entry: ObjectEnt
         return publish(sample)
 
     entry.write = first_sample
+
+
+def declared_hash(middleware, mismatches, client: ClientProxy, entry: ObjectEntry, qos) -> None:
+    """The type hash the board declared for the datawriter or datareader ``entry`` (in ``qos``,
+    the binary representation's EndpointQos, None otherwise) against this agent's package."""
+    declared = _declared(getattr(qos, "user_data", None))
+    if declared is None or entry.topic_spec is None:
+        return
+    entry.info["type_hash"] = declared
+    lookup = getattr(middleware, "type_hash", None)
+    ours = lookup(entry.topic_spec.type_name) if lookup is not None else None
+    where = "client %s, %s %s: %s %s" % (client.key.hex(), words.kind_name(entry.kind),
+                                         object_id_text(entry.object_id), _topic(entry), _type(entry))
+    if ours is None:
+        log.info("%s: the board declares type hash %s; this agent has no package of the type to "
+                 "compare it with (carried by name)", where, declared)
+    elif ours == declared:
+        log.info("%s: type hash %s, as this agent's package", where, declared)
+    else:
+        package = _type(entry).split("/")[0]
+        mismatches.report(client, entry, "type hash mismatch on %s: the board's classes of %s were "
+                          "generated from a definition with %s, this agent's package has %s; %s"
+                          % (_topic(entry), _type(entry), declared, ours, FIX % (package, package)))
+
+
+def _declared(user_data) -> str | None:
+    """``RIHS01_<64 hex>`` from rmw's USER_DATA form ``typehash=...;`` (other keys may be beside it)."""
+    if not user_data:
+        return None
+    try:
+        text = bytes(user_data).decode("ascii")
+    except UnicodeDecodeError:
+        return None
+    for item in text.split(";"):
+        key, _, value = item.partition("=")
+        if key.strip() == "typehash" and value.startswith("RIHS01_") and len(value) == 71:
+            return value
+    return None
 
 
 def _recheck_later(scheduler, client, entry, check_next, publish) -> None:

@@ -328,6 +328,16 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             return None
         return checker(dds_type)
 
+    def type_hash(self, dds_type: str) -> str | None:
+        """The RIHS01 hash of a message type as this agent's package has it, None for a type it
+        carries by name or has no description of: xrce.agent.engine.type_drift.declared_hash."""
+        from xrce.agent.middleware.ros import raw_types
+        from xrce.agent.middleware.ros.sample_check import package_type_hash
+
+        if dds_type in raw_types._named_messages:
+            return None
+        return package_type_hash(dds_type)
+
     def publisher_address(self, writer: EntityKey) -> int | None:
         """The address of a datawriter's rcl_publisher_t, for the compiled UDP path
         (xrce.agent.engine.fastpath), which must forget it before ``delete``; None if rclpy hides it."""

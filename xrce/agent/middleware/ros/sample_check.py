@@ -26,6 +26,7 @@ from xrce.wire.cdr import CdrReader
 
 MAX_TYPES = 1024  # definitions kept (per agent process): a flood of type names must not grow it
 _classes: Dict[str, object] = {}  # "pkg/Name" -> the class, or None where it cannot be made
+_hashes: Dict[str, Optional[str]] = {}  # "pkg/msg/Name" -> its RIHS01 hash here, or None
 
 
 def checker(dds_type: str) -> Optional[Callable[[bytes], Optional[str]]]:
@@ -49,6 +50,35 @@ def checker(dds_type: str) -> Optional[Callable[[bytes], Optional[str]]]:
                     % (len(sample) - reader.pos, len(sample)))
         return None
     return check
+
+
+def package_type_hash(dds_type: str) -> Optional[str]:
+    """The RIHS01 hash of the message type ``dds_type`` as this agent's package has it: the type
+    description rosidl wrote beside its ``.msg`` (``share/<package>/msg/<Type>.json``, whether ROS
+    installed the package or the agent built it); None where there is none."""
+    parts = dds_type.split("::")
+    if len(parts) != 4 or parts[1] != "msg" or parts[2] != "dds_" or not parts[3].endswith("_"):
+        return None
+    package, name = parts[0], parts[3][:-1]
+    key = "%s/msg/%s" % (package, name)
+    if key in _hashes:
+        return _hashes[key]
+    found = None
+    path = _definition_file(package, name)
+    if path is not None:
+        import json
+
+        try:
+            with open(path[: -len(".msg")] + ".json", encoding="utf-8") as description:
+                for entry in json.load(description).get("type_hashes", ()):
+                    if entry.get("type_name") == key:
+                        found = entry.get("hash_string")
+                        break
+        except (OSError, ValueError, AttributeError):
+            found = None
+    if len(_hashes) < MAX_TYPES:
+        _hashes[key] = found
+    return found
 
 
 def _definition_file(package: str, name: str) -> Optional[str]:
