@@ -273,17 +273,55 @@ def test_m_rtps_is_served_as_dds():
     assert "-m rtps is served as -m dds" in "".join(agent.output)
 
 
-def test_the_bridge_refuses_fast_dds_3_and_a_process_without_fast_dds(monkeypatch, tmp_path):
+def fake_fastdds(root: Path, library: str) -> str:
+    """A ROS prefix with only what _plan looks at: the library's file and the headers' marker."""
+    (root / "lib").mkdir(parents=True)
+    (root / "lib" / library).write_bytes(b"")
+    header = root / "include" / "fastdds" / "dds" / "domain" / "DomainParticipant.hpp"
+    header.parent.mkdir(parents=True)
+    header.write_text("")
+    return str(root / "lib" / library)
+
+
+@pytest.mark.parametrize("library, version, link", [("libfastrtps.so.2.14.5", "2.14.5", "-lfastrtps"),
+                                                    ("libfastdds.so.3.2.2", "3.2.2", "-lfastdds")])
+def test_the_bridge_is_planned_against_the_loaded_fast_dds_2_or_3(library, version, link,
+                                                                  monkeypatch, tmp_path):
+    """Jazzy's Fast DDS 2 is libfastrtps, Kilted's 3 libfastdds: the bridge compiles against the
+    headers beside the one loaded and links that one, cached apart from the other's build."""
     from xrce.agent.middleware.dds import build
 
+    path = fake_fastdds(tmp_path / "ros", library)
     maps = tmp_path / "maps"
-    maps.write_text("7f00-7f01 r-xp 0 08:01 1 /opt/ros/kilted/lib/libfastdds.so.3.2.2\n"
-                    "7f01-7f02 r-xp 0 08:01 2 /usr/lib/libc.so.6\n")
-    assert build.loaded_fastdds(str(maps)) == ("/opt/ros/kilted/lib/libfastdds.so.3.2.2", "3.2.2")
-    monkeypatch.setattr(build, "loaded_fastdds", lambda: ("/opt/ros/kilted/lib/libfastdds.so.3.2.2",
-                                                          "3.2.2"))
-    with pytest.raises(build.BridgeUnavailable, match="Fast DDS 2 .ROS 2 Jazzy. only; this agent "
-                                                      "runs Fast DDS 3.2.2"):
+    maps.write_text("7f00-7f01 r-xp 0 08:01 1 %s\n7f01-7f02 r-xp 0 08:01 2 /usr/lib/libc.so.6\n" % path)
+    assert build.loaded_fastdds(str(maps)) == (path, version)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(build, "loaded_fastdds", lambda: (path, version))
+    output, command = build._plan()
+    assert "-I" + str(tmp_path / "ros" / "include") in command
+    assert command[-2:] == [link, "-lfastcdr"]
+    assert output.startswith(str(tmp_path / "cache" / "xrce" / "plaindds") + os.sep)
+    other = "libfastdds.so.3.2.2" if version.startswith("2") else "libfastrtps.so.2.14.5"
+    monkeypatch.setattr(build, "loaded_fastdds", lambda: (str(tmp_path / "ros" / "lib" / other),
+                                                          other.split(".so.")[1]))
+    assert build._plan()[0] != output
+
+
+def test_the_bridge_refuses_other_fast_dds_versions_and_a_process_without_fast_dds(monkeypatch,
+                                                                                   tmp_path):
+    from xrce.agent.middleware.dds import build
+
+    for library, version in [("libfastdds.so.4.0.0", "4.0.0"), ("libfastrtps.so.1.10.0", "1.10.0"),
+                             ("libfastrtps.so.3.0.0", "3.0.0")]:
+        path = fake_fastdds(tmp_path / version, library)
+        monkeypatch.setattr(build, "loaded_fastdds", lambda: (path, version))
+        with pytest.raises(build.BridgeUnavailable, match="Fast DDS 2 .ROS 2 Jazzy. and 3 .ROS 2 "
+                                                          "Kilted.; this agent runs Fast DDS "
+                                                          + version.replace(".", "[.]")):
+            build._plan()
+    path = str(tmp_path / "bare" / "lib" / "libfastdds.so.3.2.2")
+    monkeypatch.setattr(build, "loaded_fastdds", lambda: (path, "3.2.2"))
+    with pytest.raises(build.BridgeUnavailable, match="need Fast DDS's headers"):
         build._plan()
     monkeypatch.setattr(build, "loaded_fastdds", lambda: None)
     with pytest.raises(build.BridgeUnavailable, match="need Fast DDS"):

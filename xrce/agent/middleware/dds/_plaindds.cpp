@@ -160,7 +160,7 @@ PyObject* topic_open(PyObject*, PyObject* args)
         fdds::TypeSupport registered = participant->find_type(type_name);
         if (registered.empty()) {
             fdds::TypeSupport type(new BytesType(type_name));
-            if (participant->register_type(type) != RetCode::RETCODE_OK) {
+            if (participant->register_type(type) != RETCODE_OK) {
                 refused = "Fast DDS refused to register type '" + std::string(type_name) + "'";
             }
         } else if (dynamic_cast<BytesType*>(registered.get()) == nullptr) {
@@ -246,7 +246,7 @@ void endpoint_qos(Qos& qos, int reliable, int keep_last, int depth, int durabili
     qos.resource_limits().max_samples_per_instance = qos.resource_limits().max_samples;
     qos.resource_limits().allocated_samples = depth < 16 ? depth : 16;
     qos.endpoint().history_memory_policy =
-        eprosima::fastrtps::rtps::PREALLOCATED_WITH_REALLOC_MEMORY_MODE;
+        frtps::PREALLOCATED_WITH_REALLOC_MEMORY_MODE;
 }
 
 // -- writers -----------------------------------------------------------------------------------
@@ -275,7 +275,7 @@ PyObject* writer_create(PyObject*, PyObject* args)
         fdds::DataWriterQos qos = publisher->get_default_datawriter_qos();
         endpoint_qos(qos, reliable, keep_last, depth, durability);
         // A full KEEP_ALL history refuses the sample at once: the loop's thread never waits here.
-        qos.reliability().max_blocking_time = eprosima::fastrtps::Duration_t(0, 0);
+        qos.reliability().max_blocking_time = Duration(0, 0);
         qos.publish_mode().kind = fdds::SYNCHRONOUS_PUBLISH_MODE;
         writer = publisher->create_datawriter(topic->topic, qos);
         if (writer == nullptr && state->writers == 0) {
@@ -315,7 +315,7 @@ PyObject* writer_write(PyObject*, PyObject* const* args, Py_ssize_t nargs)
     Outgoing sample{static_cast<const unsigned char*>(view.buf), static_cast<uint32_t>(view.len)};
     bool written;
     Py_BEGIN_ALLOW_THREADS
-    written = writer->writer->write(&sample);
+    written = write_sample(writer->writer, &sample);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&view);
     return PyBool_FromLong(written);

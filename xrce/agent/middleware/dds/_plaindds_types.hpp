@@ -23,17 +23,35 @@
 #include <fastdds/dds/topic/TopicDataType.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
 
+// Fast DDS 3 (ROS 2 Kilted) moved what was eprosima::fastrtps into eprosima::fastdds, made
+// ReturnCode_t a plain integer, DataWriter::write return one, and renamed TopicDataType's
+// members; Fast DDS 2 (ROS 2 Jazzy) has its version in fastrtps/config.h, 3 in fastdds/config.hpp.
+// The differences are all here and in BytesType: the rest of the bridge reads the same on both.
 #if __has_include(<fastdds/config.hpp>)
 #include <fastdds/config.hpp>
+#else
+#include <fastrtps/config.h>
 #endif
-#if defined(FASTDDS_VERSION_MAJOR) && FASTDDS_VERSION_MAJOR >= 3
-#error "Fast DDS 3 is not supported by this source yet (build.py refuses it before compiling)"
+#if defined(FASTDDS_VERSION_MAJOR) && FASTDDS_VERSION_MAJOR == 3
+#define XRCE_FASTDDS_3 1
+#elif !(defined(FASTRTPS_VERSION_MAJOR) && FASTRTPS_VERSION_MAJOR == 2)
+#error "the plain DDS bridge knows Fast DDS 2 and 3 (build.py refuses others before compiling)"
 #endif
 
 namespace fdds = eprosima::fastdds::dds;
-using eprosima::fastrtps::rtps::InstanceHandle_t;
-using eprosima::fastrtps::rtps::SerializedPayload_t;
+#ifdef XRCE_FASTDDS_3
+namespace frtps = eprosima::fastdds::rtps;
+using Duration = eprosima::fastdds::dds::Duration_t;
+using RetCode = eprosima::fastdds::dds::ReturnCode_t;
+constexpr RetCode RETCODE_OK = eprosima::fastdds::dds::RETCODE_OK;
+#else
+namespace frtps = eprosima::fastrtps::rtps;
+using Duration = eprosima::fastrtps::Duration_t;
 using RetCode = eprosima::fastrtps::types::ReturnCode_t;
+const RetCode RETCODE_OK = RetCode::RETCODE_OK;
+#endif
+using frtps::InstanceHandle_t;
+using frtps::SerializedPayload_t;
 
 namespace {
 
@@ -57,45 +75,62 @@ struct Incoming {
     bool oversize = false;
 };
 
+// A board's body to and from the payload: the same work on both versions, under 2's and 3's
+// names for it.
 class BytesType : public fdds::TopicDataType {
 public:
     explicit BytesType(const std::string& name)
     {
-        setName(name.c_str());
         // Only a payload pool's first size: the endpoints' memory policy grows it as needed.
+#ifdef XRCE_FASTDDS_3
+        set_name(name);
+        max_serialized_type_size = 256 + ENCAPSULATION;
+        is_compute_key_provided = false;
+#else
+        setName(name.c_str());
         m_typeSize = 256 + ENCAPSULATION;
         m_isGetKeyDefined = false;
+#endif
     }
 
+#ifdef XRCE_FASTDDS_3
+    bool serialize(const void* const data, SerializedPayload_t& payload,
+                   fdds::DataRepresentationId_t) override
+    {
+        return put(static_cast<const Outgoing*>(data), payload);
+    }
+
+    bool deserialize(SerializedPayload_t& payload, void* data) override
+    {
+        return take(payload, static_cast<Incoming*>(data));
+    }
+
+    uint32_t calculate_serialized_size(const void* const data, fdds::DataRepresentationId_t) override
+    {
+        return static_cast<const Outgoing*>(data)->size + ENCAPSULATION;
+    }
+
+    void* create_data() override { return new Incoming(); }
+
+    void delete_data(void* data) override { delete static_cast<Incoming*>(data); }
+
+    bool compute_key(SerializedPayload_t&, InstanceHandle_t&, bool) override { return false; }
+
+    bool compute_key(const void* const, InstanceHandle_t&, bool) override { return false; }
+#else
     bool serialize(void* data, SerializedPayload_t* payload) override
     {
-        const Outgoing* sample = static_cast<const Outgoing*>(data);
-        if (sample->size > MAX_SAMPLE || payload->max_size < sample->size + ENCAPSULATION) {
-            return false;
-        }
-        std::memcpy(payload->data, ENCAPSULATION_LE, ENCAPSULATION);
-        std::memcpy(payload->data + ENCAPSULATION, sample->data, sample->size);
-        payload->length = sample->size + ENCAPSULATION;
-        return true;
+        return put(static_cast<const Outgoing*>(data), *payload);
     }
 
     bool deserialize(SerializedPayload_t* payload, void* data) override
     {
-        Incoming* sample = static_cast<Incoming*>(data);
-        if (payload->length > MAX_SAMPLE + ENCAPSULATION || payload->length < ENCAPSULATION) {
-            sample->payload.clear();
-            sample->oversize = true;
-            return true;  // taken and counted by the listener, not left in the history
-        }
-        sample->oversize = false;
-        sample->payload.assign(payload->data, payload->data + payload->length);
-        return true;
+        return take(*payload, static_cast<Incoming*>(data));
     }
 
     std::function<uint32_t()> getSerializedSizeProvider(void* data) override
     {
-        const Outgoing* sample = static_cast<const Outgoing*>(data);
-        uint32_t size = sample->size + ENCAPSULATION;
+        uint32_t size = static_cast<const Outgoing*>(data)->size + ENCAPSULATION;
         return [size]() { return size; };
     }
 
@@ -104,7 +139,42 @@ public:
     void deleteData(void* data) override { delete static_cast<Incoming*>(data); }
 
     bool getKey(void*, InstanceHandle_t*, bool) override { return false; }
+#endif
+
+private:
+    static bool put(const Outgoing* sample, SerializedPayload_t& payload)
+    {
+        if (sample->size > MAX_SAMPLE || payload.max_size < sample->size + ENCAPSULATION) {
+            return false;
+        }
+        std::memcpy(payload.data, ENCAPSULATION_LE, ENCAPSULATION);
+        std::memcpy(payload.data + ENCAPSULATION, sample->data, sample->size);
+        payload.length = sample->size + ENCAPSULATION;
+        return true;
+    }
+
+    static bool take(const SerializedPayload_t& payload, Incoming* sample)
+    {
+        if (payload.length > MAX_SAMPLE + ENCAPSULATION || payload.length < ENCAPSULATION) {
+            sample->payload.clear();
+            sample->oversize = true;
+            return true;  // taken and counted by the listener, not left in the history
+        }
+        sample->oversize = false;
+        sample->payload.assign(payload.data, payload.data + payload.length);
+        return true;
+    }
 };
+
+// DataWriter::write answered a bool on Fast DDS 2 and a ReturnCode_t on 3.
+inline bool write_sample(fdds::DataWriter* writer, Outgoing* sample)
+{
+#ifdef XRCE_FASTDDS_3
+    return writer->write(sample) == RETCODE_OK;
+#else
+    return writer->write(sample);
+#endif
+}
 
 struct ParticipantState;
 
@@ -150,7 +220,7 @@ public:
         std::vector<std::vector<unsigned char>> batch;
         Incoming sample;
         fdds::SampleInfo info;
-        while (from->take_next_sample(&sample, &info) == RetCode::RETCODE_OK) {
+        while (from->take_next_sample(&sample, &info) == RETCODE_OK) {
             if (!info.valid_data) {
                 continue;
             }

@@ -10,8 +10,8 @@ nothing to an agent that never sees one. The compile takes about 3 s once; the r
 DDS library it links and the Python ABI, and a later agent loads it in milliseconds. The
 interface packages are built at run time for the same reason (``xrce.agent.interfaces``).
 
-Refused, with one line naming what is missing: a Fast DDS other than 2.x (ROS 2 Kilted's 3.x:
-not supported yet), an RMW other than rmw_fastrtps_cpp (no Fast DDS loaded), no headers beside
+Refused, with one line naming what is missing: a Fast DDS other than 2.x (ROS 2 Jazzy) or 3.x
+(ROS 2 Kilted), an RMW other than rmw_fastrtps_cpp (no Fast DDS loaded), no headers beside
 the loaded library, no C++ compiler (``$CXX`` or ``c++``).
 """
 
@@ -33,6 +33,9 @@ SOURCE = os.path.join(_HERE, "_plaindds.cpp")
 SOURCES = (SOURCE, os.path.join(_HERE, "_plaindds_types.hpp"))  # what the build's key covers
 COMPILE_TIMEOUT_S = 300
 _FASTDDS_LIBRARIES = ("libfastrtps.so.", "libfastdds.so.")
+# Fast DDS's major version -> (the library it is, what the bridge links): 3 renamed libfastrtps.
+# The source reads either (its #if on the version the headers give).
+_LINK = {"2": ("libfastrtps.so.", "-lfastrtps"), "3": ("libfastdds.so.", "-lfastdds")}
 
 _lock = threading.Lock()
 # The build's (or load's) concurrent.futures.Future, once asked for. The modules that build and
@@ -75,9 +78,10 @@ def _plan():
                                 "this process has not loaded it (RMW_IMPLEMENTATION=%s)"
                                 % (os.environ.get("RMW_IMPLEMENTATION") or "the default"))
     library, version = found
-    if not version.startswith("2."):
-        raise BridgeUnavailable("plain DDS topics are carried on Fast DDS 2 (ROS 2 Jazzy) only; "
-                                "this agent runs Fast DDS %s" % version)
+    link = _LINK.get(version.split(".", 1)[0])
+    if link is None or not os.path.basename(library).startswith(link[0]):
+        raise BridgeUnavailable("plain DDS topics are carried on Fast DDS 2 (ROS 2 Jazzy) and 3 "
+                                "(ROS 2 Kilted); this agent runs Fast DDS %s" % version)
     libdir = os.path.dirname(os.path.realpath(library))
     include = os.path.join(os.path.dirname(libdir), "include")
     if not os.path.isfile(os.path.join(include, "fastdds", "dds", "domain",
@@ -97,7 +101,7 @@ def _plan():
     command = [compiler, "-O2", "-std=c++17", "-shared", "-fPIC", "-fvisibility=hidden",
                '-DXRCE_SOURCE_CRC="%s"' % crc,
                "-I" + sysconfig.get_paths()["include"], "-I" + include, SOURCE,
-               "-L" + libdir, "-Wl,-rpath," + libdir, "-lfastrtps", "-lfastcdr"]
+               "-L" + libdir, "-Wl,-rpath," + libdir, link[1], "-lfastcdr"]
     return output, command
 
 
