@@ -257,3 +257,33 @@ def test_a_create_waiting_for_its_type_parks_only_its_client():
     middleware.build.set_result(None)
     agent.tick()
     assert waiting.statuses() == [(0x80, topic_request, 0), (0x80, publisher_request, 0)]
+
+
+class RefusingMiddleware(CedMiddleware):
+    """CED whose publish fails for one topic, as rcl's publish can (a context shut down, a
+    serialization error): the engine counts what was not published instead of only logging."""
+
+    def write(self, writer, sample):
+        if self.writers[writer].topic == "rt/refused":
+            return False
+        return super().write(writer, sample)
+
+
+def test_samples_the_middleware_does_not_publish_are_counted_and_shown_in_stats():
+    from xrce.agent.observe.observability import Observer
+    from xrce.agent.observe.stats_view import format_snapshot
+
+    link = Link()
+    agent = Agent(RefusingMiddleware())
+    agent.clock = Clock()
+    refused, fine = Peer(agent, link, "refused"), Peer(agent, link, "fine", key=b"\x01\x02\x03\x04")
+    for peer, topic in ((refused, "rt/refused"), (fine, "rt/fine")):
+        assert peer.connect()[1] == 0
+        peer.build_pubsub(topic, reliable=False)
+    for _ in range(3):
+        refused.write(b"\x02\x00\x00\x00a\x00", stream_id=0x01)
+        fine.write(b"\x02\x00\x00\x00b\x00", stream_id=0x01)
+    assert agent.stats.publish_errors == 3
+    snapshot = Observer(agent).snapshot()
+    assert snapshot["agent"]["publish_errors"] == 3
+    assert "not published 3," in format_snapshot(snapshot)

@@ -132,7 +132,8 @@ class DataPath:
         self.stats.samples_in += 1
         entry.samples += 1
         entry.sample_bytes += length - 4
-        entry.write(data[start + 8:end])
+        if not entry.write(data[start + 8:end]) and entry.kind == C_DATAWRITER:
+            self.stats.publish_errors += 1
         if entry.kind == C_DATAWRITER or entry.kind == C_REPLIER:
             fastpath = getattr(link, "fastpath", None)
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
@@ -154,7 +155,9 @@ class DataPath:
             # The writer bound at creation when there is one (reassembled fragments come here).
             write = entry.write
             written = bool(write(data) if write is not None else self.middleware.write(key, data))
-            if written and self.timelines.pending:
+            if not written:
+                self.stats.publish_errors += 1
+            elif self.timelines.pending:
                 self.timelines.sample_into_ros(client)
             return written
         if entry.kind == C.OBJK_REQUESTER:

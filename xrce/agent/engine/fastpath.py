@@ -540,6 +540,7 @@ class FastPath:
                     entry.samples += samples
                     entry.sample_bytes += sample_bytes
         if publish_errors:
+            self.agent.stats.publish_errors += publish_errors
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
         if self.repliers:
             expired = self.receiver.take_expired()

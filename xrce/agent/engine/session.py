@@ -89,6 +89,7 @@ class AgentStats:
     samples_in: int = 0
     samples_compiled: int = 0  # of samples_in, those the compiled UDP read published
     samples_out_compiled: int = 0  # of samples_out, those the compiled path sent to a board
+    publish_errors: int = 0  # board samples the middleware refused to publish (either path)
     samples_out: int = 0
     samples_overwritten: int = 0  # reader queue full: oldest sample dropped
     clients_created: int = 0

@@ -55,10 +55,11 @@ def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int =
     endpoints and the topics as plain-text tables."""
     agent = snapshot["agent"]
     lines = ["xrce-agent up %.0f s: %d clients, in %d msg / %d B, out %d msg / %d B, "
-             "dropped %d (decode %d), retransmissions %d, mismatches %d" % (
+             "dropped %d (decode %d), not published %d, retransmissions %d, mismatches %d" % (
                  snapshot["uptime_s"], len(snapshot["clients"]), agent["messages_in"],
                  agent["bytes_in"], agent["messages_out"], agent["bytes_out"], agent["dropped"],
-                 agent["decode_errors"], agent["retransmissions"], agent.get("mismatches", 0))]
+                 agent["decode_errors"], agent.get("publish_errors", 0),
+                 agent["retransmissions"], agent.get("mismatches", 0))]
     if snapshot["clients"] and not snapshot.get("keys_shown"):
         lines.append("client keys hidden (this reader is not the agent's user): clients named "
                      "by tag, as on /diagnostics")
