@@ -6,7 +6,8 @@ writers, a reader with a standing READ_DATA, a replier), against the real agent 
 real rclpy; the agent is stopped with SIGINT, or killed with SIGKILL, and started again on the
 same port (or serial device) with the same state store. Afterwards the board's samples reach an
 rclpy subscriber again, rclpy's reliable samples reach the board in order with none repeated, a
-service call is answered, and the ROS graph holds exactly one of each of the board's entities.
+service call is answered (the board's reply goes on its reliable stream, which the restarted
+agent has to set going: xrce.agent.engine.resync), and the ROS graph holds exactly one of each of the board's entities.
 Over UDP and over a pseudo-terminal pair (the serial link). The figures (banner to first sample in
 ROS, to first /board_cmd at the board, samples lost across the gap) are printed, not asserted.
 
@@ -164,7 +165,7 @@ def test_board_survives_agent_restart(tmp_path, ros_peer, link, stop):
     ros = RosSide(ros_peer)
     try:
         board = Board(exe, board_args, pass_fds)
-        assert wait_until(lambda: board.has("READY"), WAIT_S), [l for _, l in board.lines if not l.startswith("CMD")]
+        assert wait_until(lambda: board.has("READY"), WAIT_S), ([l for _, l in board.lines if not l.startswith("CMD")], board.proc.poll(), "".join(agent.output))
         assert wait_until(lambda: ros.sensor and ros.reliable and board.commands(), WAIT_S), (
             ros.sensor[-1:], ros.reliable[-1:], board.lines[-3:], "".join(agent.output))
         assert ros.call(2, 3) == 5
@@ -196,10 +197,12 @@ def test_board_survives_agent_restart(tmp_path, ros_peer, link, stop):
               "board %.3f s, agent away %.1f s, board samples lost across the gap %d" % (
                   link, stop, first_sensor - banner_at, first_cmd - banner_at,
                   banner_at - gone_at, after - last_sensor - 1))
-        if ros.call(20, 22) != 42:
-            # Known open (issue 51): the board answers the restarted agent's request (its REPLY
-            # line), but the reply does not reach ROS yet. Everything above did pass.
-            pytest.xfail("service reply after an agent restart does not reach ROS yet")
+        assert ros.call(20, 22) == 42
+        # The board's reliable writer is going again too (its stream resynchronised by the
+        # agent: xrce.agent.engine.resync), in order, none twice.
+        assert wait_until(lambda: any(t > banner_at for t, _ in ros.reliable), WAIT_S)
+        reliable = [v for _, v in ros.reliable]
+        assert reliable == sorted(set(reliable)), reliable
     finally:
         ros.stop()
         if board is not None:
