@@ -12,6 +12,10 @@ started again at once with the same client key while the agent stays up.
 
 Each run also collects the agent's recovery timeline line (``xrce.agent.engine.timeline``) so the phases of
 the median run can be read next to the figures. ``bench/run.py --only restart`` calls ``measure``.
+
+``--board-once [its options]``: instead, a board that never re-creates its session (eProsima's
+client, tests/recovery/programs/board_once.c) across a SIGINT and a SIGKILL restart of the agent,
+over UDP and serial: bench/restart/board_restart.py, whose docstring says what it measures.
 """
 
 import os
@@ -269,5 +273,9 @@ def main(argv=None):
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--subscriber"]:
         subscriber_main()
+    elif sys.argv[1:2] == ["--board-once"]:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import board_restart
+        sys.exit(board_restart.main(sys.argv[2:]))
     else:
         sys.exit(main())

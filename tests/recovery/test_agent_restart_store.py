@@ -318,3 +318,91 @@ def test_stats_show_restored_clients_and_whether_they_have_spoken(tmp_path):
     assert sorted(c["restored"] for c in snapshot["clients"]) == ["silent", "spoke"]
     view = format_snapshot(snapshot)
     assert "restored" in view and "yes, spoke" in view and "yes, silent" in view, view
+
+
+def test_version_1_store_is_upgraded_keeping_its_clients(tmp_path):
+    """Schema 2 added the board's reliable stream positions: a store of version 1 is read, its
+    clients kept, the new table added."""
+    path = str(tmp_path / "old.sqlite3")
+    db = sqlite3.connect(path)
+    for statement in store_module._statements(store_module.MIGRATIONS[0]):
+        db.execute(statement)
+    db.execute("INSERT INTO clients VALUES (?, 129, x'00', 1, 'udp4', '[\"10.0.0.7\", 4000]', 1.0)",
+               (b"\x01\x02\x03\x04",))
+    db.execute("PRAGMA user_version=1")
+    db.commit()
+    db.close()
+    store = StateStore(path)
+    [record] = store.clients()
+    assert record.key == b"\x01\x02\x03\x04" and record.inputs == {}
+    assert store.counts()["inputs"] == 0
+    store.close()
+    db = sqlite3.connect(path)
+    assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+    db.close()
+
+
+def _board_acknacks(peer):
+    return [p for _, ps in peer.take() for p in ps if p.ID == C.ACKNACK and p.stream_id == 0x80]
+
+
+@pytest.mark.parametrize("stop", ["sigint", "sigkill"])
+def test_agent_sets_going_a_board_that_never_sends_heartbeat(tmp_path, stop):
+    """eProsima's client sends no HEARTBEAT while it keeps reading: after a restart its reliable
+    output waits for an ACKNACK. After a clean stop the agent sends it at once, exactly after
+    what it handled, with a NACK bit (the board sends again what went into the outage); after a
+    crash, once the board has had GRACE_S to speak for itself, far past the stored checkpoint,
+    and the board's next message, whatever its number, starts the stream."""
+    from xrce.agent.engine import resync
+
+    link = Link()
+    agent = _agent(_store(tmp_path), link)
+    talker, listener = talker_and_listener(agent, link)
+    for n in range(3):
+        talker.write(b"before-%d" % n)
+    handled = agent.clients[talker.key].in_reliable[0x80].last_handled
+    if stop == "sigkill":
+        agent.state.checkpoint()
+        checkpoint = handled
+        for n in range(4):
+            talker.write(b"late-%d" % n)
+        agent2, _ = _crash(agent, tmp_path, link)
+    else:
+        agent2, _ = _restart(agent, tmp_path, link)
+    talker.agent = listener.agent = agent2
+    talker.take()
+    # The board speaks (an ACKNACK of the agent's stream, as eProsima's answers a HEARTBEAT),
+    # nothing on its own reliable stream.
+    talker.send(0, AckNack(0, 0, 0x80))
+    acknacks = _board_acknacks(talker)
+    if stop == "sigint":
+        assert [(a.first_unacked, a.nack_bitmap) for a in acknacks] == [((handled + 1) & 0xFFFF, 1)]
+        # The board sends again what it holds from the outage: taken in order, once.
+        talker.seqs[0x80] = (handled + 1) & 0xFFFF
+        talker.write(b"outage-0")
+        talker.write(b"outage-1")
+        assert agent2.clients[talker.key].in_reliable[0x80].last_handled == (handled + 2) & 0xFFFF
+        talker.take()
+        agent2.clock.now += 0.2
+        agent2.tick()  # settled by the board's messages: no ACKNACK of the resync again
+        assert agent2.clients[talker.key].input_resync is None
+        assert [a.first_unacked for a in _board_acknacks(talker)] == []
+        return
+    assert acknacks == []  # the board may still say where it is itself
+    agent2.clock.now += resync.GRACE_S
+    agent2.tick()
+    acknacks = _board_acknacks(talker)
+    assert [(a.first_unacked, a.nack_bitmap) for a in acknacks] == \
+        [((checkpoint + resync.LEAP + 1) & 0xFFFF, 0)]
+    # Far past anything the board sent: never behind its acknowledged point.
+    assert 0x3000 < (acknacks[0].first_unacked - talker.seqs[0x80]) & 0xFFFF < 0x8000
+    agent2.clock.now += 0.2
+    agent2.tick()
+    assert len(_board_acknacks(talker)) == 1  # again until the board answers (at most TRIES)
+    talker.write(b"after-0")  # its next number, whatever it is, starts the stream
+    stream = agent2.clients[talker.key].in_reliable[0x80]
+    assert stream.last_handled == (talker.seqs[0x80] - 1) & 0xFFFF
+    assert [a.first_unacked for a in _board_acknacks(talker)] == [talker.seqs[0x80]]
+    agent2.clock.now += 0.2
+    agent2.tick()
+    assert _board_acknacks(talker) == []  # settled: no more guesses

@@ -415,6 +415,10 @@ class Agent:
             # not delete them from the store (a restarted agent restores them).
             state, self.state = self._state, None
             if state is not None:
+                # No more input for good: what the store records as handled on the boards'
+                # streams is then at least what any board was acknowledged (xrce.agent.engine.resync).
+                for fastpath in self.fastpaths:
+                    fastpath.pause()
                 state.close()
             for client in list(self.clients.values()):
                 self.sessions.delete_client(client)
@@ -692,6 +696,15 @@ class Agent:
                 span = stream.heartbeat()
                 self.stats.heartbeats_out += 1
                 self.output.send_stream0(client, Heartbeat(span[0], span[1], stream.stream_id))
+        resync = client.input_resync
+        if resync is not None:
+            # Its own reliable streams may never say where they are (xrce.agent.engine.resync).
+            due = resync.start(client, now, self.liveliness.resync_sender(client),
+                               self.scheduler.heartbeat_period)
+            if due is None:
+                client.input_resync = None
+            else:
+                self.scheduler.wake_at(due)
         self.scheduler.wake_at(now + self.scheduler.heartbeat_period)
 
     def _resume_output(self, client: ClientProxy, acknack) -> None:

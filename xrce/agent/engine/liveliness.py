@@ -144,6 +144,13 @@ class Liveliness:
         self.heartbeat_period = heartbeat_period
         self.client_expire_time = client_expire_time
 
+    def resync_sender(self, client: ClientProxy):
+        """How ``InputResync`` sends its ACKNACKs to ``client``."""
+        def send(acknack: AckNack) -> None:
+            self.stats.acknacks_out += 1
+            self.output.send_stream0(client, acknack)
+        return send
+
     def on_acknack(self, client: ClientProxy, acknack: AckNack) -> None:
         stream = client.out_reliable.get(acknack.stream_id)
         if stream is None:
@@ -247,6 +254,13 @@ class Liveliness:
             return recheck if recheck < expiry else expiry
         due = client.last_seen + self.sessions.quiet_limit(client)
         soon = now + self.heartbeat_period
+        resync = client.input_resync
+        if resync is not None and client.spoken:
+            again = resync.run(client, now, self.resync_sender(client), self.heartbeat_period)
+            if again is None:
+                client.input_resync = None
+            elif again < due:
+                due = again
         for stream in list(client.out_reliable.values()):
             if stream.__class__ is not OutputReliableStream:
                 self.datapath.release_acknowledged(client, stream)  # nothing may be sent for a while

@@ -219,6 +219,9 @@ class ClientProxy:
         self.spoken = False
         self.resume_inputs = False
         self.resuming = False
+        # ``input_resync``: its own reliable output streams, which the agent must set going
+        # again itself (xrce.agent.engine.resync.InputResync), None once they all are.
+        self.input_resync: Any = None
 
     def entity(self, object_id: int) -> EntityKey:
         return (self.key_int, object_id)
@@ -462,6 +465,7 @@ class Sessions:
         # A CREATE_CLIENT says where the board's streams are (at their start): a restored
         # session stops guessing (xrce.agent.state.recorder).
         client.resume_inputs = client.resuming = False
+        client.input_resync = None
         self.scheduler.wake_at(now + self.quiet_limit(client))
         self.timelines.established(client, restarted)
         if self.state is not None and raw is not None:

@@ -9,7 +9,9 @@ positions of the streams the agent sends on are checkpointed every ``CHECKPOINT_
 that moved): what a restored stream needs to resume (see ``ResumingStream`` in
 xrce.agent.engine.session for the reliable ones; a best-effort one resumes ``BEST_EFFORT_LEAP``
 numbers past its checkpoint, which the board takes as newer while its own count is less than
-that many past the checkpoint).
+that many past the checkpoint); so are the positions the agent handled on the board's reliable
+streams, and at a clean stop all of them as final (``xrce.agent.engine.resync`` says why and how
+a restarted agent uses them).
 
 A restored client is a session as the board left it: its objects re-created from the CREATEs
 that made them (the ROS entities with them, domains joined as usual), its standing READ_DATAs
@@ -27,6 +29,7 @@ from typing import Dict, Optional, Tuple
 
 from xrce import DecodeError
 from xrce.agent.engine.objects import Parked
+from xrce.agent.engine.resync import InputResync
 from xrce.agent.engine.session import (
     STREAM_WINDOW, ClientProxy, ObjectEntry, ResumingStream, _hard_liveliness, client_host,
 )
@@ -97,6 +100,8 @@ class StateRecorder:
         self._objects: Dict[bytes, Dict[int, Tuple[ObjectEntry, ObjectRecord]]] = {}
         self._reads: Dict[bytes, Dict[int, ReadRecord]] = {}
         self._streams: Dict[bytes, Dict[int, int]] = {}
+        # key -> {stream id: (last handled, clean)}: the board's reliable streams as stored.
+        self._inputs: Dict[bytes, Dict[int, Tuple[int, bool]]] = {}
         self._commit_handle = None
         self._checkpoint_handle = None
         self.restored = 0
@@ -114,6 +119,7 @@ class StateRecorder:
         self.store.put_client(client.key, client.session_id, blob, flags | (pad << 8),
                               client.link.name, where, time.time())
         self._streams.pop(client.key, None)  # (put_client dropped them: the streams start over)
+        self._inputs.pop(client.key, None)
         if not restarted:
             self._objects[client.key] = {}
             self._reads[client.key] = {}
@@ -127,6 +133,7 @@ class StateRecorder:
 
     def client_deleted(self, client: ClientProxy) -> None:
         self._objects.pop(client.key, None)
+        self._inputs.pop(client.key, None)
         self._reads.pop(client.key, None)
         self._streams.pop(client.key, None)
         self.store.delete_client(client.key)
@@ -157,14 +164,33 @@ class StateRecorder:
                 stored[object_id] = (entry, record)
                 store.put_object(client.key, record)
                 changed = True
+        if self._note_inputs(client):
+            changed = True
         if changed:
             self._commit_soon()
+
+    def _note_inputs(self, client: ClientProxy) -> bool:
+        """A reliable stream of the board the store has no row for yet gets one now (its
+        position as a lower bound): a crash before the next checkpoint still leaves the
+        restarted agent knowing which streams to resynchronise and roughly where. Called with
+        CREATEs and READ_DATAs, which come on those streams: never per sample."""
+        known = self._inputs.setdefault(client.key, {})
+        new = [(stream_id, stream.last_handled, False)
+               for stream_id, stream in list(client.in_reliable.items()) if stream_id not in known]
+        if not new:
+            return False
+        for stream_id, seq, clean in new:
+            known[stream_id] = (seq, clean)
+        self.store.put_inputs(client.key, new)
+        return True
 
     def read_data(self, client: ClientProxy, flags: int, data, start: int, end: int,
                   request) -> None:
         reads = self._reads.get(client.key)
         if reads is None or request.object_id not in client.objects:
             return
+        if self._note_inputs(client):
+            self._commit_soon()
         if standing(request):
             blob, pad = _padded(data, start, end)
             record = ReadRecord(request.object_id, blob, flags | (pad << 8))
@@ -200,8 +226,11 @@ class StateRecorder:
         self._checkpoint_handle = self.loop.call_later(CHECKPOINT_S, self._periodic)
         self.checkpoint()
 
-    def checkpoint(self) -> None:
-        """The stream positions that moved since the last checkpoint (one row each)."""
+    def checkpoint(self, clean: bool = False) -> None:
+        """The stream positions that moved since the last checkpoint (one row each). ``clean``:
+        the agent is stopping and takes no more input (``Agent.close`` paused the compiled
+        paths first), so what it handled on the board's streams is at least what the board
+        has had acknowledged: rows marked clean say so."""
         with self.agent.lock:
             for key, client in list(self.agent.clients.items()):
                 if key not in self._objects:
@@ -219,6 +248,15 @@ class StateRecorder:
                 if moved:
                     known.update(moved)
                     self.store.put_streams(key, moved)
+                inputs = self._inputs.setdefault(key, {})
+                handled = []
+                for stream_id, stream in list(client.in_reliable.items()):
+                    row = (stream.last_handled, clean)
+                    if inputs.get(stream_id) != row:
+                        inputs[stream_id] = row
+                        handled.append((stream_id,) + row)
+                if handled:
+                    self.store.put_inputs(key, handled)
         self.store.commit()
 
     def close(self) -> None:
@@ -228,7 +266,7 @@ class StateRecorder:
                 handle.cancel()
         self._commit_handle = self._checkpoint_handle = None
         try:
-            self.checkpoint()
+            self.checkpoint(clean=True)
         finally:
             self.store.close()
         log.info("state store %s flushed (%d clients)", self.store.path, len(self._objects))
@@ -257,6 +295,8 @@ class StateRecorder:
                         self.agent.sessions.delete_client(partial)
             if not ok:
                 self.store.delete_client(record.key)
+        # A clean stop's positions hold for this process's first messages only.
+        self.store.inputs_unclean()
         self.store.commit()
         if records:
             log.info("state store %s: %d of %d stored clients restored", self.store.path,
@@ -325,6 +365,9 @@ class StateRecorder:
         for stream_id, seq in reliable.items():
             client.out_reliable[stream_id] = ResumingStream(stream_id, STREAM_WINDOW, seq)
         client.resuming = bool(reliable)
+        # The board's own reliable streams: where to resynchronise them when it speaks.
+        client.input_resync = InputResync(record.inputs) if record.inputs else None
+        self._inputs[key] = {sid: (seq, False) for sid, (seq, _clean) in record.inputs.items()}
         self._objects[key] = stored
         self._reads[key] = reads
         self._streams[key] = dict(record.streams)

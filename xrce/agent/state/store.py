@@ -3,7 +3,8 @@
 What is kept, per client key: its CREATE_CLIENT as received (session id, mtu, properties), the
 link and endpoint it spoke from, every object it created as the CREATE submessage that created it
 (its representation, XML, reference or binary, and its parent are inside), each standing READ_DATA
-as received, and the last known sequence number of each stream the agent sends on. Nothing here
+as received, the last known sequence number of each stream the agent sends on, and the last one
+the agent handled of each reliable stream the board sends on (``inputs``). Nothing here
 knows the engine: rows are plain bytes, numbers and text (``xrce.agent.state.recorder`` turns the
 engine's objects into them and back).
 
@@ -28,7 +29,7 @@ from typing import Dict, Iterable, List, NamedTuple, Optional, Tuple
 
 log = logging.getLogger("xrce.agent.state")
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 FILE_MODE = 0o600  # it holds client keys
 
 _SCHEMA_V1 = """
@@ -66,9 +67,25 @@ CREATE TABLE IF NOT EXISTS streams (
 );
 """
 
+# Version 2: where the board's reliable output streams were. eProsima's client sends a HEARTBEAT
+# only after 100 ms without anything to read, so a board fed at 10 Hz or more never says where
+# it is, and waits for an ACKNACK that a new process cannot write without knowing (see
+# xrce.agent.engine.resync). ``clean`` is 1 when the row was written by a clean stop (SIGINT,
+# SIGTERM: nothing was acknowledged after it), 0 for a periodic checkpoint (a lower bound).
+_SCHEMA_V2 = """
+CREATE TABLE IF NOT EXISTS inputs (
+    key BLOB NOT NULL REFERENCES clients(key) ON DELETE CASCADE,
+    stream_id INTEGER NOT NULL,    -- a reliable stream the client sends on
+    seq INTEGER NOT NULL,          -- the last sequence number the agent handled on it
+    clean INTEGER NOT NULL,
+    PRIMARY KEY (key, stream_id)
+);
+"""
+
 # version -> the statements that bring a store of that version to the next one.
 MIGRATIONS: Dict[int, str] = {
     0: _SCHEMA_V1,  # an empty database (a new file)
+    1: _SCHEMA_V2,
 }
 
 
@@ -97,6 +114,7 @@ class ClientRecord(NamedTuple):
     objects: List[ObjectRecord]
     reads: List[ReadRecord]
     streams: Dict[int, int]
+    inputs: Dict[int, Tuple[int, bool]]  # stream id -> (last handled, written by a clean stop)
 
 
 class StoreError(Exception):
@@ -189,6 +207,7 @@ class StateStore:
                    (key, session_id, create_client, create_flags, link,
                     json.dumps(endpoint), stored_at))
         db.execute("DELETE FROM streams WHERE key = ?", (key,))
+        db.execute("DELETE FROM inputs WHERE key = ?", (key,))
 
     def put_endpoint(self, key: bytes, link: str, endpoint) -> None:
         self._begin().execute("UPDATE clients SET link = ?, endpoint = ? WHERE key = ?",
@@ -221,6 +240,16 @@ class StateStore:
     def put_streams(self, key: bytes, streams: Iterable[Tuple[int, int]]) -> None:
         self._begin().executemany("INSERT OR REPLACE INTO streams VALUES (?, ?, ?)",
                                   [(key, stream_id, seq) for stream_id, seq in streams])
+
+    def put_inputs(self, key: bytes, inputs: Iterable[Tuple[int, int, bool]]) -> None:
+        self._begin().executemany("INSERT OR REPLACE INTO inputs VALUES (?, ?, ?, ?)",
+                                  [(key, stream_id, seq, int(clean))
+                                   for stream_id, seq, clean in inputs])
+
+    def inputs_unclean(self) -> None:
+        """What a clean stop wrote holds no more once a new process runs: from now on a crash
+        leaves lower bounds only."""
+        self._begin().execute("UPDATE inputs SET clean = 0 WHERE clean != 0")
 
     def pending(self) -> bool:
         return self._dirty
@@ -255,6 +284,10 @@ class StateStore:
         streams: Dict[bytes, Dict[int, int]] = {}
         for key, stream_id, seq in db.execute("SELECT key, stream_id, seq FROM streams"):
             streams.setdefault(bytes(key), {})[stream_id] = seq
+        inputs: Dict[bytes, Dict[int, Tuple[int, bool]]] = {}
+        for key, stream_id, seq, clean in db.execute("SELECT key, stream_id, seq, clean "
+                                                     "FROM inputs"):
+            inputs.setdefault(bytes(key), {})[stream_id] = (seq, bool(clean))
         records = []
         for row in db.execute("SELECT key, session_id, create_client, create_flags, link, "
                               "endpoint, stored_at FROM clients ORDER BY stored_at"):
@@ -265,12 +298,12 @@ class StateStore:
                 endpoint = None
             records.append(ClientRecord(key, row[1], bytes(row[2]), row[3], row[4], endpoint,
                                         row[6], objects.get(key, []), reads.get(key, []),
-                                        streams.get(key, {})))
+                                        streams.get(key, {}), inputs.get(key, {})))
         return records
 
     def counts(self) -> Dict[str, int]:
         return {table: self._db.execute("SELECT count(*) FROM %s" % table).fetchone()[0]
-                for table in ("clients", "objects", "reads", "streams")}
+                for table in ("clients", "objects", "reads", "streams", "inputs")}
 
 
 class _Unreadable(Exception):
