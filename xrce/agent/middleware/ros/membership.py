@@ -10,8 +10,8 @@ hear of each domain joined and left.
 At start the CLI has the default domain (``ROS_DOMAIN_ID``, else 0, where most boards'
 participants go) prepared (``prepare_default``): its thread, rclpy context and executor are made
 then, and the modules a first creation imports, so a first board pays only its DDS participant in
-its CREATE (issue 51 item 6: a fresh agent's first node + 4 entities took 2.7x eProsima's agent,
-1.7x prepared; bench/microros/entity_creation.py). No DDS participant is made, so at rest the
+its CREATE (issue 51 item 6: a fresh agent's first node + 4 entities took 2.45x eProsima's agent,
+1.5x prepared; bench/microros/entity_creation.py). No DDS participant is made, so at rest the
 agent is still nowhere in ROS nor on the network, and idle (bench/agent/domain_prepare.py: 0 ns
 on a CPU over 60 s, for 1 MB and two sleeping threads). The default domain left after its last
 board is prepared again.
