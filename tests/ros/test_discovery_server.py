@@ -7,7 +7,11 @@ ROS wheels (``fast-discovery-server``) on a port of the test's own on 127.0.0.1:
   away (the profile sets no discovery protocol: xrce/agent/middleware/ros/fastdds_profile.py);
 - a plain rclpy node on the same domain, without the variable, does not see the agent's topics:
   discovery really goes through the server (a client of a server announces itself to the server
-  only).
+  only);
+- a board's first samples all reach a subscriber that was waiting for them, from the first: the
+  default domain's DDS participant is made at start under a server, so only the board's writer
+  is left to discover (issue 51 item 6: 30 of 40 samples at 10 Hz arrived when the participant
+  was made by the board's CREATE).
 
 The server is started as the wheels ship it: Fast DDS 2's ``fast-discovery-server -i 0 ...``; Fast
 DDS 3's binary takes the command number its ``fastdds discovery`` front end passes (42: run a
@@ -69,6 +73,30 @@ print(sorted(name for name, _ in node.get_topic_names_and_types()), flush=True)
 node.destroy_node()
 rclpy.shutdown()
 """
+
+
+# The subscriber that waits for a board's first samples: reliable, deep enough for all of them,
+# volatile (what a sample written before the match needs to be lost); it prints each as it comes.
+_WAITING_NODE = r"""
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+rclpy.init(args=["--ros-args", "--disable-external-lib-logs"])
+node = Node("ds_waiting", start_parameter_services=False, enable_rosout=False)
+node.create_subscription(String, "/ds_first", lambda m: print("got " + m.data, flush=True),
+                         QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+for _ in range(10):  # its own announcement to the server has gone out and been answered
+    rclpy.spin_once(node, timeout_sec=0.1)
+print("ready", flush=True)
+seen = False
+while True:
+    rclpy.spin_once(node, timeout_sec=0.1)
+    if not seen and "_xrce_agent" in node.get_node_names():  # the agent's hidden node
+        seen = True
+        print("agent in the graph", flush=True)
+"""
+FIRST_SAMPLES = 40  # 4 s at 10 Hz, as rclc firmware publishes from its writer's STATUS on
 
 
 def _free_udp_port():
@@ -165,3 +193,49 @@ def test_data_crosses_both_ways_through_a_discovery_server(discovery_server, ros
             finally:
                 client.close()
                 _stop(peer)
+
+
+def test_a_boards_first_samples_all_reach_a_waiting_subscriber(discovery_server,
+                                                               ros_domain):  # noqa: F811
+    """An agent under a server, an rclpy subscriber already waiting: the agent's participant
+    reaches the subscriber's graph before any board comes (it is made at start), then the board
+    creates its participant and a reliable writer and writes at 10 Hz from its writer's STATUS
+    on, as rclc firmware does. Every one of the first samples arrives, in order (counted, not
+    timed: the waits only bound a hang). With the participant made by the board's CREATE the
+    agent was not in the graph until then, and the first 10 samples were lost."""
+    env = {"ROS_DISCOVERY_SERVER": discovery_server}
+    peer = subprocess.Popen([sys.executable, "-c", _WAITING_NODE], env=dict(os.environ, **env),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=restore_default_signals)
+    try:
+        assert peer.stdout.readline().strip() == "ready"
+        lines = []
+        threading.Thread(target=lambda: lines.extend(peer.stdout), daemon=True).start()
+        with AgentProcess("udp4", "-v", "4", env=env) as agent:
+            deadline = time.monotonic() + DELIVERY_S
+            while time.monotonic() < deadline and "agent in the graph\n" not in lines:
+                time.sleep(0.1)
+            assert "agent in the graph\n" in lines, \
+                "no client yet, and the agent is not in the server's graph: %s" % lines
+            client = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+            try:
+                assert client.create(attempts=5, timeout_ms=1000)
+                node = client.create_participant(domain_id=ros_domain, name="ds_first_board")
+                writer = client.create_writer(node, "/ds_first", String, reliable=True)
+                assert client.run_until_all_status(10000), client.last_statuses
+                for number in range(FIRST_SAMPLES):
+                    client.write(writer, String(data="sample %d" % number))
+                    client.run_until_timeout(100)
+                expected = ["got sample %d\n" % n for n in range(FIRST_SAMPLES)]
+                deadline = time.monotonic() + DELIVERY_S
+                while time.monotonic() < deadline and len(lines) < FIRST_SAMPLES:
+                    client.run_until_timeout(100)  # the reliable stream's acknowledgments
+                got = [line for line in lines if line.startswith("got ")]
+                assert got == expected, "%d of %d samples: %s" % (len(got), FIRST_SAMPLES, got)
+            finally:
+                try:
+                    client.delete(attempts=1, timeout_ms=500)
+                finally:
+                    client.close()
+    finally:
+        _stop(peer)

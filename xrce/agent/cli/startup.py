@@ -150,8 +150,11 @@ async def serve(args, refs):
         return 1
     try:
         # The middleware joins no ROS domain at start: each is joined with its first client
-        # participant (xrce.agent.middleware.ros.membership).
+        # participant; the default one is prepared (its context, no DDS participant, unless under
+        # a discovery server) so a first board finds it ready (xrce.agent.middleware.ros.membership).
         await agent.start()
+        if hasattr(middleware, "prepare_default"):
+            middleware.prepare_default()
         if state is not None:
             # Before any link opens: a board's first message finds its session restored.
             agent.state = state

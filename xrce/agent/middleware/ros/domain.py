@@ -154,11 +154,13 @@ class _Wake:
 class DomainRuntime:
     """One rclpy context and its executor thread; runs entity jobs on that thread."""
 
-    def __init__(self, domain_id: int, executor_kind: str, idle_wait_s: float = IDLE_WAIT_S):
+    def __init__(self, domain_id: int, executor_kind: str, idle_wait_s: float = IDLE_WAIT_S,
+                 warm_up=None):
         """Only starts the thread: the rclpy context and executor are made on it (``_start``),
         so that joining a domain never holds up the caller (the loop) beyond a thread start.
         Jobs submitted meanwhile queue up; if the context cannot start they fail with the
-        reason, and ``failed`` holds it."""
+        reason, and ``failed`` holds it. ``warm_up()`` runs on the thread right after the
+        context, before any job (``RosDomains.prepare``)."""
         if executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (executor_kind,))
         self.domain_id = domain_id
@@ -193,6 +195,7 @@ class DomainRuntime:
         self._start_lock = threading.Lock()
         self._started_up = False  # the first burst is over (post_after_start)
         self._after_start: list = []  # jobs posted for then
+        self._warm_up = warm_up
         self.thread = threading.Thread(target=self._run, name="xrce-ros-domain-%d" % domain_id,
                                        daemon=True)
         self.thread.start()
@@ -435,6 +438,12 @@ class DomainRuntime:
             self.failed = exc
             self._fail_queued()
             return
+        if self._warm_up is not None:
+            try:
+                self._warm_up()
+            except Exception:  # only a head start lost: each piece loads again when needed
+                log.debug("domain %d: warm-up failed", self.domain_id, exc_info=True)
+            self._warm_up = None
         self._serve_first_burst()
         if self._running:
             try:

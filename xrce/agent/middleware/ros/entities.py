@@ -79,6 +79,10 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         self.requests_timed_out = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._domains: dict[int, DomainRuntime] = {}
+        # Started at start, no participant asked for them yet (membership.prepare).
+        self._prepared: dict[int, DomainRuntime] = {}
+        self._kept: set = set()  # joined at start for the agent's life (membership.prepare)
+        self._default_domain: int | None = None  # prepared again once left (prepare_default)
         self._entities: dict[EntityKey, object] = {}
         # 12-byte guidPrefix for generated sample identities: random per agent run so identities
         # from two runs never collide in a client that survived an agent restart.
@@ -464,8 +468,9 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         for types in self._type_watches.values():
             types.stop()
         self._type_watches.clear()
-        domains = list(self._domains.values())
+        domains = list(self._domains.values()) + list(self._prepared.values())
         self._domains.clear()
+        self._prepared.clear()
         loop = asyncio.get_running_loop()
         started = time.monotonic()
         # Joining executor threads blocks; keep the loop (and other sessions' I/O) running.

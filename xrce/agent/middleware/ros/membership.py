@@ -3,17 +3,37 @@ what it keeps per domain besides its clients' entities.
 
 A domain is joined when a client's participant first asks for it (its thread and rclpy context:
 ``xrce.agent.middleware.ros.domain``), the default domain too: an agent without clients has no DDS
-participant, context or executor thread at all. A domain whose last client participant has gone
-is left ``linger_s`` later (``DOMAIN_LINGER_S``, ``--domain-linger``) unless a participant comes
-back meanwhile; listeners hear of each domain joined and left. Per domain the agent may also have
-publishers of its own (``AgentPublisher``, e.g. /diagnostics) and micro-ROS' graph publication
-(``xrce.agent.middleware.ros.graph``), kept only while a client reads the graph topic there.
+participant. A domain whose last client participant has gone is left ``linger_s`` later
+(``DOMAIN_LINGER_S``, ``--domain-linger``) unless a participant comes back meanwhile; listeners
+hear of each domain joined and left.
+
+At start the CLI has the default domain (``ROS_DOMAIN_ID``, else 0, where most boards'
+participants go) prepared (``prepare_default``): its thread, rclpy context and executor are made
+then, and the modules a first creation imports, so a first board pays only its DDS participant in
+its CREATE (issue 51 item 6: a fresh agent's first node + 4 entities took 2.45x eProsima's agent,
+1.5x prepared; bench/microros/entity_creation.py). No DDS participant is made, so at rest the
+agent is still nowhere in ROS nor on the network, and idle (bench/agent/domain_prepare.py: 0 ns
+on a CPU over 60 s, for 1 MB and two sleeping threads). The default domain left after its last
+board is prepared again.
+
+Under a Fast DDS Discovery Server (``ROS_DISCOVERY_SERVER``) the default domain's participant is
+made at start too and kept for the agent's life: a participant made by a board's CREATE reached
+the other clients of the server about a second later, and a subscriber waiting for the board lost
+that second of samples (30 of 40 at 10 Hz), where the participant made at start is known by then
+(40 of 40; tests/ros/test_discovery_server.py). Such a participant talks to its server at rest,
+not to every port of the network.
+
+Per domain the agent may also have publishers of its own (``AgentPublisher``, e.g. /diagnostics)
+and micro-ROS' graph publication (``xrce.agent.middleware.ros.graph``), kept only while a client
+reads the graph topic there.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 
+from xrce.agent.engine.objects import MAX_DOMAIN_ID
 from xrce.agent.middleware import EntityKey, MiddlewareError
 from xrce.agent.middleware.ros import DOMAIN_LINGER_S  # noqa: F401  (re-exported for callers)
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
@@ -46,6 +66,28 @@ class AgentPublisher:
         return 0 if publisher is None else publisher.get_subscription_count()
 
 
+def default_domain_id(environ=None) -> int | None:
+    """The domain a board's participant most often asks for: ``ROS_DOMAIN_ID``, else 0; None
+    when the variable is no domain id (a board's participant is then refused as usual)."""
+    text = (os.environ if environ is None else environ).get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return 0
+    try:
+        domain_id = int(text)
+    except ValueError:
+        return None
+    return domain_id if 0 <= domain_id <= MAX_DOMAIN_ID else None
+
+
+def _warm_up() -> None:
+    """A prepared domain's thread, before its first job: what a board's first creations import
+    (the type-drift check's parser and classes, ``sample_check``), 3-5 ms of the first
+    datawriter's CREATE where modules compile at import."""
+    from xrce.agent.middleware.ros import sample_check
+
+    sample_check.prepare()
+
+
 def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
     domain.stop(timeout_s)
     from xrce.agent.engine.dispatch import _return_free_heap
@@ -56,10 +98,46 @@ def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
 class RosDomains:
     """Domains of ``RosMiddleware``, which mixes this class in: the methods use its ``_closed``,
     ``_domains``, ``_lingering``, ``linger_s``, ``_leaving``, ``_domain_listeners``,
-    ``_leave_listeners``, ``_agent_publishers``, ``_graph_feeds``, ``_entities``, ``_creating``,
+    ``_leave_listeners``, ``_prepared``, ``_kept``, ``_default_domain``, ``_agent_publishers``, ``_graph_feeds``, ``_entities``, ``_creating``,
     ``executor_kind``, ``idle_wait_s``, ``entity_timeout_s`` and ``_get_loop``."""
 
     # -- joining and leaving ------------------------------------------------------------------
+
+    def prepare_default(self, environ=None) -> None:
+        """The CLI's, at start: prepare the default domain; joined too under a Fast DDS
+        Discovery Server (module docstring). RMWs other than rmw_fastrtps ignore the variable."""
+        environ = os.environ if environ is None else environ
+        domain_id = default_domain_id(environ)
+        if domain_id is None:
+            return
+        server = bool(environ.get("ROS_DISCOVERY_SERVER", "").strip()) and \
+            environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps")
+        self._default_domain = domain_id
+        self.prepare([domain_id], join=server)
+
+    def prepare(self, domain_ids, join: bool = False) -> None:
+        """At start: start ``domain_ids``' threads, rclpy contexts and executors now, not with
+        their first client participant (module docstring); with ``join``, make their DDS
+        participants too and keep them joined for the agent's life. Returns at once: the work
+        is done on each domain's thread, the GIL released for the participant."""
+        for domain_id in domain_ids:
+            if self._closed or domain_id in self._domains or domain_id in self._prepared:
+                continue
+            try:
+                domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s,
+                                       warm_up=_warm_up)
+            except Exception as exc:  # the first participant there tries again and says why
+                log.debug("cannot prepare ROS domain %d: %s", domain_id, exc)
+                continue
+            if not join:
+                # Out of ``_domains``: nothing of the agent's own (/diagnostics) is made in a
+                # domain no participant has asked for, so it stays without a DDS participant.
+                self._prepared[domain_id] = domain
+                continue
+            self._domains[domain_id] = domain
+            self._kept.add(domain_id)
+            domain.post(domain.make_wake)  # the hidden anchor, and the participant with it
+            self._joined(domain_id)
 
     def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
         """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
@@ -77,6 +155,10 @@ class RosDomains:
             return domain, False
         if domain is not None:
             del self._domains[domain_id]
+        prepared = self._prepared.pop(domain_id, None)
+        if prepared is not None and prepared.failed is None:
+            self._domains[domain_id] = prepared
+            return prepared, True
         try:
             domain = DomainRuntime(domain_id, self.executor_kind, self.idle_wait_s)
         except MiddlewareError:
@@ -123,7 +205,7 @@ class RosDomains:
         ``DOMAIN_LINGER_S`` are in docs/PERFORMANCE.md)."""
         domain_id = domain.domain_id
         if self._closed or self._domains.get(domain_id) is not domain or \
-                domain_id in self._lingering or self._in_use(domain):
+                domain_id in self._kept or domain_id in self._lingering or self._in_use(domain):
             return
         if self.linger_s <= 0:
             self._leave(domain)
@@ -163,6 +245,9 @@ class RosDomains:
                                     name="xrce-leave-domain-%d" % domain_id, daemon=True)
         stopping.start()
         self._leaving = [thread for thread in self._leaving if thread.is_alive()] + [stopping]
+        if domain_id == self._default_domain:
+            # Ready again for the next board, still without a DDS participant (``prepare``).
+            self.prepare([domain_id])
 
     # -- the agent's own publishers -----------------------------------------------------------
 

@@ -29,6 +29,12 @@ _classes: Dict[str, object] = {}  # "pkg/Name" -> the class, or None where it ca
 _hashes: Dict[str, Optional[str]] = {}  # "pkg/msg/Name" -> its RIHS01 hash here, or None
 
 
+def prepare() -> None:
+    """Import what a first check needs, ahead of it (``membership.prepare``, at start)."""
+    from xrce.msgs import _define  # noqa: F401
+    from xrce.tools import msg_parser  # noqa: F401
+
+
 def checker(dds_type: str) -> Optional[Callable[[bytes], Optional[str]]]:
     """``check(sample) -> None | why`` for samples (CDR behind their encapsulation) of the message
     type ``dds_type`` (``pkg::msg::dds_::Name_``), or None where this agent cannot tell."""
