@@ -228,10 +228,12 @@ def test_a_boards_first_samples_all_reach_a_waiting_subscriber(discovery_server,
                     client.run_until_timeout(100)
                 expected = ["got sample %d\n" % n for n in range(FIRST_SAMPLES)]
                 deadline = time.monotonic() + DELIVERY_S
-                while time.monotonic() < deadline and len(lines) < FIRST_SAMPLES:
+                got = []
+                while time.monotonic() < deadline and len(got) < FIRST_SAMPLES:
                     client.run_until_timeout(100)  # the reliable stream's acknowledgments
-                got = [line for line in lines if line.startswith("got ")]
-                assert got == expected, "%d of %d samples: %s" % (len(got), FIRST_SAMPLES, got)
+                    got = [line for line in lines if line.startswith("got ")]
+                assert got == expected, "%d of %d samples: %s; the subscriber's other lines: %s" % (
+                    len(got), FIRST_SAMPLES, got, [l for l in lines if not l.startswith("got ")])
             finally:
                 try:
                     client.delete(attempts=1, timeout_ms=500)
