@@ -100,3 +100,24 @@ async def test_no_repeat_for_one_message_nor_once_the_stream_moved_on():
         assert len(_acknacks(link)) == before + 3
     finally:
         await agent.close()
+
+
+async def test_a_batch_of_retransmissions_counts_as_messages_answered():
+    """After a lost ACKNACK the client sends its unacknowledged messages again: all but the
+    missing one are duplicates, and the one ACKNACK that then frees its whole history must not
+    be the only one (eProsima's agent answers each)."""
+    _, rows = golden.load("exchange_reliable_10_udp4")
+    agent, link, samples = await _writer_session(rows)
+    try:
+        for message in samples[:3]:
+            agent.receive(link, ("client", 1), message)
+        await asyncio.sleep(liveliness.ACKNACK_REPEATS_S[-1] + 0.2)
+        before = len(_acknacks(link))
+        for message in samples[:3]:  # all three again, nothing new
+            agent.receive(link, ("client", 1), message)
+        agent.receive(link, ("client", 1), samples[3])
+        await asyncio.sleep(liveliness.ACKNACK_REPEATS_S[-1] + 0.2)
+        sent = _acknacks(link)[before:]
+        assert len(sent) == 4 and len(set(sent)) == 1  # one and three repeats: four answered
+    finally:
+        await agent.close()

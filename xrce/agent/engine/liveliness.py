@@ -33,9 +33,9 @@ log = logging.getLogger("xrce.agent")
 
 HARD_LIVELINESS_PROBES = 3
 
-# When one ACKNACK told of several messages and the client then says nothing more on that
+# When one ACKNACK answered several messages and the client then says nothing more on that
 # stream, it is sent again after these delays (seconds since the first), at most one repeat per
-# message it covered beyond the first: eProsima's agent sends one per message, so a client whose
+# message it answered beyond the first: eProsima's agent sends one per message, so a client whose
 # ACKNACK was lost learns from the next one; one per batch lost would leave a client whose
 # history is full waiting for its own HEARTBEAT, which eProsima's client library sends only after
 # 100 ms without polling (a board spinning every 10 ms never does). Repeats stop at the first
@@ -118,13 +118,17 @@ class Acknowledgments:
         self.output.send_stream0(client, AckNack(first, bitmap, stream.stream_id))
         sent = client.acknacks_sent
         last = sent.get(stream.stream_id)
-        held = len(stream.stored)
-        # The messages this ACKNACK tells of that the last did not: those the stream handed out
-        # since, plus the change in those it holds out of order.
-        covered = 1 if last is None else ((first - last[0]) & 0xFFFF) + held - last[2]
+        held, duplicates = len(stream.stored), stream.duplicates
+        # The messages received since the last ACKNACK, each of which eProsima's agent would
+        # have answered with one: those the stream handed out since, the change in those it holds
+        # out of order, and repeats of ones it had (a client's retransmissions after a lost
+        # ACKNACK are all duplicates but one).
+        covered = 1 if last is None else (((first - last[0]) & 0xFFFF) + held - last[2]
+                                          + duplicates - last[3])
         if last is not None and covered <= 0:
             return  # nothing new (a HEARTBEAT's answer): the repeats already set stand
-        record = sent[stream.stream_id] = [first, min(covered - 1, len(ACKNACK_REPEATS_S)), held]
+        record = sent[stream.stream_id] = [first, min(covered - 1, len(ACKNACK_REPEATS_S)), held,
+                                           duplicates]
         loop = self.scheduler.loop
         if record[1] > 0 and loop is not None:
             loop.call_later(ACKNACK_REPEATS_S[0], self._repeat, client, stream, record, 0)
