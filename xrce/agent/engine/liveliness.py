@@ -4,7 +4,8 @@ Two parts of ``xrce.agent.engine.dispatch.Agent``:
 
 - ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
   batch of its messages or before anything else is sent to it, whichever comes first, and in
-  answer to its HEARTBEAT;
+  answer to its HEARTBEAT; a batch's repeated while the client stays silent on that stream
+  (``ACKNACK_REPEATS_S``);
 - ``Liveliness``, the output side and the timed work per client: it retransmits what a client's
   ACKNACK asks for, sends HEARTBEATs while reliable output is unacknowledged, probes
   hard-liveliness clients, finds dead, retired and expired clients (the rule: "Recovery and
