@@ -4,7 +4,8 @@ Two parts of ``xrce.agent.engine.dispatch.Agent``:
 
 - ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
   batch of its messages or before anything else is sent to it, whichever comes first, and in
-  answer to its HEARTBEAT;
+  answer to its HEARTBEAT; a batch's repeated while the client stays silent on that stream
+  (``ACKNACK_REPEATS_S``);
 - ``Liveliness``, the output side and the timed work per client: it retransmits what a client's
   ACKNACK asks for, sends HEARTBEATs while reliable output is unacknowledged, probes
   hard-liveliness clients, finds dead, retired and expired clients (the rule: "Recovery and
@@ -32,6 +33,15 @@ from xrce.wire.submessages import AckNack, GetInfo, Heartbeat
 log = logging.getLogger("xrce.agent")
 
 HARD_LIVELINESS_PROBES = 3
+
+# When one ACKNACK answered several messages and the client then says nothing more on that
+# stream, it is sent again after these delays (seconds since the first), at most one repeat per
+# message it answered beyond the first: eProsima's agent sends one per message, so a client whose
+# ACKNACK was lost learns from the next one; one per batch lost would leave a client whose
+# history is full waiting for its own HEARTBEAT, which eProsima's client library sends only after
+# 100 ms without polling (a board spinning every 10 ms never does). Repeats stop at the first
+# newer ACKNACK or message on the stream, so the count stays at or below one per message.
+ACKNACK_REPEATS_S = (0.02, 0.06, 0.15, 0.4)
 
 
 class Acknowledgments:
@@ -107,6 +117,47 @@ class Acknowledgments:
         first, bitmap = stream.acknack()
         self.stats.acknacks_out += 1
         self.output.send_stream0(client, AckNack(first, bitmap, stream.stream_id))
+        sent = client.acknacks_sent
+        last = sent.get(stream.stream_id)
+        held, duplicates = len(stream.stored), stream.duplicates
+        # The messages received since the last ACKNACK, each of which eProsima's agent would
+        # have answered with one: those the stream handed out since, the change in those it holds
+        # out of order, and repeats of ones it had (a client's retransmissions after a lost
+        # ACKNACK are all duplicates but one).
+        covered = 1 if last is None else (((first - last[0]) & 0xFFFF) + held - last[2]
+                                          + duplicates - last[3])
+        if last is not None and covered <= 0:
+            return  # nothing new (a HEARTBEAT's answer): the repeats already set stand
+        record = sent[stream.stream_id] = [first, min(covered - 1, len(ACKNACK_REPEATS_S)), held,
+                                           duplicates]
+        loop = self.scheduler.loop
+        if record[1] > 0 and loop is not None:
+            loop.call_later(ACKNACK_REPEATS_S[0], self._repeat, client, stream, record, 0)
+
+    def _repeat(self, client: ClientProxy, stream: InputReliableStream, record: list,
+                index: int) -> None:
+        """The ACKNACK ``record`` names, once more, unless the stream moved on (a newer one was
+        sent: ``record`` is no longer the stream's) or the client went."""
+        with self.lock:
+            if (not client.alive or self.clients.get(client.key) is not client
+                    or client.in_reliable.get(stream.stream_id) is not stream
+                    or client.acknacks_sent.get(stream.stream_id) is not record
+                    or stream.acknack()[0] != record[0] or len(stream.stored) != record[2]
+                    or record[1] <= 0):
+                return
+            record[1] -= 1
+            first, bitmap = stream.acknack()
+            self.stats.acknacks_out += 1
+            try:
+                self.output.send_stream0(client, AckNack(first, bitmap, stream.stream_id))
+            except Exception:
+                self.stats.handler_errors += 1
+                log.debug("ACKNACK repeat to client %s failed", client.key.hex(), exc_info=True)
+                return
+            if record[1] > 0 and index + 1 < len(ACKNACK_REPEATS_S):
+                self.scheduler.loop.call_later(
+                    ACKNACK_REPEATS_S[index + 1] - ACKNACK_REPEATS_S[index], self._repeat,
+                    client, stream, record, index + 1)
 
     def on_heartbeat(self, client: ClientProxy, heartbeat: Heartbeat) -> None:
         stream_id = heartbeat.stream_id

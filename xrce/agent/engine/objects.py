@@ -222,7 +222,10 @@ class ObjectRegistry:
                 # Its first sample is checked against the agent's type (xrce.agent.engine.type_drift)
                 type_drift.arm(mw, self.datapath.mismatches, self.datapath.scheduler, client, entry, key)
             else:
-                entry.reader = ReaderState(_queue_bound(qos))
+                # A reader given no QoS (CED's names, a binary one without) queues at least what
+                # the middleware keeps for it (CedMiddleware: eProsima's 16 per topic).
+                floor = getattr(mw, "reader_queue_floor", 1) if qos is READER_DEFAULTS else 1
+                entry.reader = ReaderState(max(_queue_bound(qos), floor))
                 mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
                                      self.datapath.sample_callback(client, entry.object_id))
             if fmt == C.REPRESENTATION_IN_BINARY:  # a type hash the board declared, checked at creation

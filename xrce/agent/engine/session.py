@@ -183,6 +183,10 @@ class ClientProxy:
         self.objects: Dict[int, ObjectEntry] = {}
         self.in_best_effort: Dict[int, InputBestEffortStream] = {}
         self.in_reliable: Dict[int, InputReliableStream] = {}
+        # Per reliable input stream: the first_unacked of the last ACKNACK sent, how many repeats
+        # of it are still allowed, and what the stream held and had seen twice then
+        # (xrce.agent.engine.liveliness.Acknowledgments).
+        self.acknacks_sent: Dict[int, list] = {}
         self.out_best_effort: Dict[int, OutputBestEffortStream] = {}
         self.out_reliable: Dict[int, OutputReliableStream] = {}
         self.reassembly: Dict[int, bytearray] = {}

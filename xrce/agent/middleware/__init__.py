@@ -107,6 +107,11 @@ class Middleware:
     # which names the client and counts it.
     on_mismatch: Optional[Callable[[EntityKey, str], None]] = None
 
+    # The fewest samples the engine queues for one of this middleware's datareaders created
+    # without QoS (READER_DEFAULTS: KEEP_LAST 1) while its client's stream has no room: a DDS
+    # reader keeps its own history, so 1 here.
+    reader_queue_floor = 1
+
     def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
         raise NotImplementedError
 

@@ -79,6 +79,12 @@ _NAME_SUFFIXES = {"topic": "__t", "datawriter": "__dw", "datareader": "__dr"}
 
 class CedMiddleware(Middleware):
     name = "ced"
+    # eProsima's CED keeps each topic's last 16 samples and every reader reads on from where it
+    # was: a reader whose client's stream is blocked (retransmissions on a lossy link, a long
+    # sample in fragments) loses a sample only once 16 newer came. A reader by XML or reference
+    # gets no QoS from CED's strings (KEEP_LAST 1): without this floor two samples arriving while
+    # its stream was full lost the first. A binary reader's own depth is kept.
+    reader_queue_floor = 16
 
     def routed_name(self, kind: str, text: str) -> Optional[str]:
         suffix = _NAME_SUFFIXES.get(kind)
