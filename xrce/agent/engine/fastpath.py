@@ -567,6 +567,11 @@ class FastPath:
             client.messages_in += count
             client.bytes_in += size
             client.probes = 0
+            if acknacks and client.acknacks_sent:
+                # C acknowledged this client's messages itself: the last ACKNACK Python recorded
+                # is no longer the last sent, so its pending repeats are void and the next one
+                # Python sends counts from C's (liveliness.Acknowledgments.send_acknack).
+                client.acknacks_sent.clear()
             seen = seen_ns / 1e9 + offset
             if seen > client.last_seen:
                 client.last_seen = seen
