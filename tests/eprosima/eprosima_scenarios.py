@@ -135,3 +135,14 @@ def exchange_profiles(stream):
             + endpoint % {"e": "data_writer", "s": "dw", "k": kind} + "\n"
             + endpoint % {"e": "data_reader", "s": "dr", "k": kind} + "\n"
             "</profiles></dds>\n")
+
+
+# The same exchange in -m dds, once per creation kind, recorded between eProsima's client and
+# eProsima's agent (started with -m dds and, by reference, -r the profiles above) over UDP4 and
+# replayed against a real ``xrce-agent -m dds``. The writer waits DDS_SETTLE_MS after its creations
+# so both agents' readers have matched its writer before the first sample. The recording's
+# participants are in DDS_RECORDED_DOMAIN; a replay moves them to its own leased domain.
+DDS_SETTLE_MS = 1500
+DDS_RECORDED_DOMAIN = 0
+DDS_EXCHANGES = {"dds_exchange_reliable_10_%s_udp4" % fmt: ("udp4", ("reliable", 10, 64, 0, fmt))
+                 for fmt in ("bin", "xml", "ref")}
