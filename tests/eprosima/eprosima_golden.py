@@ -181,3 +181,59 @@ async def replay_exchange(rows):
     await asyncio.sleep(0)
     await agent.close()
     return {client: link.sent for client, link in links.items()}
+
+
+def move_domain(message, domain):
+    """``message`` (a client's, raw) with each participant it CREATEs moved to DDS domain
+    ``domain``: a recording's participants are in the recorder's domain, a replay's in the one it
+    leased. The domain id is the participant's last field, its length fixed: nothing else moves."""
+    from xrce.wire.message import iter_submessages
+
+    out = bytearray(message)
+    for sub_id, flags, start, end in iter_submessages(out, 4 if out[0] & 0x80 else 8):
+        if sub_id == C.CREATE and out[start + 3] & 0x0F == C.OBJK_PARTICIPANT:
+            out[end - 2:end] = domain.to_bytes(2, "little" if flags & 1 else "big")
+    return bytes(out)
+
+
+def replay_over_udp(rows, host, port, domain, family=None, linger_s=1.0):
+    """Every client's recorded messages sent to a real agent at ``host``/``port`` over UDP, each
+    client from a socket of its own, at the recorded times (the recorded program waited on DDS
+    matching between creating and writing; the replay keeps those waits), participants moved to
+    ``domain``; what the agent sent each client until ``linger_s`` after the last. {client:
+    [messages]}."""
+    import select
+    import socket
+    import time
+
+    family = family or (socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sends = [(row["t"], row.get("client", 0), move_domain(bytes.fromhex(row["hex"]), domain))
+             for row in rows if row["dir"] == "C->A"]
+    first = sends[0][0]
+    sockets, got = {}, {}
+    try:
+        for _, client, _ in sends:
+            if client not in sockets:
+                sock = socket.socket(family, socket.SOCK_DGRAM)
+                sock.connect((host, port))
+                sockets[client] = sock
+                got[client] = []
+        start = time.monotonic()
+        pending = list(sends)
+        end = None
+        while end is None or time.monotonic() < end:
+            now = time.monotonic() - start
+            while pending and pending[0][0] - first <= now:
+                _, client, data = pending.pop(0)
+                sockets[client].send(data)
+            if not pending and end is None:
+                end = time.monotonic() + linger_s
+            wait = (pending[0][0] - first - now) if pending else 0.05
+            ready, _, _ = select.select(list(sockets.values()), [], [], max(0.0, min(wait, 0.05)))
+            for client, sock in sockets.items():
+                if sock in ready:
+                    got[client].append(sock.recv(65536))
+    finally:
+        for sock in sockets.values():
+            sock.close()
+    return got

@@ -117,3 +117,32 @@ def exchange_argv(args, settle_ms=0):
     """The arguments after the transport's own for programs/exchange.c."""
     stream, count, size, drop, fmt = args
     return [stream, str(count), str(size), str(drop), str(EXCHANGE_SEED), fmt, str(settle_ms)]
+
+
+# By reference in -m dds: both agents read the references from a Fast DDS profiles file (-r), the
+# same one, written where the test runs. The names are those programs/exchange.c asks for with
+# FORMAT ref; the endpoints' reliability is the cell's stream's.
+def exchange_profiles(stream):
+    kind = "RELIABLE" if stream == "reliable" else "BEST_EFFORT"
+    endpoint = ("<%(e)s profile_name=\"ExchangeTopic__%(s)s\"><topic><kind>NO_KEY</kind>"
+                "<name>ExchangeTopic</name><dataType>Exchange</dataType></topic>"
+                "<qos><reliability><kind>%(k)s</kind></reliability></qos></%(e)s>")
+    return ("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+            "<dds xmlns=\"http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles\"><profiles>\n"
+            "<participant profile_name=\"participant\"><rtps><name>exchange</name></rtps></participant>\n"
+            "<topic profile_name=\"ExchangeTopic__t\"><name>ExchangeTopic</name>"
+            "<dataType>Exchange</dataType></topic>\n"
+            + endpoint % {"e": "data_writer", "s": "dw", "k": kind} + "\n"
+            + endpoint % {"e": "data_reader", "s": "dr", "k": kind} + "\n"
+            "</profiles></dds>\n")
+
+
+# The same exchange in -m dds, once per creation kind, recorded between eProsima's client and
+# eProsima's agent (started with -m dds and, by reference, -r the profiles above) over UDP4 and
+# replayed against a real ``xrce-agent -m dds``. The writer waits DDS_SETTLE_MS after its creations
+# so both agents' readers have matched its writer before the first sample. The recording's
+# participants are in DDS_RECORDED_DOMAIN; a replay moves them to its own leased domain.
+DDS_SETTLE_MS = 1500
+DDS_RECORDED_DOMAIN = 0
+DDS_EXCHANGES = {"dds_exchange_reliable_10_%s_udp4" % fmt: ("udp4", ("reliable", 10, 64, 0, fmt))
+                 for fmt in ("bin", "xml", "ref")}

@@ -1,6 +1,6 @@
 """Record tests/golden/eprosima/: eProsima's client (programs/, built against XRCE_EPROSIMA_CLIENT)
 against eProsima's agent (``--agent``, default $XRCE_EPROSIMA_AGENT: the ``agent.sh`` the peers
-build script writes, run with -m ced), through a transparent relay that writes down
+build script writes, run with -m ced, and -m dds for the dds_ exchanges), through a transparent relay that writes down
 every message. Run by hand, as root, where both are built (PEERS: where they were built):
 
     XRCE_EPROSIMA_CLIENT=$PEERS/install XRCE_EPROSIMA_AGENT=$PEERS/agent.sh unshare -n sh -c \\
@@ -221,10 +221,10 @@ class SerialRelay(Relay):
                 pass
 
 
-def start_agent(agent, transport, *extra):
+def start_agent(agent, transport, *extra, middleware=("-m", "ced")):
     where = ("--devs", " ".join(extra[0])) if transport == "multiserial" else ("-p", str(AGENT_PORT))
     rest = extra[1:] if transport == "multiserial" else extra
-    process = subprocess.Popen([agent, transport, *where, "-m", "ced", *rest],
+    process = subprocess.Popen([agent, transport, *where, *middleware, *rest],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(1.0)  # it prints nothing when ready; it is within a few ms
     return process
@@ -255,19 +255,21 @@ def record(name, header, relay, run):
                                    " | ".join(l for l in header["stdout"] if not l.startswith("GOT"))))
 
 
-def run_through(agent_exe, transport, clients, name, header, command):
+def run_through(agent_exe, transport, clients, name, header, command, middleware=("-m", "ced")):
     """eProsima's agent, a relay of ``transport`` for ``clients`` clients, and ``command(where,
     pass_fds)`` run against the relay, recorded as ``name``; ``where`` is what the program takes
     after the transport: host and port, or (serial) the clients' descriptors."""
     if transport == "serial":
         relay = SerialRelay(clients)
-        agent = start_agent(agent_exe, "multiserial", relay.agent_devices)
+        agent = start_agent(agent_exe, "multiserial", relay.agent_devices, middleware=middleware)
         where, fds = [str(fd) for fd in relay.client_fds], tuple(relay.client_fds)
     else:
         family, host = ((socket.AF_INET6, "::1") if transport.endswith("6")
                         else (socket.AF_INET, "127.0.0.1"))
         kind = TcpRelay if transport.startswith("tcp") else UdpRelay
-        agent = start_agent(agent_exe, transport)
+        agent = start_agent(agent_exe, transport, middleware=middleware)
+        if middleware[1] == "dds":
+            time.sleep(1.0)  # its Fast DDS is slower to come up
         relay = kind(family, host, RELAY_PORT, AGENT_PORT)
         where, fds = [host, str(RELAY_PORT)], ()
     try:
@@ -327,6 +329,27 @@ def main():
             run_through(args.agent, transport, 2, name,
                         {"scenario": name, "transport": transport, "middleware": "ced",
                          "program": "exchange.c", "argv": argv}, command)
+        for name, (transport, cell) in scenarios.DDS_EXCHANGES.items():
+            if not wanted(name):
+                continue
+            argv = scenarios.exchange_argv(cell, scenarios.DDS_SETTLE_MS)
+            middleware = ["-m", "dds"]
+            profiles = Path(build) / "profiles.xml"
+            if cell[4] == "ref":
+                profiles.write_text(scenarios.exchange_profiles(cell[0]))
+                middleware += ["-r", str(profiles)]
+            env = dict(os.environ, ROS_DOMAIN_ID=str(scenarios.DDS_RECORDED_DOMAIN))
+
+            def command(where, fds, argv=argv, env=env):
+                return subprocess.run([str(exchange_exe), "udp4", *where, *argv], env=env,
+                                      capture_output=True, text=True, timeout=120)
+
+            header = {"scenario": name, "transport": transport, "middleware": "dds",
+                      "program": "exchange.c", "argv": argv,
+                      "domain": scenarios.DDS_RECORDED_DOMAIN}
+            if cell[4] == "ref":
+                header["profiles"] = profiles.read_text()
+            run_through(args.agent, transport, 2, name, header, command, middleware=middleware)
         for name, transport in scenarios.DISCOVERY.items():
             if not wanted(name):
                 continue

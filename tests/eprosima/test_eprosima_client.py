@@ -5,8 +5,9 @@ fifteen reliable creations back to back with a history of 8 never finding it ful
 from a udp4 and a udp6 agent giving a locator of that family; two clients (programs/exchange.c)
 exchanging 1, 10 and fragmented samples on best-effort and reliable streams with 5 and 10 % of
 their messages dropped by their own transport, over UDP4, UDP6, TCP4, TCP6 and serial (two
-pseudo-terminal pairs, ``multiserial``) in ``-m ced``, and with entities by XML and in binary in
-``-m dds`` (a type name that is no ROS one, on the agent's Fast DDS). Skipped, loudly, where the library
+pseudo-terminal pairs, ``multiserial``) in ``-m ced``, and with entities by XML, in binary and by
+reference (a profiles file given to the agent with -r) in ``-m dds`` over the same five (a type
+name that is no ROS one, on the agent's Fast DDS). Skipped, loudly, where the library
 or a compiler is missing (tests/helpers/eprosima_client.py); test_eprosima_golden.py replays the
 same exchanges without it."""
 
@@ -158,6 +159,8 @@ DDS_CELLS = {
     "reliable_10_drop10_xml": ("reliable", 10, 64, 10, "xml"),
     "best_effort_10_drop5_bin": ("best-effort", 10, 64, 5, "bin"),
     "best_effort_10_xml": ("best-effort", 10, 64, 0, "xml"),
+    "reliable_10_drop5_ref": ("reliable", 10, 64, 5, "ref"),
+    "best_effort_10_ref": ("best-effort", 10, 64, 0, "ref"),
 }
 
 
@@ -168,13 +171,20 @@ def bridge_cache(tmp_path_factory):
     return {"XDG_CACHE_HOME": str(tmp_path_factory.mktemp("xdg-cache"))}
 
 
-@pytest.mark.parametrize("transport", ["udp4", "tcp6", "serial"])
+@pytest.mark.parametrize("transport", scenarios.EXCHANGE_TRANSPORTS)
 @pytest.mark.parametrize("cell", list(DDS_CELLS))
-def test_two_clients_exchange_through_dds(programs, ros_domain, bridge_cache, transport, cell):
+def test_two_clients_exchange_through_dds(programs, ros_domain, bridge_cache, transport, cell,
+                                          tmp_path):
     """In ``-m dds`` the type name "Exchange" is no ROS one: both endpoints are plain DDS ones on
-    the agent's Fast DDS participant, matched there; every creation succeeds (binary and XML)."""
+    the agent's Fast DDS participant, matched there; every creation succeeds (binary, XML, and by
+    reference to the profiles file the agent was started with)."""
     env = dict(os.environ, **bridge_cache)
-    printed = _exchange(programs, transport, DDS_CELLS[cell], "-m", "dds", settle_ms=1500, env=env)
+    args = ["-m", "dds"]
+    if DDS_CELLS[cell][4] == "ref":
+        profiles = tmp_path / "profiles.xml"
+        profiles.write_text(scenarios.exchange_profiles(DDS_CELLS[cell][0]))
+        args += ["-r", str(profiles)]
+    printed = _exchange(programs, transport, DDS_CELLS[cell], *args, settle_ms=1500, env=env)
     assert [l for l in printed if l.startswith("STATUS")] == \
         ["STATUS reader 0 0 0 0", "STATUS writer 0 0 0 0"], printed
     _check_exchange(printed, DDS_CELLS[cell])

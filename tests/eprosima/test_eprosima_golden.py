@@ -33,7 +33,7 @@ def test_every_scenario_was_recorded():
     import eprosima_scenarios as scenarios
 
     assert set(golden.names()) == (set(scenarios.CREATIONS) | set(scenarios.DISCOVERY)
-                                   | set(scenarios.EXCHANGES))
+                                   | set(scenarios.EXCHANGES) | set(scenarios.DDS_EXCHANGES))
 
 
 @pytest.mark.parametrize("name", CREATIONS)
@@ -112,6 +112,7 @@ async def test_two_clients_get_eprosimas_answers(name):
     assert golden.delivered(ours[1]) == []  # the writer reads nothing
 
 
+# (test_eprosima_dds_golden.py replays the dds_exchange_ recordings against a real -m dds agent.)
 FRAMED = [n for n in golden.names() if n.endswith(("_tcp4", "_tcp6", "_serial"))]
 
 
