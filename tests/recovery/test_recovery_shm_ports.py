@@ -25,18 +25,21 @@ def _lockable(path):
 def test_dead_ports_are_held_while_the_participant_is_made_and_released_after(tmp_path):
     for name in ("fastrtps_port7413", "fastrtps_port7413_el", "fastrtps_port7415_el",
                  "fastdds_port7417_el", "fastrtps_port7413_sl", "fastrtps_0dec56d7b2b210a0_el",
-                 "other_port7419_el"):
+                 "other_port7419_el", "fastrtps_port7661_el", "fastrtps_port7001_el",
+                 "fastrtps_port7412_el"):
         (tmp_path / name).write_bytes(b"")
     live = os.open(tmp_path / "fastrtps_port7415_el", os.O_RDONLY)  # a live reader's lock
     fcntl.flock(live, fcntl.LOCK_EX | fcntl.LOCK_NB)
     dead = [tmp_path / "fastrtps_port7413_el", tmp_path / "fastdds_port7417_el"]
-    others = [tmp_path / "fastrtps_0dec56d7b2b210a0_el", tmp_path / "other_port7419_el",
-              tmp_path / "fastrtps_port7413_sl"]
+    # segments, shared locks, another program's prefix, domain 1's port, numbers no user port has
+    others = [tmp_path / name for name in (
+        "fastrtps_0dec56d7b2b210a0_el", "other_port7419_el", "fastrtps_port7413_sl",
+        "fastrtps_port7661_el", "fastrtps_port7001_el", "fastrtps_port7412_el")]
     try:
-        with participant.dead_ports_held(str(tmp_path)) as held:
+        with participant.dead_ports_held(0, str(tmp_path)) as held:
             assert held == 2
             assert not any(_lockable(path) for path in dead)  # Fast DDS sees them taken
-            assert all(_lockable(path) for path in others)  # segments, shared locks: not ports
+            assert all(_lockable(path) for path in others)
         assert all(_lockable(path) for path in dead)
         assert not _lockable(tmp_path / "fastrtps_port7415_el")  # the live one: still its owner's
     finally:
@@ -44,9 +47,10 @@ def test_dead_ports_are_held_while_the_participant_is_made_and_released_after(tm
     assert sorted(os.listdir(tmp_path)) == sorted(  # nothing removed, nothing made
         ["fastrtps_port7413", "fastrtps_port7413_el", "fastrtps_port7415_el",
          "fastdds_port7417_el", "fastrtps_port7413_sl", "fastrtps_0dec56d7b2b210a0_el",
-         "other_port7419_el"])
+         "other_port7419_el", "fastrtps_port7661_el", "fastrtps_port7001_el",
+         "fastrtps_port7412_el"])
 
 
 def test_no_shared_memory_directory_holds_nothing(tmp_path):
-    with participant.dead_ports_held(str(tmp_path / "absent")) as held:
+    with participant.dead_ports_held(0, str(tmp_path / "absent")) as held:
         assert held == 0

@@ -24,11 +24,11 @@ mapping still valid but read by no one, until its shared-memory watchdog finds t
 counter frozen (a 1 s health check, seen twice): measured 1.2-2.7 s before rclpy's first reliable
 sample reached the restarted agent, 0.1 s after a SIGINT (a clean exit unregisters its reader, and
 the writer reopens at once). Holding the zombies' ``_el`` locks while the participant is made
-(``dead_ports_held``) makes Fast DDS take them for live ports and move to the next free port number,
-which no peer has open: its writers open it fresh on discovering the participant (0.11-0.14 s,
-measured the same way). Discovery is untouched (its ports are UDP and stay the same); the locks are
-released once the participant exists, and the zombies are left to Fast DDS, which resets one when a
-later participant takes its number.
+(``dead_ports_held``, the domain's user ports only) makes Fast DDS take them for live ports and
+move to the next free port number, which no peer has open: its writers open it fresh on discovering
+the participant (0.11-0.14 s, measured the same way). Discovery is untouched (its ports are UDP and
+stay the same); the locks are released once the participant exists, and the zombies are left to
+Fast DDS, which resets one when a later participant takes its number.
 """
 
 from __future__ import annotations
@@ -68,9 +68,18 @@ SHM_DIR = "/dev/shm"
 _PORT_LOCK_PREFIXES = ("fastrtps_port", "fastdds_port")
 
 
-def hold_dead_ports(directory: str = SHM_DIR) -> list[int]:
-    """Lock every shared-memory port lock file nobody holds (its reader died): the open, locked
-    descriptors, to be closed once the participant exists (``dead_ports_held``)."""
+def user_port(number: int, domain_id: int) -> bool:
+    """Whether ``number`` is a participant's user unicast port in ``domain_id``, with the RTPS
+    port parameters Fast DDS and rmw_fastrtps keep by default (base 7400, domain gain 250,
+    offset 11, participant gain 2): the only ports a peer writes a participant's samples to."""
+    offset = number - (7400 + 250 * domain_id + 11)
+    return 0 <= offset < 250 - 11 and offset % 2 == 0
+
+
+def hold_dead_ports(domain_id: int, directory: str = SHM_DIR) -> list[int]:
+    """Lock every shared-memory user port lock file of ``domain_id`` nobody holds (its reader
+    died): the open, locked descriptors, to be closed once the participant exists
+    (``dead_ports_held``). Other ports (other domains, other programs' numbers) stay untouched."""
     try:
         names = os.listdir(directory)
     except OSError:  # no /dev/shm (not Linux): Fast DDS keeps its ports elsewhere
@@ -79,7 +88,9 @@ def hold_dead_ports(directory: str = SHM_DIR) -> list[int]:
 
     held = []
     for name in names:
-        if not (name.startswith(_PORT_LOCK_PREFIXES) and name.endswith("_el")):
+        prefix = next((p for p in _PORT_LOCK_PREFIXES if name.startswith(p)), None)
+        number = name[len(prefix):-len("_el")] if prefix and name.endswith("_el") else ""
+        if not (number.isdigit() and user_port(int(number), domain_id)):
             continue
         try:
             fd = os.open(os.path.join(directory, name), os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
@@ -95,11 +106,11 @@ def hold_dead_ports(directory: str = SHM_DIR) -> list[int]:
 
 
 @contextlib.contextmanager
-def dead_ports_held(directory: str = SHM_DIR):
+def dead_ports_held(domain_id: int, directory: str = SHM_DIR):
     """While a domain's participant is made: dead participants' shared-memory ports look taken,
     so Fast DDS gives the new one a port number no peer has a stale mapping of (module
     docstring). Yields how many were held."""
-    held = hold_dead_ports(directory)
+    held = hold_dead_ports(domain_id, directory)
     if held:
         log.debug("%d dead participants' shared-memory ports held while the participant is made",
                   len(held))
