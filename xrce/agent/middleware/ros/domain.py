@@ -221,7 +221,9 @@ class DomainRuntime:
         and discovery traffic, and an agent may host hundreds of nodes."""
         # The context's first node makes the DDS participant: with the GIL released (participant).
         # A killed agent's shared-memory ports are held meanwhile (participant.dead_ports_held).
-        with contextlib.nullcontext() if self.joined else participant.dead_ports_held(self.domain_id):
+        held = contextlib.nullcontext() if self.joined else \
+            participant.dead_ports_held(self.domain_id)
+        with held:
             placeholder = None if self.joined else participant.open_participant(self.context)
             try:
                 node = AgentNode(name, namespace=namespace, context=self.context,

@@ -16,8 +16,8 @@ helper the first rclpy node makes the participant as before, GIL held.
 
 A killed agent's shared-memory ports (issue 51, ``bench/restart/board_restart.py``): Fast DDS on one
 host sends user data through shared memory, one port per participant, named after its UDP user
-port (``/dev/shm/fastrtps_port<N>``, its reader's ``flock`` on ``..._el``). A participant killed with
-SIGKILL leaves its port behind with its dead reader registered; the restarted agent takes the same
+port (``/dev/shm/fastrtps_port<N>``, its reader's ``flock`` on ``..._el``). A participant killed
+with SIGKILL leaves its port behind with its dead reader registered; the restarted agent takes the same
 UDP ports, so the same port number, finds the old one a zombie (the ``_el`` file unlocked), and
 replaces it with a fresh segment. A ROS node that had the old one open keeps writing into it, its
 mapping still valid but read by no one, until its shared-memory watchdog finds the dead reader's
