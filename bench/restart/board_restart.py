@@ -101,8 +101,8 @@ def one_run(exe, ros, link, stop, checkout, work):
         if not (wait_until(lambda: board.has("READY"), 30) and
                 wait_until(lambda: ros.sensor and board.commands(), 30)):
             agent.drain()
-            raise RuntimeError("the board did not start talking: %s\n%s" % (
-                board.lines[-3:], "".join(agent.output)[-3000:]))
+            raise RuntimeError("the board did not start talking: %s ... %s\n%s" % (
+                board.lines[:3], board.lines[-3:], "".join(agent.output)[-3000:]))
         time.sleep(SETTLE_S)
         if stop == "SIGINT":
             agent.stop()
@@ -169,12 +169,19 @@ def main(argv=None):
     if args.baseline_checkout is not None:
         agents.insert(0, ("baseline %s" % args.baseline_checkout, args.baseline_checkout))
     figures = {}
+    failed = []  # runs whose board never started talking (before any restart)
     try:
         for link in args.links.split(","):
             for stop in args.stops.split(","):
                 for index in range(args.runs):
                     for name, checkout in agents:  # alternating: the same load for both
-                        got = one_run(exe, ros, link, stop, checkout, work)
+                        try:
+                            got = one_run(exe, ros, link, stop, checkout, work)
+                        except RuntimeError as exc:  # said and counted, not measured
+                            failed.append("%s %s %s run %d: %s" % (link, stop, name, index + 1,
+                                                                   str(exc)[:600]))
+                            print(failed[-1], flush=True)
+                            continue
                         figures.setdefault((link, stop, name), []).append(got)
                         print("%s %s %s run %d: %s" % (link, stop, name, index + 1, got),
                               flush=True)
@@ -195,6 +202,9 @@ def main(argv=None):
             _fmt(_median([r["reliable_s"] for r in runs])),
             _fmt(_median([r["lost"] for r in runs]), ""),
             sum(1 for r in runs if r["answered"]), len(runs)))
+    if failed:
+        print("%d runs left out, their board never started talking before the restart:" %
+              len(failed))
     return 0
 
 

@@ -44,6 +44,7 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import logging
 import os
 import queue
@@ -219,15 +220,19 @@ class DomainRuntime:
         service or /parameter_events publisher (``AgentNode``): each costs DDS endpoints, memory
         and discovery traffic, and an agent may host hundreds of nodes."""
         # The context's first node makes the DDS participant: with the GIL released (participant).
-        placeholder = None if self.joined else participant.open_participant(self.context)
-        try:
-            node = AgentNode(name, namespace=namespace, context=self.context,
-                             start_parameter_services=False, enable_rosout=False,
-                             use_global_arguments=False,
-                             parameter_overrides=[NO_TYPE_DESCRIPTION])
-        finally:
-            if placeholder is not None:
-                participant.close_participant(placeholder)
+        # A killed agent's shared-memory ports are held meanwhile (participant.dead_ports_held).
+        held = contextlib.nullcontext() if self.joined else \
+            participant.dead_ports_held(self.domain_id)
+        with held:
+            placeholder = None if self.joined else participant.open_participant(self.context)
+            try:
+                node = AgentNode(name, namespace=namespace, context=self.context,
+                                 start_parameter_services=False, enable_rosout=False,
+                                 use_global_arguments=False,
+                                 parameter_overrides=[NO_TYPE_DESCRIPTION])
+            finally:
+                if placeholder is not None:
+                    participant.close_participant(placeholder)
         self.joined = True
         return node
 
