@@ -131,16 +131,16 @@ def test_the_hash_gen_msgs_writes_is_rosidls_and_the_agent_names_a_different_one
 
 
 def test_the_declared_hash_is_written_as_the_wire_codec_writes_a_full_endpoint_qos():
-    """xrce.client.type_hash writes its blob with the core's CdrWriter (a board declaring a hash
-    does not load xrce.wire.objects): byte for byte the codec's DataWriter/DataReader with an
-    EndpointQos and user data, which the agent decodes back."""
-    from xrce.client.type_hash import endpoint_blob
+    """xrce.client.type_hash has its blob written by the set-up module's endpoint_blob with the
+    core's CdrWriter (a board declaring a hash does not load xrce.wire.objects): byte for byte the
+    codec's DataWriter/DataReader with an EndpointQos and user data, which the agent decodes back."""
+    from xrce.client.entities import endpoint_blob
     from xrce.wire.objects import DataReaderBin, DataWriterBin, EndpointQos
 
     data = b"typehash=RIHS01_" + b"0123456789abcdef" * 4 + b";"
     for reader, cls in ((False, DataWriterBin), (True, DataReaderBin)):
         for flags, depth in ((0x0003, 10), (0x0002, None), (0x000B, 1)):
-            blob = endpoint_blob(0x0125, flags, depth, data, reader)
+            blob = endpoint_blob(0x0125, flags, depth, reader, data)
             assert blob == cls(0x0125, EndpointQos(flags, depth, user_data=data)).to_blob()
             decoded = cls.from_blob(blob)
             assert bytes(decoded.qos.user_data) == data and decoded.qos.flags == flags

@@ -155,9 +155,10 @@ def topic_blob(topic_name, type_name):
 PUBSUB_BLOB = b"\x00\x00"  # no name, no QoS
 
 
-# Datawriter (reader False) or datareader: topic id, QoS flags and history depth, nothing else.
-def endpoint_blob(topic_id, flags, depth, reader):
-    w = CdrWriter(bytearray(16))
+# Datawriter (reader False) or datareader: topic id, QoS flags and history depth, and the user
+# data xrce.client.type_hash declares (None: none).
+def endpoint_blob(topic_id, flags, depth, reader, data=None):
+    w = CdrWriter(bytearray(16 if data is None else 24 + len(data)))
     w.u8(topic_id >> 8)
     w.u8(topic_id & 0xFF)
     w.u8(1)
@@ -167,7 +168,13 @@ def endpoint_blob(topic_id, flags, depth, reader):
         w.u16(depth)
     w.u8(0)  # deadline
     w.u8(0)  # lifespan
-    w.u8(0)  # user data
+    if data is None:
+        w.u8(0)  # user data
+    else:
+        w.u8(1)
+        w.u32(len(data))
+        for byte in data:
+            w.u8(byte)
     w.u8(0)  # ownership strength / time-based filter
     if reader:
         w.u8(0)  # content filter

@@ -41,34 +41,9 @@ def user_data(msg_class):
     return b"typehash=" + type_hash(msg_class).encode() + b";"
 
 
-def endpoint_blob(topic_id, flags, depth, data, reader):
-    # A datawriter's or datareader's binary representation with the QoS of Session.create_writer
-    # and user data: what xrce.wire.objects writes for them, written here with the core's
-    # CdrWriter so that a board declaring a hash does not load that module (~7 KB frozen).
-    from xrce.wire.cdr import CdrWriter
-
-    w = CdrWriter(bytearray(24 + len(data)))
-    w.u8(topic_id >> 8)
-    w.u8(topic_id & 0xFF)
-    w.u8(1)  # QoS
-    w.u16(flags)
-    w.u8(depth is not None)
-    if depth is not None:
-        w.u16(depth)
-    w.u8(0)  # deadline
-    w.u8(0)  # lifespan
-    w.u8(1)  # user data
-    w.u32(len(data))
-    for byte in data:
-        w.u8(byte)
-    w.u8(0)  # ownership strength / time-based filter
-    if reader:
-        w.u8(0)  # content filter
-    return w.getvalue()
-
-
 def _dds_topic(topic):
-    # As Session.create_writer names a ROS topic in DDS (rt/...).
+    # As Session.create_writer names a ROS topic in DDS (rt/...): xrce.client.entities'
+    # ros_topic_name, which importing here would keep loaded.
     return "rt" + (topic if topic.startswith("/") else "/" + topic)
 
 
@@ -78,8 +53,8 @@ def _endpoint(session, kind, tail_id, topic_id, msg_class, reliable, depth, tran
     from xrce.client.session import _set_up_module
 
     flags = 0x0002 | (0x0001 if reliable else 0) | (0x0008 if transient_local else 0)  # keep last
-    blob = endpoint_blob(topic_id, flags, depth or None, user_data(msg_class), kind == 0x06)
     entities = session._held or _set_up_module("entities")
+    blob = entities.endpoint_blob(topic_id, flags, depth or None, kind == 0x06, user_data(msg_class))
     return entities._create(session, kind, blob, tail_id, None, stream_id, 0x06)  # reuse | replace
 
 
