@@ -38,3 +38,26 @@ def test_ros_args_split_at_the_double_dash_or_the_end():
 def test_bad_ros_args(tokens):
     with pytest.raises(NamingError):
         parse_ros_args(tokens)
+
+
+def _cli(*extra):
+    """What the command line makes of the naming options (``startup.make_naming``)."""
+    from xrce.agent.cli.startup import make_naming
+    from xrce.agent.cli.subcommands import build_parser
+    from xrce.agent.middleware.ros.naming import split_ros_args
+
+    argv, ros_args = split_ros_args(["udp4", "-p", "0", *extra])
+    args = build_parser(argv).parse_args(argv)
+    args.ros_args = ros_args
+    return make_naming(args)
+
+
+def test_command_line_naming():
+    assert _cli() is None and _cli("--global-topics", "/map") is None  # nothing given: unchanged
+    assert _cli("--namespace", "robot3").namespace == "/robot3"  # made absolute, as rcl does
+    naming = _cli("--ros-args", "-r", "__ns:=/r3", "-r", "odom:=/odom", "--", "--domain", "9",
+                  "--global-topics", "/map,/tf")
+    assert (naming.namespace, naming.domain) == ("/r3", 9)
+    assert [naming.name(n) for n in ("/map", "/tf", "/clock", "/odom")] == \
+        ["/map", "/tf", "/r3/clock", "/odom"]
+    assert _cli("--domain", "0").domain == 0 and _cli("--domain", "0").name("/a") == "/a"
