@@ -698,3 +698,32 @@ def test_stats_json_is_one_snapshot_and_a_closed_reader_ends_it_quietly(agent):
             view.wait()
         view.stderr.close()
     assert process.stop() == 0
+
+
+# ------------------------------------------------------------------ names given to boards (issue 53)
+
+@pytest.mark.parametrize("args, mentions", [
+    (["--ros-args", "-r", "foo"], "'foo' is not FROM:=TO"),
+    (["--ros-args", "-r", "__ns:=robot3"], "must be absolute (/robot3)"),
+    (["--ros-args", "-r", "__node:=x"], "only __ns:="),
+    (["--ros-args", "-p", "x:=1"], "only -r/--remap"),
+    (["--ros-args", "-r"], "needs FROM:=TO"),
+    (["--ros-args", "-r", "cmd vel:=x", "--"], "not a valid ROS name"),
+    (["--ros-args", "-r", "a:=2b", "--"], "not a valid ROS name"),
+    (["--namespace", "/bad//ns"], "not a valid ROS name"),
+    (["--namespace", "/a", "--ros-args", "-r", "__ns:=/b"], "disagree"),
+    (["--domain", "300"], "--domain"),
+    (["--global-topics", "tf"], "not an absolute name"),
+    (["-m", "ced", "--domain", "3"], "need -m dds"),
+])
+def test_bad_naming_arguments_give_one_line_and_exit_2(args, mentions):
+    code, out, err = run_cli("udp4", "-p", "0", *args)
+    assert code == 2 and out == ""
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("xrce-agent: error: ") and mentions in lines[0], lines[0]
+
+
+def test_ros_args_are_refused_by_the_tools():
+    code, out, err = run_cli("stats", "-p", "1", "--ros-args", "-r", "__ns:=/robot3")
+    assert code == 2 and len(err.splitlines()) == 1 and "--ros-args" in err

@@ -114,19 +114,22 @@ class OffboardNode:
     DO_SET_MODE(1, 6) and ARM on /fmu/in/vehicle_command, then a NAV_LAND call of the
     /fmu/vehicle_command service."""
 
-    def __init__(self, node, px4_msgs):
+    def __init__(self, node, px4_msgs, prefix=""):
+        """``prefix``: the namespace the agent gives PX4 (``--ros-args -r __ns:=/px4_2``)."""
         from rclpy.qos import qos_profile_sensor_data
 
-        self.node, self.px4_msgs = node, px4_msgs
+        self.node, self.px4_msgs, self.prefix = node, px4_msgs, prefix
         msg = px4_msgs.msg
         self.sensor_combined = []
-        node.create_subscription(msg.SensorCombined, "/fmu/out/sensor_combined",
+        node.create_subscription(msg.SensorCombined, prefix + "/fmu/out/sensor_combined",
                                  self.sensor_combined.append, qos_profile_sensor_data)
         self.offboard_mode = node.create_publisher(msg.OffboardControlMode,
-                                                   "/fmu/in/offboard_control_mode", 10)
-        self.setpoint = node.create_publisher(msg.TrajectorySetpoint, "/fmu/in/trajectory_setpoint", 10)
-        self.vehicle_command = node.create_publisher(msg.VehicleCommand, "/fmu/in/vehicle_command", 10)
-        self.client = node.create_client(px4_msgs.srv.VehicleCommand, "/fmu/vehicle_command")
+                                                   prefix + "/fmu/in/offboard_control_mode", 10)
+        self.setpoint = node.create_publisher(msg.TrajectorySetpoint,
+                                              prefix + "/fmu/in/trajectory_setpoint", 10)
+        self.vehicle_command = node.create_publisher(msg.VehicleCommand,
+                                                     prefix + "/fmu/in/vehicle_command", 10)
+        self.client = node.create_client(px4_msgs.srv.VehicleCommand, prefix + "/fmu/vehicle_command")
         self.commands = [command(px4_msgs, DO_SET_MODE, 1.0, 6.0), command(px4_msgs, ARM_DISARM, 1.0)]
         self.response = None
         self._stop = threading.Event()
@@ -134,12 +137,13 @@ class OffboardNode:
 
     def graph(self) -> dict:
         """What the node sees of PX4's entities it uses."""
-        node = self.node
-        seen = {"/fmu/out/sensor_combined": node.count_publishers("/fmu/out/sensor_combined")}
+        node, prefix = self.node, self.prefix
+        seen = {prefix + "/fmu/out/sensor_combined":
+                node.count_publishers(prefix + "/fmu/out/sensor_combined")}
         for topic in ("/fmu/in/offboard_control_mode", "/fmu/in/trajectory_setpoint",
                       "/fmu/in/vehicle_command"):
-            seen[topic] = node.count_subscribers(topic)
-        seen["/fmu/vehicle_command"] = self.client.service_is_ready()
+            seen[prefix + topic] = node.count_subscribers(prefix + topic)
+        seen[prefix + "/fmu/vehicle_command"] = self.client.service_is_ready()
         seen["services"] = node.get_service_names_and_types()
         return seen
 
@@ -214,6 +218,38 @@ def test_px4_main_replayed_into_ros_without_px4_msgs(px4_msgs, ros_peer, ros_dom
                 for cdr in recorded_samples(capture, SENSOR_COMBINED_WRITER)}
     assert len(offboard.sensor_combined) >= 100
     assert {m.timestamp for m in offboard.sensor_combined} <= recorded
+
+
+@pytest.mark.timeout(240)
+def test_px4_behind_an_agent_namespace(px4_msgs, ros_peer, ros_domain):  # noqa: F811
+    """Issue 53: the unchanged PX4 traffic behind ``--ros-args -r __ns:=/px4_2`` publishes
+    ``/px4_2/fmu/out/...``, obeys ``/px4_2/fmu/in/...`` and answers ``/px4_2/fmu/vehicle_command``;
+    nothing of it is left on PX4's own ``/fmu/...`` names."""
+    capture = Px4Capture("px4_main")
+    offboard = OffboardNode(ros_peer.node, px4_msgs, prefix="/px4_2")
+    first_sample = capture.step_of_first(C.WRITE_DATA)
+    with AgentProcess("udp4", "-m", "dds", "-v", "0", "--ros-args", "-r", "__ns:=/px4_2",
+                      "--") as agent:
+        channel = UdpChannel(agent.port)
+        try:
+            replay = Px4Replayer(capture, channel, domain_id=ros_domain, answer_requests=True)
+            replay.run(until_step=first_sample)
+            assert wait_until(offboard.ready, 30), offboard.graph()
+            names = [name for name, _ in ros_peer.node.get_topic_names_and_types()]
+            assert not [n for n in names if n.startswith("/fmu/")], names
+            offboard.start()
+            ours = replay.run(start_step=first_sample, speed=2.0)
+        finally:
+            offboard.close()
+            channel.close()
+        assert agent.proc.poll() is None
+    check_answers(capture, ours)
+    got = [deserialize(sample, px4_msgs.msg.VehicleCommand)
+           for sample in ours.samples[(0, VEHICLE_COMMAND_READER)]]
+    assert [c.command for c in got] == [c.command for c in offboard.commands]
+    assert wait_until(lambda: offboard.response is not None, 30)
+    assert (offboard.response.reply.command, offboard.response.reply.result) == (NAV_LAND, 0)
+    assert len(offboard.sensor_combined) >= 100
 
 
 @pytest.mark.timeout(240)

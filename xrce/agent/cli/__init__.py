@@ -24,10 +24,19 @@ from xrce.agent.cli.subcommands import SUBCOMMANDS, build_parser
 
 
 def main(argv=None):
+    import sys
+
+    from xrce.agent.middleware.ros.naming import split_ros_args  # standard library only
+
+    # ``--ros-args ... [--]`` as ROS spells it, taken out first: outside it ``-r`` is ``--refs``.
+    argv, ros_args = split_ros_args(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    args.ros_args = ros_args
     row = SUBCOMMANDS[args.subcommand]
     if row.run is not None:
+        if ros_args is not None:
+            parser.error("--ros-args names a running agent's entities: not for %s" % args.subcommand)
         return row.run(args)
     from xrce.agent.cli import startup
 

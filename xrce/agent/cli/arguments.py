@@ -126,6 +126,18 @@ def positive(text):
     return value
 
 
+def domain_id(text):
+    """A ROS domain id (--domain). xrce.tools.cli_types has the tools' twin; the agent's
+    options import no tool module."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("invalid domain id: %r" % text)
+    if not 0 <= value <= 232:  # the largest id whose RTPS ports still fit in 16 bits
+        raise argparse.ArgumentTypeError("domain id %d is not in 0..232" % value)
+    return value
+
+
 def allow_list(parse):
     """An option type from a parser raising ValueError (the admission lists)."""
     def parse_option(text):

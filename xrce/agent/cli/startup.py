@@ -30,8 +30,36 @@ def check(args):
         raise CliError("--allow-from needs an IP link (udp4, udp6, tcp4, tcp6), not %s"
                        % args.subcommand)
     check_paths(args)
+    args.naming = make_naming(args)
     event_loop()
     return load_refs(args.refs) if args.refs else None
+
+
+def make_naming(args):
+    """The ``Naming`` of ``--ros-args``, ``--namespace``, ``--domain`` and ``--global-topics``
+    (None: none given, so nothing changes). Raises CliError."""
+    from xrce.agent.middleware.ros.naming import Naming, NamingError, parse_ros_args
+
+    try:
+        namespace, remaps = parse_ros_args(args.ros_args or ())
+        if args.namespace is not None:
+            if namespace is not None and namespace != args.namespace:
+                raise NamingError("--namespace %s and --ros-args __ns:=%s disagree"
+                                  % (args.namespace, namespace))
+            # A plain option is made absolute, as rcl does a node's relative namespace.
+            namespace = args.namespace if args.namespace.startswith("/") else "/" + args.namespace
+        global_names = [n.strip() for n in args.global_topics.split(",") if n.strip()]
+        for name in global_names:
+            if not name.startswith("/"):
+                raise NamingError("--global-topics: %r is not an absolute name" % name)
+        if namespace is None and not remaps and args.domain is None:
+            return None
+        naming = Naming(namespace or "/", remaps, global_names, args.domain)
+    except NamingError as exc:
+        raise CliError(str(exc)) from None
+    if args.middleware == "ced":
+        raise CliError("--ros-args, --namespace and --domain name ROS entities: they need -m dds")
+    return naming
 
 
 # ----------------------------------------------------------------------------- refs and middleware
@@ -93,7 +121,7 @@ def check_paths(args):
         raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
 
 
-def make_middleware(name, linger_s=None, request_timeout_s=None):
+def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
         from xrce.agent.middleware.ced import CedMiddleware
@@ -104,7 +132,7 @@ def make_middleware(name, linger_s=None, request_timeout_s=None):
     return DdsMiddleware(park_creation=True,
                          linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s,
                          request_timeout_s=REQUEST_TIMEOUT_S if request_timeout_s is None
-                         else request_timeout_s)
+                         else request_timeout_s, naming=naming)
 
 
 def configure_logging(verbosity):
@@ -126,7 +154,10 @@ async def serve(args, refs):
         loop.add_signal_handler(signum, stop.set)
 
     middleware = make_middleware(args.middleware, getattr(args, "domain_linger", None),
-                                 getattr(args, "request_timeout", None))
+                                 getattr(args, "request_timeout", None),
+                                 getattr(args, "naming", None))
+    if getattr(args, "naming", None) is not None:
+        logging.getLogger("xrce.agent").info("names given to boards: %s", args.naming.describe())
     agent = Agent(middleware, refs=refs, loop=loop,
                   client_dead_time=args.client_dead_time / 1000.0,
                   client_expire_time=args.client_expire_time / 1000.0,

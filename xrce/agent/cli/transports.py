@@ -12,7 +12,7 @@ import socket
 import sys
 
 from xrce.agent import links
-from xrce.agent.cli.arguments import (allow_list, baudrate, milliseconds, port, positive,
+from xrce.agent.cli.arguments import (allow_list, baudrate, domain_id, milliseconds, port, positive,
                                       positive_seconds, seconds, verbosity)
 
 IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
@@ -103,6 +103,23 @@ class _MiddlewareAction(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+def _add_naming_options(parser):
+    """What the agent names every board's entities (issue 53; xrce.agent.middleware.ros.naming):
+    one firmware image for a whole fleet. ``--ros-args -r`` is taken out of the command line
+    before argparse (``cli.main``): outside it, ``-r`` is ``--refs``."""
+    group = parser.add_argument_group(
+        "names given to the boards (-m dds; also --ros-args -r __ns:=/NS -r FROM:=TO [--])")
+    group.add_argument("--namespace", metavar="NS",
+                       help="put every board's ROS names and nodes under NS, as -r __ns:=/NS; "
+                            "global topics stay as they are")
+    group.add_argument("--domain", type=domain_id, metavar="N",
+                       help="put every board's participant in ROS domain N, whatever domain it "
+                            "asks for")
+    group.add_argument("--global-topics", metavar="NAMES", default="/tf,/tf_static,/clock",
+                       help="comma-separated absolute names kept out of the namespace "
+                            "(default %(default)s)")
+
+
 def add_common_options(parser):
     from xrce.agent.observe import observability
 
@@ -127,6 +144,7 @@ def add_common_options(parser):
                              "board's replier, or from ROS for a board's requester) before it is "
                              "forgotten (default %(default)s; an action's get_result waits for "
                              "its goal however long)")
+    _add_naming_options(parser)
     parser.add_argument("-r", "--refs", metavar="FILE",
                         help="Fast DDS XML profiles file for objects created by reference")
     parser.add_argument("--interfaces", action="append", default=[], metavar="DIR",

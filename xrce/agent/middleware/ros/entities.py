@@ -49,6 +49,7 @@ from xrce.agent.middleware.ros.records import (
 )
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.raw_types import raw_message_type
+from xrce.agent.middleware.ros.naming import Naming
 from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, qos_profile
 
 
@@ -63,11 +64,14 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
     def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
                  idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False,
-                 linger_s: float = DOMAIN_LINGER_S):
+                 linger_s: float = DOMAIN_LINGER_S, naming: Naming | None = None):
         """``park_creation``: an entity's creation on the executor thread does not hold up the
         loop (``xrce.agent.middleware.ros.creation``); for the engine, which parks the creating client.
         Without it, ``create_*`` wait for the executor (direct callers, tests). ``linger_s``: how
-        long a domain stays joined after its last client participant (``membership``)."""
+        long a domain stays joined after its last client participant (``membership``).
+        ``naming``: the namespace, remaps and domain the agent gives every board (``naming``);
+        None changes nothing."""
+        self.naming = naming or Naming()
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (self.executor_kind,))
@@ -141,6 +145,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
     # -- creation -----------------------------------------------------------------------------
 
     def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
+        domain_id = self.naming.domain_id(domain_id)  # --domain: the board's ask is overridden
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         self._get_loop()
@@ -152,6 +157,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         fallback = "xrce_%s_%04x" % (client_tag((key[0] & 0xFFFFFFFF).to_bytes(4, "big")),
                                      key[1] & 0xFFFF)
         node_name, namespace = node_name_and_namespace(name or "", fallback)
+        namespace = self.naming.node_namespace(namespace)
 
         def make_node():
             node = domain.make_node(node_name, namespace)
@@ -184,6 +190,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
+        if kind == "topic":  # a DDS-level topic keeps the name the board gave it
+            ros_name = self.naming.name(ros_name)
         self._add(key, TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
                                     kind == "dds", topic))
 

@@ -107,7 +107,9 @@ class RosDomains:
         """The CLI's, at start: prepare the default domain; joined too under a Fast DDS
         Discovery Server (module docstring). RMWs other than rmw_fastrtps ignore the variable."""
         environ = os.environ if environ is None else environ
-        domain_id = default_domain_id(environ)
+        # --domain: the one every board's participant is put in is the one worth preparing.
+        domain_id = self.naming.domain if self.naming.domain is not None else \
+            default_domain_id(environ)
         if domain_id is None:
             return
         server = bool(environ.get("ROS_DISCOVERY_SERVER", "").strip()) and \

@@ -200,8 +200,8 @@ class RosServices:
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         return (owner, participant_record, service_type(service.request_type),
-                service_ros_name(service.service_name, service.request_topic,
-                                 service.reply_topic), qos_profile(qos))
+                self.naming.name(service_ros_name(service.service_name, service.request_topic,
+                                                  service.reply_topic)), qos_profile(qos))
 
     def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                          qos: EndpointQosSpec, on_reply: ReplyCallback) -> None:
