@@ -19,7 +19,8 @@ from xrce.agent.middleware import (
     READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
     TypeNotReady, XmlRepresentationError,
 )
-from xrce.agent.engine.session import MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry, ReaderState
+from xrce.agent.engine.session import (MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry,
+                                       ReaderState, client_origin)
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text
 from xrce import DecodeError
@@ -155,7 +156,7 @@ class ObjectRegistry:
             name = rep.name if fmt == C.REPRESENTATION_IN_BINARY and rep.name else \
                 DEFAULT_PARTICIPANT_NAME
             entry.info.update(name=name, domain=request.tail_id)
-            mw.create_participant(key, request.tail_id, name)
+            mw.create_participant(key, request.tail_id, name, client_origin(client))
         elif kind == C.OBJK_PARTICIPANT:
             domain = request.tail_id
             if fmt == C.REPRESENTATION_IN_BINARY:
@@ -176,7 +177,7 @@ class ObjectRegistry:
                 # bench/hostile/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
                 raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
             entry.info.update(name=name, domain=domain)
-            mw.create_participant(key, domain, name)
+            mw.create_participant(key, domain, name, client_origin(client))
         elif kind == C.OBJK_TOPIC:
             if fmt == C.REPRESENTATION_IN_BINARY:
                 spec = TopicSpec(rep.topic_name, rep.type_name or rep.type_reference or "")

@@ -10,6 +10,7 @@ clients. The agent-wide counters (``AgentStats``) and the per-client quota defau
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import math
 from collections import deque
@@ -18,7 +19,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 
 from xrce.wire import constants as C
 from xrce.agent.engine.admission import endpoint_address
-from xrce.agent.middleware import EntityKey, TopicSpec
+from xrce.agent.middleware import ClientOrigin, EntityKey, TopicSpec
 from xrce.agent.observe.names import client_tag
 from xrce.wire.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,
@@ -673,6 +674,17 @@ def client_host(link: Link, endpoint: Hashable) -> Hashable:
     if isinstance(endpoint, tuple) and endpoint:
         return (name, endpoint[0])
     return (name, endpoint)
+
+
+def client_origin(client: ClientProxy) -> ClientOrigin:
+    """What a middleware naming boards per board matches a client on (``ClientOrigin``): from
+    its host, which a restored client has before its link is known."""
+    host = client.host
+    if isinstance(host, (ipaddress.IPv4Address, ipaddress.IPv6Address)):
+        return ClientOrigin(client.key, address=host)
+    if isinstance(host, tuple) and len(host) == 2 and isinstance(host[1], str):
+        return ClientOrigin(client.key, device=host[1])
+    return ClientOrigin(client.key)
 
 
 def _hard_liveliness(properties) -> Optional[float]:

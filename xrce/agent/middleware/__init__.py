@@ -96,6 +96,18 @@ class ServiceSpec:
     reply_topic: Optional[str] = None  # e.g. "rr/add_two_intsReply"
 
 
+@dataclass(frozen=True)
+class ClientOrigin:
+    """Who is creating a participant, as far as the agent can tell boards apart: what a
+    middleware that names boards' entities per board (the ROS middleware's fleet rules) matches
+    on. ``address``: the IP address of a UDP or TCP board, ``device``: the serial device path the
+    agent opened for a serial one (None where it has none)."""
+
+    client_key: bytes
+    address: Optional[object] = None  # an ipaddress.IPv4Address / IPv6Address
+    device: Optional[str] = None
+
+
 class Middleware:
     """Base class: every method must be implemented by a backend."""
 
@@ -112,7 +124,10 @@ class Middleware:
     # reader keeps its own history, so 1 here.
     reader_queue_floor = 1
 
-    def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
+    def create_participant(self, key: EntityKey, domain_id: int, name: str,
+                           origin: Optional[ClientOrigin] = None) -> None:
+        """``origin``: the board creating it (the engine always gives it; direct callers and
+        tests may not)."""
         raise NotImplementedError
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:

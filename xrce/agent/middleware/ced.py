@@ -124,7 +124,8 @@ class CedMiddleware(Middleware):
         except KeyError:
             raise MiddlewareError("unknown topic %r" % (topic,)) from None
 
-    def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
+    def create_participant(self, key: EntityKey, domain_id: int, name: str,
+                           origin=None) -> None:
         self.participants[key] = domain_id
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:

@@ -18,6 +18,7 @@ import time
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 
 from xrce.agent.middleware import (
+    ClientOrigin,
     DataCallback,
     EndpointQosSpec,
     EntityKey,
@@ -64,14 +65,17 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
     def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
                  request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
                  idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False,
-                 linger_s: float = DOMAIN_LINGER_S, naming: Naming | None = None):
+                 linger_s: float = DOMAIN_LINGER_S, naming: Naming | None = None,
+                 fleet=None):
         """``park_creation``: an entity's creation on the executor thread does not hold up the
         loop (``xrce.agent.middleware.ros.creation``); for the engine, which parks the creating client.
         Without it, ``create_*`` wait for the executor (direct callers, tests). ``linger_s``: how
         long a domain stays joined after its last client participant (``membership``).
         ``naming``: the namespace, remaps and domain the agent gives every board (``naming``);
-        None changes nothing."""
+        None changes nothing. ``fleet``: what gives a board other names than those, by who it is
+        (``assign(origin)`` -> (Naming, rule name or None)); None: every board gets ``naming``."""
         self.naming = naming or Naming()
+        self.fleet = fleet
         self.executor_kind = executor or os.environ.get("XRCE_ROS_EXECUTOR", EXECUTOR_EVENTS)
         if self.executor_kind not in (EXECUTOR_EVENTS, EXECUTOR_SINGLE):
             raise MiddlewareError("unknown executor %r" % (self.executor_kind,))
@@ -144,8 +148,15 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
 
     # -- creation -----------------------------------------------------------------------------
 
-    def create_participant(self, key: EntityKey, domain_id: int, name: str) -> None:
-        domain_id = self.naming.domain_id(domain_id)  # --domain: the board's ask is overridden
+    def _assign(self, origin: ClientOrigin | None) -> tuple:
+        if self.fleet is None or origin is None:
+            return self.naming, None
+        return self.fleet.assign(origin)
+
+    def create_participant(self, key: EntityKey, domain_id: int, name: str,
+                           origin: ClientOrigin | None = None) -> None:
+        naming, rule = self._assign(origin)
+        domain_id = naming.domain_id(domain_id)  # --domain: the board's ask is overridden
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         self._get_loop()
@@ -157,7 +168,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         fallback = "xrce_%s_%04x" % (client_tag((key[0] & 0xFFFFFFFF).to_bytes(4, "big")),
                                      key[1] & 0xFFFF)
         node_name, namespace = node_name_and_namespace(name or "", fallback)
-        namespace = self.naming.node_namespace(namespace)
+        namespace = naming.node_namespace(namespace)
 
         def make_node():
             node = domain.make_node(node_name, namespace)
@@ -168,7 +179,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             domain.remove_client_node(node)
 
         try:
-            node, _ = self._create_on_executor(key, ParticipantRecord(domain, None), make_node,
+            node, _ = self._create_on_executor(key, ParticipantRecord(domain, None, naming, rule),
+                                               make_node,
                                                destroy_node)
         except TypeNotReady:
             raise
@@ -182,16 +194,16 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         finally:
             if started:  # after the node's job: the agent's own entities come after its STATUS
                 self._joined(domain_id)
-        self._entities[key] = ParticipantRecord(domain, node)
+        self._entities[key] = ParticipantRecord(domain, node, naming, rule)
         self._graph_changed(domain)
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
-        self._record(participant, ("participant",))
+        naming = self._record(participant, ("participant",)).naming
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
         if kind == "topic":  # a DDS-level topic keeps the name the board gave it
-            ros_name = self.naming.name(ros_name)
+            ros_name = naming.name(ros_name)
         self._add(key, TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
                                     kind == "dds", topic))
 

@@ -13,15 +13,21 @@ from rclpy.node import Node
 from xrce.agent.middleware import EntityKey, TopicSpec
 from xrce.agent.middleware.ros.domain import DomainRuntime
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
+from xrce.agent.middleware.ros.naming import Naming
 
 
 class ParticipantRecord:
-    __slots__ = ("domain", "node")
+    """``naming``: the names and domain given to this participant's board, and ``rule``: which
+    rule of the fleet gave them (None: the agent's own), decided once at its creation."""
+
+    __slots__ = ("domain", "node", "naming", "rule")
     kind = "participant"
 
-    def __init__(self, domain: DomainRuntime, node: Node):
+    def __init__(self, domain: DomainRuntime, node: Node, naming: Naming, rule: str | None = None):
         self.domain = domain
         self.node = node
+        self.naming = naming
+        self.rule = rule
 
 
 class TopicRecord:

@@ -200,7 +200,7 @@ class RosServices:
         if key in self._entities:
             raise MiddlewareError("entity %r already exists" % (key,))
         return (owner, participant_record, service_type(service.request_type),
-                self.naming.name(service_ros_name(service.service_name, service.request_topic,
+                participant_record.naming.name(service_ros_name(service.service_name, service.request_topic,
                                                   service.reply_topic)), qos_profile(qos))
 
     def create_requester(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
