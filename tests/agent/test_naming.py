@@ -61,3 +61,46 @@ def test_command_line_naming():
     assert [naming.name(n) for n in ("/map", "/tf", "/clock", "/odom")] == \
         ["/map", "/tf", "/r3/clock", "/odom"]
     assert _cli("--domain", "0").domain == 0 and _cli("--domain", "0").name("/a") == "/a"
+
+
+def test_rcl_global_names_stay_whatever_the_global_topics():
+    for naming in (Naming("/robot1"), Naming("/robot1", global_names=["/map"])):
+        assert naming.name("/parameter_events") == "/parameter_events"
+        assert naming.name("/rosout") == "/rosout"
+        assert naming.board_name("/parameter_events") == "/parameter_events"
+    assert Naming("/r", [("rosout", "log")]).name("/rosout") == "/r/log"  # a remap still moves it
+
+
+def test_names_translated_back():
+    naming = Naming("/robot3", [("cmd_vel", "cmd_vel_safe"), ("/odom", "/shared/odom")])
+    for board in ("/chatter", "/a/b/c", "/cmd_vel", "/odom", "/tf", "/clock", "/parameter_events",
+                  "/mcu/feat_fw/get_parameters", "/fib/_action/send_goal"):
+        assert naming.board_name(naming.name(board)) == board, board
+    # No board name becomes these: they come back as they are, absolute.
+    assert naming.board_name("/robot2/cmd_vel") == "/robot2/cmd_vel"  # another robot's
+    assert naming.board_name("/robot3/cmd_vel") == "/robot3/cmd_vel"  # the remap's original
+    assert naming.board_name("/robot3/tf") == "/robot3/tf"  # /tf is global: the board's is /tf
+    assert naming.board_name("/robot30/x") == "/robot30/x"  # a prefix that is not the namespace
+    assert naming.board_name("/chatter") == "/chatter"
+    # Nodes: namespaces back without the agent's namespace, another one as it is.
+    for board_namespace in ("/", "/mcu", "/a/b"):
+        assert naming.board_node_namespace(naming.node_namespace(board_namespace)) == \
+            board_namespace
+    assert naming.board_node_namespace("/robot2") == "/robot2"
+    assert naming.board_node_namespace("/robot30/x") == "/robot30/x"
+    assert naming.ros_node("/tb3_params") == "/robot3/tb3_params"
+    assert naming.ros_node("/mcu/feat_fw") == "/robot3/mcu/feat_fw"
+    assert naming.board_node("/robot3/tb3_params") == "/tb3_params"
+    assert naming.board_node("/robot3/mcu/feat_fw") == "/mcu/feat_fw"
+    assert naming.board_node("/robot2/tb3_params") == "/robot2/tb3_params"
+    assert naming.moves_nodes and not Naming(remaps=[("a", "b")]).moves_nodes
+
+
+def test_remaps_alone_translated_back():
+    naming = Naming(remaps=[("cmd_vel", "cmd_vel_safe")])
+    assert naming.name("/cmd_vel") == "/cmd_vel_safe"  # absolute: not under the board's node
+    assert naming.board_name("/cmd_vel_safe") == "/cmd_vel"
+    assert naming.board_name("/cmd_vel") == "/cmd_vel"  # someone else's: no board name reaches it
+    assert naming.board_name("/odom") == "/odom"
+    assert naming.board_node_namespace("/mcu") == "/mcu" and naming.board_node("/n") == "/n"
+    assert Naming().board_name("/x") == "/x" and Naming().ros_node("/n") == "/n"

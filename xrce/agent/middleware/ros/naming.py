@@ -12,12 +12,21 @@ of ``types.dds_topic_to_ros``) keeps its name:
 - a remap ``FROM:=TO`` whose FROM is the board's name (with or without its leading slash: the
   board's names are relative to the namespace it was given, as a ROS node's relative names are)
   gives TO; a relative TO is put under the namespace, an absolute one is taken as it is;
-- else a global name (``/tf``, ``/tf_static``, ``/clock`` by default) stays as it is, as a ROS
-  user expects of namespacing: one ``/tf`` tree for the whole fleet;
+- else a global name (``/tf``, ``/tf_static``, ``/clock`` by default; ``/parameter_events`` and
+  ``/rosout`` always, as rcl has them) stays as it is, as a ROS user expects of namespacing: one
+  ``/tf`` tree for the whole fleet;
 - else the name is put under the namespace.
 
 A node's namespace is the agent's namespace followed by the one the board gave its participant
 (``robot3`` + ``ns/node`` is node ``node`` in ``/robot3/ns``).
+
+The way back (issue 53, "round trip"): a board reads names too (its graph queries, the
+``node`` of a ParameterEvent), and unmodified firmware must find its own names there.
+``Naming.board_name`` is the inverse of ``name`` (a remap's target gives its source, a name under
+the namespace loses it, a global name stays), ``board_node_namespace`` of ``node_namespace`` and
+``board_node`` of ``ros_node``; a ROS name no board name becomes (another robot's
+``/robot2/cmd_vel``, the original of a remapped name) comes back as it is, absolute. Where they are
+used: ``xrce.agent.middleware.ros.roundtrip``.
 
 This module imports nothing of ROS: the command line parses ``--ros-args`` with it before rclpy
 loads, so a bad remap is one line and exit 2 without ROS' start-up time.
@@ -27,7 +36,11 @@ from __future__ import annotations
 
 import re
 
-GLOBAL_NAMES = ("/tf", "/tf_static", "/clock")
+# /parameter_events and /rosout are absolute in rcl itself: every node of a domain shares them,
+# whatever its namespace, and ``ros2 param``/``ros2 topic echo /rosout`` look for them there; so
+# they stay global whatever ``global_names`` (--global-topics) says; a remap still moves them.
+RCL_GLOBAL_NAMES = ("/parameter_events", "/rosout")
+GLOBAL_NAMES = ("/tf", "/tf_static", "/clock") + RCL_GLOBAL_NAMES
 
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 _NAME = re.compile(r"^/?%s(/%s)*$" % (_TOKEN, _TOKEN))
@@ -48,7 +61,9 @@ def _absolute(name: str) -> str:
 
 
 def _join(namespace: str, name: str) -> str:
-    return name if namespace == "/" else namespace + _absolute(name)
+    # Absolute in the root namespace too: rclpy would put a relative remap target under the
+    # board node's own namespace.
+    return _absolute(name) if namespace == "/" else namespace + _absolute(name)
 
 
 class Naming:
@@ -65,7 +80,8 @@ class Naming:
         self.remaps = {}
         for source, target in remaps:
             self.remaps[_absolute(_checked(source, "remap source"))] = _checked(target, "remap target")
-        self.global_names = frozenset(_absolute(_checked(n, "global name")) for n in global_names)
+        self.global_names = frozenset(_absolute(_checked(n, "global name")) for n in global_names) \
+            | frozenset(RCL_GLOBAL_NAMES)
         self.domain = domain
 
     @property
@@ -97,6 +113,48 @@ class Naming:
 
     def domain_id(self, board_domain: int) -> int:
         return board_domain if self.domain is None else self.domain
+
+    def ros_node(self, board_node: str) -> str:
+        """The fully qualified ROS name of the node the board calls ``board_node`` (``/ns/node``)."""
+        namespace, _, node = board_node.rpartition("/")
+        return self.node_namespace(namespace or "/").rstrip("/") + "/" + node
+
+    # -- the way back (module docstring) ------------------------------------------------------
+
+    @property
+    def moves_nodes(self) -> bool:
+        """Whether node names differ from the board's: a namespace (remaps name topics only)."""
+        return self.namespace != "/"
+
+    def board_name(self, ros_name: str) -> str:
+        """The board's fully qualified name that ``name`` makes ``ros_name``; ``ros_name`` itself
+        (absolute) when no board name becomes it."""
+        for source in self.remaps:
+            if self.name(source) == ros_name:
+                return source
+        if ros_name in self.global_names:
+            return ros_name
+        if self.namespace != "/" and ros_name.startswith(self.namespace + "/"):
+            candidate = ros_name[len(self.namespace):]
+            if self.name(candidate) == ros_name:
+                return candidate
+        return _absolute(ros_name)
+
+    def board_node_namespace(self, ros_namespace: str) -> str:
+        """The namespace the board gave a node ``node_namespace`` put in ``ros_namespace``; a
+        namespace outside the agent's comes back as it is."""
+        if self.namespace == "/":
+            return ros_namespace
+        if ros_namespace.rstrip("/") == self.namespace:
+            return "/"
+        if ros_namespace.startswith(self.namespace + "/"):
+            return ros_namespace[len(self.namespace):]
+        return ros_namespace
+
+    def board_node(self, ros_node: str) -> str:
+        """The board's fully qualified node name of the ROS node ``ros_node``."""
+        namespace, _, node = ros_node.rpartition("/")
+        return self.board_node_namespace(namespace or "/").rstrip("/") + "/" + node
 
 
 def parse_ros_args(tokens) -> tuple[str | None, list]:
