@@ -48,6 +48,7 @@ from xrce.agent.middleware.ros.records import (
     TopicRecord,
     WriterRecord,
 )
+from xrce.agent.middleware.ros.roundtrip import reader_delivery, writer_rewrite
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.raw_types import raw_message_type
 from xrce.agent.middleware.ros.naming import Naming
@@ -235,7 +236,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         except Exception:
             self._unwatch(key)
             raise
-        self._entities[key] = WriterRecord(owner, ros_publisher)
+        self._entities[key] = WriterRecord(owner, ros_publisher,
+                                           writer_rewrite(topic_record.spec, participant.naming))
         self._graph_changed(participant.domain)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
@@ -246,8 +248,10 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             raise MiddlewareError("entity %r already exists" % (key,))
         profile = qos_profile(qos, topic_record.dds_level)
         creation = self._pending_creation(key, participant)
+        translated = reader_delivery(topic_record.spec, participant.naming, on_data)
         record = creation.context if creation is not None else ReaderRecord(
-            owner, ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock))
+            owner, ReaderHandoff(self._get_loop(), translated or on_data, self.handoff_depth,
+                                 self.engine_lock), translated is not None)
         node = participant.node
         events = SubscriptionEventCallbacks(**self._watch(key, participant, topic_record, profile,
                                                           False))
@@ -312,6 +316,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._entities.get(writer)
         if record is None or record.kind != "datawriter":
             return False
+        if record.rewrite is not None:
+            sample = record.rewrite(sample)
         try:
             record.publisher.publish(ENCAPSULATION_LE + sample)
         except Exception as exc:
@@ -331,6 +337,11 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         if publish_raw is None:  # another rclpy layout: the public entry point
             publish_raw = record.publisher.publish
         encapsulation = ENCAPSULATION_LE
+        rewrite = record.rewrite
+        if rewrite is not None:
+            def write(sample: bytes) -> bool:  # the rare topics that carry names (roundtrip)
+                return self.write(writer, sample)
+            return write
 
         def write(sample: bytes) -> bool:
             try:
@@ -364,18 +375,20 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
 
     def publisher_address(self, writer: EntityKey) -> int | None:
         """The address of a datawriter's rcl_publisher_t, for the compiled UDP path
-        (xrce.agent.engine.fastpath), which must forget it before ``delete``; None if rclpy hides it."""
+        (xrce.agent.engine.fastpath), which must forget it before ``delete``; None if rclpy hides it,
+        or if its samples are rewritten on the way (``roundtrip``): C would publish them as they came."""
         record = self._entities.get(writer)
-        if record is None or record.kind != "datawriter":
+        if record is None or record.kind != "datawriter" or record.rewrite is not None:
             return None
         return getattr(getattr(record.publisher, "handle", None), "pointer", None)
 
     def subscription_address(self, reader: EntityKey) -> int | None:
         """The address of a datareader's rcl_subscription_t, for the compiled UDP path
         (xrce.agent.engine.fastpath), which takes its samples from then on and must let go of it
-        before ``delete``; None if rclpy hides it."""
+        before ``delete``; None if rclpy hides it, or if its samples are translated for its board
+        (``roundtrip``): C would deliver them as they came."""
         record = self._entities.get(reader)
-        if record is None or record.kind != "datareader":
+        if record is None or record.kind != "datareader" or record.translated:
             return None
         return getattr(getattr(record.subscription, "handle", None), "pointer", None)
 

@@ -25,6 +25,12 @@ what it does, from what rclpy sees of the graph:
   client has a reader on the topic, from its first such reader to its last: a domain where no
   client asked for the graph gets no writer and no check.
 
+A board whose names the agent changed (``naming``, a namespace or a remap) reads the Graph in its
+own names: its reader's samples are translated back as they are delivered to it
+(``board_graph_reader``), so its ``rcl_get_node_names`` lists its nodes as it created them. Such a
+reader stays off the compiled UDP path (``RosMiddleware.subscription_address``), which would send
+the Graph as it came.
+
 Everything here runs on the domain's executor thread (``DomainRuntime.post``); the loop only
 counts readers.
 """
@@ -35,7 +41,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from xrce.agent.middleware import TopicSpec
 from xrce.agent.middleware.ros.domain import AGENT_NODE_NAME, ENCAPSULATION_LE, DomainRuntime, log
-from xrce.wire.cdr import CdrWriter
+from xrce.wire.cdr import CdrReader, CdrWriter
 
 GRAPH_TOPIC = "ros_to_microros_graph"  # the DDS name rmw_microxrcedds reads
 GRAPH_TYPE = "micro_ros_msgs::msg::dds_::Graph_"
@@ -97,7 +103,6 @@ def graph_sample(node, own: tuple[str, str]) -> bytes:
     servers, clients = _services(node.get_topic_names_and_types(no_demangle=True))
     nodes = sorted(set(node.get_node_names_and_namespaces()) - {own},
                    key=lambda entry: (entry[1], entry[0]))
-    out = CdrWriter()
     described = []
     for name, namespace in nodes:
         try:
@@ -105,17 +110,24 @@ def graph_sample(node, own: tuple[str, str]) -> bytes:
             subscribers = node.get_subscriber_names_and_types_by_node(name, namespace)
         except Exception:  # gone between the two calls: it is not in this Graph
             continue
-        if _fits(name) and _fits(namespace):
-            described.append((namespace, name, ((PUBLISHER, sorted(publishers)),
-                                                (SUBSCRIBER, sorted(subscribers)),
-                                                (SERVICE_SERVER, servers),
-                                                (SERVICE_CLIENT, clients))))
-    out.u32(len(described))
-    for namespace, name, groups in described:
+        groups = ((PUBLISHER, sorted(publishers)), (SUBSCRIBER, sorted(subscribers)),
+                  (SERVICE_SERVER, servers), (SERVICE_CLIENT, clients))
+        described.append((namespace, name, [(kind, entity, tuple(types))
+                                            for kind, listed in groups
+                                            for entity, types in listed]))
+    return encode_graph(described)
+
+
+def encode_graph(nodes) -> bytes:
+    """The CDR body of a Graph of [(namespace, name, [(kind, entity, types)])]; a node, entity
+    or type whose name does not fit the board's buffers is left out (MAX_NAME)."""
+    out = CdrWriter()
+    nodes = [node for node in nodes if _fits(node[0]) and _fits(node[1])]
+    out.u32(len(nodes))
+    for namespace, name, entities in nodes:
         out.string(namespace)
         out.string(name)
-        entities = [(kind, entity, types) for kind, listed in groups for entity, types in listed
-                    if _fits(entity)]
+        entities = [entity for entity in entities if _fits(entity[1])]
         out.u32(len(entities))
         for kind, entity, types in entities:
             out.u8(kind)
@@ -125,6 +137,47 @@ def graph_sample(node, own: tuple[str, str]) -> bytes:
             for type_name in types:
                 out.string(type_name)
     return out.getvalue()
+
+
+def decode_graph(body: bytes) -> list:
+    """A Graph's CDR body (little endian, as ``encode_graph`` writes it) as ``encode_graph``
+    takes it."""
+    reader = CdrReader(body)
+    nodes = []
+    for _ in range(reader.u32()):
+        namespace, name = reader.string(), reader.string()
+        entities = []
+        for _ in range(reader.u32()):
+            kind, entity = reader.u8(), reader.string()
+            entities.append((kind, entity, tuple(reader.string() for _ in range(reader.u32()))))
+        nodes.append((namespace, name, entities))
+    return nodes
+
+
+def graph_for_board(body: bytes, naming) -> bytes:
+    """A Graph as the board whose participant has ``naming`` calls what is in it: the names the
+    agent gave (its nodes' namespaces, topics, services, actions' hidden topics and services)
+    are its own again (``Naming.board_name``, ``board_node_namespace``); a name no board name
+    becomes (another robot's ``/robot2/cmd_vel``) stays as it is. Types never change."""
+    translated = []
+    for namespace, name, entities in decode_graph(body):
+        translated.append((naming.board_node_namespace(namespace), name,
+                           [(kind, naming.board_name(entity), types)
+                            for kind, entity, types in entities]))
+    return encode_graph(translated)
+
+
+def board_graph_reader(on_data, naming):
+    """``on_data`` of a board's reader of GRAPH_TOPIC: each Graph as that board calls it
+    (``graph_for_board``). Per delivery, not per Graph published: the feed is one writer per
+    domain for every board in it, and boards of one domain may be named apart (a fleet file)."""
+    def deliver(body: bytes) -> None:
+        try:
+            body = graph_for_board(body, naming)
+        except Exception:  # not a Graph this module wrote (another agent's): as it came
+            log.debug("a Graph not translated for its board", exc_info=True)
+        on_data(body)
+    return deliver
 
 
 class GraphFeed:
@@ -185,7 +238,9 @@ class GraphFeed:
         No matched-event callback: the EventsExecutor crashed (a segfault, the GIL not held)
         dispatching the event of a writer destroyed with its readers, so each check compares
         the writer's reader count instead."""
-        self.publisher = node.create_publisher(self.message_type, GRAPH_TOPIC, GRAPH_QOS)
+        # Absolute: the node may be a board's (DomainRuntime.host), in the namespace the agent
+        # gave it, where rcl would put a relative name (and no board's reader would match).
+        self.publisher = node.create_publisher(self.message_type, "/" + GRAPH_TOPIC, GRAPH_QOS)
         self._readers = 0
         self._check(always=True)
 

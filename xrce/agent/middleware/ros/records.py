@@ -54,20 +54,26 @@ class GroupRecord:
 
 
 class WriterRecord:
-    __slots__ = ("participant", "publisher")
+    """``rewrite``: what each sample becomes on its way to ROS (``roundtrip.writer_rewrite``),
+    None: nothing."""
+
+    __slots__ = ("participant", "publisher", "rewrite")
     kind = "datawriter"
 
-    def __init__(self, participant: EntityKey, publisher):
+    def __init__(self, participant: EntityKey, publisher, rewrite=None):
         self.participant = participant
         self.publisher = publisher
+        self.rewrite = rewrite
 
 
 class ReaderRecord:
-    __slots__ = ("participant", "subscription", "handoff", "graph_domain")
+    __slots__ = ("participant", "subscription", "handoff", "graph_domain", "translated")
     kind = "datareader"
 
-    def __init__(self, participant: EntityKey, handoff: ReaderHandoff):
+    def __init__(self, participant: EntityKey, handoff: ReaderHandoff, translated: bool = False):
         self.participant = participant
         self.subscription = None
         self.handoff = handoff
         self.graph_domain = None  # a reader of micro-ROS' graph topic: its domain id
+        # Its samples are translated back for its board (``roundtrip.reader_delivery``).
+        self.translated = translated
