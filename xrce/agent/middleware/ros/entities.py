@@ -236,8 +236,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         except Exception:
             self._unwatch(key)
             raise
-        self._entities[key] = WriterRecord(owner, ros_publisher,
-                                           writer_rewrite(topic_record.spec, participant.naming))
+        rewrite = writer_rewrite(topic_record.spec, participant.naming, node)
+        self._entities[key] = WriterRecord(owner, ros_publisher, rewrite)
         self._graph_changed(participant.domain)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,

@@ -7,9 +7,11 @@ board's own participant (boards of one agent may be named apart):
 
 - micro-ROS' graph topic (``graph.board_graph_reader``): node namespaces, topics, services;
 - ``/parameter_events``: the ``node`` of each ``rcl_interfaces/msg/ParameterEvent`` a board's
-  parameter server writes is the node's ROS name (``/robot1/tb3_params``, what ``ros2 param``
-  and every ROS parameter client match it with), and what a board reads of it names the board's
-  nodes as the board does (``/tb3_params``). Only a namespace moves nodes; remaps do not.
+  parameter server writes becomes its node's fully qualified ROS name (``/robot1/tb3_params``,
+  as rclpy and rclcpp nodes name themselves there). rclc writes the node's base name
+  (``tb3_params``), which would say nothing of which robot changed a parameter. What a board reads
+  there names the nodes of its namespace as the board does (``/robot1/tuner`` -> ``/tuner``).
+  Only a namespace moves nodes; remaps do not, and without one the samples go as they are.
 
 A reader or writer with a translation takes Python's path for every sample (the compiled UDP path
 would carry the bytes as they are: ``RosMiddleware.subscription_address``/``publisher_address``).
@@ -55,13 +57,20 @@ def _safely(rewrite, what: str):
     return apply
 
 
-def writer_rewrite(spec, naming: Naming):
-    """``rewrite(sample) -> sample`` for a board's writer of ``spec`` under ``naming`` on its way
-    to ROS, or None where the samples go as they are."""
-    if naming.moves_nodes and _is_parameter_events(spec):
-        return _safely(lambda sample: _parameter_event_node(sample, naming.ros_node),
-                       "parameter event to ROS")
-    return None
+def writer_rewrite(spec, naming: Naming, node):
+    """``rewrite(sample) -> sample`` for the writer of ``spec`` of a board under ``naming`` whose
+    participant is the rclpy ``node``, on its way to ROS; None where the samples go as they are."""
+    if not (naming.moves_nodes and _is_parameter_events(spec)):
+        return None
+    ros_node = node.get_fully_qualified_name()
+    own = (node.get_name(), naming.board_node(ros_node))  # rclc's base name, or the board's FQN
+
+    def to_ros(name: str) -> str:
+        if name in own:
+            return ros_node
+        return naming.ros_node(name) if name.startswith("/") else name
+
+    return _safely(lambda sample: _parameter_event_node(sample, to_ros), "parameter event to ROS")
 
 
 def reader_delivery(spec, naming: Naming, on_data):
@@ -70,7 +79,8 @@ def reader_delivery(spec, naming: Naming, on_data):
     if spec == GRAPH_SPEC and naming.changes_names:
         return board_graph_reader(on_data, naming)
     if naming.moves_nodes and _is_parameter_events(spec):
-        rewrite = _safely(lambda sample: _parameter_event_node(sample, naming.board_node),
-                          "parameter event to a board")
+        rewrite = _safely(lambda sample: _parameter_event_node(
+            sample, lambda name: naming.board_node(name) if name.startswith("/") else name),
+            "parameter event to a board")
         return lambda sample: on_data(rewrite(sample))
     return None
