@@ -5,7 +5,8 @@ bounded hand-off of samples back to the loop) and the measurements behind them a
 ``xrce.agent.middleware.ros.domain``; requesters and repliers (the request/reply path) in
 ``xrce.agent.middleware.ros.services``; joining and leaving domains, the agent's own publishers
 and micro-ROS' graph feed in ``xrce.agent.middleware.ros.membership``; what is kept per entity in
-``xrce.agent.middleware.ros.records``. This module maps the XRCE entities onto rclpy ones and
+``xrce.agent.middleware.ros.records``; names translated back where a board reads them in
+``xrce.agent.middleware.ros.roundtrip``. This module maps the XRCE entities onto rclpy ones and
 moves their data.
 """
 
@@ -337,11 +338,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         if publish_raw is None:  # another rclpy layout: the public entry point
             publish_raw = record.publisher.publish
         encapsulation = ENCAPSULATION_LE
-        rewrite = record.rewrite
-        if rewrite is not None:
-            def write(sample: bytes) -> bool:  # the rare topics that carry names (roundtrip)
-                return self.write(writer, sample)
-            return write
+        if record.rewrite is not None:  # the rare topics that carry names (roundtrip)
+            return lambda sample: self.write(writer, sample)
 
         def write(sample: bytes) -> bool:
             try:
