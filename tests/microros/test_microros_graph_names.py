@@ -66,7 +66,8 @@ def test_board_reads_the_graph_in_its_own_names(ros_peer, ros_domain):  # noqa: 
             channel.close()
 
     # In ROS: the names the agent gave, none of the board's own where they were moved.
-    assert not {"/mcu2/latched", "/big_out", "/graph_probe"} & ros_topics, sorted(ros_topics)
+    assert not {"/mcu2/latched", "/big_out", "/graph_probe", "/robot1/parameter_events"} & \
+        ros_topics, sorted(ros_topics)
     # On the board: its own names, node by node, as the firmware created them.
     assert view.node_topics("/mcu2/feat_aux") == {
         ("publisher", "/mcu2/latched", ("std_msgs/msg/String",))}
