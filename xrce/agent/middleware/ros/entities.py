@@ -37,7 +37,9 @@ from xrce.agent.middleware.ros.domain import (
 )
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.observe.names import client_tag
+from xrce.agent.middleware.ros.collisions import NameCollisions
 from xrce.agent.middleware.ros.creation import ParkedCreation
+from xrce.agent.middleware.ros.given import GivenNames
 from xrce.agent.middleware.ros.graph import GRAPH_SPEC
 from xrce.agent.middleware.ros.membership import DOMAIN_LINGER_S, RosDomains
 from xrce.agent.middleware.ros.mismatch import MismatchWatch, TypeWatch
@@ -57,7 +59,8 @@ from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_name
 MISMATCH_RETRY_S = 0.3  # a peer whose node the ROS graph does not know yet is looked for again
 
 
-class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
+class RosMiddleware(RosDomains, RosServices, ParkedCreation, GivenNames, NameCollisions,
+                    Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
     name = "dds"
@@ -195,6 +198,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             if started:  # after the node's job: the agent's own entities come after its STATUS
                 self._joined(domain_id)
         self._entities[key] = ParticipantRecord(domain, node, naming, rule)
+        self._claim_node(key)
         self._graph_changed(domain)
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
@@ -424,6 +428,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._entities.get(key)
         if record is None:
             return
+        self._release_names(key)
         if record.kind == "participant":
             # The engine deletes children first; anything it missed goes with the node anyway.
             for child_key in [k for k, r in self._entities.items()
