@@ -1,6 +1,8 @@
-"""What the operator is shown of the names the agent gave a board (issue 53, "seen by the
-operator"): ``RosMiddleware.given_names``, which the engine keeps in each object's ``info`` for the
-``-v 4`` lines, ``xrce-agent stats`` and ``/diagnostics`` (``xrce.agent.observe.entities``).
+"""What the operator is shown of the ROS entities behind a board's objects: ``ros_entity``, the
+entity in a user's words, and (issue 53, "seen by the operator") ``given_names``, the names the
+agent gave a board where they may not be the board's. The engine keeps both in each object's
+``info`` for the ``-v 4`` lines, ``xrce-agent stats`` and ``/diagnostics``
+(``xrce.agent.observe.entities``).
 
 The board's own names are what the engine already holds (the participant's name and domain, the
 topic and service names of its CREATEs); this module adds what ROS was given instead and which
@@ -35,8 +37,29 @@ def naming_words(naming) -> dict:
                                                       for source in naming.remaps]}
 
 
-class GivenNames:
-    """``given_names`` of ``RosMiddleware``, which mixes this class in (it uses ``_entities``)."""
+class ShownEntities:
+    """``ros_entity`` and ``given_names`` of ``RosMiddleware``, which mixes this class in (they
+    use its ``_entities``)."""
+
+    def ros_entity(self, key: EntityKey) -> str | None:
+        record = self._entities.get(key)
+        if record is None:
+            return None
+        if record.kind == "participant":
+            return "node " + record.node.get_fully_qualified_name()
+        participant = self._entities.get(getattr(record, "participant", None))
+        if participant is None or participant.kind != "participant":
+            return None
+        node = participant.node.get_fully_qualified_name()
+        if record.kind == "datawriter":
+            return "publisher %s of node %s" % (record.publisher.topic_name, node)
+        if record.kind == "datareader":
+            return "subscription %s of node %s" % (record.subscription.topic_name, node)
+        if record.kind == "requester":
+            return "service client %s of node %s" % (record.client.srv_name, node)
+        if record.kind == "replier":
+            return "service server %s of node %s" % (record.service.srv_name, node)
+        return None
 
     def given_names(self, key: EntityKey) -> dict | None:
         """What ROS was given for the entity where it may not be what the board asked for:
