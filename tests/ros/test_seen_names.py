@@ -5,6 +5,7 @@ stats --json`` and on ``/diagnostics``; two boards given one service or one node
 WARNING each, naming both boards. Our client over UDP, a real agent process, real rclpy."""
 
 import json
+import logging
 import re
 import subprocess
 import sys
@@ -15,6 +16,10 @@ from test_msgs.srv import BasicTypes
 
 from agent_process import REPO, AgentProcess
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
+from xrce.agent.middleware import ClientOrigin, EndpointQosSpec, ServiceSpec
+from xrce.agent.middleware.ros.collisions import NameClaims
+from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.naming import Naming
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
@@ -70,6 +75,9 @@ def test_a_renamed_board_is_shown_with_its_own_names(ros_peer, ros_domain):  # n
                                      capture_output=True, text=True, timeout=30)
                 assert out.returncode == 0, out.stderr
                 snapshot = json.loads(out.stdout)
+                table = subprocess.run([sys.executable, "-m", "xrce.agent", "stats", "-p",
+                                        str(_stats_port(agent)), "--once"], cwd=REPO,
+                                       capture_output=True, text=True, timeout=30).stdout
 
                 def diagnosed():
                     return [s for a in list(arrays) for s in a.status
@@ -117,6 +125,11 @@ def test_a_renamed_board_is_shown_with_its_own_names(ros_peer, ros_domain):  # n
                      ("datawriter", "/robot1/chatter", "/chatter", ros_domain),
                      ("replier", "/robot1/add_two_ints", "/add_two_ints", ros_domain)]
 
+    for text in ("/robot1/mcu_node (domain %d; board's /mcu_node, domain %d)" % (ros_domain, asked),
+                 "naming", "command line", "/robot1/cmd_vel_safe (board's /cmd_vel)",
+                 "/robot1/add_two_ints (board's /add_two_ints)"):
+        assert text in table, table
+
     # /diagnostics: the same, as key-value pairs of the board's status.
     values = {kv.key: kv.value for kv in diagnosed()[-1].values}
     assert values["rule"] == "command line" and values["namespace"] == "/robot1"
@@ -161,13 +174,80 @@ def test_two_boards_given_one_service_are_one_warning_naming_both(ros_domain):  
                 board.close()
         assert agent.stop() == 0
     warnings = _log_lines(agent, "WARNING")
-    service = [w for w in warnings if "service /robot1/add_two_ints" in w]
+    service = [w for w in warnings if "service /robot1/add_two_ints in ROS domain %d " % ros_domain
+               in w]
     assert len(service) == 2, warnings
     assert "client 0000a001 (command-line naming) and client 0000b002 (command-line naming)" \
         in service[0], service
     assert "client 0000b002 (command-line naming) and client 0000c003 (command-line naming)" \
         in service[1], service
-    nodes = [w for w in warnings if "node /robot1/mcu_node" in w]
+    nodes = [w for w in warnings if "node /robot1/mcu_node in ROS domain %d " % ros_domain in w]
     assert len(nodes) == 1 and "client 0000a001" in nodes[0] and "client 0000b002" in nodes[0], \
         warnings
     assert len(warnings) == 3, warnings
+
+
+class TwoRobotRules:
+    """A fleet (``RosMiddleware(fleet=...)``: ``assign(origin)`` -> (Naming, rule name)) whose
+    two rules give two boards one namespace by mistake, the second naming the domain too (the
+    one both boards ask for)."""
+
+    def __init__(self, domain_id):
+        self.rules = {bytes.fromhex("0000a001"): (Naming("/robot1"), "robot1"),
+                      bytes.fromhex("0000b002"): (Naming("/robot1", domain=domain_id), "robot2")}
+
+    def assign(self, origin):
+        return self.rules[bytes(origin.client_key)]
+
+
+async def test_fleet_rules_are_named_in_what_is_shown_and_in_the_warning(ros_domain, caplog):  # noqa: F811
+    """The ROS middleware itself, with a fleet of two rules: ``given_names`` says which rule
+    named each board, and the collision warning names both boards' rules."""
+    middleware = RosMiddleware(fleet=TwoRobotRules(ros_domain))
+    await middleware.start()
+    try:
+        qos = EndpointQosSpec(reliable=True, keep_last=True, depth=10, durability="volatile")
+        service = ServiceSpec("/add_two_ints", RawBasicTypes.TYPE_NAME_REQUEST,
+                              RawBasicTypes.TYPE_NAME_RESPONSE)
+        with caplog.at_level(logging.WARNING, logger="xrce.agent.ros"):
+            for board in ("0000a001", "0000b002"):
+                key = int(board, 16)
+                middleware.create_participant((key, 0x11), ros_domain, "mcu_node",
+                                              ClientOrigin(bytes.fromhex(board)))
+                middleware.create_replier((key, 0x18), (key, 0x11), service, qos,
+                                          lambda *_: None)
+        first = middleware.given_names((0xA001, 0x11))
+        assert first == {"rule": "robot1", "node": "/robot1/mcu_node", "board_node": "/mcu_node",
+                         "domain": ros_domain, "namespace": "/robot1", "remaps": []}
+        assert middleware.given_names((0xB002, 0x11))["rule"] == "robot2"
+        assert middleware.given_names((0xB002, 0x18)) == {"rule": "robot2",
+                                                          "name": "/robot1/add_two_ints"}
+        warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+        assert len(warnings) == 2, warnings
+        assert all("client 0000a001 (rule robot1) and client 0000b002 (rule robot2)" in w
+                   for w in warnings), warnings
+        assert warnings[0].startswith("node /robot1/mcu_node in ROS domain %d " % ros_domain)
+        assert warnings[1].startswith("service /robot1/add_two_ints in ROS domain %d "
+                                      % ros_domain)
+    finally:
+        await middleware.close()
+
+
+def test_one_name_in_two_domains_is_no_collision(caplog):
+    """Robots given domains of their own may all serve ``/add_two_ints``; a board's own two
+    servers of one name are its own business (ROS warns of those itself); released names are
+    free again."""
+    claims = NameClaims()
+    with caplog.at_level(logging.WARNING, logger="xrce.agent.ros"):
+        claims.claim("service", 1, "/add_two_ints", (0xA001, 0x18), (0xA001, 0x11), "robot1")
+        claims.claim("service", 2, "/add_two_ints", (0xB002, 0x18), (0xB002, 0x11), "robot2")
+        claims.claim("service", 1, "/add_two_ints", (0xA001, 0x28), (0xA001, 0x11), "robot1")
+        claims.release((0xA001, 0x11))  # the participant: its servers go with it
+        claims.claim("service", 1, "/add_two_ints", (0xC003, 0x18), (0xC003, 0x11), None)
+    assert [r for r in caplog.records if r.levelno >= logging.WARNING] == []
+    with caplog.at_level(logging.WARNING, logger="xrce.agent.ros"):
+        claims.claim("service", 2, "/add_two_ints", (0xC003, 0x28), (0xC003, 0x11), None)
+    assert [r.getMessage() for r in caplog.records] == [
+        "service /add_two_ints in ROS domain 2 is served by two boards, client 0000b002 (rule "
+        "robot2) and client 0000c003 (command-line naming): a caller reaches either one. A remap "
+        "or fleet rule gives both the same name"]
