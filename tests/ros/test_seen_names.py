@@ -200,7 +200,7 @@ class TwoRobotRules:
         return self.rules[bytes(origin.client_key)]
 
 
-async def test_fleet_rules_are_named_in_what_is_shown_and_in_the_warning(ros_domain, caplog):  # noqa: F811
+async def test_fleet_rules_are_named_in_what_is_shown_and_warned(ros_domain, caplog):  # noqa: F811
     """The ROS middleware itself, with a fleet of two rules: ``given_names`` says which rule
     named each board, and the collision warning names both boards' rules."""
     middleware = RosMiddleware(fleet=TwoRobotRules(ros_domain))
