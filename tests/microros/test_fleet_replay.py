@@ -23,7 +23,7 @@ def _received(replay):
 
 @pytest.mark.timeout(120)
 def test_one_firmware_twice_under_two_robots_names(tmp_path, ros_peer, ros_domain):  # noqa: F811
-    sensor_state, twist, add_two_ints = _ros_types()
+    _sensor_state, twist, add_two_ints = _ros_types()
     fleet = tmp_path / "fleet.toml"
     fleet.write_text("".join('[[board]]\nname = "robot%d"\nkey = "0x%s"\nnamespace = "/robot%d"\n\n'
                              % (n, key.hex(), n) for n, key in KEYS.items()))

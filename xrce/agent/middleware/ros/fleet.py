@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import fnmatch
 import glob
-import ipaddress
 import logging
 import os
 import re
@@ -56,8 +55,7 @@ log = logging.getLogger("xrce.agent.fleet")
 
 MAX_DOMAIN_ID = 232  # as --domain: the largest id whose RTPS ports still fit in 16 bits
 MATCH_KEYS = ("key", "address", "device")
-GIVEN_KEYS = ("namespace", "domain", "remaps", "global_topics")
-RULE_KEYS = ("name",) + MATCH_KEYS + GIVEN_KEYS
+RULE_KEYS = ("name", "key", "address", "device", "namespace", "domain", "remaps", "global_topics")
 TABLE = "board"
 
 
@@ -148,21 +146,61 @@ def _parse_networks(value) -> tuple:
     return tuple(networks)
 
 
+def _parse_devices(value) -> list:
+    return _items(value, "device")
+
+
+def _parse_namespace(value) -> str:
+    if not isinstance(value, str):
+        raise ValueError("must be a string (an absolute ROS namespace)")
+    if not value.startswith("/"):
+        raise ValueError("namespace %r is not absolute (/%s)" % (value, value))
+    Naming(value)  # the command line's checks
+    return value
+
+
+def _parse_domain(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_DOMAIN_ID:
+        raise ValueError("%r is not a ROS domain id (0..%d)" % (value, MAX_DOMAIN_ID))
+    return value
+
+
 def _parse_remaps(value) -> list:
     """``{FROM = "TO"}`` or ``["FROM:=TO", ...]`` -> [(FROM, TO)], in the file's order."""
     if isinstance(value, dict):
-        pairs = list(value.items())
-        for source, target in pairs:
+        pairs = []
+        for source, target in value.items():
             if not isinstance(target, str):
                 raise _KeyValueError(source, "remap %s must name a string target" % source)
+            try:
+                Naming(remaps=[(source, target)])
+            except NamingError as exc:
+                raise _KeyValueError(source, str(exc)) from None
+            pairs.append((source, target))
         return pairs
     pairs = []
     for rule in _items(value, "remaps"):
         source, sep, target = rule.partition(":=")
         if not sep or not source or not target:
             raise ValueError("remap %r is not FROM:=TO" % rule)
+        Naming(remaps=[(source, target)])
         pairs.append((source, target))
     return pairs
+
+
+def _parse_global_topics(value) -> list:
+    names = _items(value, "global_topics")
+    for name in names:
+        if not name.startswith("/"):
+            raise ValueError("%r is not an absolute name" % name)
+    Naming(global_names=names)
+    return names
+
+
+# What each key of a rule is read with; ValueError (NamingError too) for a bad value.
+PARSERS = {"key": _parse_keys, "address": _parse_networks, "device": _parse_devices,
+           "namespace": _parse_namespace, "domain": _parse_domain, "remaps": _parse_remaps,
+           "global_topics": _parse_global_topics}
 
 
 class _KeyValueError(ValueError):
@@ -245,61 +283,21 @@ def _rule(index: int, table, base: Naming, lines: _Lines, path: str) -> Rule:
         raise error("name", "must be a non-empty string")
     if not any(key in table for key in MATCH_KEYS):
         raise error(None, "rule %r matches no board: give key, address or device" % name)
-    entries = {}
-    key = None
-    try:
-        key = "key"
-        keys = _parse_keys(table["key"]) if "key" in table else None
-        key = "address"
-        networks = _parse_networks(table["address"]) if "address" in table else None
-        key = "device"
-        devices = _items(table["device"], "device") if "device" in table else None
-        key = "namespace"
-        if "namespace" in table:
-            namespace = table["namespace"]
-            if not isinstance(namespace, str):
-                raise ValueError("must be a string (an absolute ROS namespace)")
-            if not namespace.startswith("/"):
-                raise ValueError("namespace %r is not absolute (/%s)" % (namespace, namespace))
-            entries["namespace"] = namespace
-        key = "domain"
-        if "domain" in table:
-            domain = table["domain"]
-            if isinstance(domain, bool) or not isinstance(domain, int) or \
-                    not 0 <= domain <= MAX_DOMAIN_ID:
-                raise ValueError("%r is not a ROS domain id (0..%d)" % (domain, MAX_DOMAIN_ID))
-            entries["domain"] = domain
-        key = "remaps"
-        if "remaps" in table:
-            entries["remaps"] = _parse_remaps(table["remaps"])
-        key = "global_topics"
-        if "global_topics" in table:
-            global_names = _items(table["global_topics"], "global_topics")
-            for global_name in global_names:
-                if not global_name.startswith("/"):
-                    raise ValueError("%r is not an absolute name" % global_name)
-            entries["global_topics"] = global_names
-        key = None
-        # The naming's own checks, per key, so that a bad name points at its line.
-        for checked in ("namespace", "global_topics"):
-            if checked in entries:
-                key = checked
-                _merged(Naming(), {checked: entries[checked]})
-        key = "remaps"
-        for source, target in entries.get("remaps", ()):
+    parsed = {}
+    for key, parse in PARSERS.items():
+        if key in table:
             try:
-                Naming(remaps=[(source, target)])
-            except NamingError as exc:
-                if isinstance(table["remaps"], dict):
-                    raise _KeyValueError(source, str(exc)) from None
-                raise
-        key = None
-        naming = _merged(base, entries)
-    except _KeyValueError as exc:
-        raise error(key, str(exc), exc.inner) from None
-    except (NamingError, ValueError) as exc:
-        raise error(key, str(exc)) from None
-    return Rule(name.strip(), naming, keys, networks, devices)
+                parsed[key] = parse(table[key])
+            except _KeyValueError as exc:
+                raise error(key, str(exc), exc.inner) from None
+            except ValueError as exc:
+                raise error(key, str(exc)) from None
+    try:
+        naming = _merged(base, parsed)
+    except NamingError as exc:  # each part was valid on its own: not expected, still one line
+        raise error(None, str(exc)) from None
+    return Rule(name.strip(), naming, parsed.get("key"), parsed.get("address"),
+                parsed.get("device"))
 
 
 # ----------------------------------------------------------------------------- the file
