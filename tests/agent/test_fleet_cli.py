@@ -60,3 +60,33 @@ def test_the_log_names_the_fleet_file_and_its_rules(tmp_path):
     log = "".join(agent.output)
     assert "fleet file %s: 2 rules: robot1, robot2" % path in log, log
     assert "fleet rule robot2 (from 10.0.0.0/24: namespace /robot2, domain 7)" in log, log
+
+
+def test_the_rules_build_on_the_command_lines_names(tmp_path):
+    """``--fleet`` with --namespace and --global-topics (in-process, as ``startup.check``
+    parses): a board no rule matches gets the command line's names, a rule's board the rule's
+    namespace over the command line's global names."""
+    from xrce.agent.cli.startup import make_fleet, make_naming
+    from xrce.agent.cli.subcommands import build_parser
+    from xrce.agent.middleware import ClientOrigin
+
+    path = tmp_path / "fleet.toml"
+    path.write_text('[[board]]\nkey = "aabbccdd"\nnamespace = "/robot1"\n')
+    argv = ["udp4", "-p", "0", "--global-topics", "/map", "--namespace", "yard",
+            "--fleet", str(path)]
+    args = build_parser(argv).parse_args(argv)
+    args.ros_args = None
+    args.naming = make_naming(args)
+    fleet = make_fleet(args)
+    given, rule = fleet.assign(ClientOrigin(bytes.fromhex("aabbccdd")))
+    assert rule == "rule 1 (line 1)" and given.name("/odom") == "/robot1/odom"
+    assert given.name("/map") == "/map" and given.name("/tf") == "/robot1/tf"
+    other, rule = fleet.assign(ClientOrigin(bytes.fromhex("01020304")))
+    assert rule is None and other.name("/odom") == "/yard/odom" and other.name("/map") == "/map"
+    # --global-topics alone changes no name, yet a fleet's rules are built on it
+    argv = ["udp4", "-p", "0", "--global-topics", "/map", "--fleet", str(path)]
+    args = build_parser(argv).parse_args(argv)
+    args.ros_args = None
+    args.naming = make_naming(args)
+    assert args.naming is not None and make_fleet(args).assign(
+        ClientOrigin(bytes.fromhex("aabbccdd")))[0].name("/map") == "/map"
