@@ -61,3 +61,12 @@ def test_command_line_naming():
     assert [naming.name(n) for n in ("/map", "/tf", "/clock", "/odom")] == \
         ["/map", "/tf", "/r3/clock", "/odom"]
     assert _cli("--domain", "0").domain == 0 and _cli("--domain", "0").name("/a") == "/a"
+
+
+def test_a_plain_dds_topic_moves_only_by_a_remap_naming_it():
+    naming = Naming("/robot1", [("board_hello", "/HelloWorldTopic"), ("chatter", "talk")])
+    assert naming.dds_name("HelloWorldTopic") == "HelloWorldTopic"  # no namespace for DDS
+    assert naming.dds_name("board_hello") == "HelloWorldTopic"  # no leading slash in DDS
+    assert naming.dds_name("/board_hello") == "/HelloWorldTopic"  # rclpy's form kept
+    assert naming.dds_name("chatter") == "talk"
+    assert naming.name("/chatter") == "/robot1/talk"  # the ROS topic of that name

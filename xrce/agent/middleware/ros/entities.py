@@ -207,8 +207,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, ShownEntities, Name
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
-        if kind == "topic":  # a DDS-level topic keeps the name the board gave it
-            ros_name = naming.name(ros_name)
+        # A DDS-level topic keeps the name the board gave it, unless a remap names it.
+        ros_name = naming.name(ros_name) if kind == "topic" else naming.dds_name(ros_name)
         self._add(key, TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
                                     kind == "dds", topic))
 
