@@ -2,10 +2,11 @@
 row from one run, rounds interleaved.
 
     .venv/bin/python bench/agent/beside_eprosima.py --agent-cmd $PEERS/agent.sh [--rounds 3]
-        [--reference DIR] [--rows idle,10hz,10hz-in,robot,service,creation]
+        [--reference DIR] [--rows idle,10hz,10hz-in,robot,service,creation] [--no-state-too]
 
 Each round starts every agent afresh, in turn (this checkout's, then ``--reference DIR``'s if
-given, then ``--agent-cmd``'s), and measures on each, from ``/proc/<pid>/stat``:
+given, then this checkout's with ``--no-state`` if ``--no-state-too``: what its state store costs,
+then ``--agent-cmd``'s), and measures on each, from ``/proc/<pid>/stat``:
 
 - ``idle``: the agent alone, no client, CPU over 30 s after a 20 s start;
 - ``10hz``: one client writing a best-effort Twist at 10 Hz, CPU over 10 s once 5 s have passed
@@ -144,6 +145,8 @@ def main(argv=None):
                              "$PEERS/agent.sh, eProsima's agent built outside this repository")
     parser.add_argument("--reference", metavar="DIR", help="another checkout of xrce as well")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--no-state-too", action="store_true",
+                        help="also this checkout's agent without its state store (--no-state)")
     parser.add_argument("--rows", default=",".join(ROWS),
                         help="comma-separated, of: %s" % ", ".join(ROWS))
     args = parser.parse_args(argv)
@@ -168,9 +171,9 @@ def main(argv=None):
         print("| %s | %.3f (%s) | %.3f (%s) | %s |" % (
             name, median["xrce"], spread["xrce"], median["other"], spread["other"],
             "-" if ratio is None else "%.2f" % ratio))
-        if "reference" in median:
-            print("|   reference checkout | %.3f (%s) | | |" % (median["reference"],
-                                                              spread["reference"]))
+        for label, words in (("reference", "reference checkout"), ("no-state", "xrce --no-state")):
+            if label in median:
+                print("|   %s | %.3f (%s) | | |" % (words, median[label], spread[label]))
     return 0
 
 
@@ -178,6 +181,8 @@ def measure(args, rows, env, domain_id):
     agents = [("xrce", lambda: Agent(str(REPO), env))]
     if args.reference:
         agents.append(("reference", lambda: Agent(args.reference, env)))
+    if args.no_state_too:
+        agents.append(("no-state", lambda: Agent(str(REPO), env, "--no-state")))
     agents.append(("other", lambda: OtherAgent(args.agent_cmd, env)))
     here = [row for row in rows if row not in ("service", "creation")]
     results = run_rounds(here, agents, args.rounds, env, domain_id)

@@ -104,3 +104,12 @@ def test_remaps_alone_translated_back():
     assert naming.board_name("/odom") == "/odom"
     assert naming.board_node_namespace("/mcu") == "/mcu" and naming.board_node("/n") == "/n"
     assert Naming().board_name("/x") == "/x" and Naming().ros_node("/n") == "/n"
+
+
+def test_a_plain_dds_topic_moves_only_by_a_remap_naming_it():
+    naming = Naming("/robot1", [("board_hello", "/HelloWorldTopic"), ("chatter", "talk")])
+    assert naming.dds_name("HelloWorldTopic") == "HelloWorldTopic"  # no namespace for DDS
+    assert naming.dds_name("board_hello") == "HelloWorldTopic"  # no leading slash in DDS
+    assert naming.dds_name("/board_hello") == "/HelloWorldTopic"  # rclpy's form kept
+    assert naming.dds_name("chatter") == "talk"
+    assert naming.name("/chatter") == "/robot1/talk"  # the ROS topic of that name

@@ -218,6 +218,42 @@ def test_a_board_and_a_cyclone_dds_program_exchange_hello_world(representation, 
 
 
 @needs_cyclone
+def test_a_remap_names_a_plain_topic_and_a_namespace_leaves_it(ros_domain, bridge_cache):  # noqa: F811
+    """Issue 53: plain-DDS topics keep their names under --ros-args __ns:= (a namespace is a ROS
+    idea), and a remap naming one moves it: the board's 'board_hello' is the Cyclone program's
+    HelloWorldTopic; its ROS topic goes under the namespace."""
+    with AgentProcess("udp4", "-m", "dds", "--ros-args", "-r", "__ns:=/robot1",
+                      "-r", "board_hello:=%s" % UP, "--", env=bridge_cache) as agent:
+        peer = CyclonePeer(ros_domain)
+        try:
+            s = Session(UdpTransport("127.0.0.1", agent.port), history=8)
+            assert s.create(attempts=5, timeout_ms=1000)
+            node = s.create_participant(domain_id=ros_domain, name="renamed_board")
+            writer = s.create_datawriter(s.create_publisher(node),
+                                         s.create_topic(node, "board_hello", TYPE))
+            chatter = s.create_topic(node, "rt/chatter", "std_msgs::msg::dds_::String_")
+            s.create_datawriter(s.create_publisher(node), chatter)
+            assert s.run_until_all_status(30000), s.last_statuses
+            assert all(v == C.STATUS_OK for v in s.last_statuses.values()), s.last_statuses
+            deadline = time.monotonic() + 60
+            index = 0
+            while time.monotonic() < deadline and len(peer.ups()) < 3:
+                index += 1
+                s.write(writer, hello(index, "renamed"))
+                s.run_until_timeout(50)
+            s.delete(attempts=2, timeout_ms=500)
+            s.close()
+        finally:
+            peer.close()
+        assert agent.stop() == 0
+    log = "".join(agent.output)
+    assert len(peer.ups()) >= 3, "\n".join(peer.out.lines) + log
+    assert all(text == "renamed" for _, text in peer.ups())
+    assert "DDS writer %s of type %s in domain %d" % (UP, TYPE, ros_domain) in log, log
+    assert "publisher /robot1/chatter of node /robot1/renamed_board" in log, log
+
+
+@needs_cyclone
 def test_two_boards_share_a_plain_topic_beside_ros_ones(ros_domain, bridge_cache):  # noqa: F811
     """Two clients' topics of one name share the DDS topic: one board's samples reach the other
     through the agent and the Cyclone program alike. Another type under that name is refused;

@@ -15,7 +15,8 @@ a serial pseudo-terminal) and answers as the firmware's client library does:
   message missing and the gaps after it (the C client acknowledges every reliable message it
   reads; the captures hold one ACKNACK per reliable message of eProsima's). The firmware's
   recorded ACKNACKs are rewritten to that same state of this agent's stream (the only bytes
-  rewritten, as the README says). Acknowledging by count of what eProsima sent would leave an
+  rewritten, as the README says; a test may also give the firmware another client key or
+  domain: ``client_key``, ``domain_id``). Acknowledging by count of what eProsima sent would leave an
   agent that sends more (more or larger samples) waiting for acknowledgements, and
   acknowledging up to the highest number seen would hide a lost message;
 - it waits where the firmware waited: for the STATUS of each CREATE/DELETE before the next
@@ -253,8 +254,12 @@ class Replayer:
 
     def __init__(self, capture: Capture, channel, status_timeout: float = 30.0,
                  cancel_timeout: float = 3.0, domain_id: int | None = None,
-                 answer_requests: bool = False):
+                 answer_requests: bool = False, client_key: bytes | None = None):
         self.capture = capture
+        # Another client key for the firmware (4 bytes), so that one capture replayed twice is
+        # two boards with the same firmware (a fleet): its CREATE_CLIENT's key, and the header's
+        # of a session that carries it (ids below 0x80).
+        self.client_key = client_key
         # The firmware's replies echo the sample identity of the request DATA eProsima's agent
         # sent it: with ``answer_requests``, the reply to eProsima's n-th request on a replier waits
         # for this agent's n-th request DATA there and echoes its identity instead (derived from
@@ -332,6 +337,24 @@ class Replayer:
             offset = (offset + 4 + length + 3) & ~3
         return bytes(out)
 
+    def _keyed(self, data: bytes) -> bytes:
+        """``data`` with the firmware's client key replaced by ``client_key``."""
+        if self.client_key is None:
+            return data
+        out = bytearray(data)
+        header = 4 if data[0] & 0x80 else 8
+        if header == 8:
+            out[4:8] = self.client_key
+        offset = header
+        while offset + 4 <= len(out):
+            sub_id = out[offset]
+            length = out[offset + 2] | (out[offset + 3] << 8)
+            if sub_id == C.CREATE_CLIENT and length >= 12:
+                # after the cookie "XRCE", the version and the vendor id
+                out[offset + 12:offset + 16] = self.client_key
+            offset = (offset + 4 + length + 3) & ~3
+        return bytes(out)
+
     def _answering(self, boot: int, data: bytes) -> bytes:
         """``data`` with the identity of each reply it carries rewritten (see ``answer_requests``)."""
         if not self.answer_requests or data[0] <= 0x80:
@@ -358,7 +381,7 @@ class Replayer:
         return data if out is None else bytes(out)
 
     def _send(self, boot: int, data: bytes) -> None:
-        data = self._answering(boot, self._in_domain(data))
+        data = self._answering(boot, self._in_domain(self._keyed(data)))
         session, stream_id = data[0], data[1]
         seq = data[2] | (data[3] << 8)
         if session > 0x80 and stream_id == FIRMWARE_STREAM:

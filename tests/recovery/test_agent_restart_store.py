@@ -16,7 +16,7 @@ from engine_peer import Clock, Link, Peer, data_of, talker_and_listener
 from xrce.agent.engine.dispatch import Agent
 from xrce.agent.engine.session import ResumingStream
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.state import store as store_module
+from xrce.agent.state import recorder as recorder_module, store as store_module
 from xrce.agent.state.recorder import StateRecorder
 from xrce.agent.state.store import SCHEMA_VERSION, StateStore
 from xrce.wire import constants as C
@@ -122,6 +122,40 @@ def test_store_stays_bounded_under_a_day_of_board_churn(tmp_path):
     assert counts["clients"] == 7 and counts["objects"] == 7 * 6 and counts["reads"] == 7, counts
     # The WAL is reused once checkpointed: the last measurements do not keep growing.
     assert sizes[-1] <= max(sizes[:3]) * 1.5, sizes
+
+
+def test_steady_checkpoints_write_nothing_until_a_stream_moves_a_step(tmp_path):
+    """The store is written on the control plane, never per sample: a checkpoint writes a
+    stream's row again only once it moved CHECKPOINT_STEP numbers (the restarted agent leaps far
+    past its row anyway), and a clean stop writes every stream's exact position."""
+    link = Link()
+    store = _store(tmp_path)
+    agent = _agent(store, link)
+    talker, listener = talker_and_listener(agent, link)
+    listener.read(delivery=DeliveryControl())
+    agent.state.checkpoint()  # the streams' first rows
+    statements = []
+    store._db.set_trace_callback(statements.append)
+    for n in range(40):  # four seconds of a 10 Hz robot, checkpointed every tenth sample
+        talker.write(b"s%d" % n)
+        listener.ack_all()
+        if n % 10 == 9:
+            agent.state.checkpoint()
+    assert statements == [], statements
+    talker_stream = agent.clients[talker.key].in_reliable[0x80]
+    for n in range(40, 40 + recorder_module.CHECKPOINT_STEP):
+        talker.write(b"s%d" % n)
+        listener.take()
+        listener.ack_all()
+    agent.state.checkpoint()
+    writes = [s for s in statements if s.lstrip().upper().startswith(("INSERT", "UPDATE", "REPLACE"))]
+    assert writes and any("COMMIT" in s.upper() for s in statements), statements
+    store._db.set_trace_callback(None)
+    agent.state.close()  # SIGINT: the exact positions, marked clean
+    again = _store(tmp_path)
+    record = {r.key: r for r in again.clients()}[talker.key]
+    assert record.inputs[0x80] == (talker_stream.last_handled, True)
+    again.close()
 
 
 # -- the engine restarted over its store --------------------------------------------------------
@@ -363,7 +397,9 @@ def test_agent_sets_going_a_board_that_never_sends_heartbeat(tmp_path, stop):
     handled = agent.clients[talker.key].in_reliable[0x80].last_handled
     if stop == "sigkill":
         agent.state.checkpoint()
-        checkpoint = handled
+        # The row as stored: a lower bound of what was handled (rows move in steps).
+        checkpoint = {r.key: r for r in agent.state.store.clients()}[talker.key].inputs[0x80][0]
+        assert (handled - checkpoint) & 0xFFFF < recorder_module.CHECKPOINT_STEP
         for n in range(4):
             talker.write(b"late-%d" % n)
         agent2, _ = _crash(agent, tmp_path, link)

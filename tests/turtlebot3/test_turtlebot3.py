@@ -109,11 +109,11 @@ def check_rate_and_stamps(collected, start_ns, end_ns, hz, stamp_error_ns):
 class RobotThread(threading.Thread):
     """The CPython firmware in its own thread, as it would run on its own MCU."""
 
-    def __init__(self, transport, domain_id, cmd_vel_reliable):
+    def __init__(self, transport, domain_id, cmd_vel_reliable, key=None):
         super().__init__(daemon=True, name="turtlebot3")
         # Time sync every second instead of 10 s, so the periodic path runs inside the measurement.
         self.robot = TurtleBot3(transport, domain_id=domain_id, cmd_vel_reliable=cmd_vel_reliable,
-                                time_sync_period_ms=1000, log=lambda text: None)
+                                time_sync_period_ms=1000, key=key, log=lambda text: None)
         self.ready = threading.Event()
         self.failed = None
         self._halt = threading.Event()

@@ -1,6 +1,7 @@
 """Start-up and run of the agent once its command line is parsed: the checks that still end in
 a bad-argument line (``check``), then ``run``: logging, the ROS environment, the engine, the
-links, the banner and the stats signal, until SIGINT/SIGTERM.
+links, the banner and the stats signal (SIGUSR1) and the fleet file's reload (SIGHUP), until
+SIGINT/SIGTERM.
 
 Once every link is open, one banner line goes to stdout (flushed) — tests wait for it. A port that
 cannot be opened gives one line naming it and exit code 1; SIGINT/SIGTERM close the agent cleanly
@@ -31,6 +32,7 @@ def check(args):
                        % args.subcommand)
     check_paths(args)
     args.naming = make_naming(args)
+    args.fleet = make_fleet(args)
     event_loop()
     return load_refs(args.refs) if args.refs else None
 
@@ -52,14 +54,30 @@ def make_naming(args):
         for name in global_names:
             if not name.startswith("/"):
                 raise NamingError("--global-topics: %r is not an absolute name" % name)
-        if namespace is None and not remaps and args.domain is None:
+        if namespace is None and not remaps and args.domain is None and \
+                getattr(args, "fleet", None) is None:
             return None
         naming = Naming(namespace or "/", remaps, global_names, args.domain)
     except NamingError as exc:
         raise CliError(str(exc)) from None
     if args.middleware == "ced":
-        raise CliError("--ros-args, --namespace and --domain name ROS entities: they need -m dds")
+        raise CliError("--ros-args, --namespace, --domain and --fleet name ROS entities: they "
+                       "need -m dds")
     return naming
+
+
+def make_fleet(args):
+    """The ``Fleet`` of ``--fleet FILE`` over the command line's naming (None without one).
+    Raises CliError: one line with the file, the line and the key."""
+    path = getattr(args, "fleet", None)
+    if path is None:
+        return None
+    from xrce.agent.middleware.ros.fleet import Fleet, FleetError  # standard library only
+
+    try:
+        return Fleet(path, args.naming)
+    except FleetError as exc:
+        raise CliError(str(exc)) from None
 
 
 # ----------------------------------------------------------------------------- refs and middleware
@@ -121,7 +139,7 @@ def check_paths(args):
         raise CliError("argument --stats-port: port %d is not in 0..65535" % stats_port)
 
 
-def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None):
+def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None, fleet=None):
     # Imported lazily: "ced" must work on machines without ROS, and rclpy is slow to import.
     if name == "ced":
         from xrce.agent.middleware.ced import CedMiddleware
@@ -132,7 +150,7 @@ def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None):
     return DdsMiddleware(park_creation=True,
                          linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s,
                          request_timeout_s=REQUEST_TIMEOUT_S if request_timeout_s is None
-                         else request_timeout_s, naming=naming)
+                         else request_timeout_s, naming=naming, fleet=fleet)
 
 
 def configure_logging(verbosity):
@@ -155,9 +173,16 @@ async def serve(args, refs):
 
     middleware = make_middleware(args.middleware, getattr(args, "domain_linger", None),
                                  getattr(args, "request_timeout", None),
-                                 getattr(args, "naming", None))
-    if getattr(args, "naming", None) is not None:
-        logging.getLogger("xrce.agent").info("names given to boards: %s", args.naming.describe())
+                                 getattr(args, "naming", None), getattr(args, "fleet", None))
+    naming, fleet = getattr(args, "naming", None), getattr(args, "fleet", None)
+    if naming is not None and naming.describe():
+        logging.getLogger("xrce.agent").info("names given to boards: %s", naming.describe())
+    if fleet is not None:
+        fleet_log = logging.getLogger("xrce.agent.fleet")
+        fleet_log.info("%s", fleet.describe())
+        for rule in fleet.rules:
+            fleet_log.debug("fleet rule %s", rule.describe())
+        loop.add_signal_handler(signal.SIGHUP, _reload_fleet, fleet, middleware)
     agent = Agent(middleware, refs=refs, loop=loop,
                   client_dead_time=args.client_dead_time / 1000.0,
                   client_expire_time=args.client_expire_time / 1000.0,
@@ -238,8 +263,15 @@ async def serve(args, refs):
             await observe.close()
         for link in reversed(started):
             await link.close()
-        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
+        for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1, signal.SIGHUP):
             loop.remove_signal_handler(signum)
+
+
+def _reload_fleet(fleet, middleware):
+    """SIGHUP: the fleet file again, for the boards created from now on (a bad file: a warning
+    and the rules loaded before); the domains it names prepared like the default one."""
+    if fleet.reload() and hasattr(middleware, "prepare"):
+        middleware.prepare(sorted(fleet.domains()))
 
 
 def open_state(args, agent, links):

@@ -118,6 +118,11 @@ def _add_naming_options(parser):
     group.add_argument("--global-topics", metavar="NAMES", default="/tf,/tf_static,/clock",
                        help="comma-separated absolute names kept out of the namespace "
                             "(default %(default)s)")
+    group.add_argument("--fleet", metavar="FILE",
+                       help="a TOML file of [[board]] rules giving boards, by client key, "
+                            "source address or serial device, their own namespace, remaps and "
+                            "domain over the options above (first match wins; SIGHUP reads it "
+                            "again for boards created afterwards; docs/ARCHITECTURE.md)")
 
 
 def add_common_options(parser):

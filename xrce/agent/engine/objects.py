@@ -119,7 +119,11 @@ class ObjectRegistry:
         if status == C.STATUS_OK:
             client.objects[object_id] = entry
             if kind != C.OBJK_TOPIC:
-                entry.info["ros"] = self.middleware.ros_entity(client.entity(object_id))
+                key = client.entity(object_id)
+                entry.info["ros"] = self.middleware.ros_entity(key)
+                given = self.middleware.given_names(key)
+                if given is not None:  # the names the agent gave instead (observe.entities)
+                    entry.info["given"] = given
             if log.isEnabledFor(logging.INFO):
                 log.info("%s", words.object_line("created", client, entry))
         elif status != C.STATUS_ERR_DDS_ERROR:

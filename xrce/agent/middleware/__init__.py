@@ -172,6 +172,12 @@ class Middleware:
         ``publisher /chatter of node /talker``), for logs and stats; None where nothing."""
         return None
 
+    def given_names(self, key: EntityKey) -> Optional[dict]:
+        """What the entity was named outside the agent where that may not be what its board
+        asked for (a namespace, remaps, another domain: issue 53), for logs and stats; None where
+        the board's names are kept. The ROS middleware's: ``xrce.agent.middleware.ros.shown``."""
+        return None
+
     def write(self, writer: EntityKey, sample: bytes) -> bool:
         raise NotImplementedError
 

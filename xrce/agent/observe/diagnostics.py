@@ -3,7 +3,10 @@
 where some node subscribes to it: one status for the agent, one per client, named after the
 client's tag (``names.client_tag``: the key itself is a credential, and the whole domain reads
 this), with its address, its nodes and domains and its topics and types as ROS names. Its
-content is an ``Observer`` snapshot (xrce.agent.observe.observability).
+content is an ``Observer`` snapshot (xrce.agent.observe.observability). A board the agent names
+otherwise (a namespace, remaps, another domain, a fleet rule: issue 53) has the board's own names
+beside the ROS ones in ``nodes`` and ``endpoints``, and ``rule``, ``namespace``, ``domain`` and
+``remaps`` say what was applied.
 
 The agent joins a ROS domain only with a client participant there (and stays for the linger after
 the last, ``xrce.agent.middleware.ros.membership``), so an agent without clients publishes no
@@ -18,7 +21,7 @@ import logging
 import time
 
 from xrce.wire.cdr import CdrWriter
-from xrce.agent.observe.entities import endpoints_text, nodes_text
+from xrce.agent.observe.entities import client_naming, endpoints_text, nodes_text
 
 # One logger for everything observability does (xrce.agent.observe.observability wires this module in).
 log = logging.getLogger("xrce.agent.observability")
@@ -29,7 +32,8 @@ DIAGNOSTIC_OK = 0  # diagnostic_msgs/DiagnosticStatus levels
 DIAGNOSTIC_WARN = 1
 # The whole ROS domain reads /diagnostics: a client is named by its tag, never its key (the
 # snapshot it is made from has none: Observer.snapshot without show_keys); nested rows as text.
-_NOT_VALUES = frozenset(("key", "tag", "participants", "endpoints"))
+# ``rule`` goes with the rest of the board's naming (entities.client_naming).
+_NOT_VALUES = frozenset(("key", "tag", "participants", "endpoints", "rule"))
 
 
 def diagnostic_array_type():
@@ -56,6 +60,7 @@ def diagnostic_array(snapshot: dict, stamp_ns: int) -> bytes:
         values = [(k, "" if v is None else str(v)) for k, v in client.items()
                   if k not in _NOT_VALUES]
         values += [("nodes", nodes_text(client)), ("endpoints", endpoints_text(client))]
+        values += client_naming(client)
         statuses.append((
             DIAGNOSTIC_WARN if stale else DIAGNOSTIC_OK,
             "xrce_agent: client %s" % client["tag"],

@@ -34,7 +34,7 @@ import time
 
 from xrce.wire import constants as C
 from xrce.agent.observe.diagnostics import DiagnosticsPublisher, diagnostic_array_type
-from xrce.agent.observe.entities import DIRECTIONS, describe
+from xrce.agent.observe.entities import DIRECTIONS, client_rule, describe
 # In this module's __all__ too, as before they had a module of their own.
 from xrce.agent.observe.names import (  # noqa: F401
     address_text, client_pseudonym, client_tag, endpoint_text, ros_topic_name, ros_type_name,
@@ -133,6 +133,7 @@ class Observer:
             rates = self._rates.get(("client", client.key), (0.0, 0.0, 0.0, 0.0))
             entities = [describe(client, entry) for entry in list(client.objects.values())
                         if entry.kind in _DESCRIBED]
+            participants = [e for e in entities if e["kind"] == "participant"]
             clients.append({
                 "key": client.key.hex() if show_keys else None,
                 "tag": client_tag(client.key),
@@ -143,8 +144,11 @@ class Observer:
                 "link": client.link.name,
                 "endpoint": endpoint_text(client.endpoint),
                 "address": address_text(client.link.name, client.endpoint),
-                "participants": [e for e in entities if e["kind"] == "participant"],
+                "participants": participants,
                 "endpoints": [e for e in entities if e["kind"] != "participant"],
+                # The fleet rule that named the board (issue 53), None: the command line's naming
+                # (its participants say what that gave them).
+                "rule": client_rule({"participants": participants}),
                 "objects": len(client.objects),
                 "messages_in": client.messages_in,
                 "messages_out": client.messages_out,

@@ -14,7 +14,7 @@ import sys
 import time
 
 from xrce.agent.engine.timeline import format_timeline
-from xrce.agent.observe.entities import nodes_text
+from xrce.agent.observe.entities import endpoint_name_text, nodes_text, rule_text
 
 
 def _number(value) -> str:
@@ -49,6 +49,13 @@ def _restored_text(restored) -> str:
     return {"spoke": "yes, spoke", "silent": "yes, silent"}.get(restored, "-")
 
 
+def _naming_cell(row: dict) -> str:
+    """What named a client's board: ``rule robot1``, ``command line``, or ``-`` (its own names)."""
+    if not any("namespace" in p for p in row.get("participants", ())):
+        return "-"
+    return rule_text(row.get("rule"))
+
+
 def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int = 5,
                     max_endpoints: int = 60) -> str:
     """The stats view: links, clients (busiest first) with their addresses and nodes, their
@@ -71,9 +78,13 @@ def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int =
                                                           + c["messages_out_per_s"]))
     shown = clients[:max_clients]
     lines.append("")
-    lines += _table(("client", "tag", "address", "session", "restored", "nodes (ROS domain)"),
+    # The naming column only where the agent names some board otherwise than it asked (issue 53).
+    named = any("namespace" in p for c in shown for p in c.get("participants", ()))
+    lines += _table(("client", "tag", "address", "session", "restored", "nodes (ROS domain)")
+                    + (("naming",) if named else ()),
                     [(client_name(c), c["tag"], c["address"], "0x%02X" % c["session_id"],
-                      _restored_text(c.get("restored")), nodes_text(c) or "-") for c in shown],
+                      _restored_text(c.get("restored")), nodes_text(c) or "-")
+                     + ((_naming_cell(c),) if named else ()) for c in shown],
                     words=True)
     lines.append("")
     lines += _table(("client", "msg/s in", "msg/s out", "msg in", "msg out", "B/s in",
@@ -91,7 +102,7 @@ def format_snapshot(snapshot: dict, max_clients: int = 40, max_recoveries: int =
         lines += _table(("client", "endpoint", "topic / service", "type", "QoS", "samples",
                          "mismatch"),
                         [(name, "%s %s" % (e["kind"], e["object_id"]),
-                          e.get("topic") or e.get("service"), e.get("type"), e.get("qos", "-"),
+                          endpoint_name_text(e), e.get("type"), e.get("qos", "-"),
                           e["samples"], "yes" if e.get("mismatches") else "-")
                          for name, e in endpoints[:max_endpoints]], words=True)
         if len(endpoints) > max_endpoints:

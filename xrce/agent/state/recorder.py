@@ -5,8 +5,10 @@ rebuilds its clients from it (``StateRecorder.restore``) before it opens its lin
 The engine calls ``agent.state`` (this object, or None without a store) at each control-plane
 change: a session established or deleted, a CREATE or DELETE handled, a READ_DATA that stands
 (no sample count, no deadline). The store is committed at the end of the loop's turn, and the
-positions of the streams the agent sends on are checkpointed every ``CHECKPOINT_S`` (only those
-that moved): what a restored stream needs to resume (see ``ResumingStream`` in
+positions of the streams the agent sends on are checked every ``CHECKPOINT_S`` and written when
+they moved ``CHECKPOINT_STEP`` numbers past their row (a row per stream is a lower bound, and the
+restarted agent leaps far past it anyway, so a row per 10 s of a 30 Hz stream bought nothing but
+a write): what a restored stream needs to resume (see ``ResumingStream`` in
 xrce.agent.engine.session for the reliable ones; a best-effort one resumes ``BEST_EFFORT_LEAP``
 numbers past its checkpoint, which the board takes as newer while its own count is less than
 that many past the checkpoint); so are the positions the agent handled on the board's reliable
@@ -36,12 +38,16 @@ from xrce.agent.engine.session import (
 from xrce.agent.state.store import ClientRecord, ObjectRecord, ReadRecord, StateStore
 from xrce.wire import constants as C
 from xrce.wire.objects import with_kind
-from xrce.wire.streams import OutputBestEffortStream, is_reliable
+from xrce.wire.streams import OutputBestEffortStream, is_reliable, seq_sub
 from xrce.wire.submessages import decode_payload
 
 log = logging.getLogger("xrce.agent.state")
 
 CHECKPOINT_S = 10.0
+# How far a stream moves before its row is written again: far below the leaps a restored stream
+# takes past its row (BEST_EFFORT_LEAP, resync.LEAP), which bound what a crash may lose; a board
+# at 30 Hz writes a row every half minute, a 100 Hz one every checkpoint, as before.
+CHECKPOINT_STEP = 1024
 BEST_EFFORT_LEAP = 0x4000
 RESTORE_CREATE_TIMEOUT_S = 30.0
 
@@ -227,10 +233,15 @@ class StateRecorder:
         self.checkpoint()
 
     def checkpoint(self, clean: bool = False) -> None:
-        """The stream positions that moved since the last checkpoint (one row each). ``clean``:
-        the agent is stopping and takes no more input (``Agent.close`` paused the compiled
-        paths first), so what it handled on the board's streams is at least what the board
-        has had acknowledged: rows marked clean say so."""
+        """The stream positions that moved ``CHECKPOINT_STEP`` past their rows (one row each),
+        all that moved when ``clean``: the agent is stopping and takes no more input
+        (``Agent.close`` paused the compiled paths first), so what it handled on the board's
+        streams is at least what the board has had acknowledged: rows marked clean say so."""
+        step = 1 if clean else CHECKPOINT_STEP
+
+        def moved_on(stored, seq) -> bool:
+            return stored is None or seq_sub(seq, stored) >= step
+        written = False
         with self.agent.lock:
             for key, client in list(self.agent.clients.items()):
                 if key not in self._objects:
@@ -239,11 +250,11 @@ class StateRecorder:
                 moved = []
                 for stream_id, stream in list(client.out_reliable.items()):
                     seq = stream.last_acknowledged
-                    if known.get(stream_id) != seq:
+                    if moved_on(known.get(stream_id), seq):
                         moved.append((stream_id, seq))
                 for stream_id, stream in list(client.out_best_effort.items()):
                     seq = stream.last_sent
-                    if known.get(stream_id) != seq:
+                    if moved_on(known.get(stream_id), seq):
                         moved.append((stream_id, seq))
                 if moved:
                     known.update(moved)
@@ -251,13 +262,17 @@ class StateRecorder:
                 inputs = self._inputs.setdefault(key, {})
                 handled = []
                 for stream_id, stream in list(client.in_reliable.items()):
-                    row = (stream.last_handled, clean)
-                    if inputs.get(stream_id) != row:
-                        inputs[stream_id] = row
-                        handled.append((stream_id,) + row)
+                    stored = inputs.get(stream_id)
+                    seq = stream.last_handled
+                    if stored is None or (clean and stored != (seq, True)) or \
+                            moved_on(stored[0], seq):
+                        inputs[stream_id] = (seq, clean)
+                        handled.append((stream_id, seq, clean))
                 if handled:
                     self.store.put_inputs(key, handled)
-        self.store.commit()
+                written = written or bool(moved or handled)
+        if written or clean:
+            self.store.commit()
 
     def close(self) -> None:
         """SIGINT/SIGTERM: the stream positions as they are now, then everything to disk."""

@@ -98,6 +98,9 @@ class PlainDds:
         if not topic.name or not topic.type_name:
             raise MiddlewareError("a DDS topic needs a name and a type name (got %r of type %r)"
                                   % (topic.name, topic.type_name))
+        given = record.naming.dds_name(topic.name)  # a remap may name a plain topic too
+        if given != topic.name:
+            topic = TopicSpec(given, topic.type_name)
         bridge = build.bridge()  # TypeNotReady while it is built: the CREATE waits for it
         try:
             dds_participant = bridge.participant_of(record.node.handle.pointer)

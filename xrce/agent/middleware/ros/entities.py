@@ -5,9 +5,10 @@ bounded hand-off of samples back to the loop) and the measurements behind them a
 ``xrce.agent.middleware.ros.domain``; requesters and repliers (the request/reply path) in
 ``xrce.agent.middleware.ros.services``; joining and leaving domains, the agent's own publishers
 and micro-ROS' graph feed in ``xrce.agent.middleware.ros.membership``; what is kept per entity in
-``xrce.agent.middleware.ros.records``; names translated back where a board reads them in
-``xrce.agent.middleware.ros.roundtrip``. This module maps the XRCE entities onto rclpy ones and
-moves their data.
+``xrce.agent.middleware.ros.records``; what logs and stats are told of them in
+``xrce.agent.middleware.ros.shown``; two boards given one name in ``collisions``; names
+translated back where a board reads them in ``roundtrip``. This module maps the XRCE entities
+onto rclpy ones and moves their data.
 """
 
 from __future__ import annotations
@@ -38,7 +39,9 @@ from xrce.agent.middleware.ros.domain import (
 )
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.observe.names import client_tag
+from xrce.agent.middleware.ros.collisions import NameCollisions
 from xrce.agent.middleware.ros.creation import ParkedCreation
+from xrce.agent.middleware.ros.shown import ShownEntities
 from xrce.agent.middleware.ros.graph import GRAPH_SPEC
 from xrce.agent.middleware.ros.membership import DOMAIN_LINGER_S, RosDomains
 from xrce.agent.middleware.ros.mismatch import MismatchWatch, TypeWatch
@@ -59,7 +62,8 @@ from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_name
 MISMATCH_RETRY_S = 0.3  # a peer whose node the ROS graph does not know yet is looked for again
 
 
-class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
+class RosMiddleware(RosDomains, RosServices, ParkedCreation, ShownEntities, NameCollisions,
+                    Middleware):
     """XRCE entities as rclpy entities. All public methods run on the asyncio loop's thread."""
 
     name = "dds"
@@ -197,6 +201,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
             if started:  # after the node's job: the agent's own entities come after its STATUS
                 self._joined(domain_id)
         self._entities[key] = ParticipantRecord(domain, node, naming, rule)
+        self._claim_node(key)
         self._graph_changed(domain)
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
@@ -204,8 +209,8 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         kind, ros_name = dds_topic_to_ros(topic.name)
         if kind not in ("topic", "dds"):
             raise MiddlewareError("%r is a service topic: use a requester or replier" % topic.name)
-        if kind == "topic":  # a DDS-level topic keeps the name the board gave it
-            ros_name = naming.name(ros_name)
+        # A DDS-level topic keeps the name the board gave it, unless a remap names it.
+        ros_name = naming.name(ros_name) if kind == "topic" else naming.dds_name(ros_name)
         self._add(key, TopicRecord(participant, ros_name, raw_message_type(topic.type_name),
                                     kind == "dds", topic))
 
@@ -397,26 +402,6 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._record(reader, ("datareader",))
         return record.handoff.delivered, record.handoff.dropped
 
-    def ros_entity(self, key: EntityKey) -> str | None:
-        record = self._entities.get(key)
-        if record is None:
-            return None
-        if record.kind == "participant":
-            return "node " + record.node.get_fully_qualified_name()
-        participant = self._entities.get(getattr(record, "participant", None))
-        if participant is None or participant.kind != "participant":
-            return None
-        node = participant.node.get_fully_qualified_name()
-        if record.kind == "datawriter":
-            return "publisher %s of node %s" % (record.publisher.topic_name, node)
-        if record.kind == "datareader":
-            return "subscription %s of node %s" % (record.subscription.topic_name, node)
-        if record.kind == "requester":
-            return "service client %s of node %s" % (record.client.srv_name, node)
-        if record.kind == "replier":
-            return "service server %s of node %s" % (record.service.srv_name, node)
-        return None
-
     # -- deletion -----------------------------------------------------------------------------
 
     def _detach(self, record) -> None:
@@ -435,6 +420,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, Middleware):
         record = self._entities.get(key)
         if record is None:
             return
+        self._release_names(key)
         if record.kind == "participant":
             # The engine deletes children first; anything it missed goes with the node anyway.
             for child_key in [k for k, r in self._entities.items()

@@ -10,7 +10,7 @@ hear of each domain joined and left.
 At start the CLI has the default domain (``ROS_DOMAIN_ID``, else 0, where most boards'
 participants go) prepared (``prepare_default``): its thread, rclpy context and executor are made
 then, and the modules a first creation imports, so a first board pays only its DDS participant in
-its CREATE (issue 51 item 6: a fresh agent's first node + 4 entities took 2.45x eProsima's agent,
+its CREATE (so are the domains a fleet file's rules name, ``--fleet``) (issue 51 item 6: a fresh agent's first node + 4 entities took 2.45x eProsima's agent,
 1.5x prepared; bench/microros/entity_creation.py). No DDS participant is made, so at rest the
 agent is still nowhere in ROS nor on the network, and idle (bench/agent/domain_prepare.py: 0 ns
 on a CPU over 60 s, for 1 MB and two sleeping threads). The default domain left after its last
@@ -116,6 +116,12 @@ class RosDomains:
             environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps")
         self._default_domain = domain_id
         self.prepare([domain_id], join=server)
+        # A fleet file's domains (--fleet) are as likely a first board's: prepared, not joined.
+        self.prepare(self._fleet_domains())
+
+    def _fleet_domains(self) -> list:
+        fleet = getattr(self, "fleet", None)
+        return sorted(fleet.domains()) if fleet is not None else []
 
     def prepare(self, domain_ids, join: bool = False) -> None:
         """At start: start ``domain_ids``' threads, rclpy contexts and executors now, not with
@@ -247,7 +253,7 @@ class RosDomains:
                                     name="xrce-leave-domain-%d" % domain_id, daemon=True)
         stopping.start()
         self._leaving = [thread for thread in self._leaving if thread.is_alive()] + [stopping]
-        if domain_id == self._default_domain:
+        if domain_id == self._default_domain or domain_id in self._fleet_domains():
             # Ready again for the next board, still without a DDS participant (``prepare``).
             self.prepare([domain_id])
 

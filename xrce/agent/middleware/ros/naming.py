@@ -7,7 +7,7 @@ and ``--domain N``. Names are decided here once, when an entity is created, neve
 
 What a board's name becomes (``Naming.name``), for ROS topics (``rt/``) and services (``rq/``,
 ``rr/``); a plain-DDS topic (no ROS prefix, ``xrce.agent.middleware.dds`` and the DDS-level topics
-of ``types.dds_topic_to_ros``) keeps its name:
+of ``types.dds_topic_to_ros``) keeps its name unless a remap names it (``dds_name``):
 
 - a remap ``FROM:=TO`` whose FROM is the board's name (with or without its leading slash: the
   board's names are relative to the namespace it was given, as a ROS node's relative names are)
@@ -106,6 +106,17 @@ class Naming:
         if board_name in self.global_names:
             return board_name
         return _join(self.namespace, board_name)
+
+    def dds_name(self, dds_topic: str) -> str:
+        """The name given to a plain-DDS topic (no ROS prefix, ``types.dds_topic_to_ros`` kind
+        "dds"): only a remap whose FROM names it moves it, to TO without a leading slash (a DDS
+        topic has none; a namespace is a ROS idea, so it is not applied). ``dds_topic`` may carry
+        rclpy's leading slash; the answer keeps its form."""
+        target = self.remaps.get(_absolute(dds_topic))
+        if target is None:
+            return dds_topic
+        bare = target.lstrip("/")
+        return "/" + bare if dds_topic.startswith("/") else bare
 
     def node_namespace(self, board_namespace: str) -> str:
         return board_namespace if self.namespace == "/" else \

@@ -252,6 +252,7 @@ class RosServices:
         record.service, _ = self._create_on_executor(key, participant_record, make_service,
                                                      node.destroy_service, record)
         self._entities[key] = record
+        self._claim_service(key, owner, record.service.srv_name)
 
     # -- data ---------------------------------------------------------------------------------
 
