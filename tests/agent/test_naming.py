@@ -113,3 +113,12 @@ def test_a_plain_dds_topic_moves_only_by_a_remap_naming_it():
     assert naming.dds_name("/board_hello") == "/HelloWorldTopic"  # rclpy's form kept
     assert naming.dds_name("chatter") == "talk"
     assert naming.name("/chatter") == "/robot1/talk"  # the ROS topic of that name
+
+
+def test_an_action_remap_moves_its_hidden_topics_and_services_and_back():
+    naming = Naming("/robot1", [("fibonacci", "fib")])
+    for part in ("_action/send_goal", "_action/get_result", "_action/feedback", "_action/status"):
+        given = naming.name("/fibonacci/" + part)
+        assert given == "/robot1/fib/" + part
+        assert naming.board_name(given) == "/fibonacci/" + part
+    assert naming.name("/other/_action/feedback") == "/robot1/other/_action/feedback"

@@ -42,6 +42,7 @@ import re
 RCL_GLOBAL_NAMES = ("/parameter_events", "/rosout")
 GLOBAL_NAMES = ("/tf", "/tf_static", "/clock") + RCL_GLOBAL_NAMES
 
+ACTION_PART = "/_action/"  # an action's hidden topics and services: /NAME/_action/...
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 _NAME = re.compile(r"^/?%s(/%s)*$" % (_TOKEN, _TOKEN))
 
@@ -103,6 +104,10 @@ class Naming:
         target = self.remaps.get(board_name)
         if target is not None:
             return target if target.startswith("/") else _join(self.namespace, target)
+        action, hidden, rest = board_name.partition(ACTION_PART)
+        if hidden and action in self.remaps:
+            # rcl remaps an action by its name: its hidden topics and services go with it.
+            return self.name(action) + ACTION_PART + rest
         if board_name in self.global_names:
             return board_name
         return _join(self.namespace, board_name)
@@ -141,8 +146,12 @@ class Naming:
         """The board's fully qualified name that ``name`` makes ``ros_name``; ``ros_name`` itself
         (absolute) when no board name becomes it."""
         for source in self.remaps:
-            if self.name(source) == ros_name:
+            given = self.name(source)
+            if given == ros_name:
                 return source
+            if ros_name.startswith(given + ACTION_PART) and \
+                    self.name(source + ros_name[len(given):]) == ros_name:
+                return source + ros_name[len(given):]
         if ros_name in self.global_names:
             return ros_name
         if self.namespace != "/" and ros_name.startswith(self.namespace + "/"):
