@@ -84,7 +84,8 @@ def test_keyed_session_from_outside_allow_from_is_dropped_before_lookup(ced_agen
     """With --allow-from, a keyed client is still found by key from any allowed source (as
     eProsima's agent finds it), but a datagram from outside the list never reaches it: a
     stranger's WRITE_DATA and DELETEs naming its key are counted and dropped, logged sparingly."""
-    from xrce.agent.engine.admission import AdmissionPolicy, parse_networks
+    from xrce.agent.allow_lists import parse_networks
+    from xrce.agent.engine.admission import AdmissionPolicy
     agent, link = ced_agent
     agent.admission = AdmissionPolicy(networks=parse_networks("10.0.0.0/24"))
     board = Peer(agent, link, ("10.0.0.5", 2019), key=b"\xaa\xbb\xcc\xdd", session_id=0x01)

@@ -451,7 +451,8 @@ def test_allow_from_refuses_other_addresses():
 
 
 def test_allow_from_reads_every_kind_of_endpoint():
-    from xrce.agent.engine.admission import AdmissionPolicy, parse_keys, parse_networks
+    from xrce.agent.allow_lists import parse_keys, parse_networks
+    from xrce.agent.engine.admission import AdmissionPolicy
 
     class TcpPeer:  # what xrce.agent.links.tcp hands the engine: the connection, with its peer
         def __init__(self, peer):

@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 
-from xrce.agent.engine.objects import MAX_DOMAIN_ID
+from xrce.agent.middleware import MAX_DOMAIN_ID
 from xrce.tools.ros_cli import ros2_command
 
 PROG = "xrce-agent demo"

@@ -63,14 +63,14 @@ def _add_session_options(parser):
 
 
 def _add_admission_options(parser):
-    from xrce.agent.engine import admission
+    from xrce.agent import allow_lists
 
     group = parser.add_argument_group("admission (XRCE has no authentication: see README)")
-    group.add_argument("--allow-keys", type=allow_list(admission.parse_keys),
+    group.add_argument("--allow-keys", type=allow_list(allow_lists.parse_keys),
                        metavar="KEY[,KEY...]",
                        help="open sessions only for these client keys (hex, e.g. 0xAABBCCDD); "
                             "others get ERR_DENIED and a (rate-limited) log line")
-    group.add_argument("--allow-from", type=allow_list(admission.parse_networks),
+    group.add_argument("--allow-from", type=allow_list(allow_lists.parse_networks),
                        metavar="CIDR[,CIDR...]",
                        help="open sessions only for clients from these addresses/networks "
                             "(udp4/udp6/tcp4/tcp6)")

@@ -60,6 +60,7 @@ from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI docu
     ClientProxy, ClientTable, Link, MemoryBudget, ResumingStream, Sessions,
 )
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
+from xrce.agent.heap import return_free_heap
 from xrce.agent.middleware import Middleware
 from xrce import DecodeError
 from xrce.wire.message import decode_header, header_size, iter_submessages
@@ -83,22 +84,6 @@ MAX_UNKNOWN_SOURCES = 1024
 
 _HANDLED = frozenset((C.CREATE, C.DELETE, C.READ_DATA, C.ACKNACK, C.HEARTBEAT, C.GET_INFO,
                       C.TIMESTAMP, C.RESET))
-
-
-def _return_free_heap() -> None:
-    """Give the C heap's free pages back to the system once start-up is over (glibc only).
-    Through the compiled helper where it is built: the ctypes package, once imported, stays in
-    the process (0.57 MB of classes)."""
-    try:
-        from xrce.agent.engine._fastpath import return_free_heap
-    except ImportError:
-        try:
-            import ctypes
-            ctypes.CDLL(None).malloc_trim(0)
-        except (ImportError, OSError, AttributeError):
-            pass
-    else:
-        return_free_heap()
 
 
 class Agent:
@@ -366,7 +351,7 @@ class Agent:
             # (a 60 s flood's expired sessions left RSS at 62 MB, 19 MB before it).
             budget.trim_due = False
             self._trimmed_at = now
-            _return_free_heap()
+            return_free_heap()
         elif budget.trim_due and due > now + 1.0:
             due = now + 1.0
         if due < NEVER:
@@ -391,7 +376,7 @@ class Agent:
             # Everything built so far (rclpy and the modules the agent imported) lives as long as
             # the agent: out of the collector's sight, full collections stay short (ping p99).
             gc.freeze()
-            _return_free_heap()
+            return_free_heap()
 
     async def run(self) -> None:
         """Start the middleware, then serve until cancelled. No polling: the loop wakes the agent

@@ -16,8 +16,8 @@ from typing import Dict, Optional
 from xrce.wire import constants as C, names as wire_names
 from xrce.agent.engine import reuse, type_drift
 from xrce.agent.middleware import (
-    READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec,
-    TypeNotReady, XmlRepresentationError,
+    MAX_DOMAIN_ID, READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec,
+    TopicSpec, TypeNotReady, XmlRepresentationError,
 )
 from xrce.agent.engine.session import (MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry,
                                        ReaderState, client_origin)
@@ -30,7 +30,6 @@ from xrce.wire.submessages import Create, Delete
 log = logging.getLogger("xrce.agent")
 
 MAX_QUEUE_KEEP_ALL = 1024  # reader queue bound when its QoS is KEEP_ALL
-MAX_DOMAIN_ID = 232  # the highest DDS domain id with the default RTPS port mapping
 DEFAULT_PARTICIPANT_NAME = "MicroXRCEParticipant"
 
 _GROUP_KINDS = (C.OBJK_PUBLISHER, C.OBJK_SUBSCRIBER)

@@ -33,6 +33,10 @@ from typing import Callable, Optional, Tuple
 
 EntityKey = Tuple[int, int]
 
+# The highest DDS domain id with the default RTPS port mapping: beyond it Fast DDS cannot compute
+# its ports (and aborts the process), so no middleware is asked for one.
+MAX_DOMAIN_ID = 232
+
 # on_data(sample_bytes)
 DataCallback = Callable[[bytes], None]
 # on_request(sample_identity_24_bytes, request_bytes)
@@ -108,6 +112,38 @@ class ClientOrigin:
     device: Optional[str] = None
 
 
+class CompiledPathSupport:
+    """What the engine's compiled receive path (``xrce.agent.engine.fastpath``: C that publishes
+    a board's samples to rcl, takes ROS samples and requests, and answers them, without Python)
+    needs of a middleware whose entities are rcl ones: an optional capability, offered by
+    ``Middleware.compiled_path_support``. Every answer may be None: that entity stays on the
+    Python path."""
+
+    request_timeout_s: float  # how long C keeps a request for its reply (the middleware's own)
+
+    def publisher_address(self, writer: EntityKey) -> Optional[int]:
+        """The rcl_publisher_t C publishes ``writer``'s samples with; forgotten before delete."""
+        raise NotImplementedError
+
+    def subscription_address(self, reader: EntityKey) -> Optional[int]:
+        """The rcl_subscription_t whose samples C takes for ``reader``; let go before delete."""
+        raise NotImplementedError
+
+    def replier_service(self, replier: EntityKey) -> Optional[tuple]:
+        """(rcl_service_t address, request (type support, create, destroy) capsules, the same of
+        the response, identity prefix, first sequence number, request timeout in s or 0)."""
+        raise NotImplementedError
+
+    def replier_sequence_from(self, replier: EntityKey,
+                              next_sequence: Optional[Callable[[], int]]) -> None:
+        """Request identities of ``replier`` come from ``next_sequence()`` (None: its own)."""
+        raise NotImplementedError
+
+    def count_timed_out_requests(self, count: int) -> None:
+        """``count`` requests C held got no reply within ``request_timeout_s``."""
+        raise NotImplementedError
+
+
 class Middleware:
     """Base class: every method must be implemented by a backend."""
 
@@ -176,6 +212,20 @@ class Middleware:
         """What the entity was named outside the agent where that may not be what its board
         asked for (a namespace, remaps, another domain: issue 53), for logs and stats; None where
         the board's names are kept. The ROS middleware's: ``xrce.agent.middleware.ros.shown``."""
+        return None
+
+    def compiled_path_support(self) -> Optional[CompiledPathSupport]:
+        """What the compiled receive path needs of this middleware; None, the default: every
+        entity stays on the Python path."""
+        return None
+
+    def sample_check(self, writer: EntityKey, dds_type: str) -> Optional[Callable]:
+        """``check(sample) -> None | why`` for a datawriter's samples of ``dds_type`` as the
+        middleware has the type (xrce.agent.engine.type_drift); None where it cannot tell."""
+        return None
+
+    def type_hash(self, dds_type: str) -> Optional[str]:
+        """The RIHS01 hash of ``dds_type`` as the middleware has it; None where it has none."""
         return None
 
     def write(self, writer: EntityKey, sample: bytes) -> bool:

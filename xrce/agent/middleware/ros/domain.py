@@ -464,9 +464,9 @@ class DomainRuntime:
         # What the join allocated for itself (a first one loads Fast DDS, the type supports and
         # the profile) goes back to the system, as it did when the default domain was joined
         # at start: 0.4-0.7 MB less resident under the TurtleBot3 load, for 0.2-0.5 ms here.
-        from xrce.agent.engine.dispatch import _return_free_heap
+        from xrce.agent.heap import return_free_heap
 
-        _return_free_heap()
+        return_free_heap()
         while self._running:
             self._run_jobs()
             try:

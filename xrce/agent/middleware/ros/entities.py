@@ -21,6 +21,7 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 
 from xrce.agent.middleware import (
     ClientOrigin,
+    CompiledPathSupport,
     DataCallback,
     EndpointQosSpec,
     EntityKey,
@@ -55,6 +56,7 @@ from xrce.agent.middleware.ros.records import (
 from xrce.agent.middleware.ros.roundtrip import reader_delivery, writer_rewrite
 from xrce.agent.middleware.ros.services import RosServices
 from xrce.agent.middleware.ros.raw_types import raw_message_type
+from xrce.agent.middleware.ros import REQUEST_TIMEOUT_S
 from xrce.agent.middleware.ros.naming import Naming
 from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, qos_profile
 
@@ -69,7 +71,7 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, ShownEntities, Name
     name = "dds"
 
     def __init__(self, executor: str | None = None, handoff_depth: int = 1024,
-                 request_timeout_s: float = 10.0, entity_timeout_s: float = 5.0,
+                 request_timeout_s: float = REQUEST_TIMEOUT_S, entity_timeout_s: float = 5.0,
                  idle_wait_s: float = IDLE_WAIT_S, park_creation: bool = False,
                  linger_s: float = DOMAIN_LINGER_S, naming: Naming | None = None,
                  fleet=None):
@@ -375,6 +377,12 @@ class RosMiddleware(RosDomains, RosServices, ParkedCreation, ShownEntities, Name
         if dds_type in raw_types._named_messages:
             return None
         return package_type_hash(dds_type)
+
+    def compiled_path_support(self) -> CompiledPathSupport:
+        return self
+
+    def count_timed_out_requests(self, count: int) -> None:
+        self.requests_timed_out += count
 
     def publisher_address(self, writer: EntityKey) -> int | None:
         """The address of a datawriter's rcl_publisher_t, for the compiled UDP path

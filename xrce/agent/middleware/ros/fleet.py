@@ -49,11 +49,11 @@ import os
 import re
 import tomllib
 
+from xrce.agent.middleware import MAX_DOMAIN_ID
 from xrce.agent.middleware.ros.naming import GLOBAL_NAMES, Naming, NamingError
 
 log = logging.getLogger("xrce.agent.fleet")
 
-MAX_DOMAIN_ID = 232  # as --domain: the largest id whose RTPS ports still fit in 16 bits
 MATCH_KEYS = ("key", "address", "device")
 RULE_KEYS = ("name", "key", "address", "device", "namespace", "domain", "remaps", "global_topics")
 TABLE = "board"
@@ -129,7 +129,7 @@ def _items(value, what: str) -> list:
 
 
 def _parse_keys(value) -> frozenset:
-    from xrce.agent.engine.admission import parse_keys  # the same words as --allow-keys
+    from xrce.agent.allow_lists import parse_keys  # the same words as --allow-keys
 
     keys = set()
     for item in _items(value, "key"):
@@ -138,7 +138,7 @@ def _parse_keys(value) -> frozenset:
 
 
 def _parse_networks(value) -> tuple:
-    from xrce.agent.engine.admission import parse_networks  # the same words as --allow-from
+    from xrce.agent.allow_lists import parse_networks  # the same words as --allow-from
 
     networks = []
     for item in _items(value, "address"):

@@ -33,7 +33,7 @@ from __future__ import annotations
 import os
 import threading
 
-from xrce.agent.engine.objects import MAX_DOMAIN_ID
+from xrce.agent.middleware import MAX_DOMAIN_ID
 from xrce.agent.middleware import EntityKey, MiddlewareError
 from xrce.agent.middleware.ros import DOMAIN_LINGER_S  # noqa: F401  (re-exported for callers)
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
@@ -90,9 +90,9 @@ def _warm_up() -> None:
 
 def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
     domain.stop(timeout_s)
-    from xrce.agent.engine.dispatch import _return_free_heap
+    from xrce.agent.heap import return_free_heap
 
-    _return_free_heap()  # the domain's DDS buffers, freed, go back to the system
+    return_free_heap()  # the domain's DDS buffers, freed, go back to the system
 
 
 class RosDomains:
