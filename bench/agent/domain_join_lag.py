@@ -30,7 +30,7 @@ async def joins(count: int, gil_free: bool, first_domain: int) -> list:
     """(join ms, the loop's longest gap ms) of ``count`` joins of fresh domains."""
     from xrce.agent.middleware import TypeNotReady
     from xrce.agent.middleware.ros import participant
-    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 
     participant._helper = None if gil_free else False  # looked up again, or the rclpy node's
     mw = RosMiddleware(park_creation=True)

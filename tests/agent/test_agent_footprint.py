@@ -221,7 +221,7 @@ async def test_the_agents_own_entities_stop_moving_once_a_hosting_board_goes(
     participant's life. Over UDP, vanished boards retire oldest first, so the wake-up moved at
     each retirement; over serial, one board at a time, it went to the anchor and back each life
     (1-2 MB/h at a life a second). Once a hosting board goes it stays on the hidden anchor."""
-    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 
     def board(life):
         return (0x0B0A0000 + life, 0x01)
@@ -230,7 +230,7 @@ async def test_the_agents_own_entities_stop_moving_once_a_hosting_board_goes(
     await mw.start()
     try:
         mw.create_participant(board(0), ros_domain, "board")
-        domain = mw._domains[ros_domain]
+        domain = mw.domains.runtime(ros_domain)
         # The domain joined for this board makes its wake-up after the board's first burst.
         assert wait_until(lambda: domain.call(lambda: domain._wake_item is not None, 20.0), 20)
         mw.create_participant(board(1), ros_domain, "board")

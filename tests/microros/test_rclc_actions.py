@@ -301,7 +301,7 @@ async def test_result_requests_wait_for_the_goal_beyond_the_request_timeout(
     from test_msgs.action import Fibonacci
 
     from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
-    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
     from ros_helpers import async_wait_until
 
     impl = Fibonacci.Impl
@@ -355,7 +355,7 @@ async def test_an_action_of_a_package_the_wheels_do_not_carry(ros_domain, ros_pe
 
     from xrce.agent import interfaces
     from xrce.agent.middleware import EndpointQosSpec, ServiceSpec, TopicSpec
-    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
     from ros_helpers import async_wait_until
 
     interfaces.build(names=["turtlebot3_msgs"])  # a cache hit after the first time
@@ -422,7 +422,7 @@ async def test_unanswered_result_requests_are_bounded(ros_domain, ros_peer):  # 
     from test_msgs.action import Fibonacci
 
     from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
-    from xrce.agent.middleware.ros.entities import RosMiddleware
+    from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
     from xrce.agent.middleware.ros.services import MAX_HELD_RESULT_REQUESTS
     from ros_helpers import async_wait_until
 
@@ -449,7 +449,7 @@ async def test_unanswered_result_requests_are_bounded(ros_domain, ros_peer):  # 
             await asyncio.sleep(0.002)
         assert await async_wait_until(lambda: len(taken) == MAX_HELD_RESULT_REQUESTS + extra,
                                       20), len(taken)
-        record = mw._entities[(1, 0x18)]
+        record = mw.records.get((1, 0x18))
         assert len(record.pending) == MAX_HELD_RESULT_REQUESTS
         assert mw.requests_timed_out == extra
         # The oldest went; the newest can still be answered.

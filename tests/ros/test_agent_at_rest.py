@@ -22,7 +22,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from agent_process import AgentProcess
 from ros_helpers import RosPeer, async_wait_until, ros_domain, wait_until  # noqa: F401
 from test_discovery_order import participant_threads, spdp_sender
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.client import Session
 from xrce.transports.udp import UdpTransport
 
@@ -135,18 +135,19 @@ async def test_a_participant_within_the_linger_keeps_the_domain(ros_domain):  # 
     left = []
     mw.add_domain_listener(lambda _domain_id: None, left.append)
     try:
-        assert mw.domain_ids() == [] and not mw._domains
+        assert mw.domain_ids() == [] and not mw.domains.runtime_ids()
         mw.create_participant((0x45A00002, 0x01), ros_domain, "first_life")
-        domain = mw._domains[ros_domain]
+        domain = mw.domains.runtime(ros_domain)
         mw.delete((0x45A00002, 0x01))
         # The loop has not turned since: whatever the machine's load, still within the linger.
-        assert mw.domain_ids() == [ros_domain] and mw._domains[ros_domain] is domain
+        assert mw.domain_ids() == [ros_domain] and mw.domains.runtime(ros_domain) is domain
         mw.create_participant((0x45A00003, 0x01), ros_domain, "second_life")
-        assert mw._domains[ros_domain] is domain and not mw._lingering and not left
-        await asyncio.sleep(mw.linger_s * 2)
-        assert mw._domains.get(ros_domain) is domain and not left
+        assert mw.domains.runtime(ros_domain) is domain and not mw.domains.lingering_ids() and \
+            not left
+        await asyncio.sleep(mw.domains.linger_s * 2)
+        assert mw.domains.runtime(ros_domain) is domain and not left
         mw.delete((0x45A00003, 0x01))
-        assert await async_wait_until(lambda: ros_domain not in mw._domains, 20)
+        assert await async_wait_until(lambda: mw.domains.runtime(ros_domain) is None, 20)
         assert left == [ros_domain] and mw.domain_ids() == []
         assert await async_wait_until(lambda: not domain.thread.is_alive(), 20)
     finally:
@@ -173,6 +174,6 @@ async def test_a_domain_joined_for_a_participant_that_fails_is_left(ros_domain, 
     try:
         with pytest.raises(MiddlewareError, match="no node this time"):
             mw.create_participant((0x45A00004, 0x01), ros_domain, "refused_board")
-        assert await async_wait_until(lambda: ros_domain not in mw._domains, 20)
+        assert await async_wait_until(lambda: mw.domains.runtime(ros_domain) is None, 20)
     finally:
         await mw.close()

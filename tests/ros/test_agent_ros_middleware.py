@@ -17,7 +17,7 @@ from ros_helpers import async_wait_until, ros_domain, ros_peer  # noqa: F401
 from xrce.agent.middleware import (EndpointQosSpec, MiddlewareError, ServiceSpec, TopicSpec, TypeNotReady,
                                    UnknownTypeError)
 from xrce.agent.observe.observability import client_tag
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE
 from xrce.agent.middleware.ros.types import dds_topic_to_ros, node_name_and_namespace, service_class
 
@@ -265,7 +265,7 @@ async def test_reader_delivers_on_the_executor_thread_while_the_engine_lock_is_f
     thread, owned, data = got[0]
     assert thread != loop_thread and owned and data == "0"
 
-    handoff = middleware._entities[reader].handoff
+    handoff = middleware.records.get(reader).handoff
     with lock:  # the loop is busy in the engine: the executor thread queues and goes on
         for i in (1, 2, 3):
             publisher.publish(String(data=str(i)))
@@ -339,9 +339,9 @@ async def test_replier_answers_an_rclpy_client(middleware, ros_domain, ros_peer)
     if has_raw_services():
         from xrce.agent.middleware.ros.raw_types import _RawServiceMeta
 
-        assert middleware._entities[replier].raw_reply is not None
+        assert middleware.records.get(replier).raw_reply is not None
         # made from test_msgs' C libraries, not from its Python classes
-        assert isinstance(middleware._entities[replier].srv, _RawServiceMeta)
+        assert isinstance(middleware.records.get(replier).srv, _RawServiceMeta)
     assert [decode(body, BasicTypes.Request) for body in bodies] == \
         [BasicTypes.Request(int64_value=i, string_value="q%d" % i) for i in (10, 20)]
     assert [len(body) for body in bodies] == [len(body_of(BasicTypes.Request(string_value="q10")))] * 2
@@ -389,7 +389,7 @@ async def test_replier_reply_that_does_not_deserialize_is_refused(middleware, ro
                               ServiceSpec("/basic_bad", BASIC_REQ_T, BASIC_REP_T), QOS,
                               lambda identity, body: requests.append(identity))
     if has_raw_services():
-        assert middleware._entities[replier].raw_reply is not None
+        assert middleware.records.get(replier).raw_reply is not None
     client = ros_peer.node.create_client(BasicTypes, "/basic_bad")
     assert await async_wait_until(client.service_is_ready)
     first, first_done = _call(client, BasicTypes.Request(int64_value=1))
@@ -454,7 +454,7 @@ async def test_replier_without_the_compiled_conversions_uses_python_messages(
 
     middleware.create_replier(replier, participant,
                               ServiceSpec("/basic_py", BASIC_REQ_T, BASIC_REP_T), QOS, on_request)
-    assert middleware._entities[replier].raw_reply is None
+    assert middleware.records.get(replier).raw_reply is None
     client = ros_peer.node.create_client(BasicTypes, "/basic_py")
     assert await async_wait_until(client.service_is_ready)
     request = BasicTypes.Request(int64_value=5, string_value="x")
@@ -477,7 +477,7 @@ async def test_replier_request_times_out_without_wedging(ros_domain, ros_peer): 
         mw.create_replier(replier, participant, ServiceSpec("slow", BASIC_REQ_T, BASIC_REP_T), QOS,
                           lambda identity, body: pending.append(identity))
         if has_raw_services():
-            assert mw._entities[replier].raw_reply is not None
+            assert mw.records.get(replier).raw_reply is not None
         client = ros_peer.node.create_client(BasicTypes, "/slow")
         assert await async_wait_until(client.service_is_ready)
         ignored = client.call_async(BasicTypes.Request(int64_value=1))
@@ -501,7 +501,7 @@ _import_asyncio_without_tls()
 import asyncio
 from xrce.agent.middleware import EndpointQosSpec, TopicSpec, TypeNotReady
 from xrce.agent.observe.diagnostics import DIAGNOSTIC_ARRAY_TYPE, diagnostic_array_type
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 
 async def main():
     mw = RosMiddleware()
@@ -567,7 +567,7 @@ def test_bridging_common_types_imports_no_python_message_machinery(ros_domain): 
 _REPLIER_SCRIPT = r"""
 import asyncio, sys
 from xrce.agent.middleware import EndpointQosSpec, ServiceSpec
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 
 async def main():
     mw = RosMiddleware()
@@ -642,7 +642,7 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
         assert await status_of(create(0x0012, C.OBJK_TOPIC, TopicBin(
             "rt/parked", "std_msgs::msg::dds_::String_"), 0x0011)) == C.STATUS_OK
         assert await status_of(create(0x0013, C.OBJK_PUBLISHER, PubSubBin(), 0x0011)) == 0
-        domain = mw._domains[ros_domain]
+        domain = mw.domains.runtime(ros_domain)
         gate = threading.Event()
         domain.post(lambda: gate.wait(10))  # the executor is busy until the gate opens
         writer = DataWriterBin(0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 1))
@@ -653,7 +653,7 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
         assert [p.ID for _, ps in other.take() for p in ps] == [C.INFO]  # answered meanwhile
         gate.set()
         assert await status_of(request) == C.STATUS_OK
-        node = mw._entities[(agent.clients[creating.key].key_int, 0x0011)].node
+        node = mw.records.get((agent.clients[creating.key].key_int, 0x0011)).node
 
         def client_publishers():
             # The agent's wake topic lives on a client's node while there is one
@@ -669,7 +669,7 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
         gate.set()  # the executor makes the writer now: nobody takes it, it is destroyed
         assert await async_wait_until(lambda: len(client_publishers()) == 2, 5.0)
         assert await async_wait_until(lambda: len(client_publishers()) == 1, 5.0)
-        assert not mw._creating
+        assert not mw.creation.pending()
     finally:
         await agent.close()
 
@@ -708,10 +708,10 @@ async def test_a_parked_writer_whose_participant_is_made_again_meanwhile_gets_a_
 
         peer.send(0x80, *family(0x10))
         assert await async_wait_until(lambda: answered(0x10, 0x11, 0x12), 10.0)
-        old_node = mw._entities[(agent.clients[peer.key].key_int, 0x0011)].node
+        old_node = mw.records.get((agent.clients[peer.key].key_int, 0x0011)).node
         key_int = agent.clients[peer.key].key_int
         gate = threading.Event()
-        mw._domains[ros_domain].post(lambda: gate.wait(10))  # the executor is busy
+        mw.domains.runtime(ros_domain).post(lambda: gate.wait(10))  # the executor is busy
         writer = DataWriterBin(0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 1))
         peer.send(0x80, Create(0x20, 0x0015, C.OBJK_DATAWRITER, BIN, writer, 0x0013))  # parks
         # Stream 0, handled now, the loop not turning: the DELETE waits for the executor, which
@@ -720,17 +720,18 @@ async def test_a_parked_writer_whose_participant_is_made_again_meanwhile_gets_a_
         # same ids before the writer's CREATE is resumed.
         threading.Timer(0.2, gate.set).start()
         peer.send(0, Delete(0x30, 0x0011))
-        assert mw._creating[(key_int, 0x0015)].job.done()
+        assert mw.creation.creation_of((key_int, 0x0015)).job.done()
         peer.send(0, *family(0x31))
         deadline = time.monotonic() + 5
-        while not mw._creating[(key_int, 0x0011)].job.done() and time.monotonic() < deadline:
+        while not mw.creation.creation_of((key_int, 0x0011)).job.done() and \
+                time.monotonic() < deadline:
             time.sleep(0.01)
         assert await async_wait_until(lambda: answered(0x20, 0x30, 0x31, 0x32, 0x33), 10.0)
         assert [answers[r] for r in (0x20, 0x30, 0x31, 0x32, 0x33)] == [C.STATUS_OK] * 5
         assert agent.stats.handler_errors == 0
-        node = mw._entities[(key_int, 0x0011)].node
+        node = mw.records.get((key_int, 0x0011)).node
         assert node is not old_node
-        publisher = mw._entities[(key_int, 0x0015)].publisher
+        publisher = mw.records.get((key_int, 0x0015)).publisher
         assert publisher in node.publishers and publisher.topic_name == "/again"
         assert agent.clients[peer.key].objects[0x0015].info["ros"] == \
             "publisher /again of node /again"
@@ -774,8 +775,9 @@ async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  #
         assert await async_wait_until(seen, 20.0)
         assert answers[request] == C.STATUS_OK
         assert lease.domain_id in mw.domain_ids()
-        node = mw._entities[(agent.clients[creating.key].key_int, 0x0011)].node
-        assert node.get_name() == "joins" and node.context is mw._domains[lease.domain_id].context
+        node = mw.records.get((agent.clients[creating.key].key_int, 0x0011)).node
+        assert node.get_name() == "joins" and \
+            node.context is mw.domains.runtime(lease.domain_id).context
     finally:
         await agent.close()
         lease.release()
@@ -826,7 +828,7 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
             def answered():
                 for _, rid, status in client.statuses():
                     answers[rid] = status
-                    domain = mw._domains.get(lease.domain_id)
+                    domain = mw.domains.runtime(lease.domain_id)
                     seen_at_status.setdefault((client.key, rid), (
                         domain._wake_item, domain._anchor, publishers[lease.domain_id].publisher))
                 return request in answers
@@ -844,11 +846,11 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
         await create(second, 0x0016, C.OBJK_DATAREADER, DataReaderBin(
             0x0012, EndpointQos(C.QOS_RELIABLE | C.QOS_KEEP_LAST, 10)), 0x0014)
 
-        domain = mw._domains[lease.domain_id]
+        domain = mw.domains.runtime(lease.domain_id)
         diagnostics = publishers[lease.domain_id]
         assert await async_wait_until(
             lambda: domain._wake_item is not None and diagnostics.publisher is not None, 20.0)
-        first_node = mw._entities[(agent.clients[first.key].key_int, 0x0011)].node
+        first_node = mw.records.get((agent.clients[first.key].key_int, 0x0011)).node
         assert domain.agent_node is first_node  # the wake-up, on the first client's node
         assert domain._anchor is not None  # /diagnostics is the agent's: on its hidden node
         assert domain.call(lambda: 42, 10.0) == 42  # through the wake topic now
@@ -905,11 +907,11 @@ async def test_a_domain_whose_context_cannot_start_fails_its_create_and_is_tried
     try:
         with pytest.raises(MiddlewareError, match="no context this time"):
             mw.create_participant(key(0x01), lease.domain_id, "refused")
-        assert lease.domain_id not in mw.domain_ids() and key(0x01) not in mw._entities
+        assert lease.domain_id not in mw.domain_ids() and key(0x01) not in mw.records
         mw.create_participant(key(0x11), lease.domain_id, "accepted")
         assert attempts == [lease.domain_id, lease.domain_id]
         assert lease.domain_id in mw.domain_ids()
-        assert mw._entities[key(0x11)].node.get_name() == "accepted"
+        assert mw.records.get(key(0x11)).node.get_name() == "accepted"
     finally:
         await mw.close()
         lease.release()
@@ -932,7 +934,7 @@ async def test_a_new_domains_participant_is_made_by_a_placeholder_that_then_goes
         mw.create_participant(key(0x01), lease.domain_id, "joined")
         expected = {("joined", "/")}
         assert wait_until(lambda: set(peer.node_names()) == expected, 20.0), peer.node_names()
-        assert mw._domains[lease.domain_id].agent_node is mw._entities[key(0x01)].node
+        assert mw.domains.runtime(lease.domain_id).agent_node is mw.records.get(key(0x01)).node
     finally:
         peer.close()
         await mw.close()
@@ -966,7 +968,7 @@ async def test_a_deleted_participants_node_is_freed_without_waiting_for_python(r
                                         TopicSpec("rt/short_lived", "std_msgs::msg::dds_::String_")))
         created(lambda: mw.create_publisher(key(0x23), participant))
         created(lambda: mw.create_datawriter(key(0x25), key(0x23), key(0x22), QOS))
-        node = weakref.ref(mw._entities[participant].node)
+        node = weakref.ref(mw.records.get(participant).node)
         mw.delete(participant)
         assert await async_wait_until(lambda: node() is None, timeout_s=30)
     finally:

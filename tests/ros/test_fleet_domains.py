@@ -12,7 +12,7 @@ import pytest
 from ros_helpers import DomainLease, async_wait_until, ros_domain  # noqa: F401
 from test_discovery_order import participant_threads
 from xrce.agent.middleware import ClientOrigin
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.agent.middleware.ros.fleet import Fleet
 
 pytest.importorskip("rclpy")
@@ -29,21 +29,22 @@ async def test_a_rules_domain_is_prepared_and_its_board_takes_it(tmp_path, ros_d
     mw.add_domain_listener(lambda domain_id: None, left.append)
     try:
         mw.prepare_default({"ROS_DOMAIN_ID": str(ros_domain)})
-        assert sorted(mw._prepared) == sorted([ros_domain, lease.domain_id])
-        prepared = mw._prepared[lease.domain_id]
+        assert mw.domains.prepared_ids() == sorted([ros_domain, lease.domain_id])
+        prepared = mw.domains.prepared_runtime(lease.domain_id)
         assert await async_wait_until(lambda: prepared.context is not None, 20)
         assert not prepared.joined and participant_threads(os.getpid()) == []
 
         board = ClientOrigin(b"\x51\x60\x00\x03", ipaddress.ip_address("10.0.0.8"))
         mw.create_participant((0x51600003, 0x01), ros_domain, "board", origin=board)
-        record = mw._entities[(0x51600003, 0x01)]
+        record = mw.records.get((0x51600003, 0x01))
         assert record.domain is prepared and record.rule == "robot2"
         assert record.naming.namespace == "/robot2" and record.naming.domain == lease.domain_id
-        assert ros_domain in mw._prepared  # the default domain: no board asked for it
+        # the default domain: no board asked for it
+        assert mw.domains.prepared_runtime(ros_domain) is not None
 
         mw.delete((0x51600003, 0x01))
         assert await async_wait_until(lambda: left == [lease.domain_id], 20)
-        again = mw._prepared.get(lease.domain_id)
+        again = mw.domains.prepared_runtime(lease.domain_id)
         assert again is not None and again is not prepared and not again.joined
     finally:
         await mw.close()

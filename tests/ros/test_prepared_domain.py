@@ -16,7 +16,7 @@ import pytest
 
 from ros_helpers import async_wait_until, ros_domain  # noqa: F401
 from test_discovery_order import participant_threads
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.agent.middleware.ros.membership import default_domain_id
 
 pytest.importorskip("rclpy")
@@ -40,27 +40,28 @@ async def test_a_prepared_domain_has_no_participant_until_a_board_and_is_prepare
     mw.add_domain_listener(joined.append, left.append)
     try:
         mw.prepare_default({"ROS_DOMAIN_ID": str(ros_domain)})
-        prepared = mw._prepared[ros_domain]
+        prepared = mw.domains.prepared_runtime(ros_domain)
         assert await async_wait_until(lambda: prepared.context is not None, 20)
         # Ready, yet not joined: no DDS participant, nothing of the agent's own was asked for.
         assert not prepared.joined and mw.domain_ids() == [] and joined == []
         assert participant_threads(os.getpid()) == []
 
         mw.create_participant((0x51600001, 0x01), ros_domain, "first_board")
-        assert mw._domains[ros_domain] is prepared and ros_domain not in mw._prepared
+        assert mw.domains.runtime(ros_domain) is prepared and \
+            mw.domains.prepared_runtime(ros_domain) is None
         assert joined == [ros_domain] and mw.domain_ids() == [ros_domain]
         assert participant_threads(os.getpid())
 
         mw.delete((0x51600001, 0x01))
         assert await async_wait_until(lambda: left == [ros_domain], 20)
         # Left, and ready again for the next board: a new runtime, still without a participant.
-        again = mw._prepared.get(ros_domain)
+        again = mw.domains.prepared_runtime(ros_domain)
         assert again is not None and again is not prepared and not again.joined
         assert await async_wait_until(lambda: not prepared.thread.is_alive(), 20)
         assert await async_wait_until(lambda: not participant_threads(os.getpid()), 20)
     finally:
         await mw.close()
-    assert not mw._prepared and not again.thread.is_alive()
+    assert not mw.domains.prepared_ids() and not again.thread.is_alive()
 
 
 async def test_joined_at_start_under_a_server_and_kept(ros_domain):  # noqa: F811
@@ -71,15 +72,15 @@ async def test_joined_at_start_under_a_server_and_kept(ros_domain):  # noqa: F81
     await mw.start()
     try:
         mw.prepare([ros_domain], join=True)
-        domain = mw._domains[ros_domain]
+        domain = mw.domains.runtime(ros_domain)
         assert await async_wait_until(lambda: mw.domain_ids() == [ros_domain], 20)
         assert participant_threads(os.getpid())
         mw.create_participant((0x51600002, 0x01), ros_domain, "passing_board")
-        assert mw._domains[ros_domain] is domain
+        assert mw.domains.runtime(ros_domain) is domain
         mw.delete((0x51600002, 0x01))
-        assert await async_wait_until(lambda: not mw._lingering and mw._domains.get(ros_domain)
-                                      is domain, 5)
-        await asyncio.sleep(mw.linger_s * 3)
-        assert mw._domains.get(ros_domain) is domain and domain.thread.is_alive()
+        assert await async_wait_until(lambda: not mw.domains.lingering_ids() and
+                                      mw.domains.runtime(ros_domain) is domain, 5)
+        await asyncio.sleep(mw.domains.linger_s * 3)
+        assert mw.domains.runtime(ros_domain) is domain and domain.thread.is_alive()
     finally:
         await mw.close()

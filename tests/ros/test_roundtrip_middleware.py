@@ -12,7 +12,7 @@ import pytest
 
 from ros_helpers import async_wait_until, ros_domain  # noqa: F401
 from xrce.agent.middleware import ClientOrigin, EndpointQosSpec, TopicSpec
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.agent.middleware.ros.graph import GRAPH_SPEC, decode_graph
 from xrce.agent.middleware.ros.naming import Naming
 

@@ -18,7 +18,7 @@ from agent_process import REPO, AgentProcess
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce.agent.middleware import ClientOrigin, EndpointQosSpec, ServiceSpec
 from xrce.agent.middleware.ros.collisions import NameClaims
-from xrce.agent.middleware.ros.entities import RosMiddleware
+from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 from xrce.agent.middleware.ros.naming import Naming
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String

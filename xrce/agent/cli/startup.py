@@ -144,9 +144,9 @@ def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None, fl
     if name == "ced":
         from xrce.agent.middleware.ced import CedMiddleware
         return CedMiddleware()
-    from xrce.agent.middleware.dds.entities import DdsMiddleware
+    from xrce.agent.middleware.dds.dds_middleware import DdsMiddleware
     from xrce.agent.middleware.ros import REQUEST_TIMEOUT_S
-    from xrce.agent.middleware.ros.entities import DOMAIN_LINGER_S
+    from xrce.agent.middleware.ros import DOMAIN_LINGER_S
     return DdsMiddleware(park_creation=True,
                          linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s,
                          request_timeout_s=REQUEST_TIMEOUT_S if request_timeout_s is None

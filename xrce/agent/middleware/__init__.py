@@ -5,7 +5,7 @@ REUSE/REPLACE, STATUS codes, READ_DATA delivery control. A middleware only creat
 data through the backing entities:
 
 - ``CedMiddleware`` (``-m ced``): routes samples between the agent's own clients by topic name, no ROS.
-- ``RosMiddleware`` (``-m dds``, ``xrce.agent.middleware.ros.entities``): rclpy nodes,
+- ``RosMiddleware`` (``-m dds``, ``xrce.agent.middleware.ros.ros_middleware``): rclpy nodes,
   publishers, subscriptions, service clients and servers.
 
 Entity handles are the engine's ``EntityKey`` = ``(client_key: int, object_id: int)``, unique across

@@ -82,25 +82,22 @@ class NameClaims:
 
 
 class NameCollisions:
-    """The claims of ``RosMiddleware``, which mixes this class in (it uses ``_entities``)."""
+    """The names claimed by the ROS middleware's entities (``records``: its ``EntityRecords``,
+    where each claimant's participant is looked up)."""
 
-    _name_claims: NameClaims | None = None
+    def __init__(self, records):
+        self._records = records
+        self._claims = NameClaims()
 
-    def _claims(self) -> NameClaims:
-        if self._name_claims is None:
-            self._name_claims = NameClaims()
-        return self._name_claims
+    def claim_node(self, key: EntityKey) -> None:
+        record = self._records.get(key)
+        self._claims.claim("node", record.domain.domain_id,
+                           record.node.get_fully_qualified_name(), key, key, record.rule)
 
-    def _claim_node(self, key: EntityKey) -> None:
-        record = self._entities[key]
-        self._claims().claim("node", record.domain.domain_id,
-                             record.node.get_fully_qualified_name(), key, key, record.rule)
+    def claim_service(self, key: EntityKey, participant: EntityKey, service_name: str) -> None:
+        record = self._records.get(participant)
+        self._claims.claim("service", record.domain.domain_id, service_name, key, participant,
+                           record.rule)
 
-    def _claim_service(self, key: EntityKey, participant: EntityKey, service_name: str) -> None:
-        record = self._entities[participant]
-        self._claims().claim("service", record.domain.domain_id, service_name, key, participant,
-                             record.rule)
-
-    def _release_names(self, key: EntityKey) -> None:
-        if self._name_claims is not None:
-            self._name_claims.release(key)
+    def release(self, key: EntityKey) -> None:
+        self._claims.release(key)

@@ -16,7 +16,7 @@ from xrce.agent.middleware.ros.domain import log
 
 
 class Creation:
-    """An entity being created on an executor thread (``ParkedCreation._create_on_executor``)."""
+    """An entity being created on an executor thread (``ParkedCreation.create_on_executor``)."""
 
     __slots__ = ("job", "context", "domain", "node", "parked", "taken")
 
@@ -35,11 +35,43 @@ class Creation:
             pass  # settled already (the job and the timeout raced)
 
 
-class ParkedCreation:
-    """Mixin of ``RosMiddleware``: uses its ``park_creation``, ``_creating``,
-    ``entity_timeout_s``, ``_on_executor``, ``_get_loop`` and ``_leave_if_unused``."""
+def on_executor(participant, job, timeout_s: float):
+    """``job``'s result, run on the executor thread of ``participant``'s domain; the loop waits
+    up to ``timeout_s``. Whatever it raises comes out as a MiddlewareError."""
+    try:
+        return participant.domain.call(job, timeout_s)
+    except MiddlewareError:
+        raise
+    except Exception as exc:
+        raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
 
-    def _pending_creation(self, key: EntityKey, participant):
+
+class ParkedCreation:
+    """The entities being created on an executor thread while their client is parked.
+    ``run``: the ``RunContext`` (the loop); ``leave_if_unused(domain)``: told when an untaken
+    creation is undone, the domain may have nothing left in it (``RosDomains``)."""
+
+    def __init__(self, run, park_creation: bool, entity_timeout_s: float, leave_if_unused):
+        self._run = run
+        self.park_creation = park_creation
+        self.entity_timeout_s = entity_timeout_s
+        self._leave_if_unused = leave_if_unused
+        # key -> Creation, taken by the CREATE when the engine retries it.
+        self._creating: dict = {}
+
+    def creation_of(self, key: EntityKey) -> Creation | None:
+        """The creation of ``key`` under way, if any (a participant's retry takes its domain)."""
+        return self._creating.get(key)
+
+    def in_domain(self, domain) -> bool:
+        """Whether an entity is being created in ``domain`` (which then stays joined)."""
+        return any(creation.domain is domain for creation in self._creating.values())
+
+    def pending(self) -> int:
+        """How many creations are under way (tests)."""
+        return len(self._creating)
+
+    def pending_creation(self, key: EntityKey, participant):
         """The creation a parked CREATE of ``key`` submitted, if its retry may take it: not when
         the node it was made in is not ``participant``'s any more. Stream 0 is not parked, so a
         client can delete its participant and create it again (and the publisher, same ids)
@@ -52,8 +84,7 @@ class ParkedCreation:
             return None
         return creation
 
-    def _create_on_executor(self, key: EntityKey, participant, job, undo,
-                            context=None):
+    def create_on_executor(self, key: EntityKey, participant, job, undo, context=None):
         """``(job's result, context)``, ``job`` creating ``key``'s rclpy entity on the domain's
         executor thread. With ``park_creation`` the loop does not wait for it: the first call
         submits ``job`` and raises TypeNotReady, the engine parks this client (and only it) and
@@ -62,8 +93,8 @@ class ParkedCreation:
         callbacks hold). A result nobody takes within ``entity_timeout_s`` after the job ended
         (the client went away meanwhile) is undone with ``undo(result)`` on the executor."""
         if not self.park_creation:
-            return self._on_executor(participant, job), context
-        creation = self._pending_creation(key, participant)
+            return on_executor(participant, job, self.entity_timeout_s), context
+        creation = self.pending_creation(key, participant)
         if creation is not None:
             if not creation.job.done() and not creation.parked.done():
                 # Resumed early: another creation of this client (one on stream 0, which is not
@@ -81,7 +112,7 @@ class ParkedCreation:
                 raise
             except Exception as exc:
                 raise MiddlewareError("%s: %s" % (type(exc).__name__, exc)) from exc
-        loop = self._get_loop()
+        loop = self._run.loop()
         try:
             submitted = participant.domain.submit(job)
         except MiddlewareError:

@@ -1,6 +1,6 @@
-"""The threads behind ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``): one rclpy context and executor thread
-per ROS domain, the jobs the asyncio loop hands to it; the samples it hands back to the loop are
-``xrce.agent.middleware.ros.handoff``'s.
+"""The threads behind ``RosMiddleware`` (``xrce.agent.middleware.ros.ros_middleware``): one rclpy
+context and executor thread per ROS domain, the jobs the asyncio loop hands to it; the samples it
+hands back to the loop are ``xrce.agent.middleware.ros.handoff``'s.
 
 Threading model (measured on the 2-core dev machine, Twist, peer in another process):
 

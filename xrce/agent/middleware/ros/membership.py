@@ -1,5 +1,5 @@
-"""The ROS domains ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``) has joined, and
-what it keeps per domain besides its clients' entities.
+"""The ROS domains ``RosMiddleware`` (``xrce.agent.middleware.ros.ros_middleware``) has joined,
+and what it keeps per domain besides its clients' entities: its part ``RosDomains``.
 
 A domain is joined when a client's participant first asks for it (its thread and rclpy context:
 ``xrce.agent.middleware.ros.domain``), the default domain too: an agent without clients has no DDS
@@ -34,7 +34,7 @@ import os
 import threading
 
 from xrce.agent.middleware import MAX_DOMAIN_ID
-from xrce.agent.middleware import EntityKey, MiddlewareError
+from xrce.agent.middleware import MiddlewareError
 from xrce.agent.middleware.ros import DOMAIN_LINGER_S  # noqa: F401  (re-exported for callers)
 from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, DomainRuntime, log
 from xrce.agent.middleware.ros.graph import GRAPH_TYPE, GraphFeed
@@ -96,10 +96,58 @@ def _leave_domain(domain: DomainRuntime, timeout_s: float) -> None:
 
 
 class RosDomains:
-    """Domains of ``RosMiddleware``, which mixes this class in: the methods use its ``_closed``,
-    ``_domains``, ``_lingering``, ``linger_s``, ``_leaving``, ``_domain_listeners``,
-    ``_leave_listeners``, ``_prepared``, ``_kept``, ``_default_domain``, ``_agent_publishers``, ``_graph_feeds``, ``_entities``, ``_creating``,
-    ``executor_kind``, ``idle_wait_s``, ``entity_timeout_s`` and ``_get_loop``."""
+    """The domains of the ROS middleware. ``run``: its ``RunContext`` (the loop); ``naming`` and
+    ``fleet``: the names and rules boards get (the domains worth preparing); ``in_use(domain)``:
+    whether a client participant is in a domain, or being made there (the middleware's
+    records and parked creations)."""
+
+    def __init__(self, run, naming, fleet, in_use, executor_kind: str, idle_wait_s: float,
+                 entity_timeout_s: float, linger_s: float):
+        self._run = run
+        self._naming = naming
+        self._fleet = fleet
+        self._in_use = in_use
+        self.executor_kind = executor_kind
+        self.idle_wait_s = idle_wait_s
+        self.entity_timeout_s = entity_timeout_s
+        self.linger_s = linger_s
+        self._closed = False
+        self._domains: dict[int, DomainRuntime] = {}
+        # Started at start, no participant asked for them yet (``prepare``).
+        self._prepared: dict[int, DomainRuntime] = {}
+        self._kept: set = set()  # joined at start for the agent's life (``prepare``)
+        self._default_domain: int | None = None  # prepared again once left (prepare_default)
+        # The agent's own node per domain (e.g. for /diagnostics), not tied to any XRCE client.
+        self._agent_publishers: dict[tuple, object] = {}
+        self._domain_listeners: list = []  # called with each domain id joined (loop thread)
+        self._leave_listeners: list = []  # and with each domain id left
+        # domain id -> the loop's timer that leaves a domain without participants
+        self._lingering: dict = {}
+        self._leaving: list = []  # threads stopping domains whose last participant went
+        # domain id -> (GraphFeed, number of client readers of the graph topic there): the graph
+        # is published only where a client asked for it (xrce.agent.middleware.ros.graph).
+        self._graph_feeds: dict[int, list] = {}
+
+    # -- what is joined (the middleware's callers and tests) -----------------------------------
+
+    def runtime(self, domain_id: int) -> DomainRuntime | None:
+        """The runtime of a domain joined (or being joined), None if there is none."""
+        return self._domains.get(domain_id)
+
+    def runtime_ids(self) -> list[int]:
+        """The domains with a runtime, joined or being joined."""
+        return list(self._domains)
+
+    def prepared_runtime(self, domain_id: int) -> DomainRuntime | None:
+        """The runtime of a domain prepared and not joined yet, None if there is none."""
+        return self._prepared.get(domain_id)
+
+    def prepared_ids(self) -> list[int]:
+        return sorted(self._prepared)
+
+    def lingering_ids(self) -> list[int]:
+        """The domains without participants, to be left when their linger is over."""
+        return list(self._lingering)
 
     # -- joining and leaving ------------------------------------------------------------------
 
@@ -108,7 +156,7 @@ class RosDomains:
         Discovery Server (module docstring). RMWs other than rmw_fastrtps ignore the variable."""
         environ = os.environ if environ is None else environ
         # --domain: the one every board's participant is put in is the one worth preparing.
-        domain_id = self.naming.domain if self.naming.domain is not None else \
+        domain_id = self._naming.domain if self._naming.domain is not None else \
             default_domain_id(environ)
         if domain_id is None:
             return
@@ -120,8 +168,7 @@ class RosDomains:
         self.prepare(self._fleet_domains())
 
     def _fleet_domains(self) -> list:
-        fleet = getattr(self, "fleet", None)
-        return sorted(fleet.domains()) if fleet is not None else []
+        return sorted(self._fleet.domains()) if self._fleet is not None else []
 
     def prepare(self, domain_ids, join: bool = False) -> None:
         """At start: start ``domain_ids``' threads, rclpy contexts and executors now, not with
@@ -145,9 +192,9 @@ class RosDomains:
             self._domains[domain_id] = domain
             self._kept.add(domain_id)
             domain.post(domain.make_wake)  # the hidden anchor, and the participant with it
-            self._joined(domain_id)
+            self.joined(domain_id)
 
-    def _domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
+    def domain(self, domain_id: int) -> tuple[DomainRuntime, bool]:
         """(the runtime of ``domain_id``, whether it was started now). Starting one only starts
         its thread, which makes the rclpy context and executor while the loop goes on: jobs queue
         up behind that (``DomainRuntime``), so a client joining a new domain holds up no other
@@ -176,7 +223,7 @@ class RosDomains:
         self._domains[domain_id] = domain
         return domain, True
 
-    def _joined(self, domain_id: int) -> None:
+    def joined(self, domain_id: int) -> None:
         """Tell the listeners (the agent's own publishers there): their jobs queue behind what
         was submitted before, the first client's node in a new domain."""
         for listener in list(self._domain_listeners):
@@ -199,14 +246,9 @@ class RosDomains:
         its DDS participant there exists."""
         return [domain_id for domain_id, domain in self._domains.items() if domain.joined]
 
-    def _in_use(self, domain: DomainRuntime) -> bool:
-        return any(r.kind == "participant" and r.domain is domain
-                   for r in self._entities.values()) or \
-            any(c.domain is domain for c in self._creating.values())
-
-    def _leave_if_unused(self, domain: DomainRuntime) -> None:
+    def leave_if_unused(self, domain: DomainRuntime) -> None:
         """Leave a domain once no client participant is in it (or being made there) for
-        ``linger_s``; a participant made there meanwhile keeps it (``_domain``). Not at once: a
+        ``linger_s``; a participant made there meanwhile keeps it (``domain``). Not at once: a
         board that resets or reconnects within seconds (a serial board is replaced by its next
         life at its first CREATE_CLIENT, an rclc program restarted) would pay a domain join, and
         its ROS peers a new participant's discovery, each life (the figures behind
@@ -220,7 +262,7 @@ class RosDomains:
             return
         log.debug("ROS domain %d has no participant left: leaving it in %.1f s unless one comes",
                   domain_id, self.linger_s)
-        self._lingering[domain_id] = self._get_loop().call_later(
+        self._lingering[domain_id] = self._run.loop().call_later(
             self.linger_s, self._linger_over, domain)
 
     def _linger_over(self, domain: DomainRuntime) -> None:
@@ -274,7 +316,7 @@ class RosDomains:
         if publisher is not None:
             return publisher
 
-        loop = self._get_loop()
+        loop = self._run.loop()
 
         def matched(_info) -> None:  # on the executor thread
             try:
@@ -307,19 +349,19 @@ class RosDomains:
 
     # -- micro-ROS' graph topic -----------------------------------------------------------------
 
-    def _graph_reader_added(self, key: EntityKey, domain: DomainRuntime) -> None:
-        record = self._entities[key]
+    def graph_reader_added(self, record, domain: DomainRuntime) -> None:
+        """A client's reader of the graph topic (its ``ReaderRecord``) in ``domain``."""
         if record.graph_domain is not None:
             return
         record.graph_domain = domain.domain_id
         entry = self._graph_feeds.get(domain.domain_id)
         if entry is None or entry[0].domain is not domain:
-            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._get_loop())
+            feed = GraphFeed(domain, raw_message_type(GRAPH_TYPE), self._run.loop())
             entry = self._graph_feeds[domain.domain_id] = [feed, 0]
             feed.start()
         entry[1] += 1
 
-    def _graph_reader_gone(self, record) -> None:
+    def graph_reader_gone(self, record) -> None:
         domain_id, record.graph_domain = record.graph_domain, None
         entry = self._graph_feeds.get(domain_id)
         if entry is None:
@@ -329,7 +371,7 @@ class RosDomains:
             del self._graph_feeds[domain_id]
             entry[0].stop()
 
-    def _graph_changed(self, domain: DomainRuntime) -> None:
+    def graph_changed(self, domain: DomainRuntime) -> None:
         entry = self._graph_feeds.get(domain.domain_id)
         if entry is not None:
             entry[0].changed()
@@ -338,3 +380,23 @@ class RosDomains:
         """The graph publication of a domain, None where no client asked for it."""
         entry = self._graph_feeds.get(domain_id)
         return entry[0] if entry is not None else None
+
+    # -- closing ------------------------------------------------------------------------------
+
+    def close(self) -> tuple[list, list]:
+        """Forget every domain: (the runtimes to stop, the threads still stopping runtimes left
+        before), for the middleware's ``close`` to wait for off the loop."""
+        self._closed = True
+        for lingering in self._lingering.values():
+            lingering.cancel()
+        self._lingering.clear()
+        self._agent_publishers.clear()
+        for feed, _readers in self._graph_feeds.values():
+            feed.stop()
+        self._graph_feeds.clear()
+        self._domain_listeners.clear()
+        self._leave_listeners.clear()
+        domains = list(self._domains.values()) + list(self._prepared.values())
+        self._domains.clear()
+        self._prepared.clear()
+        return domains, list(self._leaving)

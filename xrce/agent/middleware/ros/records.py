@@ -1,8 +1,10 @@
-"""What ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``) keeps for each XRCE entity
-it backs, one record class per kind: the rclpy object behind it, if any, and its participant's key.
-Requesters and repliers have theirs in ``xrce.agent.middleware.ros.services``.
+"""What ``RosMiddleware`` (``xrce.agent.middleware.ros.ros_middleware``) keeps for each XRCE
+entity it backs, one record class per kind: the rclpy object behind it, if any, and its
+participant's key. Requesters and repliers have theirs in
+``xrce.agent.middleware.ros.service_records``. ``EntityRecords``, the part that holds them all by
+key, is what the other parts look entities up in.
 
-Every record has a class-level ``kind`` (the XRCE object kind it backs); ``RosMiddleware._record``
+Every record has a class-level ``kind`` (the XRCE object kind it backs); ``EntityRecords.record``
 checks it when a key is used.
 """
 
@@ -10,7 +12,7 @@ from __future__ import annotations
 
 from rclpy.node import Node
 
-from xrce.agent.middleware import EntityKey, TopicSpec
+from xrce.agent.middleware import EntityKey, MiddlewareError, TopicSpec
 from xrce.agent.middleware.ros.domain import DomainRuntime
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
 from xrce.agent.middleware.ros.naming import Naming
@@ -77,3 +79,65 @@ class ReaderRecord:
         self.graph_domain = None  # a reader of micro-ROS' graph topic: its domain id
         # Its samples are translated back for its board (``roundtrip.reader_delivery``).
         self.translated = translated
+
+
+class EntityRecords:
+    """Every record of the ROS middleware, by entity key (the engine's ``EntityKey``)."""
+
+    def __init__(self):
+        self._records: dict[EntityKey, object] = {}
+
+    def get(self, key: EntityKey):
+        return self._records.get(key)
+
+    def __contains__(self, key: EntityKey) -> bool:
+        return key in self._records
+
+    def values(self):
+        return self._records.values()
+
+    def record(self, key: EntityKey, kinds: tuple):
+        """The record of ``key`` if it is of one of ``kinds``; MiddlewareError otherwise."""
+        record = self._records.get(key)
+        if record is None or record.kind not in kinds:
+            raise MiddlewareError("no %s %r" % ("/".join(kinds), key))
+        return record
+
+    def participant_of(self, key: EntityKey, kinds: tuple):
+        """(participant key, participant record) of the entity ``key`` of one of ``kinds``."""
+        record = self.record(key, kinds)
+        owner = key if record.kind == "participant" else record.participant
+        return owner, self.record(owner, ("participant",))
+
+    def participant_record(self, record):
+        """The participant record an entity's ``record`` belongs to, None if there is none."""
+        participant = self._records.get(getattr(record, "participant", None))
+        if participant is None or participant.kind != "participant":
+            return None
+        return participant
+
+    def refuse_existing(self, key: EntityKey) -> None:
+        if key in self._records:
+            raise MiddlewareError("entity %r already exists" % (key,))
+
+    def add(self, key: EntityKey, record) -> None:
+        self.refuse_existing(key)
+        self._records[key] = record
+
+    def put(self, key: EntityKey, record) -> None:
+        """Keep ``record`` for ``key``, whose absence the caller checked before its creation."""
+        self._records[key] = record
+
+    def pop(self, key: EntityKey):
+        return self._records.pop(key)
+
+    def children_of(self, participant: EntityKey) -> list:
+        return [key for key, record in self._records.items()
+                if record.kind != "participant" and record.participant == participant]
+
+    def has_participant_in(self, domain) -> bool:
+        return any(record.kind == "participant" and record.domain is domain
+                   for record in self._records.values())
+
+    def clear(self) -> None:
+        self._records.clear()

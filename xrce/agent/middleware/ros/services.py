@@ -1,4 +1,6 @@
-"""The request/reply (ROS service) half of ``RosMiddleware`` (``xrce.agent.middleware.ros.entities``).
+"""The request/reply (ROS service) part of ``RosMiddleware``
+(``xrce.agent.middleware.ros.ros_middleware``), ``RosServices``; its records are in
+``xrce.agent.middleware.ros.service_records``.
 
 An XRCE requester is an rclpy service client, an XRCE replier an rclpy service. A request waits
 on the loop until its reply arrives or ``request_timeout_s`` passes (held, if its server is not
@@ -22,8 +24,7 @@ firmware's replier, an rclpy client, medians of interleaved rounds beside eProsi
 
 from __future__ import annotations
 
-import asyncio
-import collections
+import os
 import struct
 import time
 
@@ -33,7 +34,6 @@ from rclpy.service import Service
 from xrce.agent.middleware import (
     EndpointQosSpec,
     EntityKey,
-    MiddlewareError,
     ReplyCallback,
     RequestCallback,
     ServiceSpec,
@@ -43,17 +43,8 @@ from xrce.agent.middleware.ros.domain import ENCAPSULATION_LE, ENCAPSULATION_SIZ
 from xrce.agent.middleware.ros.raw_types import (
     carries_cdr, library_service_type, named_service_type, raw_service_type,
 )
+from xrce.agent.middleware.ros.service_records import ReplierRecord, RequesterRecord
 from xrce.agent.middleware.ros.types import qos_profile, service_class, service_ros_name
-
-
-class _TakenRequest:
-    """What the replier's service callback returns instead of a response (see _ReplierRecord)."""
-
-    __slots__ = ("identity", "body")
-
-    def __init__(self, identity: bytes, body: bytes):
-        self.identity = identity
-        self.body = body
 
 
 # Requests held for a server that is not discovered yet are checked together: one timer for the
@@ -79,116 +70,37 @@ def _expires(service_name: str) -> bool:
     return not service_name.endswith(_RESULT_SERVICE_SUFFIX)
 
 
-class _RequesterRecord:
-    __slots__ = ("participant", "client", "srv", "on_reply", "pending", "waiting", "closed",
-                 "client_key", "expires")
-    kind = "requester"
-
-    def __init__(self, participant: EntityKey, srv, on_reply: ReplyCallback, expires: bool = True):
-        self.participant = participant
-        self.expires = expires
-        self.client_key = participant[0]  # the XRCE client's, for its pending-request quota
-        self.client = None
-        self.srv = srv
-        self.on_reply = on_reply
-        # correlation id -> [rclpy Future or None until sent, expiry TimerHandle or None]
-        self.pending: dict[int, list] = {}
-        # correlation id -> (entry, request) held until the service server is discovered
-        self.waiting: dict[int, tuple] = {}
-        self.closed = False
-
-
-class _ReplierRecord:
-    """rclpy service whose responses are sent later, when the XRCE client writes its reply.
-
-    rclpy calls ``service.callback(request, response)`` and then ``service.send_response(result,
-    header)``. The events executor runs that synchronously and has no coroutine support, and
-    blocking in the callback would stall every other entity of the domain for the client's
-    round trip. So the callback only records the request and returns a ``_TakenRequest``, and the
-    instance's ``send_response`` is replaced by ``capture`` which keeps the request header; the
-    real ``Service.send_response`` runs from ``write_reply`` on the loop thread.
-    """
-
-    __slots__ = ("participant", "service", "srv", "on_request", "pending", "closed",
-                 "identity_prefix", "sequence", "loop", "middleware", "expires",
-                 "in_transit", "raw_reply", "next_sequence")
-    kind = "replier"
-
-    def __init__(self, participant: EntityKey, srv, on_request: RequestCallback,
-                 identity_prefix: bytes, loop: asyncio.AbstractEventLoop, middleware: "RosServices",
-                 expires: bool = True):
-        self.participant = participant
-        self.expires = expires
-        self.service = None
-        self.srv = srv
-        self.on_request = on_request
-        # identity -> (request header, monotonic deadline, or None where requests never expire
-        # (`expires`)), in arrival (so deadline) order
-        self.pending: dict[bytes, tuple] = {}
-        self.closed = False
-        self.identity_prefix = identity_prefix  # guidPrefix(12) + entityKey(3) + entityKind(1)
-        self.sequence = 0
-        self.loop = loop
-        self.middleware = middleware
-        # Requests handed to the loop and not delivered yet (the engine's lock was taken): later
-        # ones follow them through the loop rather than overtake them.
-        self.in_transit: collections.deque = collections.deque()
-        # The raw reply class when the service exchanges CDR bytes with rclpy
-        # (raw_types.raw_service_type), else None: Python messages.
-        self.raw_reply = None
-        # Where identities come from once the compiled path serves the replier (it gives them
-        # to the requests it takes itself): None while they are this record's.
-        self.next_sequence = None
-
-    def take(self, request, _unused_response) -> _TakenRequest:
-        """Service callback (executor thread): ``request`` is its CDR bytes (a raw service
-        type), or a Python message."""
-        sequence = self.next_sequence() if self.next_sequence is not None else None
-        if sequence is None:
-            self.sequence += 1
-            sequence = self.sequence
-        identity = self.identity_prefix + struct.pack("<iI", sequence >> 32,
-                                                      sequence & 0xFFFFFFFF)
-        if request.__class__ is bytes:
-            return _TakenRequest(identity, request)
-        return _TakenRequest(identity, serialize_message(request)[ENCAPSULATION_SIZE:])
-
-    def capture(self, taken, header) -> None:
-        """Stands in for ``service.send_response`` (executor thread)."""
-        if not isinstance(taken, _TakenRequest):
-            Service.send_response(self.service, taken, header)
-            return
-        if self.closed:
-            return
-        lock = self.middleware.engine_lock
-        if lock is not None and not self.in_transit and lock.acquire(blocking=False):
-            try:  # never waits: the loop holds the lock while it waits for this thread
-                self.middleware._deliver_request(self, taken.identity, taken.body, header,
-                                                 on_loop=False)
-            finally:
-                lock.release()
-            return
-        self.in_transit.append((taken.identity, taken.body, header))
-        try:
-            self.loop.call_soon_threadsafe(self.middleware._deliver_in_transit, self)
-        except RuntimeError:
-            self.closed = True
-
-
 class RosServices:
-    """Requesters and repliers of ``RosMiddleware``, which mixes this class in: the methods use its
-    ``_entities``, ``_loop`` / ``_get_loop``, ``_participant_of``, ``_create_on_executor``,
-    ``_creating``,
-    ``_guid_prefix``, ``_replier_counter``, ``request_timeout_s`` and ``requests_timed_out``."""
+    """Requesters and repliers of the ROS middleware. Collaborators: ``run`` (``RunContext``: the
+    loop, the engine's lock), ``records`` (``EntityRecords``: participants looked up, records
+    kept), ``creation`` (``ParkedCreation``: rclpy clients and services made on the executor),
+    ``collisions`` (``NameCollisions``: a replier's service name claimed)."""
 
-    _awaiting_server = None  # requesters holding requests: {record: None}, made on first use
-    _server_check = None  # the one TimerHandle checking them
-    _server_check_delay = SERVER_CHECK_FIRST_S
-    _pending_by_client = None  # XRCE client key -> requests in flight
-    _waiting_repliers = None  # repliers holding requests for their XRCE client: {record: None}
-    _reply_sweep = None  # None, True (asked from the executor thread) or the TimerHandle
-    requests_refused = 0
-    _refusal_logged = None
+    def __init__(self, run, records, creation, collisions, request_timeout_s: float):
+        self._run = run
+        self._records = records
+        self._creation = creation
+        self._collisions = collisions
+        self.request_timeout_s = request_timeout_s
+        self.requests_timed_out = 0
+        self.requests_refused = 0
+        self._refusal_logged = None
+        # 12-byte guidPrefix for generated sample identities: random per agent run so identities
+        # from two runs never collide in a client that survived an agent restart.
+        self._guid_prefix = os.urandom(12)
+        self._replier_counter = 0
+        # requesters holding requests: {record: None}, made on first use
+        self._awaiting_server = None
+        self._server_check = None  # the one TimerHandle checking them
+        self._server_check_delay = SERVER_CHECK_FIRST_S
+        self._pending_by_client = None  # XRCE client key -> requests in flight
+        # repliers holding requests for their XRCE client: {record: None}
+        self._waiting_repliers = None
+        self._reply_sweep = None  # None, True (asked from the executor thread) or the TimerHandle
+
+    def count_timed_out(self, count: int) -> None:
+        """``count`` requests held elsewhere (the compiled path) got no reply in time."""
+        self.requests_timed_out += count
 
     # -- creation -----------------------------------------------------------------------------
 
@@ -196,9 +108,8 @@ class RosServices:
                           qos: EndpointQosSpec, service_type=service_class):
         """What a requester and a replier both resolve first: (owner key, participant record,
         service class as ``service_type`` gives it, ROS service name, QoS profile)."""
-        owner, participant_record = self._participant_of(participant, ("participant",))
-        if key in self._entities:
-            raise MiddlewareError("entity %r already exists" % (key,))
+        owner, participant_record = self._records.participant_of(participant, ("participant",))
+        self._records.refuse_existing(key)
         return (owner, participant_record, service_type(service.request_type),
                 participant_record.naming.name(service_ros_name(service.service_name, service.request_topic,
                                                   service.reply_topic)), qos_profile(qos))
@@ -209,14 +120,16 @@ class RosServices:
         owner, participant_record, srv, service_name, profile = self._service_endpoint(
             key, participant, service, qos,
             lambda name: named_service_type(name) or service_class(name))
-        self._get_loop()
-        creation = self._pending_creation(key, participant_record)
+        self._run.loop()
+        creation = self._creation.pending_creation(key, participant_record)
         record = creation.context if creation is not None else \
-            _RequesterRecord(owner, srv, on_reply, _expires(service_name))
+            RequesterRecord(owner, srv, on_reply, _expires(service_name))
         node = participant_record.node
-        record.client, _ = self._create_on_executor(key, participant_record, lambda: node.create_client(
-            srv, service_name, qos_profile=profile), node.destroy_client, record)
-        self._entities[key] = record
+        record.client, _ = self._creation.create_on_executor(
+            key, participant_record,
+            lambda: node.create_client(srv, service_name, qos_profile=profile),
+            node.destroy_client, record)
+        self._records.put(key, record)
 
     def create_replier(self, key: EntityKey, participant: EntityKey, service: ServiceSpec,
                        qos: EndpointQosSpec, on_request: RequestCallback) -> None:
@@ -227,7 +140,7 @@ class RosServices:
             key, participant, service, qos,
             lambda name: named_service_type(name) or library_service_type(name)
             or service_class(name))
-        creation = self._pending_creation(key, participant_record)
+        creation = self._creation.pending_creation(key, participant_record)
         if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
             record = creation.context
         else:
@@ -236,8 +149,8 @@ class RosServices:
             # with key (the reply writer a DDS replier would own).
             prefix = self._guid_prefix + struct.pack(">I", self._replier_counter & 0xFFFFFF)[1:] \
                 + b"\x02"
-            record = _ReplierRecord(owner, srv, on_request, prefix, self._get_loop(), self,
-                                    _expires(service_name))
+            record = ReplierRecord(owner, srv, on_request, prefix, self._run.loop(), self,
+                                   self._run, _expires(service_name))
         node = participant_record.node
 
         def make_service():
@@ -249,15 +162,15 @@ class RosServices:
                 record.raw_reply = raw.Response
             return ros_service
 
-        record.service, _ = self._create_on_executor(key, participant_record, make_service,
+        record.service, _ = self._creation.create_on_executor(key, participant_record, make_service,
                                                      node.destroy_service, record)
-        self._entities[key] = record
-        self._claim_service(key, owner, record.service.srv_name)
+        self._records.put(key, record)
+        self._collisions.claim_service(key, owner, record.service.srv_name)
 
     # -- data ---------------------------------------------------------------------------------
 
     def write_request(self, requester: EntityKey, correlation_id: int, sample: bytes) -> bool:
-        record = self._entities.get(requester)
+        record = self._records.get(requester)
         if record is None or record.kind != "requester":
             return False
         try:
@@ -270,7 +183,7 @@ class RosServices:
             log.warning("request for %r does not decode as %s: %s", requester,
                         record.srv.__name__, exc)
             return False
-        loop = self._get_loop()
+        loop = self._run.loop()
         previous = record.pending.pop(correlation_id, None)
         if previous is not None:  # the same request id again: the new one replaces it
             self._forget_request(record, previous)
@@ -295,7 +208,7 @@ class RosServices:
             self._await_server(record)
         return True
 
-    def _refuse_request(self, record: _RequesterRecord) -> None:
+    def _refuse_request(self, record: RequesterRecord) -> None:
         self.requests_refused += 1
         now = time.monotonic()
         if self._refusal_logged is None or now - self._refusal_logged >= 10.0:
@@ -304,7 +217,7 @@ class RosServices:
                         "(%d so far)", client_tag(record.client_key.to_bytes(4, "big")),
                         MAX_PENDING_REQUESTS_PER_CLIENT, self.requests_refused)
 
-    def _release(self, record: _RequesterRecord, count: int = 1) -> None:
+    def _release(self, record: RequesterRecord, count: int = 1) -> None:
         """``count`` of ``record``'s requests are no longer in flight."""
         counts = self._pending_by_client
         if counts is None or not count:
@@ -315,7 +228,7 @@ class RosServices:
         else:
             counts.pop(record.client_key, None)
 
-    def _await_server(self, record: _RequesterRecord) -> None:
+    def _await_server(self, record: RequesterRecord) -> None:
         if self._awaiting_server is None:
             self._awaiting_server = {}
         if record not in self._awaiting_server:
@@ -326,7 +239,7 @@ class RosServices:
                 self._server_check.cancel()
                 self._server_check = None
         if self._server_check is None:
-            self._server_check = self._loop.call_later(self._server_check_delay,
+            self._server_check = self._run.loop().call_later(self._server_check_delay,
                                                        self._check_servers)
 
     def _check_servers(self) -> None:
@@ -349,10 +262,10 @@ class RosServices:
                     self._send_request(record, correlation_id, entry, request)
         if self._awaiting_server:
             self._server_check_delay = min(SERVER_CHECK_MAX_S, self._server_check_delay * 2)
-            self._server_check = self._loop.call_later(self._server_check_delay,
+            self._server_check = self._run.loop().call_later(self._server_check_delay,
                                                        self._check_servers)
 
-    def _close_requester(self, record: _RequesterRecord) -> None:
+    def close_requester(self, record: RequesterRecord) -> None:
         """The requester is deleted: forget what it holds (loop side)."""
         record.closed = True
         for entry in record.pending.values():
@@ -363,12 +276,12 @@ class RosServices:
         if self._awaiting_server is not None:
             self._awaiting_server.pop(record, None)
 
-    def _send_request(self, record: _RequesterRecord, correlation_id: int, entry: list,
+    def _send_request(self, record: RequesterRecord, correlation_id: int, entry: list,
                       request) -> None:
-        participant = self._entities.get(record.participant)
+        participant = self._records.get(record.participant)
         if participant is None:
             return
-        loop = self._loop
+        loop = self._run.loop()
 
         def reply_arrived(future) -> None:  # executor thread
             try:
@@ -392,7 +305,7 @@ class RosServices:
 
         participant.domain.post(send)
 
-    def _deliver_reply(self, record: _RequesterRecord, correlation_id: int, entry: list,
+    def _deliver_reply(self, record: RequesterRecord, correlation_id: int, entry: list,
                        body: bytes) -> None:
         if record.closed or record.pending.get(correlation_id) is not entry:
             return
@@ -405,13 +318,13 @@ class RosServices:
         except Exception:
             log.exception("on_reply failed")
 
-    def _forget_request(self, record: _RequesterRecord, entry: list) -> None:
+    def _forget_request(self, record: RequesterRecord, entry: list) -> None:
         if entry[1] is not None:
             entry[1].cancel()
         if entry[0] is not None and record.client is not None:
             record.client.remove_pending_request(entry[0])
 
-    def _expire_request(self, record: _RequesterRecord, correlation_id: int) -> None:
+    def _expire_request(self, record: RequesterRecord, correlation_id: int) -> None:
         entry = record.pending.pop(correlation_id, None)
         if entry is not None:
             self._release(record)
@@ -421,20 +334,20 @@ class RosServices:
                         self.request_timeout_s)
             self._forget_request(record, entry)
 
-    def _deliver_in_transit(self, record: _ReplierRecord) -> None:
+    def deliver_in_transit(self, record: ReplierRecord) -> None:
         """Loop thread: the requests ``take`` could not deliver on the executor thread."""
-        lock = self.engine_lock
+        lock = self._run.engine_lock
         if lock is None:
             self._deliver_queued(record)
             return
         with lock:
             self._deliver_queued(record)
 
-    def _deliver_queued(self, record: _ReplierRecord) -> None:
+    def _deliver_queued(self, record: ReplierRecord) -> None:
         while record.in_transit:
-            self._deliver_request(record, *record.in_transit.popleft())
+            self.deliver_request(record, *record.in_transit.popleft())
 
-    def _deliver_request(self, record: _ReplierRecord, identity: bytes, body: bytes,
+    def deliver_request(self, record: ReplierRecord, identity: bytes, body: bytes,
                          header, on_loop: bool = True) -> None:
         """On the loop thread, or (``on_loop`` False) on the executor thread holding the
         engine's lock."""
@@ -460,7 +373,7 @@ class RosServices:
                 else:
                     self._reply_sweep = True
                     try:
-                        self._loop.call_soon_threadsafe(self._arm_reply_sweep)
+                        self._run.loop().call_soon_threadsafe(self._arm_reply_sweep)
                     except RuntimeError:  # the loop has closed: the agent is going away
                         pass
         try:
@@ -470,7 +383,7 @@ class RosServices:
 
     def _arm_reply_sweep(self) -> None:
         """Loop thread: the one timer, due when the oldest waiting request expires."""
-        lock = self.engine_lock
+        lock = self._run.engine_lock
         if lock is not None:
             with lock:
                 self._arm_reply_sweep_locked()
@@ -486,12 +399,12 @@ class RosServices:
         if due is None:
             self._reply_sweep = None
             return
-        self._reply_sweep = self._loop.call_later(max(0.0, due - time.monotonic()),
+        self._reply_sweep = self._run.loop().call_later(max(0.0, due - time.monotonic()),
                                                   self._sweep_replies)
 
     def _sweep_replies(self) -> None:
         """Loop thread: expire what waited ``request_timeout_s``, then arm for the next."""
-        lock = self.engine_lock
+        lock = self._run.engine_lock
         if lock is not None:
             lock.acquire()
         try:
@@ -514,46 +427,8 @@ class RosServices:
             if lock is not None:
                 lock.release()
 
-    # -- the compiled path's hold on a replier (xrce.agent.engine.fastpath) ---------------------
-
-    # The compiled path starts its identities this far beyond the record's last: a request
-    # rclpy's executor is taking while the path takes the replier over keeps a number of its own.
-    SEQUENCE_GAP = 1 << 16
-
-    def replier_service(self, replier: EntityKey):
-        """What the compiled UDP path needs to take a replier's requests and send its replies
-        itself: (rcl_service_t address, (request type support, create, destroy) capsules, the
-        same of the response, identity prefix, last sequence number, request timeout in s or 0
-        for never); None if rclpy hides any of it. The path then gives the identities, also to
-        the requests rclpy's executor still delivers (``replier_sequence_from``)."""
-        record = self._entities.get(replier)
-        if record is None or record.kind != "replier" or record.closed or record.service is None:
-            return None
-        address = getattr(getattr(record.service, "handle", None), "pointer", None)
-        srv = record.service.srv_type
-        parts = []
-        for message in (srv.Request, srv.Response):
-            capsules = (getattr(message, "_TYPE_SUPPORT", None),
-                        getattr(message, "_CREATE_ROS_MESSAGE", None),
-                        getattr(message, "_DESTROY_ROS_MESSAGE", None))
-            if None in capsules:
-                return None
-            parts.append(capsules)
-        if not address:
-            return None
-        return (address, parts[0], parts[1], record.identity_prefix,
-                record.sequence + self.SEQUENCE_GAP,
-                self.request_timeout_s if record.expires else 0.0)
-
-    def replier_sequence_from(self, replier: EntityKey, next_sequence) -> None:
-        """From now on the replier's identities come from ``next_sequence()`` (None: from the
-        record again)."""
-        record = self._entities.get(replier)
-        if record is not None and record.kind == "replier":
-            record.next_sequence = next_sequence
-
     def write_reply(self, replier: EntityKey, sample_identity: bytes, sample: bytes) -> bool:
-        record = self._entities.get(replier)
+        record = self._records.get(replier)
         if record is None or record.kind != "replier":
             return False
         entry = record.pending.pop(bytes(sample_identity), None)

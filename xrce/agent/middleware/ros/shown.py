@@ -38,17 +38,20 @@ def naming_words(naming) -> dict:
 
 
 class ShownEntities:
-    """``ros_entity`` and ``given_names`` of ``RosMiddleware``, which mixes this class in (they
-    use its ``_entities``)."""
+    """``ros_entity`` and ``given_names`` of the ROS middleware's entities, read from its
+    ``EntityRecords`` (``records``)."""
+
+    def __init__(self, records):
+        self._records = records
 
     def ros_entity(self, key: EntityKey) -> str | None:
-        record = self._entities.get(key)
+        record = self._records.get(key)
         if record is None:
             return None
         if record.kind == "participant":
             return "node " + record.node.get_fully_qualified_name()
-        participant = self._entities.get(getattr(record, "participant", None))
-        if participant is None or participant.kind != "participant":
+        participant = self._records.participant_record(record)
+        if participant is None:
             return None
         node = participant.node.get_fully_qualified_name()
         if record.kind == "datawriter":
@@ -71,12 +74,12 @@ class ShownEntities:
 
         None where nothing can differ: a participant left to the board's names and domain by the
         command line, its endpoints, and everything that is not a ROS entity."""
-        record = self._entities.get(key)
+        record = self._records.get(key)
         if record is None:
             return None
         participant = record if record.kind == "participant" else \
-            self._entities.get(getattr(record, "participant", None))
-        if participant is None or participant.kind != "participant" or participant.node is None:
+            self._records.participant_record(record)
+        if participant is None or participant.node is None:
             return None
         naming = participant.naming
         if participant.rule is None and not naming.changes_names and naming.domain is None:

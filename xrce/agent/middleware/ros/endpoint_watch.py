@@ -230,3 +230,55 @@ class TypeWatch:
                         self.report(key, text)
         except Exception as exc:  # a node gone meanwhile, the endpoints changed: next time
             log.debug("domain %d: type check: %r", self.domain.domain_id, exc)
+
+
+# A peer whose node the ROS graph does not know yet is looked for again this much later.
+MISMATCH_RETRY_S = 0.3
+
+
+class EndpointWatches:
+    """The ``MismatchWatch`` of each board endpoint and the ``TypeWatch`` of each domain, for
+    the ROS middleware; what they find goes to ``run.report_mismatch`` (``RunContext``)."""
+
+    def __init__(self, run):
+        self._run = run
+        self._watches: dict = {}  # entity key -> MismatchWatch
+        self._type_watches: dict = {}  # domain id -> TypeWatch
+
+    def watch(self, key, participant, topic_record, profile, board_writes: bool) -> dict:
+        """The event callbacks that name the ROS peers a board's endpoint cannot match; they
+        replace rclpy's default, which logged the topic alone."""
+        loop, domain = self._run.loop(), participant.domain
+
+        def retry(job) -> None:  # executor thread: run ``job`` there again a little later
+            try:
+                loop.call_soon_threadsafe(loop.call_later, MISMATCH_RETRY_S, domain.post, job)
+            except RuntimeError:  # the loop has closed: the agent is going
+                pass
+
+        report = self._run.report_mismatch
+        # A parked creation's retry (xrce.agent.middleware.ros.creation) takes the entity made
+        # with the first call's callbacks: the same watch.
+        watch = self._watches.get(key)
+        if watch is None:
+            watch = self._watches[key] = MismatchWatch(key, participant.node, topic_record,
+                                                       profile, board_writes, report, retry)
+            if not topic_record.dds_level and topic_record.spec is not None:
+                types = self._type_watches.get(domain.domain_id)
+                if types is None or types.domain is not domain:
+                    types = self._type_watches[domain.domain_id] = TypeWatch(domain, loop, report)
+                types.add(key, topic_record.ros_name, topic_record.spec.type_name, board_writes)
+        return watch.callbacks()
+
+    def unwatch(self, key) -> None:
+        watch = self._watches.pop(key, None)
+        if watch is not None:
+            watch.closed = True  # its events may still come: they find nothing to say
+            for types in self._type_watches.values():
+                types.discard(key)
+
+    def close(self) -> None:
+        self._watches.clear()
+        for types in self._type_watches.values():
+            types.stop()
+        self._type_watches.clear()

@@ -3,9 +3,10 @@
 eProsima's agent makes a client's topic on the DDS domain under exactly the topic and type names
 the client gave, whatever they are, and carries its CDR: a ``HelloWorld`` topic of a board then
 talks to any DDS application of that type (a Fast DDS or Cyclone DDS program, ShapesDemo, a
-system that is not ROS). The ROS middleware (``xrce.agent.middleware.ros.entities``) maps a ROS
-type name onto rclpy, which can only make ROS types; every other name comes here (``PlainDds``;
-``DdsMiddleware``, what ``-m dds`` runs, is both) and is made through the compiled bridge
+system that is not ROS). The ROS middleware (``xrce.agent.middleware.ros.ros_middleware``) maps a
+ROS type name onto rclpy, which can only make ROS types; every other name comes here
+(``PlainDds``, a part of ``DdsMiddleware`` in ``xrce.agent.middleware.dds.dds_middleware``, what
+``-m dds`` runs) and is made through the compiled bridge
 (``_plaindds.cpp``, built by ``build``) on the DomainParticipant rmw_fastrtps made for that
 domain's rclpy context: the same domain, Fast DDS profile and discovery as the ROS side.
 
@@ -33,9 +34,7 @@ from xrce.agent.middleware import (
     TopicSpec,
 )
 from xrce.agent.middleware.dds import build
-from xrce.agent.middleware.ros.entities import RosMiddleware
 from xrce.agent.middleware.ros.handoff import ReaderHandoff
-from xrce.agent.middleware.ros.types import is_ros_type_name
 
 
 class PlainTopic:
@@ -78,23 +77,23 @@ def _qos_arguments(qos: EndpointQosSpec) -> tuple:
 
 
 class PlainDds:
-    """The plain-DDS half of ``DdsMiddleware``: each method takes what is plain and hands the
-    rest on to the ROS middleware (``super()``)."""
+    """The plain DDS topics, writers and readers of ``DdsMiddleware``. ``run``: the
+    middleware's ``RunContext`` (the loop, the engine's lock); ``records``: its ``EntityRecords``,
+    where participants and groups are looked up and the ROS entities' keys are."""
 
-    @property
-    def _plain(self) -> dict:
-        """key -> PlainTopic / PlainWriter / PlainReader (the ROS records stay in _entities)."""
-        return self.__dict__.setdefault("_plain_entities", {})
+    def __init__(self, run, records):
+        self._run = run
+        self._records = records
+        self._plain: dict = {}  # key -> PlainTopic / PlainWriter / PlainReader
+
+    def __contains__(self, key: EntityKey) -> bool:
+        return key in self._plain
 
     # -- creation -----------------------------------------------------------------------------
 
     def create_topic(self, key: EntityKey, participant: EntityKey, topic: TopicSpec) -> None:
-        if is_ros_type_name(topic.type_name):
-            super().create_topic(key, participant, topic)
-            return
-        record = self._record(participant, ("participant",))
-        if key in self._entities or key in self._plain:
-            raise MiddlewareError("entity %r already exists" % (key,))
+        record = self._records.record(participant, ("participant",))
+        self._refuse_existing(key)
         if not topic.name or not topic.type_name:
             raise MiddlewareError("a DDS topic needs a name and a type name (got %r of type %r)"
                                   % (topic.name, topic.type_name))
@@ -112,12 +111,9 @@ class PlainDds:
 
     def create_datawriter(self, key: EntityKey, publisher: EntityKey, topic: EntityKey,
                           qos: EndpointQosSpec) -> None:
-        plain_topic = self._plain.get(topic)
-        if plain_topic is None:
-            super().create_datawriter(key, publisher, topic, qos)
-            return
-        owner, _ = self._participant_of(publisher, ("group",))
-        self._plain_new(key)
+        plain_topic = self._plain[topic]
+        owner, _ = self._records.participant_of(publisher, ("group",))
+        self._refuse_existing(key)
         try:
             handle = build.bridge().writer_create(plain_topic.handle, *_qos_arguments(qos))
         except RuntimeError as exc:
@@ -125,14 +121,11 @@ class PlainDds:
         self._plain[key] = PlainWriter(owner, handle, plain_topic.spec, plain_topic.domain_id)
 
     def create_datareader(self, key: EntityKey, subscriber: EntityKey, topic: EntityKey,
-                          qos: EndpointQosSpec, on_data: DataCallback) -> None:
-        plain_topic = self._plain.get(topic)
-        if plain_topic is None:
-            super().create_datareader(key, subscriber, topic, qos, on_data)
-            return
-        owner, _ = self._participant_of(subscriber, ("group",))
-        self._plain_new(key)
-        handoff = ReaderHandoff(self._get_loop(), on_data, self.handoff_depth, self.engine_lock)
+                          qos: EndpointQosSpec, on_data: DataCallback, handoff_depth: int) -> None:
+        plain_topic = self._plain[topic]
+        owner, _ = self._records.participant_of(subscriber, ("group",))
+        self._refuse_existing(key)
+        handoff = ReaderHandoff(self._run.loop(), on_data, handoff_depth, self._run.engine_lock)
         record = PlainReader(owner, plain_topic.spec, plain_topic.domain_id, handoff)
         try:
             record.handle = build.bridge().reader_create(plain_topic.handle,
@@ -141,54 +134,46 @@ class PlainDds:
             raise MiddlewareError(str(exc)) from None
         self._plain[key] = record
 
-    def _plain_new(self, key: EntityKey) -> None:
-        if key in self._entities or key in self._plain:
+    def _refuse_existing(self, key: EntityKey) -> None:
+        if key in self._records or key in self._plain:
             raise MiddlewareError("entity %r already exists" % (key,))
 
     # -- data ---------------------------------------------------------------------------------
 
     def write(self, writer: EntityKey, sample: bytes) -> bool:
-        record = self._plain.get(writer)
-        if record is None:
-            return super().write(writer, sample)
+        record = self._plain[writer]
         if record.kind != "datawriter":
             return False
         return build.bridge().writer_write(record.handle, sample)
 
     def writer(self, writer: EntityKey):
-        record = self._plain.get(writer)
-        if record is None:
-            return super().writer(writer)
+        record = self._plain[writer]
         if record.kind != "datawriter":
             raise MiddlewareError("no datawriter %r" % (writer,))
         return functools.partial(build.bridge().writer_write, record.handle)
 
     def reader_stats(self, reader: EntityKey) -> tuple[int, int]:
-        record = self._plain.get(reader)
-        if record is None:
-            return super().reader_stats(reader)
+        record = self._plain[reader]
         if record.kind != "datareader":
             raise MiddlewareError("no datareader %r" % (reader,))
         return record.handoff.delivered, record.handoff.dropped
 
-    def plain_matched(self, writer: EntityKey) -> int:
-        """How many DDS readers a plain datawriter has matched (tests, diagnostics)."""
+    def matched(self, writer: EntityKey) -> int:
+        """How many DDS readers a plain datawriter has matched."""
         record = self._plain.get(writer)
         if record is None or record.kind != "datawriter":
             raise MiddlewareError("no plain datawriter %r" % (writer,))
         return build.bridge().writer_matched(record.handle)
 
-    def ros_entity(self, key: EntityKey) -> str | None:
-        record = self._plain.get(key)
-        if record is None:
-            return super().ros_entity(key)
+    def ros_entity(self, key: EntityKey) -> str:
+        record = self._plain[key]
         what = {"datawriter": "DDS writer", "datareader": "DDS reader"}.get(record.kind, "DDS topic")
         return "%s %s of type %s in domain %d" % (what, record.spec.name, record.spec.type_name,
                                                    record.domain_id)
 
     # -- deletion -----------------------------------------------------------------------------
 
-    def _plain_delete(self, key: EntityKey) -> None:
+    def delete(self, key: EntityKey) -> None:
         record = self._plain.pop(key)
         bridge = build.bridge()
         if record.kind == "datareader":
@@ -200,28 +185,20 @@ class PlainDds:
         else:
             bridge.topic_close(record.handle)
 
-    def delete(self, key: EntityKey) -> None:
-        if key in self._plain:
-            self._plain_delete(key)
+    def delete_children(self, key: EntityKey) -> None:
+        """A participant's plain entities go before its node (and with it, maybe, the domain's
+        DDS participant they live on): endpoints first, then topics."""
+        if not self._plain:
             return
-        if self._plain:
-            # A participant's plain entities go before its node (and with it, maybe, the domain's
-            # DDS participant they live on): endpoints first, then topics.
-            record = self._entities.get(key)
-            if record is not None and record.kind == "participant":
-                for kinds in (("datareader", "datawriter"), ("topic",)):
-                    for child in [k for k, r in self._plain.items()
-                                  if r.participant == key and r.kind in kinds]:
-                        self._plain_delete(child)
-        super().delete(key)
+        record = self._records.get(key)
+        if record is None or record.kind != "participant":
+            return
+        for kinds in (("datareader", "datawriter"), ("topic",)):
+            for child in [k for k, r in self._plain.items()
+                          if r.participant == key and r.kind in kinds]:
+                self.delete(child)
 
-    async def close(self) -> None:
+    def close(self) -> None:
         for kinds in (("datareader", "datawriter"), ("topic",)):
             for key in [k for k, r in self._plain.items() if r.kind in kinds]:
-                self._plain_delete(key)
-        await super().close()
-
-
-class DdsMiddleware(PlainDds, RosMiddleware):
-    """``-m dds``: ROS type names through rclpy (``RosMiddleware``, unchanged), any other type
-    name as a plain DDS topic (``PlainDds``)."""
+                self.delete(key)
