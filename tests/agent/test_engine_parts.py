@@ -23,6 +23,11 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from class_parts import base_names as _base_names
+from class_parts import classes_in, strays
+from class_parts import defined_by as _defined_by
+from class_parts import read_by as _read_by
+
 ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
 KNOWS_THE_AGENT = {"dispatch.py", "fastpath.py"}  # the composer, and what a link attaches to it
 # The parts the agent is composed of: each must stay a class of its own.
@@ -32,73 +37,7 @@ PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "Obj
 
 def _engine_classes():
     """{class name: (module file name, ast.ClassDef)} for every class in the engine's modules."""
-    found = {}
-    for path in sorted(ENGINE.glob("*.py")):
-        tree = ast.parse(path.read_text(), filename=str(path))
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ClassDef):
-                assert node.name not in found, "two engine classes called %s" % node.name
-                found[node.name] = (path.name, node)
-    return found
-
-
-def _base_names(node):
-    names = []
-    for base in node.bases:
-        if isinstance(base, ast.Name):
-            names.append(base.id)
-        elif isinstance(base, ast.Attribute):
-            names.append(base.attr)
-        else:
-            names.append(ast.dump(base))
-    return names
-
-
-def _defined_by(node):
-    """Names a class defines for its instances: its methods, properties and class attributes,
-    and every ``self.name`` assigned in its methods (``self`` being each method's first
-    argument)."""
-    names = set()
-    for item in node.body:
-        if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            names.add(item.name)
-        elif isinstance(item, ast.Assign):
-            names |= {t.id for t in item.targets if isinstance(t, ast.Name)}
-        elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
-            names.add(item.target.id)
-    for method, me in _methods(node):
-        for sub in ast.walk(method):
-            targets = []
-            if isinstance(sub, ast.Assign):
-                targets = sub.targets
-            elif isinstance(sub, (ast.AugAssign, ast.AnnAssign)):
-                targets = [sub.target]
-            for target in targets:
-                for element in (target.elts if isinstance(target, ast.Tuple) else [target]):
-                    if isinstance(element, ast.Attribute) and isinstance(element.value, ast.Name) \
-                            and element.value.id == me:
-                        names.add(element.attr)
-    return names
-
-
-def _methods(node):
-    """(method, name of its instance argument) for the class's own methods."""
-    for item in node.body:
-        if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)) and item.args.args and \
-                not any(isinstance(d, ast.Name) and d.id == "staticmethod"
-                        for d in item.decorator_list):
-            yield item, item.args.args[0].arg
-
-
-def _read_by(node):
-    """{name: line} of every ``self.name`` the class's methods read."""
-    reads = {}
-    for method, me in _methods(node):
-        for sub in ast.walk(method):
-            if isinstance(sub, ast.Attribute) and isinstance(sub.value, ast.Name) and \
-                    sub.value.id == me and isinstance(sub.ctx, ast.Load):
-                reads.setdefault(sub.attr, sub.lineno)
-    return reads
+    return classes_in(ENGINE)
 
 
 def test_the_parts_are_there():
@@ -134,16 +73,12 @@ def test_the_agent_is_a_class_of_its_own_at_run_time():
 
 
 def test_each_class_reads_only_what_it_defines():
-    strays = []
-    for name, (module, node) in sorted(_engine_classes().items()):
-        if node.bases and not (len(node.bases) == 1 and _base_names(node) == ["object"]):
-            continue  # built on an outside base (an exception, bytes, a stream, a Protocol)
-        defined = _defined_by(node)
-        for attribute, line in sorted(_read_by(node).items()):
-            if attribute not in defined and not attribute.startswith("__"):
-                strays.append("%s:%d %s reads self.%s, which it never sets" % (
-                    module, line, name, attribute))
-    assert not strays, "\n".join(strays)
+    classes = _engine_classes()
+    # Classes built on an outside base (an exception, bytes, a stream, a Protocol) are left out.
+    checked = [name for name, (_, node) in classes.items()
+               if not node.bases or _base_names(node) == ["object"]]
+    found = strays(classes, checked)
+    assert not found, "\n".join(found)
 
 
 def test_no_part_reaches_through_the_agent():
