@@ -1,9 +1,12 @@
 """``-m dds``: the middleware that maps XRCE objects onto rclpy, and the ROS 2 it runs on.
 
-- ``entities``: ``RosMiddleware``, XRCE entities as rclpy nodes, publishers and subscriptions
-  (``records``: what it keeps per entity); ``creation``: entity creation parked while a type
-  builds; ``services``: requesters and repliers; ``membership``: the domains joined and left, the
-  agent's own publishers there, micro-ROS' graph feed (``graph``) where a client reads it;
+- ``ros_middleware``: ``RosMiddleware``, XRCE entities as rclpy nodes, publishers and
+  subscriptions, composed of parts: ``records`` (what it keeps per entity); ``creation`` (entity
+  creation parked while a type builds); ``services`` and ``service_records`` (requesters and
+  repliers); ``membership`` (the domains joined and left, the agent's own publishers there,
+  micro-ROS' graph feed, ``graph``, where a client reads it); ``endpoint_watch`` (the peers a
+  board's endpoint cannot match); ``collisions``; ``shown``; ``compiled_path_support``;
+  ``run_context`` (the loop and what the engine sets);
 - ``domain``: one rclpy context and executor thread per ROS domain, and the hand-off to the loop;
 - ``types``: XRCE/DDS names, interface classes and QoS as ROS 2 spells them;
 - ``compiled``: the optional ``_rostypes`` extension built from this folder's C (``_rostypes.c``,

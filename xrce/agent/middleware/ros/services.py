@@ -141,7 +141,7 @@ class RosServices:
             lambda name: named_service_type(name) or library_service_type(name)
             or service_class(name))
         creation = self._creation.pending_creation(key, participant_record)
-        if creation is not None:  # the retry of a parked CREATE (see _create_on_executor)
+        if creation is not None:  # the retry of a parked CREATE (ParkedCreation.create_on_executor)
             record = creation.context
         else:
             self._replier_counter += 1
