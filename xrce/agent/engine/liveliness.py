@@ -1,6 +1,6 @@
 """Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead, retired and expired clients (XRCE-WIRE.md §9, §10).
 
-Two parts of ``xrce.agent.engine.dispatch.Agent``:
+Two parts of ``xrce.agent.engine.agent.Agent``:
 
 - ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
   batch of its messages or before anything else is sent to it, whichever comes first, and in
@@ -26,7 +26,8 @@ from typing import Dict, Tuple
 
 from xrce.wire import constants as C
 from xrce.agent.engine.scheduler import NEVER
-from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
+from xrce.agent.engine.client import ClientProxy
+from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.wire.streams import InputReliableStream, OutputReliableStream, is_reliable
 from xrce.wire.submessages import AckNack, GetInfo, Heartbeat
 
@@ -216,7 +217,7 @@ class Liveliness:
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
         stored = stream.stored_bytes
         resend = stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms, holdoff_ms)
-        if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatches.py
+        if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatch_report.py
             self.mismatches.acknack_holds_fragments(client, stream, acknack)
         self.budget.charge(client, stream.stored_bytes - stored)
         for message in resend:

@@ -2,7 +2,7 @@
 
 Object ids, parents and REUSE/REPLACE signatures are the engine's business; what an object maps
 onto (an rclpy node, publisher, subscription, …) is the middleware's. ``ObjectRegistry``, one part
-of ``xrce.agent.engine.dispatch.Agent``, answers CREATE and DELETE of a client's objects with
+of ``xrce.agent.engine.agent.Agent``, answers CREATE and DELETE of a client's objects with
 STATUS and keeps each client's ``objects`` table consistent with the middleware. (DELETE of the
 client itself is the session's: the dispatcher hands it to ``Sessions``.)
 """
@@ -19,8 +19,8 @@ from xrce.agent.middleware import (
     MAX_DOMAIN_ID, READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec,
     TopicSpec, TypeNotReady, XmlRepresentationError,
 )
-from xrce.agent.engine.session import (MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry,
-                                       ReaderState, client_origin)
+from xrce.agent.engine.client import ClientProxy, ObjectEntry, ReaderState, client_origin
+from xrce.agent.engine.limits import MAX_OBJECTS_PER_CLIENT
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text
 from xrce import DecodeError
