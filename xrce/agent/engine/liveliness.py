@@ -261,49 +261,61 @@ class Liveliness:
             self.sessions.delete_client(client)
             return NEVER
         if silent >= dead_time:
-            if not client.dead:
-                client.dead = True
-                self.stats.clients_dead += 1
-                if _still_reading(client):
-                    # A receive-only client (a best-effort subscriber) has nothing to say while its
-                    # data arrives: eProsima's dead time applies all the same, but "dead" would
-                    # alarm someone watching samples reach it.
-                    log.info("client %s has sent nothing for %d ms but still reads: its samples "
-                             "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
-                             int(silent * 1000))
-                else:
-                    log.info("client %s silent for %d ms: dead (no more HEARTBEATs); its "
-                             "entities are kept, any message revives it", client.key.hex(),
-                             int(silent * 1000))
-                self._drop_out_of_order(client)
-            if not client.objects and not client.hard_liveliness:
-                # Nothing to keep for it: a session that never created anything (a flood's, or
-                # a board that went away before its first CREATE) gives its memory back. A board
-                # that comes back finds no session and creates it again, as after a restart.
-                self.stats.clients_expired += 1
-                log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
+            return self._tick_dead(client, now, silent)
+        return self._tick_live(client, now)
+
+    def _tick_dead(self, client: ClientProxy, now: float, silent: float) -> float:
+        """The timed work for a client silent for its dead time: mark it dead, then expire,
+        retire or probe it (hard liveliness); returns when it next has some."""
+        expire_time = self.client_expire_time
+        if not client.dead:
+            client.dead = True
+            self.stats.clients_dead += 1
+            if _still_reading(client):
+                # A receive-only client (a best-effort subscriber) has nothing to say while its
+                # data arrives: eProsima's dead time applies all the same, but "dead" would
+                # alarm someone watching samples reach it.
+                log.info("client %s has sent nothing for %d ms but still reads: its samples "
+                         "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
                          int(silent * 1000))
+            else:
+                log.info("client %s silent for %d ms: dead (no more HEARTBEATs); its "
+                         "entities are kept, any message revives it", client.key.hex(),
+                         int(silent * 1000))
+            self._drop_out_of_order(client)
+        if not client.objects and not client.hard_liveliness:
+            # Nothing to keep for it: a session that never created anything (a flood's, or
+            # a board that went away before its first CREATE) gives its memory back. A board
+            # that comes back finds no session and creates it again, as after a restart.
+            self.stats.clients_expired += 1
+            log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
+                     int(silent * 1000))
+            self.sessions.delete_client(client)
+            return NEVER
+        reason, recheck = self.sessions.retirement(client, now)
+        if reason:
+            self.stats.clients_retired += 1
+            log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
+                     client.key.hex(), int(silent * 1000), reason, len(client.objects))
+            self.sessions.delete_client(client)
+            return NEVER
+        if client.hard_liveliness:
+            if client.probes >= HARD_LIVELINESS_PROBES:
+                log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
                 self.sessions.delete_client(client)
                 return NEVER
-            reason, recheck = self.sessions.retirement(client, now)
-            if reason:
-                self.stats.clients_retired += 1
-                log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
-                         client.key.hex(), int(silent * 1000), reason, len(client.objects))
-                self.sessions.delete_client(client)
-                return NEVER
-            if client.hard_liveliness:
-                if client.probes >= HARD_LIVELINESS_PROBES:
-                    log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
-                    self.sessions.delete_client(client)
-                    return NEVER
-                client.probes += 1
-                self.output.send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
-                                                   C.INFO_CONFIGURATION))
-                return now + self.heartbeat_period
-            # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
-            expiry = client.last_seen + expire_time if expire_time else NEVER
-            return recheck if recheck < expiry else expiry
+            client.probes += 1
+            self.output.send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
+                                               C.INFO_CONFIGURATION))
+            return now + self.heartbeat_period
+        # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
+        expiry = client.last_seen + expire_time if expire_time else NEVER
+        return recheck if recheck < expiry else expiry
+
+    def _tick_live(self, client: ClientProxy, now: float) -> float:
+        """The timed work for a client that spoke within its dead time: its input streams set
+        going again (a restored session), HEARTBEATs for its reliable output, its readers' paced
+        delivery and deadlines; returns when it next has some."""
         due = client.last_seen + self.sessions.quiet_limit(client)
         soon = now + self.heartbeat_period
         resync = client.input_resync
