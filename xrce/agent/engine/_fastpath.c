@@ -153,7 +153,7 @@ static int64_t time_of_day_ns(void) {
 }
 
 /* A datagram that is one little-endian TIMESTAMP: answered here with the bytes the Python path
- * sends (xrce.agent.engine.agent, a test holds them equal): TIMESTAMP_REPLY on stream none,
+ * sends (xrce.agent.engine.dispatch, a test holds them equal): TIMESTAMP_REPLY on stream none,
  * the time of day at transmit and at receive, the client's time echoed. PX4 counts only round
  * trips under 10 ms towards its time sync and sends one in its loop among its samples: answered
  * here, it waits for nothing in Python, nor does the rest of the batch behind it. 1 if sent. */
@@ -527,7 +527,7 @@ static PyObject *resolve_readers(PyObject *module, PyObject *unused) {
     return resolve_rcl_readers();
 }
 
-/* malloc_trim(0) once start-up is over (xrce.agent.engine.agent). Here rather than through
+/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through
  * ctypes: the ctypes package, once imported, stays in the process (0.57 MB of classes). */
 static PyObject *return_free_heap(PyObject *module, PyObject *unused) {
 #if defined(__GLIBC__)
