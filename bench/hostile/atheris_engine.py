@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the checkout, fo
 
 with atheris.instrument_imports():
     from xrce.agent.middleware.ced import CedMiddleware
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.wire.submessages import CreateClient, encode_message
 
 

@@ -221,7 +221,7 @@ def _modules_after(*args):
 # others' options and defaults need stays unloaded.
 # (xrce.agent.interfaces itself is no tool's alone: once a build has run, the registry's .pth
 # hook imports it in every interpreter of the venv.)
-_AGENT = {"xrce.agent.engine.dispatch", "xrce.agent.observe.observability", "xrce.agent.links.udp"}
+_AGENT = {"xrce.agent.engine.limits", "xrce.agent.observe.observability", "xrce.agent.links.udp"}
 _TOOLS = {"xrce.tools.cli_types", "xrce.agent.demo", "xrce.agent.interfaces.builder",
           "xrce.agent.observe.stats_view"}
 
@@ -239,7 +239,7 @@ def test_a_transport_help_loads_only_what_its_options_name():
     modules, out = _modules_after("serial", "-h")
     assert "--baudrate" in out and "xrce.agent.links.udp" not in modules
     modules, out = _modules_after("demo", "-h")
-    assert "--lan" in out and "xrce.agent.engine.dispatch" not in modules
+    assert "--lan" in out and "xrce.agent.engine.limits" not in modules
 
 
 def test_refs_file_gives_one_xml_per_profile(tmp_path):

@@ -7,7 +7,7 @@ import asyncio
 
 from engine_peer import BIN, Link, Peer, ReadingCed
 from xrce.wire import constants as C
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.objects import ParticipantBin, TopicBin
 from xrce.wire.submessages import Create, Heartbeat, WriteData
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 from engine_peer import BIN, Clock, Link, Peer, data_of, talker_and_listener
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.objects import ParticipantBin, ReplierBin, RequesterBin
 from xrce.wire.submessages import DeliveryControl, WriteData, decode_message, encode_message
 

@@ -8,7 +8,7 @@ import pytest
 from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.objects import ParticipantBin
 from xrce.wire.submessages import AckNack, Create, DeliveryControl, GetInfo, WriteData
 

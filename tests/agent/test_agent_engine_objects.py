@@ -6,7 +6,7 @@ built."""
 from engine_peer import BIN, REF, REPLACE, REUSE, XML, Clock, Link, Peer, data_of
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.agent.engine.xmlrep import refs_from_profiles
 from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 from xrce.wire.submessages import Create, Delete, WriteData, encode_message

@@ -7,7 +7,7 @@ dead time. The same rules through real sockets and rclpy: tests/recovery/test_re
 
 from engine_peer import Clock, Link, Peer, data_of
 from xrce.wire import constants as C
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.wire.submessages import DeliveryControl
 

@@ -7,7 +7,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from engine_peer import BIN, REUSE, XML, Clock, Link, Peer, data_of
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import TRACE, Agent
+from xrce.agent.engine.agent import Agent
+from xrce.agent.engine.output import TRACE
 from xrce.wire.objects import ParticipantBin
 from xrce.wire.submessages import (
     AckNack, Create, CreateClient, DeliveryControl, Delete, Fragment, GetInfo, Heartbeat, ReadData,

@@ -66,7 +66,7 @@ def _modules_of_a_serving_agent(*args):
 
 def test_a_udp_agent_leaves_out_what_other_subcommands_use():
     modules = _modules_of_a_serving_agent("udp4", "-p", "0", "-m", "ced")
-    assert "xrce.agent.links.udp" in modules and "xrce.agent.engine.dispatch" in modules
+    assert "xrce.agent.links.udp" in modules and "xrce.agent.engine.agent" in modules
     assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
 
 

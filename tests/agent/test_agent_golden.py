@@ -27,7 +27,7 @@ import pytest
 
 from xrce.wire import constants as C
 from engine_peer import ReadingCed
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.submessages import (
     Create, CreateClient, Locator, WriteData, decode_message, encode_message,
 )

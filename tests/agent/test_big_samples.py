@@ -18,7 +18,7 @@ from engine_peer import BIN, Link, Peer, data_of, talker_and_listener
 from ros_helpers import ros_domain, ros_peer, wait_until  # noqa: F401
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.client.session import Session
 from xrce.wire.message import iter_submessages
 from xrce.msgs.std_msgs import String

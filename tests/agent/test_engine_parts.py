@@ -1,6 +1,6 @@
 """The agent's engine is made of parts that own their state (issue 46), not of mixins sharing it.
 
-``xrce.agent.engine.dispatch.Agent`` used to be ``class Agent(SessionTable, ObjectRegistry,
+``xrce.agent.engine.agent.Agent`` used to be ``class Agent(SessionTable, ObjectRegistry,
 DataPath, Liveliness)``, five mixins reading some forty attributes that other mixins set. Now each
 part (``Sessions``, ``ObjectRegistry``, ``DataPath``, ``Acknowledgments``, ``Liveliness``,
 ``MismatchReport``, ``Scheduler``, ``Output``, ...) is an object that gets its collaborators in its
@@ -14,8 +14,9 @@ constructor, and ``Agent`` builds and wires them. Three rules keep it so, read f
   another sets is a mixin in disguise. Classes built on a base from outside the engine (an
   exception, ``bytes``, the wire module's stream classes) are left out: their attributes are the
   base's;
-- no module of the engine but the dispatcher and the compiled path's attach point (``fastpath``,
-  which a UDP link hands the agent) knows the agent: none imports ``dispatch`` or names ``agent``.
+- no module of the engine but the agent's own and the compiled path's attach point (``fastpath``,
+  which a UDP link hands the agent) knows the agent: none imports ``engine.agent`` or names
+  ``agent``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from class_parts import defined_by as _defined_by
 from class_parts import read_by as _read_by
 
 ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
-KNOWS_THE_AGENT = {"dispatch.py", "fastpath.py"}  # the composer, and what a link attaches to it
+KNOWS_THE_AGENT = {"agent.py", "fastpath.py"}  # the composer, and what a link attaches to it
 # The parts the agent is composed of: each must stay a class of its own.
 PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "ObjectRegistry",
          "DataPath", "Acknowledgments", "Liveliness", "MismatchReport", "Scheduler", "Output"}
@@ -60,12 +61,12 @@ def test_no_engine_class_is_built_from_another():
 
 
 def test_the_agent_is_a_class_of_its_own_at_run_time():
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.agent.engine.datapath import DataPath
     from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
-    from xrce.agent.engine.mismatches import MismatchReport
+    from xrce.agent.engine.mismatch_report import MismatchReport
     from xrce.agent.engine.objects import ObjectRegistry
-    from xrce.agent.engine.session import Sessions
+    from xrce.agent.engine.sessions import Sessions
 
     for part in (Agent, Sessions, ObjectRegistry, DataPath, Acknowledgments, Liveliness,
                  MismatchReport):
@@ -89,8 +90,8 @@ def test_no_part_reaches_through_the_agent():
         tree = ast.parse(path.read_text(), filename=str(path))
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module and \
-                    node.module.endswith("engine.dispatch"):
-                offenders.append("%s:%d imports the dispatcher" % (path.name, node.lineno))
+                    node.module.endswith("engine.agent"):
+                offenders.append("%s:%d imports the agent" % (path.name, node.lineno))
             elif isinstance(node, ast.Name) and node.id == "agent" or \
                     isinstance(node, ast.Attribute) and node.attr == "agent":
                 offenders.append("%s:%d names the agent" % (path.name, node.lineno))

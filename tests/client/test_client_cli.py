@@ -35,12 +35,12 @@ REFERENCE_PING_REPLY = bytes.fromhex(
 
 try:
     import xrce.agent.middleware.ced  # noqa: F401
-    import xrce.agent.engine.dispatch  # noqa: F401
+    import xrce.agent.engine.agent  # noqa: F401
     HAVE_ENGINE = True
 except ImportError:
     HAVE_ENGINE = False
 
-needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine.dispatch / ced not importable")
+needs_engine = pytest.mark.skipif(not HAVE_ENGINE, reason="xrce.agent.engine.agent / ced not importable")
 
 
 def _env():

@@ -63,7 +63,7 @@ async def replay_creations(rows):
     received by the end of its answer."""
     import asyncio
 
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.agent.middleware.ced import CedMiddleware
 
     agent = Agent(CedMiddleware(), loop=asyncio.get_running_loop())
@@ -162,7 +162,7 @@ async def replay_exchange(rows):
     as the agent asks; {client: [what the agent sent it]}."""
     import asyncio
 
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.agent.middleware.ced import CedMiddleware
 
     agent = Agent(CedMiddleware(), loop=asyncio.get_running_loop())

@@ -46,7 +46,7 @@ def _acknacks(link, stream_id=0x80):
 async def _writer_session(rows):
     """An agent with ``-m ced``'s middleware on a running loop, the writer's (client 1) messages
     of a recording fed up to its first sample; returns (agent, link, the rest of its messages)."""
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.agent.middleware.ced import CedMiddleware
 
     agent = Agent(CedMiddleware(), loop=asyncio.get_running_loop())

@@ -11,7 +11,7 @@ import pytest
 from xrce.wire import constants as C
 from xrce.agent.middleware import Middleware
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin,
 )

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from ros_helpers import ros_domain  # noqa: F401
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.wire.submessages import CreateClient, encode_message
 from xrce.transports.framing import FrameDecoder
 

@@ -13,8 +13,8 @@ import sqlite3
 import pytest
 
 from engine_peer import Clock, Link, Peer, data_of, talker_and_listener
-from xrce.agent.engine.dispatch import Agent
-from xrce.agent.engine.session import ResumingStream
+from xrce.agent.engine.agent import Agent
+from xrce.agent.engine.client import ResumingStream
 from xrce.agent.middleware.ced import CedMiddleware
 from xrce.agent.state import recorder as recorder_module, store as store_module
 from xrce.agent.state.recorder import StateRecorder

@@ -611,7 +611,7 @@ async def test_a_creation_on_the_executor_holds_up_only_its_own_client(ros_domai
     is destroyed."""
     from engine_peer import BIN, Link, Peer
     from xrce.wire import constants as C
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
     from xrce.wire.submessages import Create, GetInfo
 
@@ -683,7 +683,7 @@ async def test_a_parked_writer_whose_participant_is_made_again_meanwhile_gets_a_
     tests/hostile/test_hostile_input.py), but make one in the new node."""
     from engine_peer import BIN, Link, Peer
     from xrce.wire import constants as C
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
     from xrce.wire.submessages import Create, Delete
 
@@ -746,7 +746,7 @@ async def test_joining_a_new_domain_holds_up_only_its_own_client(ros_domain):  #
     from engine_peer import BIN, Link, Peer
     from ros_helpers import DomainLease
     from xrce.wire import constants as C
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.wire.objects import ParticipantBin
     from xrce.wire.submessages import Create, GetInfo
 
@@ -797,7 +797,7 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
     from engine_peer import BIN, Link, Peer, data_of
     from ros_helpers import DomainLease, RosPeer
     from xrce.wire import constants as C
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
     from xrce.agent.observe.diagnostics import diagnostic_array_type
     from xrce.wire.objects import DataReaderBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
     from xrce.wire.submessages import Create

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.dispatch import Agent
+from xrce.agent.engine.agent import Agent
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 

@@ -164,7 +164,7 @@ def configure_logging(verbosity):
 
 async def serve(args, refs):
     """Run the agent on the links of ``args.subcommand`` until SIGINT/SIGTERM; the exit code."""
-    from xrce.agent.engine.dispatch import Agent
+    from xrce.agent.engine.agent import Agent
 
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()

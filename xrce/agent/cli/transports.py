@@ -21,11 +21,11 @@ IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
 # ----------------------------------------------------------------------------- options every agent takes
 
 def _add_session_options(parser):
-    from xrce.agent.engine import dispatch  # no rclpy behind it; the defaults are documented there
+    from xrce.agent.engine import limits  # no rclpy behind it; the defaults are documented there
 
     group = parser.add_argument_group("client liveliness and per-client quotas")
     group.add_argument("--client-dead-time", type=milliseconds, metavar="MS",
-                       default=int(dispatch.CLIENT_DEAD_TIME * 1000),
+                       default=int(limits.CLIENT_DEAD_TIME * 1000),
                        help="a client silent this long is dead: no more HEARTBEATs to it, entities "
                             "kept, any message revives it (default %(default)s, as eProsima); a "
                             "dead client certainly gone is deleted (retired): its TCP connection "
@@ -33,32 +33,32 @@ def _add_session_options(parser):
                             "its participant. A new key on a session's address and port (or "
                             "serial device) replaces it at once")
     group.add_argument("--client-expire-time", type=milliseconds, metavar="MS",
-                       default=int(dispatch.CLIENT_EXPIRE_TIME * 1000),
+                       default=int(limits.CLIENT_EXPIRE_TIME * 1000),
                        help="a client silent this long (since its last message, whatever the "
                             "dead time) is deleted with all its ROS entities; 0 = never: a board "
                             "asleep keeps its session (default, as eProsima without uxr_hl)")
-    group.add_argument("--max-clients", type=positive, metavar="N", default=dispatch.MAX_CLIENTS,
+    group.add_argument("--max-clients", type=positive, metavar="N", default=limits.MAX_CLIENTS,
                        help="sessions at once; a new one evicts the longest-dead client or is "
                             "refused with ERR_RESOURCES (default %(default)s)")
     group.add_argument("--max-objects", type=positive, metavar="N",
-                       default=dispatch.MAX_OBJECTS_PER_CLIENT,
+                       default=limits.MAX_OBJECTS_PER_CLIENT,
                        help="XRCE objects per client; beyond, CREATE gets ERR_RESOURCES "
                             "(default %(default)s)")
     group.add_argument("--max-reassembly", type=positive, metavar="BYTES",
-                       default=dispatch.MAX_REASSEMBLY,
+                       default=limits.MAX_REASSEMBLY,
                        help="largest fragmented message per client and stream (default %(default)s)")
     group.add_argument("--max-output-queue", type=positive, metavar="BYTES",
-                       default=dispatch.MAX_OUTPUT_QUEUE_BYTES,
+                       default=limits.MAX_OUTPUT_QUEUE_BYTES,
                        help="sample bytes queued towards one client; the oldest are dropped "
                             "beyond (default %(default)s)")
     group.add_argument("--max-client-memory", type=positive, metavar="BYTES",
-                       default=dispatch.MAX_CLIENT_BYTES,
+                       default=limits.MAX_CLIENT_BYTES,
                        help="bytes one client's buffers may hold (out-of-order input, reassembly, "
                             "parked messages, output queues and windows); beyond, its reliable "
                             "input waits unacknowledged and its output is dropped "
                             "(default %(default)s)")
     group.add_argument("--max-memory", type=positive, metavar="BYTES",
-                       default=dispatch.MAX_TOTAL_BYTES,
+                       default=limits.MAX_TOTAL_BYTES,
                        help="the same, all clients together (default %(default)s)")
 
 

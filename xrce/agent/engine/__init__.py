@@ -1,17 +1,18 @@
 """The protocol engine: what the agent does with each XRCE message between a link and the middleware.
 
-- ``dispatch``: ``Agent``, which builds and wires the parts below (each an object that owns its
+- ``agent``: ``Agent``, which builds and wires the parts below (each an object that owns its
   state and gets its collaborators in its constructor) and keeps the message header, stream
   admission, submessage dispatch, parking of clients whose types build, and the lifecycle;
-- ``session``: per-client state (``ClientProxy``), the client table, the memory budget and
-  ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion); ``admission``: who
-  may open one;
+- ``client``: per-client state (``ClientProxy``); ``clients``: the client table and the memory
+  budget; ``sessions``: ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement,
+  deletion); ``admission``: who may open one; ``limits``: the quotas' defaults and timings;
+  ``link``: a transport server as the engine sees it; ``stats``: the agent-wide counters;
 - ``objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the middleware entities
   behind them, with ``reuse`` (REUSE/REPLACE) and ``xmlrep`` (XML representations);
 - ``datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out,
   and output on a client's streams; ``output``: whole messages out (counted, traced, tapped);
 - ``liveliness``: ``Acknowledgments`` and ``Liveliness``, ACKNACK/HEARTBEAT and the timed work
-  per client; ``scheduler``: the loop and the one timer of that work; ``mismatches``: endpoints
+  per client; ``scheduler``: the loop and the one timer of that work; ``mismatch_report``: endpoints
   that cannot reach their peers, named once; ``timeline``: where the time goes when a client
   comes back;
 - ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path (the ROS type

@@ -4,7 +4,7 @@ XRCE has no authentication on the wire: a client key is 4 bytes anyone on the ne
 An allow-list does not make that secure, but it keeps unknown boards (and a stranger's flood of
 made-up keys) from ever getting a session, and with ``--allow-from`` a session only from the
 addresses the operator's boards use. The engine asks ``AdmissionPolicy.admits`` when a
-CREATE_CLIENT is otherwise valid (xrce.agent.engine.session); a refusal is answered ``ERR_DENIED``.
+CREATE_CLIENT is otherwise valid (xrce.agent.engine.sessions); a refusal is answered ``ERR_DENIED``.
 With ``--allow-from``, it asks ``admits_datagram`` of every datagram before any session lookup:
 one from outside the list is dropped and counted, whatever client key its header names.
 

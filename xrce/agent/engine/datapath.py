@@ -1,6 +1,6 @@
 """The per-message data path: samples in (WRITE_DATA, FRAGMENT) and out (READ_DATA delivery, DATA) (XRCE-WIRE.md §6–§8).
 
-Everything a sample touches between the dispatcher (``xrce.agent.engine.dispatch``) and the middleware is
+Everything a sample touches between the dispatcher (``xrce.agent.engine.agent``) and the middleware is
 here, so this module is the one to read and profile for throughput:
 
 - in: ``write_data`` hands a WRITE_DATA's bytes to ``middleware.write``; ``fragment`` reassembles
@@ -23,9 +23,9 @@ from collections import deque
 from typing import Hashable, Optional
 
 from xrce.wire import constants as C
-from xrce.agent.engine.session import (
-    MAX_REASSEMBLY, STREAM_WINDOW, ClientProxy, Link, ObjectEntry, ReadRequest,
-)
+from xrce.agent.engine.client import ClientProxy, ObjectEntry, ReadRequest
+from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
+from xrce.agent.engine.link import Link
 from xrce.wire.message import header_size
 from xrce.wire.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
 from xrce.wire.submessages import Create, Fragment, Heartbeat, ReadData, Status, encode_message
@@ -347,7 +347,7 @@ class DataPath:
                 active.tokens -= len(sample)
             message = data_message(client, active.stream_id, active.request_id, entry.object_id,
                                    sample)
-            if len(message) > client.mtu:  # the board's stream may not carry it: mismatches.py
+            if len(message) > client.mtu:  # the board's stream may not carry it: mismatch_report.py
                 if not is_reliable(active.stream_id):
                     self.mismatches.too_large_for_best_effort(client, entry, len(sample), len(message))
                 elif entry.info is not None:

@@ -1,6 +1,6 @@
 """Reliability control and liveliness: ACKNACK/HEARTBEAT in both directions, dead, retired and expired clients (XRCE-WIRE.md §9, §10).
 
-Two parts of ``xrce.agent.engine.dispatch.Agent``:
+Two parts of ``xrce.agent.engine.agent.Agent``:
 
 - ``Acknowledgments``, the input side: an ACKNACK for each client's reliable stream after a
   batch of its messages or before anything else is sent to it, whichever comes first, and in
@@ -26,7 +26,8 @@ from typing import Dict, Tuple
 
 from xrce.wire import constants as C
 from xrce.agent.engine.scheduler import NEVER
-from xrce.agent.engine.session import STREAM_WINDOW, ClientProxy
+from xrce.agent.engine.client import ClientProxy
+from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.wire.streams import InputReliableStream, OutputReliableStream, is_reliable
 from xrce.wire.submessages import AckNack, GetInfo, Heartbeat
 
@@ -216,7 +217,7 @@ class Liveliness:
         holdoff_ms = int(self.heartbeat_period * 1000) // 2
         stored = stream.stored_bytes
         resend = stream.on_acknack(acknack.first_unacked, acknack.nack_bitmap, now_ms, holdoff_ms)
-        if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatches.py
+        if acknack.nack_bitmap and not acknack.nack_bitmap & 1:  # fragments held: mismatch_report.py
             self.mismatches.acknack_holds_fragments(client, stream, acknack)
         self.budget.charge(client, stream.stored_bytes - stored)
         for message in resend:
@@ -260,49 +261,61 @@ class Liveliness:
             self.sessions.delete_client(client)
             return NEVER
         if silent >= dead_time:
-            if not client.dead:
-                client.dead = True
-                self.stats.clients_dead += 1
-                if _still_reading(client):
-                    # A receive-only client (a best-effort subscriber) has nothing to say while its
-                    # data arrives: eProsima's dead time applies all the same, but "dead" would
-                    # alarm someone watching samples reach it.
-                    log.info("client %s has sent nothing for %d ms but still reads: its samples "
-                             "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
-                             int(silent * 1000))
-                else:
-                    log.info("client %s silent for %d ms: dead (no more HEARTBEATs); its "
-                             "entities are kept, any message revives it", client.key.hex(),
-                             int(silent * 1000))
-                self._drop_out_of_order(client)
-            if not client.objects and not client.hard_liveliness:
-                # Nothing to keep for it: a session that never created anything (a flood's, or
-                # a board that went away before its first CREATE) gives its memory back. A board
-                # that comes back finds no session and creates it again, as after a restart.
-                self.stats.clients_expired += 1
-                log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
+            return self._tick_dead(client, now, silent)
+        return self._tick_live(client, now)
+
+    def _tick_dead(self, client: ClientProxy, now: float, silent: float) -> float:
+        """The timed work for a client silent for its dead time: mark it dead, then expire,
+        retire or probe it (hard liveliness); returns when it next has some."""
+        expire_time = self.client_expire_time
+        if not client.dead:
+            client.dead = True
+            self.stats.clients_dead += 1
+            if _still_reading(client):
+                # A receive-only client (a best-effort subscriber) has nothing to say while its
+                # data arrives: eProsima's dead time applies all the same, but "dead" would
+                # alarm someone watching samples reach it.
+                log.info("client %s has sent nothing for %d ms but still reads: its samples "
+                         "keep going out, HEARTBEATs pause until it speaks", client.key.hex(),
                          int(silent * 1000))
+            else:
+                log.info("client %s silent for %d ms: dead (no more HEARTBEATs); its "
+                         "entities are kept, any message revives it", client.key.hex(),
+                         int(silent * 1000))
+            self._drop_out_of_order(client)
+        if not client.objects and not client.hard_liveliness:
+            # Nothing to keep for it: a session that never created anything (a flood's, or
+            # a board that went away before its first CREATE) gives its memory back. A board
+            # that comes back finds no session and creates it again, as after a restart.
+            self.stats.clients_expired += 1
+            log.info("client %s silent for %d ms with no objects: expired", client.key.hex(),
+                     int(silent * 1000))
+            self.sessions.delete_client(client)
+            return NEVER
+        reason, recheck = self.sessions.retirement(client, now)
+        if reason:
+            self.stats.clients_retired += 1
+            log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
+                     client.key.hex(), int(silent * 1000), reason, len(client.objects))
+            self.sessions.delete_client(client)
+            return NEVER
+        if client.hard_liveliness:
+            if client.probes >= HARD_LIVELINESS_PROBES:
+                log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
                 self.sessions.delete_client(client)
                 return NEVER
-            reason, recheck = self.sessions.retirement(client, now)
-            if reason:
-                self.stats.clients_retired += 1
-                log.info("client %s silent for %d ms and %s: retired, deleting its %d objects",
-                         client.key.hex(), int(silent * 1000), reason, len(client.objects))
-                self.sessions.delete_client(client)
-                return NEVER
-            if client.hard_liveliness:
-                if client.probes >= HARD_LIVELINESS_PROBES:
-                    log.info("client %s missed %d liveliness probes", client.key.hex(), client.probes)
-                    self.sessions.delete_client(client)
-                    return NEVER
-                client.probes += 1
-                self.output.send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
-                                                   C.INFO_CONFIGURATION))
-                return now + self.heartbeat_period
-            # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
-            expiry = client.last_seen + expire_time if expire_time else NEVER
-            return recheck if recheck < expiry else expiry
+            client.probes += 1
+            self.output.send_stream0(client, GetInfo(C.REQUEST_ID_INVALID, C.OBJECTID_CLIENT,
+                                               C.INFO_CONFIGURATION))
+            return now + self.heartbeat_period
+        # Dead clients get no HEARTBEATs; only their expiry (if set) is due.
+        expiry = client.last_seen + expire_time if expire_time else NEVER
+        return recheck if recheck < expiry else expiry
+
+    def _tick_live(self, client: ClientProxy, now: float) -> float:
+        """The timed work for a client that spoke within its dead time: its input streams set
+        going again (a restored session), HEARTBEATs for its reliable output, its readers' paced
+        delivery and deadlines; returns when it next has some."""
         due = client.last_seen + self.sessions.quiet_limit(client)
         soon = now + self.heartbeat_period
         resync = client.input_resync

@@ -2,7 +2,7 @@
 
 Object ids, parents and REUSE/REPLACE signatures are the engine's business; what an object maps
 onto (an rclpy node, publisher, subscription, …) is the middleware's. ``ObjectRegistry``, one part
-of ``xrce.agent.engine.dispatch.Agent``, answers CREATE and DELETE of a client's objects with
+of ``xrce.agent.engine.agent.Agent``, answers CREATE and DELETE of a client's objects with
 STATUS and keeps each client's ``objects`` table consistent with the middleware. (DELETE of the
 client itself is the session's: the dispatcher hands it to ``Sessions``.)
 """
@@ -17,10 +17,10 @@ from xrce.wire import constants as C, names as wire_names
 from xrce.agent.engine import reuse, type_drift
 from xrce.agent.middleware import (
     MAX_DOMAIN_ID, READER_DEFAULTS, WRITER_DEFAULTS, EndpointQosSpec, MiddlewareError, ServiceSpec,
-    TopicSpec, TypeNotReady, XmlRepresentationError,
+    EntityKey, TopicSpec, TypeNotReady, XmlRepresentationError,
 )
-from xrce.agent.engine.session import (MAX_OBJECTS_PER_CLIENT, ClientProxy, ObjectEntry,
-                                       ReaderState, client_origin)
+from xrce.agent.engine.client import ClientProxy, ObjectEntry, ReaderState, client_origin
+from xrce.agent.engine.limits import MAX_OBJECTS_PER_CLIENT
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text
 from xrce import DecodeError
@@ -154,104 +154,143 @@ class ObjectRegistry:
         mw = self.middleware
         routed = None if fmt == C.REPRESENTATION_IN_BINARY else \
             mw.routed_name(_ROUTED_KINDS.get(kind, ""), rep)
-        if kind == C.OBJK_PARTICIPANT and mw.routed_name("participant", "") is not None:
+        if kind == C.OBJK_PARTICIPANT:
+            self._build_participant(client, request, entry, key)
+        elif kind == C.OBJK_TOPIC:
+            self._build_topic(client, request, entry, key, routed)
+        elif kind in _GROUP_KINDS:
+            return self._build_group(client, request, entry, key)
+        elif kind in (C.OBJK_DATAWRITER, C.OBJK_DATAREADER):
+            return self._build_endpoint(client, request, entry, key, routed)
+        elif kind in (C.OBJK_REQUESTER, C.OBJK_REPLIER):
+            self._build_service(client, request, entry, key)
+        return C.STATUS_OK
+
+    def _build_participant(self, client: ClientProxy, request: Create, entry: ObjectEntry,
+                           key: EntityKey) -> None:
+        """A participant: named and in a domain as the board asked (its XML profile's for
+        domain 255 by reference), or its strings kept as sent for a middleware that routes by them."""
+        fmt, rep = request.fmt, request.representation
+        mw = self.middleware
+        if mw.routed_name("participant", "") is not None:
             # A middleware that routes by strings (CED) keeps the domain as sent, 255 too.
             name = rep.name if fmt == C.REPRESENTATION_IN_BINARY and rep.name else \
                 DEFAULT_PARTICIPANT_NAME
             entry.info.update(name=name, domain=request.tail_id)
             mw.create_participant(key, request.tail_id, name, client_origin(client))
-        elif kind == C.OBJK_PARTICIPANT:
-            domain = request.tail_id
-            if fmt == C.REPRESENTATION_IN_BINARY:
-                name = rep.name or DEFAULT_PARTICIPANT_NAME
-                profile_domain = None
-            else:
-                parsed = _xml().parse_participant(self._xml_text(request))
-                name = parsed.name or (rep if fmt == C.REPRESENTATION_BY_REFERENCE else "") \
-                    or DEFAULT_PARTICIPANT_NAME
-                profile_domain = parsed.domain_id
-            if domain == 255:
-                if fmt == C.REPRESENTATION_BY_REFERENCE:
-                    domain = profile_domain or 0
-                else:
-                    domain = _domain_override()
-            if not 0 <= domain <= MAX_DOMAIN_ID:
-                # Fast DDS cannot compute ports beyond it and aborts the whole process (found by
-                # bench/hostile/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
-                raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
-            entry.info.update(name=name, domain=domain)
-            mw.create_participant(key, domain, name, client_origin(client))
-        elif kind == C.OBJK_TOPIC:
-            if fmt == C.REPRESENTATION_IN_BINARY:
-                spec = TopicSpec(rep.topic_name, rep.type_name or rep.type_reference or "")
-            elif routed is not None:
-                spec = TopicSpec(routed, "")
-            else:
-                spec = _xml().parse_topic(self._xml_text(request))
-            entry.topic_spec = spec
-            mw.create_topic(key, client.entity(entry.parent), spec)
-        elif kind in _GROUP_KINDS:
+            return
+        domain = request.tail_id
+        if fmt == C.REPRESENTATION_IN_BINARY:
+            name = rep.name or DEFAULT_PARTICIPANT_NAME
+            profile_domain = None
+        else:
+            parsed = _xml().parse_participant(self._xml_text(request))
+            name = parsed.name or (rep if fmt == C.REPRESENTATION_BY_REFERENCE else "") \
+                or DEFAULT_PARTICIPANT_NAME
+            profile_domain = parsed.domain_id
+        if domain == 255:
             if fmt == C.REPRESENTATION_BY_REFERENCE:
-                return C.STATUS_ERR_INVALID_DATA  # groups have no by-reference representation
-            if fmt == C.REPRESENTATION_AS_XML_STRING:
-                _xml().check_group(rep, "publisher" if kind == C.OBJK_PUBLISHER else "subscriber")
-            if kind == C.OBJK_PUBLISHER:
-                mw.create_publisher(key, client.entity(entry.parent))
+                domain = profile_domain or 0
             else:
-                mw.create_subscriber(key, client.entity(entry.parent))
-        elif kind in (C.OBJK_DATAWRITER, C.OBJK_DATAREADER):
-            writer = kind == C.OBJK_DATAWRITER
-            if fmt == C.REPRESENTATION_IN_BINARY:
-                topic = with_kind(rep.topic_id, C.OBJK_TOPIC)
-                if topic not in client.objects:
-                    return C.STATUS_ERR_UNKNOWN_REFERENCE
-                qos = _binary_qos(rep.qos, writer)
-            elif routed is not None:
-                topic = self._find_topic(client, entry.parent, routed)
-                if topic is None:
-                    raise MiddlewareError("no topic %r in this participant" % routed)
-                qos = WRITER_DEFAULTS if writer else READER_DEFAULTS
-            else:
-                parsed = _xml().parse_endpoint(self._xml_text(request), writer)
-                topic = self._find_topic(client, entry.parent, parsed.topic.name)
-                if topic is None:
-                    raise MiddlewareError("no topic %r in this participant" % parsed.topic.name)
-                qos = parsed.qos
-            entry.topic = topic
-            entry.topic_spec = client.objects[topic].topic_spec
-            entry.info["qos"] = qos
-            if writer:
-                mw.create_datawriter(key, client.entity(entry.parent), client.entity(topic), qos)
-                entry.write = mw.writer(key)
-                # Its first sample is checked against the agent's type (xrce.agent.engine.type_drift)
-                type_drift.arm(mw, self.datapath.mismatches, self.datapath.scheduler, client, entry, key)
-            else:
-                # A reader given no QoS (CED's names, a binary one without) queues at least what
-                # the middleware keeps for it (CedMiddleware: eProsima's 16 per topic).
-                floor = getattr(mw, "reader_queue_floor", 1) if qos is READER_DEFAULTS else 1
-                entry.reader = ReaderState(max(_queue_bound(qos), floor))
-                mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
-                                     self.datapath.sample_callback(client, entry.object_id))
-            if fmt == C.REPRESENTATION_IN_BINARY:  # a type hash the board declared, checked at creation
-                type_drift.declared_hash(mw, self.datapath.mismatches, client, entry, rep.qos)
-        elif kind in (C.OBJK_REQUESTER, C.OBJK_REPLIER):
-            if fmt == C.REPRESENTATION_IN_BINARY:
-                spec = ServiceSpec(rep.service_name, rep.request_type, rep.reply_type,
-                                   rep.request_topic, rep.reply_topic)
-            else:
-                spec = _xml().parse_service(
-                    self._xml_text(request), "requester" if kind == C.OBJK_REQUESTER else "replier")
-            qos = EndpointQosSpec()
-            entry.info.update(service=words.service_info(spec), qos=qos)
-            entry.reader = ReaderState(_queue_bound(qos))
-            if kind == C.OBJK_REQUESTER:
-                mw.create_requester(key, client.entity(entry.parent), spec, qos,
-                                    self.datapath.reply_callback(client, entry.object_id))
-            else:
-                mw.create_replier(key, client.entity(entry.parent), spec, qos,
-                                  self.datapath.request_callback(client, entry.object_id))
-                entry.write = self.datapath.reply_writer(client, entry.object_id)
+                domain = _domain_override()
+        if not 0 <= domain <= MAX_DOMAIN_ID:
+            # Fast DDS cannot compute ports beyond it and aborts the whole process (found by
+            # bench/hostile/fuzz_live_agent.py): refuse here, as a DDS error, before it gets there.
+            raise MiddlewareError("domain id %d is not in 0..%d" % (domain, MAX_DOMAIN_ID))
+        entry.info.update(name=name, domain=domain)
+        mw.create_participant(key, domain, name, client_origin(client))
+
+    def _build_topic(self, client: ClientProxy, request: Create, entry: ObjectEntry,
+                     key: EntityKey, routed: Optional[str]) -> None:
+        """A topic: its name and type, from the binary representation, a routed name or XML."""
+        fmt, rep = request.fmt, request.representation
+        mw = self.middleware
+        if fmt == C.REPRESENTATION_IN_BINARY:
+            spec = TopicSpec(rep.topic_name, rep.type_name or rep.type_reference or "")
+        elif routed is not None:
+            spec = TopicSpec(routed, "")
+        else:
+            spec = _xml().parse_topic(self._xml_text(request))
+        entry.topic_spec = spec
+        mw.create_topic(key, client.entity(entry.parent), spec)
+
+    def _build_group(self, client: ClientProxy, request: Create, entry: ObjectEntry,
+                     key: EntityKey) -> int:
+        """A publisher or subscriber (no by-reference representation)."""
+        kind, fmt, rep = request.kind, request.fmt, request.representation
+        mw = self.middleware
+        if fmt == C.REPRESENTATION_BY_REFERENCE:
+            return C.STATUS_ERR_INVALID_DATA  # groups have no by-reference representation
+        if fmt == C.REPRESENTATION_AS_XML_STRING:
+            _xml().check_group(rep, "publisher" if kind == C.OBJK_PUBLISHER else "subscriber")
+        if kind == C.OBJK_PUBLISHER:
+            mw.create_publisher(key, client.entity(entry.parent))
+        else:
+            mw.create_subscriber(key, client.entity(entry.parent))
         return C.STATUS_OK
+
+    def _build_endpoint(self, client: ClientProxy, request: Create, entry: ObjectEntry,
+                        key: EntityKey, routed: Optional[str]) -> int:
+        """A data writer or reader on one of the participant's topics, with its QoS."""
+        kind, fmt, rep = request.kind, request.fmt, request.representation
+        mw = self.middleware
+        writer = kind == C.OBJK_DATAWRITER
+        if fmt == C.REPRESENTATION_IN_BINARY:
+            topic = with_kind(rep.topic_id, C.OBJK_TOPIC)
+            if topic not in client.objects:
+                return C.STATUS_ERR_UNKNOWN_REFERENCE
+            qos = _binary_qos(rep.qos, writer)
+        elif routed is not None:
+            topic = self._find_topic(client, entry.parent, routed)
+            if topic is None:
+                raise MiddlewareError("no topic %r in this participant" % routed)
+            qos = WRITER_DEFAULTS if writer else READER_DEFAULTS
+        else:
+            parsed = _xml().parse_endpoint(self._xml_text(request), writer)
+            topic = self._find_topic(client, entry.parent, parsed.topic.name)
+            if topic is None:
+                raise MiddlewareError("no topic %r in this participant" % parsed.topic.name)
+            qos = parsed.qos
+        entry.topic = topic
+        entry.topic_spec = client.objects[topic].topic_spec
+        entry.info["qos"] = qos
+        if writer:
+            mw.create_datawriter(key, client.entity(entry.parent), client.entity(topic), qos)
+            entry.write = mw.writer(key)
+            # Its first sample is checked against the agent's type (xrce.agent.engine.type_drift)
+            type_drift.arm(mw, self.datapath.mismatches, self.datapath.scheduler, client, entry, key)
+        else:
+            # A reader given no QoS (CED's names, a binary one without) queues at least what
+            # the middleware keeps for it (CedMiddleware: eProsima's 16 per topic).
+            floor = getattr(mw, "reader_queue_floor", 1) if qos is READER_DEFAULTS else 1
+            entry.reader = ReaderState(max(_queue_bound(qos), floor))
+            mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
+                                 self.datapath.sample_callback(client, entry.object_id))
+        if fmt == C.REPRESENTATION_IN_BINARY:  # a type hash the board declared, checked at creation
+            type_drift.declared_hash(mw, self.datapath.mismatches, client, entry, rep.qos)
+        return C.STATUS_OK
+
+    def _build_service(self, client: ClientProxy, request: Create, entry: ObjectEntry,
+                       key: EntityKey) -> None:
+        """A requester or replier: its service, and the queue of what it has to deliver."""
+        kind, fmt, rep = request.kind, request.fmt, request.representation
+        mw = self.middleware
+        if fmt == C.REPRESENTATION_IN_BINARY:
+            spec = ServiceSpec(rep.service_name, rep.request_type, rep.reply_type,
+                               rep.request_topic, rep.reply_topic)
+        else:
+            spec = _xml().parse_service(
+                self._xml_text(request), "requester" if kind == C.OBJK_REQUESTER else "replier")
+        qos = EndpointQosSpec()
+        entry.info.update(service=words.service_info(spec), qos=qos)
+        entry.reader = ReaderState(_queue_bound(qos))
+        if kind == C.OBJK_REQUESTER:
+            mw.create_requester(key, client.entity(entry.parent), spec, qos,
+                                self.datapath.reply_callback(client, entry.object_id))
+        else:
+            mw.create_replier(key, client.entity(entry.parent), spec, qos,
+                              self.datapath.request_callback(client, entry.object_id))
+            entry.write = self.datapath.reply_writer(client, entry.object_id)
 
     @staticmethod
     def _find_topic(client: ClientProxy, group: int, name: str) -> Optional[int]:

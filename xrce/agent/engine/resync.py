@@ -38,7 +38,7 @@ from __future__ import annotations
 import logging
 from typing import Callable, Dict, Optional, Tuple
 
-from xrce.agent.engine.session import STREAM_WINDOW
+from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.wire.streams import InputReliableStream, seq_add
 from xrce.wire.submessages import AckNack
 

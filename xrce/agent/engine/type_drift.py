@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 
-from xrce.agent.engine.session import ClientProxy, ObjectEntry
+from xrce.agent.engine.client import ClientProxy, ObjectEntry
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import object_id_text, ros_topic_name, ros_type_name
 

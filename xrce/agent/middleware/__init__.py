@@ -1,6 +1,6 @@
 """The interface between the agent's protocol engine and what its objects map onto.
 
-The engine (``xrce.agent.engine.dispatch``) owns XRCE semantics: sessions, streams, object trees,
+The engine (``xrce.agent.engine.agent``) owns XRCE semantics: sessions, streams, object trees,
 REUSE/REPLACE, STATUS codes, READ_DATA delivery control. A middleware only creates, deletes and moves
 data through the backing entities:
 

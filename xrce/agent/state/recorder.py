@@ -9,7 +9,7 @@ positions of the streams the agent sends on are checked every ``CHECKPOINT_S`` a
 they moved ``CHECKPOINT_STEP`` numbers past their row (a row per stream is a lower bound, and the
 restarted agent leaps far past it anyway, so a row per 10 s of a 30 Hz stream bought nothing but
 a write): what a restored stream needs to resume (see ``ResumingStream`` in
-xrce.agent.engine.session for the reliable ones; a best-effort one resumes ``BEST_EFFORT_LEAP``
+xrce.agent.engine.client for the reliable ones; a best-effort one resumes ``BEST_EFFORT_LEAP``
 numbers past its checkpoint, which the board takes as newer while its own count is less than
 that many past the checkpoint); so are the positions the agent handled on the board's reliable
 streams, and at a clean stop all of them as final (``xrce.agent.engine.resync`` says why and how
@@ -32,9 +32,10 @@ from typing import Dict, Optional, Tuple
 from xrce import DecodeError
 from xrce.agent.engine.objects import Parked
 from xrce.agent.engine.resync import InputResync
-from xrce.agent.engine.session import (
-    STREAM_WINDOW, ClientProxy, ObjectEntry, ResumingStream, _hard_liveliness, client_host,
+from xrce.agent.engine.client import (
+    ClientProxy, ObjectEntry, ResumingStream, _hard_liveliness, client_host,
 )
+from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.agent.state.store import ClientRecord, ObjectRecord, ReadRecord, StateStore
 from xrce.wire import constants as C
 from xrce.wire.objects import with_kind

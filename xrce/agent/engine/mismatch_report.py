@@ -7,7 +7,7 @@ import logging
 from typing import Optional
 
 from xrce.wire import constants as C
-from xrce.agent.engine.session import ClientProxy, ObjectEntry
+from xrce.agent.engine.client import ClientProxy, ObjectEntry
 from xrce.agent.observe import entities as words
 from xrce.agent.observe.names import address_text, object_id_text, ros_topic_name
 from xrce.wire.message import header_size

@@ -9,16 +9,18 @@ touching any other client. Everything runs on one asyncio loop.
 its collaborators in its constructor (as eProsima's agent has Root, ProxyClient, Session and
 Processor); each module is readable alone:
 
-- ``xrce.agent.engine.session``: ``ClientProxy`` (one client: its objects, streams, quotas and
-  counters), ``ClientTable`` (the clients by key, endpoint and host), ``MemoryBudget`` (the bytes
-  their buffers hold) and ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion);
+- ``xrce.agent.engine.client``: ``ClientProxy`` (one client: its objects, streams, quotas and
+  counters); ``xrce.agent.engine.clients``: ``ClientTable`` (the clients by key, endpoint and
+  host) and ``MemoryBudget`` (the bytes their buffers hold); ``xrce.agent.engine.sessions``:
+  ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion); ``limits``, ``link``
+  and ``stats``: the quotas' defaults, the ``Link`` a transport server is, ``AgentStats``;
 - ``xrce.agent.engine.objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the
   middleware entities behind them;
 - ``xrce.agent.engine.datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in,
   READ_DATA/DATA out, and output on a client's streams;
 - ``xrce.agent.engine.liveliness``: ``Acknowledgments`` (ACKNACK for input) and ``Liveliness``
   (retransmission on ACKNACK, HEARTBEATs, the timed work per client);
-- ``xrce.agent.engine.mismatches``: ``MismatchReport``, board endpoints that cannot reach their
+- ``xrce.agent.engine.mismatch_report``: ``MismatchReport``, board endpoints that cannot reach their
   peers, named once;
 - ``xrce.agent.engine.scheduler`` (``Scheduler``: the loop, its thread, the one timer of the
   timed work) and ``xrce.agent.engine.output`` (``Output``: whole messages out, counted, traced
@@ -50,15 +52,19 @@ from xrce.wire import constants as C
 from xrce.agent.engine.admission import RefusalLog
 from xrce.agent.engine.datapath import DataPath
 from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
-from xrce.agent.engine.mismatches import MismatchReport
-from xrce.agent.engine.objects import ObjectRegistry, Parked
-from xrce.agent.engine.output import Output, trace
-from xrce.agent.engine.scheduler import NEVER, Scheduler
-from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
-    CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
-    MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
-    ClientProxy, ClientTable, Link, MemoryBudget, ResumingStream, Sessions,
+from xrce.agent.engine.client import ClientProxy, ResumingStream
+from xrce.agent.engine.clients import ClientTable, MemoryBudget
+from xrce.agent.engine.limits import (
+    CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OUTPUT_QUEUE_BYTES,
+    MAX_TOTAL_BYTES, STREAM_WINDOW,
 )
+from xrce.agent.engine.link import Link
+from xrce.agent.engine.mismatch_report import MismatchReport
+from xrce.agent.engine.objects import ObjectRegistry, Parked
+from xrce.agent.engine.output import TRACE, Output, trace
+from xrce.agent.engine.scheduler import NEVER, Scheduler
+from xrce.agent.engine.sessions import Sessions
+from xrce.agent.engine.stats import AgentStats
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
 from xrce.agent.heap import return_free_heap
 from xrce.agent.middleware import Middleware
