@@ -211,7 +211,6 @@ package(
         "wire/message_header.py",
         "wire/objects.py",
         "wire/payload.py",
-        "wire/seqnum.py",
         "wire/session_payloads.py",
         "wire/stream_payloads.py",
         "wire/streams.py",

@@ -13,8 +13,7 @@ _HALF = const(0x8000)
 
 
 # 16-bit serial-number arithmetic (XRCE-WIRE.md §1), identical on both sides. Here rather than in a
-# module of their own (xrce.wire.seqnum re-exports them for the agent and tests): a module costs a board its object, dictionary
-# and names.
+# module of their own: a module costs a board its object, dictionary and names.
 def seq_add(seq, delta):
     return (seq + delta) & 0xFFFF
 
