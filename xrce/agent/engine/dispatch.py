@@ -56,9 +56,10 @@ from xrce.agent.engine.output import Output, trace
 from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.session import (  # noqa: F401 (re-exported: the CLI documents these defaults)
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OBJECTS_PER_CLIENT,
-    MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, TRACE, AgentStats,
+    MAX_OUTPUT_QUEUE_BYTES, MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, AgentStats,
     ClientProxy, ClientTable, Link, MemoryBudget, ResumingStream, Sessions,
 )
+from xrce.agent.log_levels import TRACE
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
 from xrce.agent.heap import return_free_heap
 from xrce.agent.middleware import Middleware

@@ -47,7 +47,8 @@ from typing import Dict, Optional
 
 from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, CompiledOutputStream, \
     CompiledReliableStream, CompiledStream
-from xrce.agent.engine.session import MAX_REASSEMBLY, TRACE
+from xrce.agent.engine.session import MAX_REASSEMBLY
+from xrce.agent.log_levels import TRACE
 from xrce.agent.engine.session import STREAM_WINDOW
 from xrce.wire import constants as C
 from xrce.wire.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream

@@ -7,7 +7,7 @@ import logging
 from typing import Any, Callable, Hashable, Optional
 
 from xrce.wire import constants as C, names as wire_names
-from xrce.agent.engine.session import TRACE
+from xrce.agent.log_levels import TRACE
 from xrce import DecodeError
 from xrce.wire.message import header_size, iter_submessages
 from xrce.wire.submessages import encode_message

@@ -19,6 +19,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Protocol, Set
 
 from xrce.wire import constants as C
 from xrce.agent.engine.admission import endpoint_address
+from xrce.agent.engine.scheduler import NEVER
 from xrce.agent.middleware import ClientOrigin, EntityKey, TopicSpec
 from xrce.agent.observe.names import client_tag
 from xrce.wire.streams import (
@@ -26,8 +27,6 @@ from xrce.wire.streams import (
 )
 from xrce.wire.submessages import GetInfo, Info, StatusAgent, encode_message
 
-TRACE = 5  # log level of the per-message trace (-v 6)
-logging.addLevelName(TRACE, "TRACE")
 log = logging.getLogger("xrce.agent")
 
 STREAM_WINDOW = 16  # RELIABLE_STREAM_DEPTH of the eProsima agent, both directions
@@ -53,7 +52,6 @@ CLIENT_EXPIRE_TIME = 0.0
 MIN_MTU = 24  # smaller CREATE_CLIENT mtu values would leave no room for a fragment chunk
 DEFAULT_MTU = 508  # what eProsima assumes when CREATE_CLIENT carries none
 INFO_CACHE_SIZE = 256  # encoded INFO replies kept (a ping repeats one question)
-NEVER = math.inf
 # After a new client appears on a host, how long (s) its dead neighbours are checked, and how
 # often, for the participant that would show it to be one of them started over.
 SUCCESSOR_WATCH_S = 60.0
