@@ -79,7 +79,7 @@ class OutputReliableStream:
     #
     # An agent ``commit``s each message as bytes, dropped once acknowledged. A client ``keep``s the
     # buffer a message was built in with its length (``sizes``) and keeps the buffer once the
-    # message is acknowledged, to build a later one in (xrce.client.wire.Outbound._commit): no copy
+    # message is acknowledged, to build a later one in (xrce.client.outbound.Outbound._commit): no copy
     # and no allocation per message, and ``on_acknack(..., session)`` sends retransmissions at once
     # instead of returning a list.
 
