@@ -104,7 +104,7 @@ class _VersionAction(argparse.Action):
         import platform
 
         import xrce
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
 
         from xrce.agent.cli.event_loop import event_loop
 
