@@ -1,6 +1,7 @@
 # Byte-stream framing for XRCE messages: HDLC-like serial frames and the TCP length prefix.
 #
-# Pure: bytes in, messages out, no I/O, so the asyncio agent and the MicroPython client share it.
+# Pure: bytes in, messages out, no I/O, so the asyncio agent and the MicroPython client share it
+# (receive_framed, the client's framed links' receive loop, reads through the transport it is given).
 #
 # Serial frame (XRCE-WIRE.md §11)::
 #
@@ -11,7 +12,7 @@
 #
 # TCP (XRCE-WIRE.md §12): a 2-byte little-endian length, then the message, in both directions.
 
-from xrce import EncodeError, const
+from xrce import EncodeError, const, ticks_add, ticks_diff, ticks_ms
 from xrce.transports.crc import crc16_arc, crc_of_prefix
 
 FLAG = const(0x7E)
@@ -346,6 +347,34 @@ class FrameDecoder:
         self._filled = filled
         self._crc_rx = crc_rx
         return i
+
+
+# The receive loop of the client's framed links (SerialTransport on CPython, CustomTransport with
+# framing): bytes from ``transport._read_available(wait_ms)`` (their count, into
+# ``transport._view``) through ``transport.decoder`` until a frame from ``transport.remote_addr``
+# is queued in ``transport._pending`` (frames from elsewhere count in ``wrong_source``) or
+# ``timeout_ms`` has passed: the first queued payload, or None.
+def receive_framed(transport, timeout_ms):
+    pending = transport._pending
+    if pending:
+        transport.received += 1
+        return pending.pop(0)
+    deadline = ticks_add(ticks_ms(), timeout_ms)
+    remaining = timeout_ms
+    while True:
+        count = transport._read_available(remaining)
+        if count and count > 0:
+            for src, _dst, payload in transport.decoder.feed(transport._view[:count]):
+                if src != transport.remote_addr:
+                    transport.wrong_source += 1
+                else:
+                    pending.append(payload)
+            if pending:
+                transport.received += 1
+                return pending.pop(0)
+        remaining = ticks_diff(deadline, ticks_ms())
+        if remaining <= 0:
+            return None
 
 
 def encode_length_prefixed(msg):
