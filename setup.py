@@ -4,7 +4,7 @@ With a ROS 2 sourced in the installing shell (ROS_DISTRO set) xrce runs on that 
 a second one from PyPI; otherwise the ros-jazzy-* wheels from PyPI are a dependency (on the platforms
 PyPI has them for). XRCE_ROS=pypi|system overrides the guess; XRCE_ROS_DISTRO=kilted takes the
 ros-kilted-* wheels (Fast DDS 3) instead of Jazzy's. The rules live in
-xrce/agent/middleware/ros/env.py, loaded by path: the package itself is not importable in pip's
+xrce/agent/interfaces/ros_install.py, loaded by path: the package itself is not importable in pip's
 build environment.
 
 Two optional C extensions, each built from every .c and .h of its folder; without a C compiler
@@ -36,7 +36,7 @@ def _load_by_path(name, *path):
     return module
 
 
-_rosenv = _load_by_path("_xrce_rosenv", "xrce", "agent", "middleware", "ros", "env.py")
+_rosenv = _load_by_path("_xrce_rosenv", "xrce", "agent", "interfaces", "ros_install.py")
 _c_sources = _load_by_path("_xrce_c_sources", "xrce", "agent", "c_sources.py")
 
 try:

@@ -3,8 +3,8 @@
 # The tree is the architecture: xrce.wire is the codec the client (which must run on MicroPython)
 # and the agent (CPython/asyncio) share, doing no I/O and raising only ``DecodeError`` on bad bytes;
 # xrce.client and xrce.transports are the board's client and its links, xrce.msgs the ROS message
-# classes, xrce.agent the agent and xrce.tools what only a build machine runs
-# (tests/repo/test_import_graph.py keeps those layers apart).
+# classes, xrce.agent the agent and xrce.tools what only a build machine runs; xrce.command_line is
+# what the command lines of all three share (tests/repo/test_import_graph.py keeps those layers apart).
 #
 # Modules that run on boards explain themselves in comments, not docstrings: MicroPython keeps what
 # it compiles from a docstring on the heap (5.3 KB on the String + Twist client from .py, measured

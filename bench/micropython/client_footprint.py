@@ -35,7 +35,7 @@ LAYERED_IMPORTS = (
     "xrce.wire.cdr",
     "xrce.wire.message",
     "xrce.wire.streams",
-    "xrce.client",  # xrce.client.session and xrce.client.wire
+    "xrce.client",  # xrce.client.session and xrce.client.outbound
     "xrce.transports",
     "xrce.transports.udp",
     "xrce.msgs",

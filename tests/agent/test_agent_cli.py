@@ -222,7 +222,7 @@ def _modules_after(*args):
 # (xrce.agent.interfaces itself is no tool's alone: once a build has run, the registry's .pth
 # hook imports it in every interpreter of the venv.)
 _AGENT = {"xrce.agent.engine.limits", "xrce.agent.observe.observability", "xrce.agent.links.udp"}
-_TOOLS = {"xrce.tools.cli_types", "xrce.agent.demo", "xrce.agent.interfaces.builder",
+_TOOLS = {"xrce.tools.ros_cli.arguments", "xrce.agent.demo", "xrce.agent.interfaces.builder",
           "xrce.agent.observe.stats_view"}
 
 

@@ -19,7 +19,7 @@ import pytest
 
 from agent_process import restore_default_signals
 from xrce.wire import constants as C
-from xrce.client import cli
+from xrce.client import cli_arguments
 from xrce.wire.message import decode_header, iter_submessages
 from ros_helpers import ros_domain, ros_peer  # noqa: F401
 
@@ -293,16 +293,16 @@ def test_help_says_each_commands_qos_and_defaults():
 def test_data_takes_plain_values_for_one_field_types_and_yaml_otherwise():
     from xrce.msgs import lookup
 
-    assert cli.parse_data(lookup("std_msgs/msg/String"), "5").data == "5"
-    assert cli.parse_data(lookup("std_msgs/msg/String"), '{data: "a: b"}').data == "a: b"
-    assert cli.parse_data(lookup("std_msgs/msg/Int32"), "-7").data == -7
-    assert cli.parse_data(lookup("std_msgs/msg/Float64"), "2.5").data == 2.5
-    assert cli.parse_data(lookup("std_msgs/msg/Bool"), "true").data is True
-    twist = cli.parse_data(lookup("geometry_msgs/msg/Twist"), "{linear: {x: 0.5}, angular: {z: -1}}")
+    assert cli_arguments.parse_data(lookup("std_msgs/msg/String"), "5").data == "5"
+    assert cli_arguments.parse_data(lookup("std_msgs/msg/String"), '{data: "a: b"}').data == "a: b"
+    assert cli_arguments.parse_data(lookup("std_msgs/msg/Int32"), "-7").data == -7
+    assert cli_arguments.parse_data(lookup("std_msgs/msg/Float64"), "2.5").data == 2.5
+    assert cli_arguments.parse_data(lookup("std_msgs/msg/Bool"), "true").data is True
+    twist = cli_arguments.parse_data(lookup("geometry_msgs/msg/Twist"), "{linear: {x: 0.5}, angular: {z: -1}}")
     assert (twist.linear.x, twist.linear.y, twist.angular.z) == (0.5, 0.0, -1)
-    header = cli.parse_data(lookup("std_msgs/msg/Header"), "stamp: {sec: 3}\nframe_id: map")
+    header = cli_arguments.parse_data(lookup("std_msgs/msg/Header"), "stamp: {sec: 3}\nframe_id: map")
     assert (header.stamp.sec, header.frame_id) == (3, "map")
-    assert cli.format_message(twist) == "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1}}"
+    assert cli_arguments.format_message(twist) == "{linear: {x: 0.5, y: 0.0, z: 0.0}, angular: {x: 0.0, y: 0.0, z: -1}}"
 
 
 def test_build_mpy_passes_through_to_the_tools_module(tmp_path):

@@ -182,7 +182,7 @@ class SourcedRos:
 
 @pytest.fixture(scope="session")
 def sourced_ros(tmp_path_factory):
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     root = tmp_path_factory.mktemp("sourced-ros")
     require_package_index(root / "probe")

@@ -21,7 +21,7 @@ from xrce import ticks_diff, ticks_ms
 # The example's modules, one per step: the harness can collect only between steps, while a board's
 # collector also runs in the middle of an import. (xrce.client.fragments: the session loads it on the
 # first /odom, which does not fit one message; xrce.client.on_demand on the first time sync.)
-MODULES = ("socket", "xrce.wire.cdr", "xrce.wire.message", "xrce.wire.streams", "xrce.client.wire",
+MODULES = ("socket", "xrce.wire.cdr", "xrce.wire.message", "xrce.wire.streams", "xrce.client.outbound",
            "xrce.client.session", "xrce.client.ping", "xrce.client.recovery", "xrce.client.fragments",
            "xrce.client.on_demand", "xrce.transports", "xrce.transports.udp", "xrce.msgs")
 TYPES = (("xrce.msgs.geometry_msgs", "Twist"), ("xrce.msgs.geometry_msgs", "TransformStamped"),

@@ -25,7 +25,7 @@ from install_env import (
 )
 from ros_helpers import ros_domain  # noqa: F401
 from xrce.wire import constants as C
-from xrce.agent.middleware.ros import env as rosenv
+from xrce.agent.interfaces import ros_install as rosenv
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import Header, String
 from xrce.msgs.turtlebot3_msgs import SensorState

@@ -1,7 +1,7 @@
 """``--version`` on both commands, as an installed user runs them (the venv's console scripts):
 xrce's version, and for the agent the ROS 2 distribution, RMW and DDS it would join, found
 without importing rclpy. And how xrce picks which distribution's PyPI wheels to depend on
-(``XRCE_ROS_DISTRO``, xrce/agent/middleware/ros/env.py)."""
+(``XRCE_ROS_DISTRO``, xrce/agent/interfaces/ros_install.py)."""
 
 import os
 import re
@@ -14,7 +14,7 @@ import pytest
 import xrce
 from agent_process import AgentProcess
 from ros_helpers import ros_domain  # noqa: F401
-from xrce.agent.middleware.ros import env as rosenv
+from xrce.agent.interfaces import ros_install as rosenv
 
 BIN = Path(sys.executable).parent
 TIMEOUT = 60

@@ -501,6 +501,7 @@ _import_asyncio_without_tls()
 import asyncio
 from xrce.agent.middleware import EndpointQosSpec, TopicSpec, TypeNotReady
 from xrce.agent.observe.diagnostics import DIAGNOSTIC_ARRAY_TYPE, diagnostic_array_type
+from xrce.agent.middleware.ros.raw_types import raw_message_type
 from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
 
 async def main():
@@ -528,8 +529,9 @@ async def main():
             mw.create_datawriter((1, base + 2), (1, base + 1), (1, base), qos)
             mw.create_subscriber((1, base + 3), (1, 1))
             mw.create_datareader((1, base + 4), (1, base + 3), (1, base), qos, lambda body: None)
-        assert diagnostic_array_type() is not None
-        publisher = mw.agent_publisher(int(sys.argv[1]), diagnostic_array_type(), "/diagnostics")
+        assert diagnostic_array_type(raw_message_type) is not None
+        publisher = mw.agent_publisher(int(sys.argv[1]), diagnostic_array_type(raw_message_type),
+                                       "/diagnostics")
         assert publisher.subscriber_count() == 0
     finally:
         await mw.close()
@@ -798,6 +800,7 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
     from ros_helpers import DomainLease, RosPeer
     from xrce.wire import constants as C
     from xrce.agent.engine.agent import Agent
+    from xrce.agent.middleware.ros.raw_types import raw_message_type
     from xrce.agent.observe.diagnostics import diagnostic_array_type
     from xrce.wire.objects import DataReaderBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
     from xrce.wire.submessages import Create
@@ -811,7 +814,7 @@ async def test_a_new_domains_first_client_is_answered_before_the_agents_own_enti
     await agent.start()
     publishers = {}
     mw.add_domain_listener(lambda domain_id: publishers.setdefault(domain_id, mw.agent_publisher(
-        domain_id, diagnostic_array_type(), "/diagnostics", on_matched=lambda: None)))
+        domain_id, diagnostic_array_type(raw_message_type), "/diagnostics", on_matched=lambda: None)))
     link = Link()
     first = Peer(agent, link, ("h", 1))
     second = Peer(agent, link, ("h", 2), key=b"\x01\x02\x03\x04")

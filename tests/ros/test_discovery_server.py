@@ -37,7 +37,7 @@ from xrce.transports.udp import UdpTransport
 
 pytest.importorskip("rclpy")
 
-from xrce.agent.middleware.ros import env as rosenv  # noqa: E402
+from xrce.agent.interfaces import ros_install as rosenv  # noqa: E402
 
 DELIVERY_S = 30.0
 

@@ -90,7 +90,7 @@ def _participant_output(profile, variable):
 
 def test_fast_dds_reads_the_profile_without_error(ros_domain, tmp_path):  # noqa: F811
     pytest.importorskip("rclpy")
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     installed = rosenv.installed_fastdds()
     assert installed, "no Fast DDS library found beside rclpy in %s" % rosenv.ament_prefixes()
@@ -114,7 +114,7 @@ def test_fast_dds_reads_the_profile_without_error(ros_domain, tmp_path):  # noqa
 
 def test_the_agent_installs_it_unless_the_user_has_one(ros_domain, tmp_path):  # noqa: F811
     pytest.importorskip("rclpy")
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     path, _ = fastdds_profile.profile_for(rosenv.installed_fastdds()[0])
     line = "Fast DDS participant profile: %s" % path

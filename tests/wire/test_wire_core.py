@@ -17,7 +17,7 @@ from xrce.wire.objects import (
     DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, RequesterBin, TopicBin,
     object_id,
 )
-from xrce.wire.seqnum import seq_add, seq_less
+from xrce.wire.streams import seq_add, seq_less
 from xrce.wire.submessages import (
     AckNack, Create, CreateClient, Data, Delete, DeliveryControl, GetInfo, Heartbeat, Info, Locator,
     ReadData, Status, StatusAgent, Timestamp, TimestampReply, WriteData, decode_message,

@@ -242,7 +242,7 @@ class _Square:
 
 
 def run(args):
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     try:
         domain, localhost_only, holder, env = choose_network(args)

@@ -27,12 +27,10 @@ import sys
 import time
 
 from xrce.wire import constants as C, names as wire_names
-# The parser and the argument and message values live in cli_arguments; the names this module had
-# before it was split are imported back so that ``xrce.client.cli.parse_data`` etc. keep working.
-from xrce.client.cli_arguments import (  # noqa: F401
-    EXIT_FAILURE, EXIT_OK, EXIT_USAGE, IP_TRANSPORTS, PROG, TRANSPORTS, ArgumentParser, UsageError,
-    build_parser, check_transport_arguments, default_domain, format_message, parse_data,
-    resolve_type, usage_exit,
+# The parser and the argument and message values live in cli_arguments.
+from xrce.client.cli_arguments import (
+    EXIT_FAILURE, EXIT_OK, IP_TRANSPORTS, PROG, UsageError, build_parser, check_transport_arguments,
+    default_domain, format_message, parse_data, resolve_type, usage_exit,
 )
 
 EXIT_SIGINT = 128 + signal.SIGINT  # 130, as a shell reports a command Ctrl-C ended

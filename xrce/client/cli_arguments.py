@@ -10,12 +10,12 @@ import os
 import socket
 import sys
 
-from xrce.tools.cli_types import domain_id
+from xrce import command_line
+from xrce.command_line import OneLineErrorParser, domain_id
 
 PROG = "xrce-client"
 EXIT_OK = 0
 EXIT_FAILURE = 1
-EXIT_USAGE = 2
 
 IP_TRANSPORTS = {
     "udp4": ("udp", socket.AF_INET, "127.0.0.1"),
@@ -30,21 +30,12 @@ class UsageError(Exception):
     """An argument that argparse accepted but that makes no sense (reported like argparse's)."""
 
 
-class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
-
-    def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
-        super().__init__(*args, **kwargs)
-
-    def error(self, message):
-        usage_exit(message)
+# The descriptions are laid out by hand (examples, lists): every parser keeps their line breaks.
+RAW_DESCRIPTION = argparse.RawDescriptionHelpFormatter
 
 
 def usage_exit(message):
-    sys.stderr.write("%s: error: %s\n" % (PROG, message))
-    sys.stderr.flush()
-    raise SystemExit(EXIT_USAGE)
+    command_line.usage_exit(PROG, message)
 
 
 # ----------------------------------------------------------------------------- argument types
@@ -188,14 +179,15 @@ class _VersionAction(argparse.Action):
 
 
 def build_parser():
-    parser = ArgumentParser(prog=PROG, description="Talk to a Micro XRCE-DDS agent from a shell. "
-                            "Ctrl-C ends any command (exit 130) after deleting its session.")
+    parser = OneLineErrorParser(prog=PROG, formatter_class=RAW_DESCRIPTION,
+                                description="Talk to a Micro XRCE-DDS agent from a shell. "
+                                "Ctrl-C ends any command (exit 130) after deleting its session.")
     parser.add_argument("--version", action=_VersionAction, help="print xrce's version")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
     commands.required = True
 
     ping = commands.add_parser("ping", help="check that an agent answers (session-less GET_INFO)",
-                               description=PING_DESCRIPTION)
+                               description=PING_DESCRIPTION, formatter_class=RAW_DESCRIPTION)
     _add_transport_arguments(ping)
     ping.add_argument("--timeout-ms", type=_positive_int, default=1000, metavar="MS",
                       help="wait per attempt (default 1000)")
@@ -203,7 +195,7 @@ def build_parser():
                       help="GET_INFO requests to send (default 3)")
 
     pub = commands.add_parser("pub", help="publish messages on a topic (reliable by default)",
-                              description=PUB_DESCRIPTION)
+                              description=PUB_DESCRIPTION, formatter_class=RAW_DESCRIPTION)
     _add_transport_arguments(pub)
     _add_entity_arguments(pub, "messages to publish (default 1; 0: until Ctrl-C)")
     pub.add_argument("--data", help="the message: a plain value for one-field types, else YAML "
@@ -217,7 +209,8 @@ def build_parser():
                      help="best-effort QoS and stream: only best-effort subscribers match")
 
     sub = commands.add_parser("sub", help="print the messages of a topic, one per line "
-                              "(best effort by default)", description=SUB_DESCRIPTION)
+                              "(best effort by default)", description=SUB_DESCRIPTION,
+                              formatter_class=RAW_DESCRIPTION)
     _add_transport_arguments(sub)
     _add_entity_arguments(sub, "messages to receive, then exit 0 (default 0: until Ctrl-C)")
     sub.add_argument("--timeout-ms", type=_positive_int, metavar="MS",
@@ -232,12 +225,13 @@ def build_parser():
                      help="best-effort QoS and stream (default)")
 
     build = commands.add_parser("build-mpy", help="compile the client for MicroPython "
-                                "(.mpy files; needs mpy-cross)", description=BUILD_DESCRIPTION)
+                                "(.mpy files; needs mpy-cross)", description=BUILD_DESCRIPTION,
+                                formatter_class=RAW_DESCRIPTION)
     build.add_argument("outdir", metavar="OUTDIR", help="directory to write xrce/**/*.mpy into")
 
     gen = commands.add_parser("gen-msgs", help="board classes from your own .msg/.srv/.action "
                               "packages", description=GEN_MSGS_DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+                              formatter_class=RAW_DESCRIPTION)
     gen.add_argument("packages", metavar="PKG_DIR", nargs="+",
                      help="an interface package directory (its name is the package's)")
     gen.add_argument("-o", "--outdir", required=True, metavar="OUTDIR",

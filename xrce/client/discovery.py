@@ -3,7 +3,7 @@
 #
 # It writes its one request and reads INFO itself (XRCE-WIRE.md §10) rather than through the general
 # codec of xrce.wire.session_payloads: that codec, the constants table and the CDR methods it calls cost
-# a board 22.7 KB from .mpy, this module alone ~2 KB. tests/client/test_client_wire.py checks this reader
+# a board 22.7 KB from .mpy, this module alone ~2 KB. tests/client/test_client_encoders.py checks this reader
 # against the general codec's encoder, and the golden discovery capture replays through it.
 
 from xrce import DecodeError, const, ticks_add, ticks_diff, ticks_ms

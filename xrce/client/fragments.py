@@ -17,7 +17,7 @@ def write_fragmented(session, out, mark, end):
     # (header, payload, padding to 4) into FRAGMENTs, each alone in a fresh reliable message of
     # ``out``. Its bytes do not depend on where it starts (a sample aligns from its own first byte,
     # and a submessage starts 4-aligned), so they are cut as they are instead of encoded again.
-    # The submessage is in ``out.big`` (wire._Output: a sample too large for a message's buffer is
+    # The submessage is in ``out.big`` (outbound._Output: a sample too large for a message's buffer is
     # written there), or in a buffer that grew to hold it, which then becomes ``out.big``; the
     # fragments are built in the history's buffers (OutputReliableStream.keep): no copy of the sample, one
     # view of each fragment's bytes.

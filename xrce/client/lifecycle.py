@@ -10,7 +10,7 @@
 
 from xrce import const, ticks_ms
 from xrce.wire.cdr import CdrReader
-from xrce.client.wire import _Output
+from xrce.client.outbound import _Output
 from xrce.wire.message import MessageWriter, header_size
 from xrce.wire.streams import (
     InputBestEffortStream, InputReliableStream, OutputBestEffortStream, OutputReliableStream,

@@ -21,7 +21,7 @@ LINK_STATE_NAMES = ("connected", "silent", "lost")
 
 
 class LinkMonitor:
-    # No __slots__: see xrce.client.wire._Output.
+    # No __slots__: see xrce.client.outbound._Output.
 
     def __init__(self, session, liveliness_ms=500, retry_ms=250, max_missed=3, on_state=None):
         self.session = session

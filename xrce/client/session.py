@@ -24,19 +24,19 @@
 # does at set-up, never per message, a board loads for each call and drops again: creating entities,
 # READ_DATA and deleting entities (xrce.client.entities); constructing, creating, deleting and
 # restoring the session itself (xrce.client.lifecycle). The submessages a session sends are written
-# by the lean encoders of xrce.client.wire, not by the general codec the agent uses.
+# by the lean encoders of xrce.client.outbound, not by the general codec the agent uses.
 #
 # That makes the one import circle the project keeps on purpose (tests/repo/test_import_graph.py names
 # it): services, on_demand and ping build on this module (its sample decoding, its agent-info
 # parsing) and import it at their top, while it imports them only inside the functions that first
 # need them. The other way round every board would load them with the session. Everything below
-# the session (xrce.client.wire, the wire core) imports nothing from it.
+# the session (xrce.client.outbound, the wire core) imports nothing from it.
 
 import sys
 
 from xrce import DecodeError, IS_MICROPYTHON, const, ticks_add, ticks_diff, ticks_ms
 from xrce.wire.cdr import CdrReader
-from xrce.client.wire import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
+from xrce.client.outbound import Outbound, SessionError  # noqa: F401  (SessionError: re-exported)
 
 # Wire numbers (xrce/wire/constants.py names them all; these fold into the code on a board).
 _SESSION_ID_WITHOUT_KEY_MASK = const(0x80)
@@ -64,7 +64,7 @@ _INFO_ACTIVITY = const(0x02)
 
 class Session(Outbound):
     # One XRCE client session over a transport (see ``xrce.transports``); writing and the output
-    # path come from ``Outbound`` (xrce.client.wire), set-up from xrce.client.lifecycle and entity
+    # path come from ``Outbound`` (xrce.client.outbound), set-up from xrce.client.lifecycle and entity
     # creation from xrce.client.entities.
 
     def __init__(self, *args, **kwargs):

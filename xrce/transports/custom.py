@@ -57,6 +57,7 @@ class CustomTransport:
         "_crc",
         "_out",
         "_frame",
+        "_receive",
         "_flush",
         "_is_open",
         "_pending",
@@ -94,7 +95,7 @@ class CustomTransport:
         self._pending = []
         if framing:
             from xrce.transports.crc import get_crc
-            from xrce.transports.framing import FrameDecoder, write_frame
+            from xrce.transports.framing import FrameDecoder, receive_framed, write_frame
 
             self._crc = get_crc(crc)
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
@@ -102,9 +103,10 @@ class CustomTransport:
             out = self._out = bytearray(2 * _PIECE)
             out[_PIECE:] = b""  # _PIECE long, _PIECE bytes to spare in its block (see _piece)
             self._frame = write_frame  # framing.py's, loaded only here (see above)
+            self._receive = receive_framed
             self._flush = self._piece  # bound once: a bound method per send is an allocation
         else:
-            self._crc = self._out = self._frame = self._flush = None
+            self._crc = self._out = self._frame = self._receive = self._flush = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -172,34 +174,21 @@ class CustomTransport:
     def recv(self, timeout_ms):
         if not self._is_open:
             raise TransportError("custom transport is closed")
-        if self._pending:
-            self.received += 1
-            return self._pending.pop(0)
+        if self.framing:
+            return self._receive(self, timeout_ms)  # framing.receive_framed
         deadline = ticks_add(ticks_ms(), timeout_ms)
-        if not self.framing:
-            remaining = timeout_ms
-            while True:
-                size = self._read_cb(self.user, self._buf, self.mtu + 1, remaining if remaining > 0 else 0)
-                if size and 0 < size <= self.mtu:
-                    self.received += 1
-                    return bytes(self._view[:size])
-                if size and size > self.mtu:
-                    self.oversize += 1
-                remaining = ticks_diff(deadline, ticks_ms())
-                if remaining <= 0:
-                    return None
         remaining = timeout_ms
         while True:
-            size = self._read_cb(self.user, self._buf, len(self._buf), remaining if remaining > 0 else 0)
-            if size and size > 0:
-                for src, _dst, payload in self.decoder.feed(self._view[:size]):
-                    if src != self.remote_addr:
-                        self.wrong_source += 1
-                    else:
-                        self._pending.append(payload)
-                if self._pending:
-                    self.received += 1
-                    return self._pending.pop(0)
+            size = self._read_cb(self.user, self._buf, self.mtu + 1, remaining if remaining > 0 else 0)
+            if size and 0 < size <= self.mtu:
+                self.received += 1
+                return bytes(self._view[:size])
+            if size and size > self.mtu:
+                self.oversize += 1
             remaining = ticks_diff(deadline, ticks_ms())
             if remaining <= 0:
                 return None
+
+    def _read_available(self, wait_ms):
+        # framing.receive_framed's read: what read_cb gives within wait_ms, into _buf.
+        return self._read_cb(self.user, self._buf, len(self._buf), wait_ms if wait_ms > 0 else 0)

@@ -17,7 +17,7 @@
 from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 from xrce.transports.crc import get_crc
-from xrce.transports.framing import FrameDecoder, encode_frame, write_frame
+from xrce.transports.framing import FrameDecoder, encode_frame, receive_framed, write_frame
 
 try:
     import serial as _pyserial  # pyserial
@@ -244,23 +244,5 @@ class SerialTransport:
         if IS_MICROPYTHON:
             length = self.recv_frame(timeout_ms)
             return None if length < 0 else bytes(memoryview(self.decoder.buffer)[:length])
-        if self._pending:
-            self.received += 1
-            return self._pending.pop(0)
-        deadline = ticks_add(ticks_ms(), timeout_ms)
-        remaining = timeout_ms
-        while True:
-            count = self._read_available(remaining)
-            if count:
-                for src, _dst, payload in self.decoder.feed(self._view[:count]):
-                    if src != self.remote_addr:
-                        self.wrong_source += 1
-                    else:
-                        self._pending.append(payload)
-                if self._pending:
-                    self.received += 1
-                    return self._pending.pop(0)
-            remaining = ticks_diff(deadline, ticks_ms())
-            if remaining <= 0:
-                return None
+        return receive_framed(self, timeout_ms)
 

@@ -8,8 +8,7 @@
 #   to boards).
 # - ``message``: the message header and submessage framing (``message_header``: the header as an
 #   object, for the agent and the tools, loaded on first use).
-# - ``streams``: best-effort and reliable stream state, with the 16-bit sequence-number arithmetic
-#   (``seqnum`` re-exports it).
+# - ``streams``: best-effort and reliable stream state, with the 16-bit sequence-number arithmetic.
 # - ``objects``: object ids and representations; ``payload``, ``session_payloads``,
 #   ``stream_payloads``: the submessage payloads; ``submessages``: the codec of every payload by id.
 #

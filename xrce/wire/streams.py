@@ -13,8 +13,7 @@ _HALF = const(0x8000)
 
 
 # 16-bit serial-number arithmetic (XRCE-WIRE.md §1), identical on both sides. Here rather than in a
-# module of their own (xrce.wire.seqnum re-exports them for the agent and tests): a module costs a board its object, dictionary
-# and names.
+# module of their own: a module costs a board its object, dictionary and names.
 def seq_add(seq, delta):
     return (seq + delta) & 0xFFFF
 
@@ -80,7 +79,7 @@ class OutputReliableStream:
     #
     # An agent ``commit``s each message as bytes, dropped once acknowledged. A client ``keep``s the
     # buffer a message was built in with its length (``sizes``) and keeps the buffer once the
-    # message is acknowledged, to build a later one in (xrce.client.wire.Outbound._commit): no copy
+    # message is acknowledged, to build a later one in (xrce.client.outbound.Outbound._commit): no copy
     # and no allocation per message, and ``on_acknack(..., session)`` sends retransmissions at once
     # instead of returning a list.
 

@@ -12,12 +12,8 @@ are re-exported here, so ``from xrce.wire.submessages import ...`` reaches every
 
 from xrce.wire import constants as C
 from xrce.wire.cdr import CdrReader
-from xrce import DecodeError, EncodeError  # noqa: F401 (importable from here before the split)
-from xrce.wire.objects import BLOB_CLASSES  # noqa: F401 (importable from here before the split)
-from xrce.wire.payload import (  # noqa: F401 (re-exported)
-    Payload, read_id as _read_id, read_properties as _read_properties, write_id as _write_id,
-    write_properties as _write_properties, write_submessage,
-)
+from xrce import DecodeError
+from xrce.wire.payload import write_submessage
 from xrce.wire.session_payloads import (  # noqa: F401 (re-exported)
     Create, CreateClient, Delete, GetInfo, Info, Locator, Status, StatusAgent,
 )

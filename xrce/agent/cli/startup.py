@@ -82,36 +82,22 @@ def make_fleet(args):
 
 # ----------------------------------------------------------------------------- refs and middleware
 
-def _local_name(tag):
-    return tag.rsplit("}", 1)[-1]
-
-
-def _strip_namespaces(element):
-    for node in element.iter():
-        if isinstance(node.tag, str):
-            node.tag = _local_name(node.tag)
-
-
 def load_refs(path):
-    """``{profile_name: xml}`` for every element carrying a ``profile_name`` in a Fast DDS XML
-    profiles file; the XML of each is that element alone, namespaces removed."""
+    """``{profile_name: xml}`` of a Fast DDS XML profiles file (xrce.agent.engine.xmlrep's
+    ``refs_from_profiles``). Raises CliError."""
     import xml.etree.ElementTree as ElementTree  # only with -r: see xrce.agent.engine.xmlrep._parse
 
+    from xrce.agent.engine.xmlrep import refs_from_profiles
+
     try:
-        tree = ElementTree.parse(path)
+        with open(path, "rb") as profiles:
+            document = profiles.read()
     except OSError as exc:
         raise CliError("cannot read refs file %s: %s" % (path, exc.strerror or exc))
+    try:
+        return refs_from_profiles(document)
     except ElementTree.ParseError as exc:
         raise CliError("refs file %s is not valid XML: %s" % (path, exc))
-    root = tree.getroot()
-    _strip_namespaces(root)
-    refs = {}
-    for element in root.iter():
-        name = element.get("profile_name")
-        if name:
-            element.tail = None
-            refs[name] = ElementTree.tostring(element, encoding="unicode")
-    return refs
 
 
 def check_paths(args):
@@ -151,6 +137,14 @@ def make_middleware(name, linger_s=None, request_timeout_s=None, naming=None, fl
                          linger_s=DOMAIN_LINGER_S if linger_s is None else linger_s,
                          request_timeout_s=REQUEST_TIMEOUT_S if request_timeout_s is None
                          else request_timeout_s, naming=naming, fleet=fleet)
+
+
+def _raw_message_type(type_name):
+    """The ROS middleware's type lookup by DDS name, for /diagnostics (observe is a floor below the
+    middleware: it is handed this). Imported on first use: without rclpy it raises, and the agent
+    runs without /diagnostics."""
+    from xrce.agent.middleware.ros.raw_types import raw_message_type
+    return raw_message_type(type_name)
 
 
 def configure_logging(verbosity):
@@ -227,7 +221,8 @@ async def serve(args, refs):
                                                  family=getattr(links[0], "family", None))
                 await discovery.start()
                 started.append(discovery)
-            observe = observability.Observability.from_args(args, agent, started, middleware)
+            observe = observability.Observability.from_args(args, agent, started, middleware,
+                                                            raw_message_type=_raw_message_type)
             await observe.start()
         except OSError as exc:
             sys.stderr.write("%s: error: %s\n" % (PROG, _open_error(args, links, started, exc)))
@@ -341,7 +336,7 @@ def run(args, refs):
         from xrce.agent import interfaces
         interfaces.add_search_dirs(args.interfaces)
     if args.middleware == "dds":
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
         try:  # the one line saying which ROS 2, rclpy and RMW this agent joins
             rosenv.log_ros_in_use(logging.getLogger("xrce.agent.rosenv"))
         except rosenv.RosUnavailable as exc:

@@ -16,7 +16,8 @@ import argparse
 import sys
 
 from xrce.agent.cli import transports
-from xrce.agent.cli.arguments import PROG, ArgumentParser, CliError, seconds
+from xrce.agent.cli.arguments import PROG, CliError, seconds
+from xrce.command_line import OneLineErrorParser, domain_id
 
 
 class Subcommand:
@@ -62,8 +63,6 @@ def _run_build(args):
 
 
 def _add_demo_options(parser):
-    from xrce.tools.cli_types import domain_id
-
     parser.add_argument("--serial", action="store_true",
                         help="robot on the agent's pseudoterminal at 115200 baud (default UDP)")
     parser.add_argument("--duration", type=seconds, default=0.0, metavar="S",
@@ -105,7 +104,7 @@ class _VersionAction(argparse.Action):
         import platform
 
         import xrce
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
 
         from xrce.agent.cli.event_loop import event_loop
 
@@ -132,7 +131,7 @@ def build_parser(argv=None):
     """The parser for ``argv`` (default ``sys.argv[1:]``): every subcommand listed, the options of
     the one ``argv`` names added (a subparser without its options is never the one that parses)."""
     chosen = _named_subcommand(sys.argv[1:] if argv is None else argv)
-    parser = ArgumentParser(prog=PROG, description="Micro XRCE-DDS agent (MicroXRCEAgent-compatible)")
+    parser = OneLineErrorParser(prog=PROG, description="Micro XRCE-DDS agent (MicroXRCEAgent-compatible)")
     parser.add_argument("--version", action=_VersionAction,
                         help="print xrce's version and the ROS 2 and RMW the agent would use")
     sub = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)

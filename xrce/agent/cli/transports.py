@@ -12,8 +12,9 @@ import socket
 import sys
 
 from xrce.agent import links
-from xrce.agent.cli.arguments import (allow_list, baudrate, domain_id, milliseconds, port, positive,
+from xrce.agent.cli.arguments import (allow_list, baudrate, milliseconds, port, positive,
                                       positive_seconds, seconds, verbosity)
+from xrce.command_line import domain_id
 
 IP_SUBCOMMANDS = ("udp4", "udp6", "tcp4", "tcp6")
 

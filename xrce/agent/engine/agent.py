@@ -61,10 +61,11 @@ from xrce.agent.engine.limits import (
 from xrce.agent.engine.link import Link
 from xrce.agent.engine.mismatch_report import MismatchReport
 from xrce.agent.engine.objects import ObjectRegistry, Parked
-from xrce.agent.engine.output import TRACE, Output, trace
+from xrce.agent.engine.output import Output, trace
 from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.sessions import Sessions
 from xrce.agent.engine.stats import AgentStats
+from xrce.agent.log_levels import TRACE
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
 from xrce.agent.heap import return_free_heap
 from xrce.agent.middleware import Middleware

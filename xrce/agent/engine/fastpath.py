@@ -48,7 +48,7 @@ from typing import Dict, Optional
 from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, CompiledOutputStream, \
     CompiledReliableStream, CompiledStream
 from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
-from xrce.agent.engine.output import TRACE
+from xrce.agent.log_levels import TRACE
 from xrce.wire import constants as C
 from xrce.wire.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
 

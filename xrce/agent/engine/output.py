@@ -7,12 +7,11 @@ import logging
 from typing import Any, Callable, Hashable, Optional
 
 from xrce.wire import constants as C, names as wire_names
+from xrce.agent.log_levels import TRACE
 from xrce import DecodeError
 from xrce.wire.message import header_size, iter_submessages
 from xrce.wire.submessages import encode_message
 
-TRACE = 5  # log level of the per-message trace (-v 6)
-logging.addLevelName(TRACE, "TRACE")
 log = logging.getLogger("xrce.agent")
 
 

@@ -6,10 +6,10 @@ enforces ``max_clients``, says when a client is dead or certainly gone and delet
 from __future__ import annotations
 
 import logging
-import math
 from typing import Callable, Dict, Hashable, Optional, Tuple
 
 from xrce.wire import constants as C
+from xrce.agent.engine.scheduler import NEVER
 from xrce.agent.engine.client import ClientProxy, _hard_liveliness, client_host
 from xrce.agent.engine.clients import ClientTable, HostRecord, MemoryBudget
 from xrce.agent.engine.limits import (
@@ -22,7 +22,6 @@ from xrce.wire.submessages import GetInfo, Info, StatusAgent, encode_message
 
 log = logging.getLogger("xrce.agent")
 
-NEVER = math.inf
 
 
 class Sessions:

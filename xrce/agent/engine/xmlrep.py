@@ -171,27 +171,21 @@ def parse_service(text: str, tag: str) -> ServiceSpec:
                        request_topic=field("request_topic_name"), reply_topic=field("reply_topic_name"))
 
 
-_PROFILE_TAGS = ("participant", "topic", "data_writer", "data_reader", "publisher", "subscriber",
-                 "requester", "replier")
-
-
-def refs_from_profiles(text: str) -> Dict[str, str]:
-    """Profile name → standalone XML snippet, from a Fast DDS profiles file (the CLI's ``-r FILE``).
-
-    Each profile element is re-serialized on its own, wrapped in ``<dds>``, so it parses exactly
-    like a snippet sent AS_XML_STRING.
-    """
+def refs_from_profiles(document) -> Dict[str, str]:
+    """Profile name → the XML of that element alone, namespaces removed, for every element carrying
+    a ``profile_name`` in a Fast DDS profiles file (the CLI's ``-r FILE``; ``document`` its bytes or
+    text): what a reference representation names. Raises ``xml.etree.ElementTree.ParseError``
+    when it is not XML."""
     import xml.etree.ElementTree as ET
 
-    root = _parse(text)
+    root = ET.fromstring(document)
+    for node in root.iter():
+        if isinstance(node.tag, str):
+            node.tag = node.tag.rsplit("}", 1)[-1]
     refs: Dict[str, str] = {}
-    if root is None:
-        return refs
     for element in root.iter():
-        tag = element.tag.split("}")[-1]  # tolerate the Fast DDS profiles namespace
         name = element.get("profile_name")
-        if tag in _PROFILE_TAGS and name:
-            for sub in element.iter():  # strip namespaces so the snippet parsers find plain tags
-                sub.tag = sub.tag.split("}")[-1]
-            refs[name] = "<dds>%s</dds>" % ET.tostring(element, encoding="unicode")
+        if name:
+            element.tail = None
+            refs[name] = ET.tostring(element, encoding="unicode")
     return refs

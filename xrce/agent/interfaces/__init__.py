@@ -1,6 +1,6 @@
 """Build ROS 2 interface packages (``.msg``/``.srv``/``.action``) against the ROS 2 xrce runs on:
 the PyPI wheels in this interpreter's prefix, or a sourced ROS 2 (its AMENT_PREFIX_PATH, see
-xrce.agent.middleware.ros.env).
+xrce.agent.interfaces.ros_install).
 
 ``xrce-agent build-interfaces [DIR ...]`` and the agent's lazy path (``ensure_package``), both here,
 run plain cmake on every interface package found under the given directories into a content-hash

@@ -135,7 +135,7 @@ def default_cache_root():
 
 
 def _toolchain_fingerprint():
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     parts = ["python=%d.%d" % sys.version_info[:2], "machine=%s" % os.uname().machine]
     for package in _ROSIDL_PACKAGES:
@@ -186,7 +186,7 @@ class BuildResult:
 def _cmake_environment(dependency_prefixes):
     """The build's environment: the in-tree dependencies' prefixes, then the ROS in use (a sourced
     ROS's AMENT_PREFIX_PATH and/or the wheels in this interpreter's prefix)."""
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     env = dict(os.environ)
     prefixes = []
@@ -294,7 +294,7 @@ def build(dirs=None, cache_root=None, names=None, site_dir=None, register_result
     if not dirs:
         raise InterfaceBuildError("no interface directories: pass one (this xrce ships no "
                                   "xrce/ros_interfaces)")
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     if not rosenv.ament_prefixes():
         raise InterfaceBuildError("no ROS 2 to build against: source your ROS 2 first (source "

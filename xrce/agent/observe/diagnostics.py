@@ -36,10 +36,11 @@ DIAGNOSTIC_WARN = 1
 _NOT_VALUES = frozenset(("key", "tag", "participants", "endpoints", "rule"))
 
 
-def diagnostic_array_type():
-    """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed."""
+def diagnostic_array_type(raw_message_type):
+    """The raw type handle of DiagnosticArray, or None when diagnostic_msgs is not installed.
+    ``raw_message_type`` is the ROS middleware's lookup of a type by its DDS name, handed down by
+    the command line: observe is a floor below the middleware and imports none of it."""
     try:
-        from xrce.agent.middleware.ros.raw_types import raw_message_type
         return raw_message_type(DIAGNOSTIC_ARRAY_TYPE)
     except Exception as exc:  # no rclpy or no diagnostic_msgs: the agent runs without
         log.debug("no /diagnostics: %s", exc)

@@ -319,7 +319,7 @@ class Observability:
 
     def __init__(self, agent, links, *, stats_port=None, capture=None, summary_period=None,
                  middleware=None, diagnostics=True, capture_max_bytes=CAPTURE_MAX_BYTES,
-                 capture_files=CAPTURE_FILES):
+                 capture_files=CAPTURE_FILES, raw_message_type=None):
         self.agent = agent
         self.observer = Observer(agent, links)
         self.stats_server = StatsServer(self.observer, stats_port) if stats_port is not None \
@@ -331,8 +331,10 @@ class Observability:
             self.capture = CaptureWriter(capture, capture_max_bytes, capture_files)
         self.summary_period = summary_period
         self.diagnostics = None
-        if diagnostics and middleware is not None and hasattr(middleware, "agent_publisher"):
-            message_type = diagnostic_array_type()
+        # raw_message_type: the ROS middleware's type lookup (diagnostic_array_type), None without.
+        if (diagnostics and middleware is not None and raw_message_type is not None
+                and hasattr(middleware, "agent_publisher")):
+            message_type = diagnostic_array_type(raw_message_type)
             if message_type is not None:
                 self.diagnostics = DiagnosticsPublisher(self.observer, middleware, message_type)
         # The once-a-second round (rates, capture flush, /diagnostics, summaries) runs only while
@@ -346,13 +348,14 @@ class Observability:
         self._closed = False
 
     @classmethod
-    def from_args(cls, args, agent, links, middleware):
+    def from_args(cls, args, agent, links, middleware, raw_message_type=None):
         summary = args.summary_period if log.getEffectiveLevel() <= logging.DEBUG else None
         return cls(agent, links, stats_port=getattr(args, "stats_port", None),
                    capture=getattr(args, "capture", None), summary_period=summary,
                    middleware=middleware, diagnostics=not getattr(args, "no_diagnostics", False),
                    capture_max_bytes=getattr(args, "capture_max_bytes", CAPTURE_MAX_BYTES),
-                   capture_files=getattr(args, "capture_files", CAPTURE_FILES))
+                   capture_files=getattr(args, "capture_files", CAPTURE_FILES),
+                   raw_message_type=raw_message_type)
 
     async def start(self) -> None:
         if self.capture is not None:

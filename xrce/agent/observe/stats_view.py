@@ -13,7 +13,7 @@ import socket
 import sys
 import time
 
-from xrce.agent.engine.timeline import format_timeline
+from xrce.agent.observe.timeline_text import format_timeline
 from xrce.agent.observe.entities import endpoint_name_text, nodes_text, rule_text
 
 

@@ -1,16 +1,16 @@
 """What every ``xrce-ros`` verb shares from the command line: the error kinds and their exit codes,
-the one-line argparse, argument types, and the discovery and QoS options of ros2cli (the verbs
+argument types, and the discovery and QoS options of ros2cli (the verbs
 import this; ``cli`` imports the verbs)."""
 
 from __future__ import annotations
 
 import argparse
 import signal
-import sys
+
+from xrce import command_line
 
 PROG = "xrce-ros"
 EXIT_FAILED = 1
-EXIT_USAGE = 2
 # ros2cli's main returns the signal's number: 2 after Ctrl-C (a bad argument's code too), 15 after
 # SIGTERM.
 EXIT_INTERRUPTED = int(signal.SIGINT)
@@ -26,17 +26,8 @@ class CommandError(Exception):
     """The command ran and failed; the text is ros2cli's sentence for the same case."""
 
 
-class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error report: scripts and tests read stderr, not a usage dump."""
-
-    def error(self, message):
-        usage_exit(message)
-
-
 def usage_exit(message):
-    sys.stderr.write("%s: error: %s\n" % (PROG, message))
-    sys.stderr.flush()
-    raise SystemExit(EXIT_USAGE)
+    command_line.usage_exit(PROG, message)
 
 
 # ----------------------------------------------------------------------------- argument types

@@ -12,8 +12,9 @@ import os
 import signal
 import sys
 
+from xrce.command_line import OneLineErrorParser
 from xrce.tools.ros_cli.arguments import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED, PROG,
-                                          ArgumentParser, CommandError, UsageError, usage_exit)
+                                          CommandError, UsageError, usage_exit)
 
 
 # ----------------------------------------------------------------------------- parser
@@ -21,7 +22,7 @@ from xrce.tools.ros_cli.arguments import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TE
 def build_parser():
     from xrce.tools.ros_cli import action, interface, node, param, service, topic
 
-    parser = ArgumentParser(
+    parser = OneLineErrorParser(
         prog=PROG,
         description="The ros2 verbs a micro-ROS user needs to see a board, on this venv's rclpy "
                     "(ros2cli's syntax and output; no daemon).")

@@ -12,8 +12,8 @@
 - ``compiled``: the optional ``_rostypes`` extension built from this folder's C (``_rostypes.c``,
   ``_services.c``, ``_named_types.c``): the raw types of ``raw_types`` (CDR bytes through rclpy,
   types known only by their DDS name) and ``participant``'s participant made without the GIL;
-- ``env``: which ROS 2 the agent runs on (also read by setup.py, by path); ``fastdds_profile``
-  (and its ``.xml``): the Fast DDS profile used when the user has none;
+- ``fastdds_profile`` (and its ``.xml``): the Fast DDS profile used when the user has none
+  (which ROS 2 the agent runs on: xrce.agent.interfaces.ros_install);
 - ``deferred`` and ``rclpy_services``: what rclpy imports and starts that the agent never uses,
   kept from loading.
 

@@ -103,7 +103,7 @@ def install(environ: Optional[MutableMapping[str, str]] = None,
             "discovery writers included, docs/PERFORMANCE.md)", reason)
         return None
     if fastdds_major is None:
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
 
         fastdds_major = rosenv.fastdds_major()
     path, variable = profile_for(fastdds_major)

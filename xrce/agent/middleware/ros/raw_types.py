@@ -335,7 +335,7 @@ def _described() -> bool:
     which would not match the real type's (``_named_types.c``)."""
     global _fastdds_major
     if _fastdds_major is None:
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
 
         _fastdds_major = rosenv.fastdds_major()
     return _fastdds_major < 3

@@ -88,7 +88,7 @@ def package_type_hash(dds_type: str) -> Optional[str]:
 
 
 def _definition_file(package: str, name: str) -> Optional[str]:
-    from xrce.agent.middleware.ros import env as rosenv
+    from xrce.agent.interfaces import ros_install as rosenv
 
     prefixes = list(rosenv.ament_prefixes())
     try:

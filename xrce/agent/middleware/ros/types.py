@@ -164,7 +164,7 @@ def _in_ament_index(package: str) -> bool:
     if known is None:
         import os
 
-        from xrce.agent.middleware.ros import env as rosenv
+        from xrce.agent.interfaces import ros_install as rosenv
 
         known = any(os.path.isfile(os.path.join(prefix, "share", "ament_index", "resource_index",
                                                 "rosidl_interfaces", package))

@@ -6,7 +6,7 @@
 # The general codec (xrce/wire/submessages.py, xrce/wire/objects.py) has one class per submessage and per
 # object kind, each with encode and decode and a repr: what the agent needs, and ~22 KB of heap on
 # a board that would only ever use a few encoders. These functions write the same bytes for the
-# cases a client produces; tests/client/test_client_wire.py checks them against the general codec, so
+# cases a client produces; tests/client/test_client_encoders.py checks them against the general codec, so
 # the wire format still has one reference. Comments, not docstrings: a board keeps docstrings.
 
 from xrce import XrceError, const, ticks_add, ticks_ms
@@ -76,7 +76,7 @@ class Outbound:
         return rid
 
     def _buffer(self, stream_id, sub_id, flags, request_id, object_id_, body, prefix=None):
-        # Append a request submessage (see ``wire.put_request``) to its stream's open message; True
+        # Append a request submessage (see ``put_request``) to its stream's open message; True
         # when it is buffered or sent.
         if stream_id is None:
             stream_id = self.reliable

@@ -1,4 +1,4 @@
-"""The client's lean encoders (xrce/client/wire.py and entities.py, the session's control
+"""The client's lean encoders (xrce/client/outbound.py and entities.py, the session's control
 submessages) write the same bytes as the general codec the agent decodes with (xrce/wire/submessages.py,
 xrce/wire/objects.py)."""
 
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from xrce.wire import constants as C
-from xrce.client import entities, wire
+from xrce.client import entities, outbound
 from xrce.client.session import Session
 from xrce.wire.message import MessageWriter
 from xrce.wire.objects import DataReaderBin, DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
@@ -18,14 +18,14 @@ from xrce.wire.submessages import (
 
 
 class _Lean:
-    # A request as the session writes it (wire.put_request), shaped for write_submessage.
+    # A request as the session writes it (outbound.put_request), shaped for write_submessage.
 
     def __init__(self, sub_id, flags, request_id, object_id, body):
         self.ID, self.flags = sub_id, flags
         self.request_id, self.object_id, self.body = request_id, object_id, body
 
     def encode(self, w):
-        wire.put_request(w, self.request_id, self.object_id, self.body)
+        outbound.put_request(w, self.request_id, self.object_id, self.body)
 
 
 def _message(payload, session_id=0x81):
