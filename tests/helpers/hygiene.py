@@ -84,7 +84,7 @@ def remove_dead_fastdds_segments(before: set, min_age_s: float = MIN_AGE_S) -> l
                 continue
         except OSError:
             continue
-        removed += _remove(victims)
+        removed += _remove_unless_reopened(victims)
     # A port whose lock file is gone: its last user removed the lock and left the port and its
     # mutex (seen after a run, 2 ports). Fast DDS itself takes a port whose lock it can take as
     # dead, and a missing lock file is one it can create and take.
@@ -95,7 +95,8 @@ def remove_dead_fastdds_segments(before: set, min_age_s: float = MIN_AGE_S) -> l
                     continue
             except OSError:
                 continue
-            removed += _remove([v for v in (name, "sem.%s_mutex" % name) if v in present])
+            removed += _remove_unless_reopened(
+                [v for v in (name, "sem.%s_mutex" % name) if v in present])
     return removed
 
 
@@ -141,6 +142,98 @@ def _remove(names) -> list:
         except OSError:
             pass
     return removed
+
+
+def _remove_unless_reopened(names) -> list:
+    """Remove a dead segment or port (``names``, its lock file last) unless a live process has
+    its file open or mapped meanwhile. A restarted participant takes its old port number again at
+    once (an agent restarted in the same domain gets the same participant id): Fast DDS opens and
+    maps the dead port's segment, then takes its lock, and a clean-up that found it dead just
+    before (another run's, in this shared /dev/shm) unlinked the segment the new owner reads: its
+    peers then wrote to a new one, and no sample reached it. So the segment is first moved out of
+    the way (a rename: whoever opens it by name from then on makes a fresh one), and put back if
+    some process had opened it before (its descriptor, or its mapping once the descriptor is
+    closed: read in that order, one of them shows)."""
+    names = list(names)
+    data = [name for name in names if not name.endswith(("_el", "_sl"))]
+    aside = {}
+    for name in data:
+        path = os.path.join(SHM_DIR, name)
+        moved = os.path.join(SHM_DIR, ".xrce-dead-%d-%s" % (os.getpid(), name))
+        try:
+            os.rename(path, moved)
+        except OSError:
+            continue
+        aside[name] = moved
+    in_use = _open_or_mapped_by_any_process(set(aside.values()))
+    if in_use:
+        for name, moved in aside.items():
+            try:  # link, not rename: a fresh file made under the name meanwhile stays
+                os.link(moved, os.path.join(SHM_DIR, name))
+            except OSError:
+                pass
+            os.remove(moved)
+        return []
+    removed = []
+    for name, moved in aside.items():
+        try:
+            os.remove(moved)
+            removed.append(name)
+        except OSError:
+            pass
+    return removed + [name for name in names if name not in data and _remove_unlocked(name)]
+
+
+def _remove_unlocked(name: str) -> bool:
+    """Remove a lock file unless someone holds it: a new owner may have taken it meanwhile, and
+    a port without its lock file looks dead to everyone (Fast DDS and these clean-ups)."""
+    try:
+        fd = os.open(os.path.join(SHM_DIR, name), os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    else:
+        return bool(_remove([name]))
+    finally:
+        os.close(fd)
+
+
+def _open_or_mapped_by_any_process(paths: set) -> bool:
+    """Whether any live process has one of ``paths`` open or mapped (descriptors first)."""
+    wanted = set()
+    for path in paths:
+        try:
+            status = os.stat(path)
+        except OSError:
+            continue
+        wanted.add((status.st_dev, status.st_ino))
+    if not wanted:
+        return False
+    maps_keys = {("%02x:%02x" % (os.major(dev), os.minor(dev)), str(ino)) for dev, ino in wanted}
+    pids = [pid for pid in os.listdir("/proc") if pid.isdigit() and int(pid) != os.getpid()]
+    for pid in pids:
+        try:
+            for fd in os.listdir("/proc/%s/fd" % pid):
+                try:
+                    status = os.stat("/proc/%s/fd/%s" % (pid, fd))
+                except OSError:
+                    continue
+                if (status.st_dev, status.st_ino) in wanted:
+                    return True
+        except OSError:
+            pass
+        try:
+            with open("/proc/%s/maps" % pid, errors="replace") as maps:
+                for line in maps:
+                    fields = line.split(None, 5)
+                    if len(fields) == 6 and (fields[3], fields[4]) in maps_keys:
+                        return True
+        except OSError:
+            continue
+    return False
 
 
 def _process_gone(pid: int) -> bool:

@@ -54,3 +54,41 @@ def test_other_files_stay():
         assert os.path.exists(path)
     finally:
         os.remove(path)
+
+
+
+def _dead_port():
+    """A dead Fast DDS port's three files (lock file unlocked, old: its owner made it long ago)
+    under a number no Fast DDS process uses."""
+    port = "fastrtps_port%d" % (60001 + 2 * (os.getpid() % 700))
+    paths = [os.path.join(hygiene.SHM_DIR, name)
+             for name in (port + "_el", port, "sem.%s_mutex" % port)]
+    for path in paths:
+        with open(path, "wb") as handle:
+            handle.write(bytes(4096))
+        os.utime(path, (0, 0))
+    return paths
+
+
+def test_a_dead_port_a_new_owner_has_opened_stays_and_an_unused_one_goes():
+    """A participant restarted in the same domain takes its old port number at once: Fast DDS
+    opens and maps the dead port's segment before it takes the lock. Another run's clean-up
+    (the same /dev/shm) must then leave it: unlinked, the new owner read a segment its peers no
+    longer found (tests/fastpath/test_fastpath_repliers.py's second agent got no request)."""
+    paths = _dead_port()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_MAPPED, paths[1]],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "mapped"
+        hygiene.remove_dead_fastdds_segments(set(), min_age_s=1.0)
+        assert all(os.path.exists(path) for path in paths), paths
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)
+    try:
+        hygiene.remove_dead_fastdds_segments(set(), min_age_s=1.0)
+        assert not any(os.path.exists(path) for path in paths), paths
+    finally:
+        for path in paths:
+            if os.path.exists(path):
+                os.remove(path)
