@@ -118,7 +118,7 @@ class Agent:
         # Held by whichever thread runs the engine (module docstring); reentrant because an
         # in-process middleware (-m ced) delivers samples while the engine is receiving.
         self.lock = lock = threading.RLock()
-        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.fastpath) feeding this agent
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.compiled.fastpath) feeding this agent
         # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
         # must not fill the operator's log (see ObjectRegistry.create).
         self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self._clock())

@@ -10,7 +10,7 @@ here, so this module is the one to read and profile for throughput:
   ``pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``send_on_stream`` numbers, stores (reliable) and fragments output.
 
-With the optional compiled UDP path (``xrce.agent.engine.fastpath``), WRITE_DATA of writers this path
+With the optional compiled UDP path (``xrce.agent.engine.compiled.fastpath``), WRITE_DATA of writers this path
 has handled once (best-effort, and reliable ones next in order) are published by the UDP link's read
 before they reach Python; what ``fast_write`` hands it (``offer``) is how it learns which ones.
 """
@@ -136,7 +136,7 @@ class DataPath:
             self.stats.publish_errors += 1
         if entry.kind == C_DATAWRITER or entry.kind == C_REPLIER:
             fastpath = getattr(link, "fastpath", None)
-            if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
+            if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.compiled.fastpath)
                 fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
             # offer() may have handed the stream's numbers to C: acknowledge the stream now held
@@ -429,7 +429,7 @@ class DataPath:
     @staticmethod
     def _offer_reassembled(fastpath, client: ClientProxy, stream_id: int, message: bytes) -> None:
         """A message put together from FRAGMENTs was one WRITE_DATA of a writer: the next ones
-        of its stream may not need Python (xrce.agent.engine.fastpath reassembles in C)."""
+        of its stream may not need Python (xrce.agent.engine.compiled.fastpath reassembles in C)."""
         start = header_size(message[0])
         if len(message) < start + 8 or message[start] != C_WRITE_DATA:
             return
@@ -515,7 +515,7 @@ class DataPath:
 
     def release_acknowledged(self, client: ClientProxy, stream) -> None:
         """Give the bytes of the history the compiled path acknowledged back to the client's
-        budget (``compiled_streams.CompiledOutputStream``: freed as the window is looked at)."""
+        budget (``compiled.streams.CompiledOutputStream``: freed as the window is looked at)."""
         freed = stream.release()
         if freed:
             self.budget.charge(client, -freed)

@@ -87,7 +87,7 @@ class UdpServer(Link):
         self.port = None
         self._loop = None
         self._sock = None
-        self.fastpath = None  # xrce.agent.engine.fastpath.FastPath when the compiled path reads the socket
+        self.fastpath = None  # xrce.agent.engine.compiled.fastpath.FastPath when the compiled path reads the socket
 
     async def start(self):
         # The socket is read directly rather than through create_datagram_endpoint: asyncio's
@@ -97,7 +97,7 @@ class UdpServer(Link):
         sock = _open_udp_socket(self.family, self.host, self.requested_port)
         self.port = sock.getsockname()[1]
         self._sock = sock
-        from xrce.agent.engine import fastpath  # after the middleware started: it looks for rcl
+        from xrce.agent.engine.compiled import fastpath  # after the middleware started: it looks for rcl
         self.fastpath = fastpath.attach(self, sock)  # its own thread reads the socket
         if self.fastpath is None:
             self._loop.add_reader(sock.fileno(), self._read_ready)

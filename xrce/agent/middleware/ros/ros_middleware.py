@@ -178,12 +178,12 @@ class RosMiddleware(Middleware):
 
     @requests_timed_out.setter
     def requests_timed_out(self, count: int) -> None:
-        # engine/fastpath.py adds C's expired requests here until it goes through
+        # engine/compiled/fastpath.py adds C's expired requests here until it goes through
         # compiled_path_support().count_timed_out_requests (the compiled path's part of issue 54).
         self.services.count_timed_out(count - self.services.requests_timed_out)
 
     # -- what the compiled path needs (RosCompiledPathSupport) -----------------------------------
-    # engine/fastpath.py asks the middleware itself for these until it goes through
+    # engine/compiled/fastpath.py asks the middleware itself for these until it goes through
     # compiled_path_support() (the compiled path's part of issue 54).
 
     def publisher_address(self, writer: EntityKey) -> int | None:

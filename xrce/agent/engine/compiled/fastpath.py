@@ -1,4 +1,4 @@
-"""The UDP link's optional compiled receive path (``xrce/agent/engine/_fastpath.c``), Python side.
+"""The UDP link's optional compiled receive path (``xrce/agent/engine/compiled/_fastpath.c``), Python side.
 
 When the extension is built and the middleware is rclpy, a thread of the extension's own reads
 the UDP link's socket (``_receive_thread.c``): ``recvmmsg`` batches, best-effort WRITE_DATA of
@@ -15,7 +15,7 @@ best-effort or in-order reliable sample (``DataPath.fast_write`` calls ``offer``
 its source address and, for sessions with a key in the header, that key: a datagram from anywhere
 else is Python's to judge, e.g. against --allow-from), the stream (its sequence numbers move into
 C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStream`` asking C,
-``xrce.agent.engine.compiled_streams``, so the numbers have one owner) and the writer (its rcl
+``xrce.agent.engine.compiled.streams``, so the numbers have one owner) and the writer (its rcl
 publisher, which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
 pending) and every client while the capture tap or the -v 6 trace is on are left to Python; the
@@ -45,7 +45,7 @@ import os
 import time
 from typing import Dict, Optional
 
-from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, CompiledOutputStream, \
+from xrce.agent.engine.compiled.streams import CompiledOutputBestEffort, CompiledOutputStream, \
     CompiledReliableStream, CompiledStream
 from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
 from xrce.agent.engine.output import TRACE
@@ -55,7 +55,7 @@ from xrce.wire.streams import InputBestEffortStream, OutputBestEffortStream, Out
 log = logging.getLogger("xrce.agent")
 
 try:
-    from xrce.agent.engine import _fastpath
+    from xrce.agent.engine.compiled import _fastpath
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
