@@ -14,9 +14,9 @@ constructor, and ``Agent`` builds and wires them. Three rules keep it so, read f
   another sets is a mixin in disguise. Classes built on a base from outside the engine (an
   exception, ``bytes``, the wire module's stream classes) are left out: their attributes are the
   base's;
-- no module of the engine but the agent's own and the compiled path's attach point (``fastpath``,
-  which a UDP link hands the agent) knows the agent: none imports ``engine.agent`` or names
-  ``agent``.
+- no module of the engine but the agent's own knows the agent: none imports ``engine.agent`` or
+  names ``agent`` (the compiled path too is given the parts it works with, by
+  ``Agent.attach_compiled_path``).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from class_parts import read_by as _read_by
 
 ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
 FOLDERS = (ENGINE, ENGINE / "compiled")  # the Python parts, and the compiled path's Python side
-KNOWS_THE_AGENT = {"agent.py", "fastpath.py"}  # the composer, and what a link attaches to it
+KNOWS_THE_AGENT = {"agent.py"}  # the composer
 # The parts the agent is composed of: each must stay a class of its own.
 PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "ObjectRegistry",
          "DataPath", "Acknowledgments", "Liveliness", "MismatchReport", "Scheduler", "Output"}

@@ -698,9 +698,9 @@ def test_attach_leaves_a_stale_build_unused(monkeypatch, caplog):
         pytest.fail("the compiled receive path is not built: the suite's install compiles it")
     monkeypatch.delenv("XRCE_FASTPATH", raising=False)
     monkeypatch.setattr(fastpath._fastpath, "SOURCE_CRC", "00000000")
-    link = types.SimpleNamespace(name="udp", receiver=types.SimpleNamespace())
+    link = types.SimpleNamespace(name="udp")
     with caplog.at_level("WARNING", logger="xrce.agent"):
-        assert fastpath.attach(link, sock=None) is None
+        assert fastpath.attach(link, sock=None, engine=None) is None
     assert "built from other C sources" in caplog.text and "pip install -e ." in caplog.text
 
 

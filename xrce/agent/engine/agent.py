@@ -56,7 +56,7 @@ from xrce.agent.engine.client import ClientProxy, ResumingStream
 from xrce.agent.engine.clients import ClientTable, MemoryBudget
 from xrce.agent.engine.limits import (
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OUTPUT_QUEUE_BYTES,
-    MAX_TOTAL_BYTES, STREAM_WINDOW,
+    MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW,
 )
 from xrce.agent.engine.link import Link
 from xrce.agent.engine.mismatch_report import MismatchReport
@@ -180,6 +180,21 @@ class Agent:
         self._clock = clock
         for part in self._clocked:
             part.clock = clock
+        for fastpath in self.fastpaths:
+            fastpath.clock = clock
+
+    def attach_compiled_path(self, link, sock):
+        """The compiled receive path for the UDP ``link`` over ``sock`` (its own thread reads it),
+        given the parts of this engine it works with; None where the extension, the environment
+        or the middleware allow none (the link's loop reads the socket then)."""
+        from xrce.agent.engine.compiled import fastpath  # after the middleware started: it looks for rcl
+
+        datapath = self.datapath
+        return fastpath.attach(link, sock, fastpath.EngineParts(
+            support=self.middleware.compiled_path_support(), fastpaths=self.fastpaths,
+            output=self.output, timelines=self.timelines, datapath=datapath, acks=self.acks,
+            scheduler=self.scheduler, budget=self.budget, stats=self.stats, lock=self.lock,
+            clock=self._clock, reassembly_limit=datapath.max_reassembly_bytes or MAX_REASSEMBLY))
 
     @property
     def tap(self) -> Optional[Callable[[str, Any, Hashable, bytes], None]]:

@@ -220,7 +220,7 @@ def client_host(link: Link, endpoint: Hashable) -> Hashable:
     address = endpoint_address(endpoint)
     if address is not None:
         return address
-    name = getattr(link, "name", "link")
+    name = link.name
     if isinstance(endpoint, tuple) and endpoint:
         return (name, endpoint[0])
     return (name, endpoint)

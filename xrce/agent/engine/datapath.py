@@ -135,7 +135,7 @@ class DataPath:
         if not entry.write(data[start + 8:end]) and entry.kind == C_DATAWRITER:
             self.stats.publish_errors += 1
         if entry.kind == C_DATAWRITER or entry.kind == C_REPLIER:
-            fastpath = getattr(link, "fastpath", None)
+            fastpath = link.fastpath
             if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.compiled.fastpath)
                 fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
@@ -222,7 +222,7 @@ class DataPath:
         loop already has to send."""
         scheduler = self.scheduler
         if scheduler.loop is not None and threading.get_ident() != scheduler.thread and \
-                not getattr(client.link, "sends_from_any_thread", False):
+                not client.link.sends_from_any_thread:
             scheduler.loop.call_soon_threadsafe(self.from_middleware, client, object_id, payload)
             return
         with self.lock:
@@ -292,7 +292,7 @@ class DataPath:
         delivery = request.delivery
         now = self.clock()
         reader.active = None  # a new READ_DATA stops the previous one first
-        fastpath = getattr(client.link, "fastpath", None)
+        fastpath = client.link.fastpath
         if fastpath is not None:
             fastpath.reader_ready(client, entry)  # C stops sending for the old one
         client.blocked_readers.discard(entry.object_id)
@@ -370,7 +370,7 @@ class DataPath:
                 active.remaining -= 1
                 if active.remaining <= 0:
                     reader.active = None
-        fastpath = getattr(client.link, "fastpath", None)
+        fastpath = client.link.fastpath
         if fastpath is not None:
             # Nothing queued and a READ_DATA without limits: C may send its samples itself
             fastpath.reader_ready(client, entry)
@@ -421,7 +421,7 @@ class DataPath:
             message = Reassembled(buffer)
             del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
-            fastpath = getattr(client.link, "fastpath", None)
+            fastpath = client.link.fastpath
             if fastpath is not None and client.alive:
                 self._offer_reassembled(fastpath, client, stream_id, message)
         return True

@@ -100,6 +100,10 @@ class Link:
     # True when send() may be called from any thread (the engine then delivers a sample from the
     # middleware's thread without waking the loop); asyncio transports are loop-only.
     sends_from_any_thread = False
+    # The compiled receive path reading this link's socket (UDP's, where it is built), and the
+    # locators the engine's INFO names: what ``xrce.agent.engine.link.Link`` declares.
+    fastpath = None
+    info_locators = ()
 
     undecodable_what = "messages that are not XRCE"
 
