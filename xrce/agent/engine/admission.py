@@ -124,7 +124,7 @@ class AdmissionPolicy:
         from xrce.agent.observe.names import endpoint_text
 
         self._refusals.warning("refused CREATE_CLIENT of key %s from %s %s: %s (ERR_DENIED)",
-                               bytes(key).hex(), link.name,
+                               bytes(key).hex(), getattr(link, "name", "link"),
                                endpoint_text(getattr(endpoint, "peer", endpoint)), reason)
         return False
 
@@ -151,7 +151,7 @@ class AdmissionPolicy:
         from xrce.agent.observe.names import endpoint_text
 
         self._datagram_refusals.warning("dropped a datagram of session 0x%02X from %s %s: %s",
-                                        data[0], link.name,
+                                        data[0], getattr(link, "name", "link"),
                                         endpoint_text(peer), verdict)
         return False
 

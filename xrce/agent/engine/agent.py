@@ -56,7 +56,7 @@ from xrce.agent.engine.client import ClientProxy, ResumingStream
 from xrce.agent.engine.clients import ClientTable, MemoryBudget
 from xrce.agent.engine.limits import (
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OUTPUT_QUEUE_BYTES,
-    MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW,
+    MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, DataLimits,
 )
 from xrce.agent.engine.link import Link
 from xrce.agent.engine.mismatch_report import MismatchReport
@@ -136,7 +136,7 @@ class Agent:
         self.datapath = datapath = DataPath(
             table, middleware, output, budget, scheduler, acks, mismatches, self.timelines,
             self.fastpaths, lock, stats, clock, self._process_message,
-            max_reassembly_bytes=max_reassembly_bytes, max_output_queue_bytes=max_output_queue_bytes)
+            DataLimits(max_reassembly_bytes, max_output_queue_bytes))
         self.objects = objects = ObjectRegistry(
             middleware, datapath, self.fastpaths, self.create_failures, stats, clock,
             refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)

@@ -108,7 +108,7 @@ class ClientProxy:
         # While a CREATE waits for its type to be built: the messages to process afterwards, in
         # order, starting with the rest of the one that held the CREATE. None when not parked.
         self.parked: Optional[list] = None
-        # xrce.agent.engine.compiled.fastpath.CompiledClient while the UDP link's compiled path knows this client.
+        # xrce.agent.engine.compiled.client.CompiledClient while the UDP link's compiled path knows this client.
         self.fast: Any = None
         # Per-client counters for xrce.agent.observe.observability; plain ints so the hot path stays cheap.
         self.created_at = now

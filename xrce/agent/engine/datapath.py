@@ -24,7 +24,7 @@ from typing import Hashable, Optional
 
 from xrce.wire import constants as C
 from xrce.agent.engine.client import ClientProxy, ObjectEntry, ReadRequest
-from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
+from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW, DataLimits
 from xrce.agent.engine.link import Link
 from xrce.wire.message import header_size
 from xrce.wire.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
@@ -48,12 +48,11 @@ class DataPath:
     after a reliable sample), ``mismatches`` (samples a board's stream cannot carry),
     ``timelines``, ``fastpaths`` (the compiled receive paths) and ``lock`` (held for samples
     from the middleware's thread). ``process_message``: the dispatcher, for a message put
-    together from FRAGMENTs.
+    together from FRAGMENTs. ``limits``: what a client's reassembly and reader queues may hold.
     """
 
     def __init__(self, table, middleware, output, budget, scheduler, acks, mismatches, timelines,
-                 fastpaths: list, lock, stats, clock, process_message, *,
-                 max_reassembly_bytes: Optional[int], max_output_queue_bytes: int):
+                 fastpaths: list, lock, stats, clock, process_message, limits: DataLimits):
         # What the per-sample paths use, bound once: no hop through another part per sample.
         self.clients = table.clients
         self.endpoints = table.endpoints
@@ -73,8 +72,10 @@ class DataPath:
         self.stats = stats
         self.clock = clock
         self._process_message = process_message
-        self.max_reassembly_bytes = max_reassembly_bytes
-        self.max_output_queue_bytes = max_output_queue_bytes
+        # Read per queued sample and per FRAGMENT: plain attributes (the agent's
+        # ``max_reassembly_bytes`` setter changes the first).
+        self.max_reassembly_bytes = limits.max_reassembly_bytes
+        self.max_output_queue_bytes = limits.max_output_queue_bytes
 
     def fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
         """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) of
