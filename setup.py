@@ -7,18 +7,20 @@ ros-kilted-* wheels (Fast DDS 3) instead of Jazzy's. The rules live in
 xrce/agent/interfaces/ros_install.py, loaded by path: the package itself is not importable in pip's
 build environment.
 
-Two optional C extensions, each built from every .c and .h of its folder; without a C compiler
+Three optional C extensions, each built from every .c and .h of its folder; without a C compiler
 pip still installs xrce and the agent runs pure Python, each missing one costing only speed or a
 feature:
-- ``xrce.agent.engine._fastpath`` (xrce/agent/engine/, see xrce/agent/engine/fastpath.py): the
-  UDP link's compiled receive path. Without it every datagram goes through Python (the agent's
-  cost per message, bench/agent_cost.py), and the start-up malloc_trim goes through ctypes.
+- ``xrce.agent.engine.compiled._fastpath`` (xrce/agent/engine/compiled/, see fastpath.py there):
+  the UDP link's compiled receive path. Without it every datagram goes through Python (the
+  agent's cost per message, bench/agent_cost.py).
 - ``xrce.agent.middleware.ros._rostypes`` (xrce/agent/middleware/ros/, see compiled.py there):
   the ROS type supports. Without it the packages' generated Python classes carry samples and
   service calls (slower entity creation, more memory, two conversions per request), a type
   known only by its DDS name (PX4's px4_msgs without the package) is refused, and a domain's DDS
   participant is made with the GIL held.
-XRCE_FASTPATH=0 at build time leaves both out: a pure, platform-independent wheel.
+- ``xrce.agent._heap`` (xrce/agent/_heap.c, see heap.py there): malloc_trim for the engine and
+  the middleware. Without it that goes through ctypes, which stays loaded (0.57 MB).
+XRCE_FASTPATH=0 at build time leaves all three out: a pure, platform-independent wheel.
 """
 
 import importlib.util
@@ -59,7 +61,8 @@ def _extension(name, folder):
 
 _extensions = []
 if os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false"):
-    _extensions.append(_extension("xrce.agent.engine._fastpath", "xrce/agent/engine"))
+    _extensions.append(_extension("xrce.agent.engine.compiled._fastpath", "xrce/agent/engine/compiled"))
+    _extensions.append(_extension("xrce.agent._heap", "xrce/agent"))
     _extensions.append(_extension("xrce.agent.middleware.ros._rostypes", "xrce/agent/middleware/ros"))
 
 setup(install_requires=_install_requires, extras_require=_extras_require, ext_modules=_extensions)

@@ -40,6 +40,9 @@ class _ParkingMiddleware(CedMiddleware):
 
 class _Link:
     name = "atheris"
+    sends_from_any_thread = False
+    fastpath = None
+    info_locators = ()
 
     def send(self, endpoint, data):
         return True

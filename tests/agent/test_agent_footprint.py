@@ -79,9 +79,9 @@ def test_a_ros_agent_leaves_out_the_service_types_its_nodes_never_serve(ros_doma
     loaded = sorted(name for name in modules if name.startswith("rcl_interfaces.srv._"))
     assert loaded == ["rcl_interfaces.srv._list_parameters"]
     assert not modules.intersection(_NOT_IMPORTED_BY_A_UDP_AGENT)
-    if importlib.util.find_spec("xrce.agent.engine._fastpath") is not None:
-        # The start-up malloc_trim goes through the compiled helper, not the ctypes package.
-        assert "xrce.agent.engine._fastpath" in modules and "ctypes" not in modules
+    if importlib.util.find_spec("xrce.agent._heap") is not None:
+        # The start-up malloc_trim goes through the agent's own helper, not the ctypes package.
+        assert "xrce.agent._heap" in modules and "ctypes" not in modules
 
 
 _NODE_WITH_PARAMETER_SERVICES = """

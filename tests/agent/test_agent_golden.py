@@ -44,6 +44,8 @@ ACK_KINDS = (C.ACKNACK, C.HEARTBEAT)
 
 class RecordingLink:
     name = "udp4:test"
+    sends_from_any_thread = False
+    fastpath = None
 
     def __init__(self, locators=()):
         self.sent = []

@@ -406,7 +406,7 @@ async def test_discovery_reply_matches_the_verified_capture():
         "02000000 017F0000 0100E607 01C00002 0200E607")
 
     class TwoInterfaces(udp_links.DiscoveryServer):
-        def info_locators(self):
+        def discovery_locators(self):
             return [Locator(C.LOCATOR_MEDIUM, bytes(a), self.agent_port)
                     for a in ((127, 0, 0, 1), (192, 0, 2, 2))]
 

@@ -14,9 +14,9 @@ constructor, and ``Agent`` builds and wires them. Three rules keep it so, read f
   another sets is a mixin in disguise. Classes built on a base from outside the engine (an
   exception, ``bytes``, the wire module's stream classes) are left out: their attributes are the
   base's;
-- no module of the engine but the agent's own and the compiled path's attach point (``fastpath``,
-  which a UDP link hands the agent) knows the agent: none imports ``engine.agent`` or names
-  ``agent``.
+- no module of the engine but the agent's own knows the agent: none imports ``engine.agent`` or
+  names ``agent`` (the compiled path too is given the parts it works with, by
+  ``Agent.attach_compiled_path``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ from class_parts import defined_by as _defined_by
 from class_parts import read_by as _read_by
 
 ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
-KNOWS_THE_AGENT = {"agent.py", "fastpath.py"}  # the composer, and what a link attaches to it
+FOLDERS = (ENGINE, ENGINE / "compiled")  # the Python parts, and the compiled path's Python side
+KNOWS_THE_AGENT = {"agent.py"}  # the composer
 # The parts the agent is composed of: each must stay a class of its own.
 PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "ObjectRegistry",
          "DataPath", "Acknowledgments", "Liveliness", "MismatchReport", "Scheduler", "Output"}
@@ -38,7 +39,12 @@ PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "Obj
 
 def _engine_classes():
     """{class name: (module file name, ast.ClassDef)} for every class in the engine's modules."""
-    return classes_in(ENGINE)
+    classes = {}
+    for folder in FOLDERS:
+        found = classes_in(folder)
+        assert not found.keys() & classes.keys(), found.keys() & classes.keys()
+        classes.update(found)
+    return classes
 
 
 def test_the_parts_are_there():
@@ -84,7 +90,7 @@ def test_each_class_reads_only_what_it_defines():
 
 def test_no_part_reaches_through_the_agent():
     offenders = []
-    for path in sorted(ENGINE.glob("*.py")):
+    for path in sorted(path for folder in FOLDERS for path in folder.glob("*.py")):
         if path.name in KNOWS_THE_AGENT:
             continue
         tree = ast.parse(path.read_text(), filename=str(path))

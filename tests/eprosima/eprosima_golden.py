@@ -48,6 +48,9 @@ def count(messages, sub_id):
 
 class Link:
     name = "replay"
+    sends_from_any_thread = False
+    fastpath = None
+    info_locators = ()
 
     def __init__(self):
         self.sent = []

@@ -1,4 +1,4 @@
-"""The UDP link's compiled receive path (xrce/agent/engine/_fastpath.c, xrce/agent/engine/fastpath.py).
+"""The UDP link's compiled receive path (xrce/agent/engine/compiled/_fastpath.c, xrce/agent/engine/compiled/fastpath.py).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
 and once with ``XRCE_FASTPATH=0``: both must deliver the same samples in the same order and count
@@ -22,10 +22,10 @@ from xrce.msgs.geometry_msgs import Twist, Vector3
 from xrce.transports.udp import UdpTransport
 
 try:
-    from xrce.agent.engine import _fastpath as fastpath
+    from xrce.agent.engine.compiled import _fastpath as fastpath
 except ImportError:  # built without a compiler: only the packaging tests apply
     fastpath = None
-needs_extension = pytest.mark.skipif(fastpath is None, reason="xrce.agent.engine._fastpath not built")
+needs_extension = pytest.mark.skipif(fastpath is None, reason="xrce.agent.engine.compiled._fastpath not built")
 
 
 class CapturingTransport:
@@ -663,10 +663,11 @@ def test_the_extensions_are_optional_when_pip_builds_xrce(tmp_path, env, compile
     assert build.returncode == 0, build.stdout[-3000:]
     (wheel,) = tmp_path.glob("xrce-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    for extension in ("xrce/agent/engine/_fastpath.", "xrce/agent/middleware/ros/_rostypes."):
+    for extension in ("xrce/agent/engine/compiled/_fastpath.", "xrce/agent/middleware/ros/_rostypes.",
+                      "xrce/agent/_heap."):
         assert any(n.startswith(extension) and n.endswith(".so") for n in names) == compiled, \
             (extension, names)
-    assert "xrce/agent/engine/fastpath.py" in names
+    assert "xrce/agent/engine/compiled/fastpath.py" in names
     assert "xrce/agent/middleware/ros/compiled.py" in names
     if env.get("XRCE_FASTPATH") == "0":
         assert wheel.name.endswith("-py3-none-any.whl"), wheel.name
@@ -678,7 +679,7 @@ def test_a_build_from_another_source_is_left_unused():
     leaves it unused, logging why, instead of publishing by the old rules."""
     import types
 
-    from xrce.agent.engine import fastpath
+    from xrce.agent.engine.compiled import fastpath
 
     if fastpath._fastpath is None:
         pytest.fail("the compiled receive path is not built: the suite's install compiles it")
@@ -691,15 +692,15 @@ def test_a_build_from_another_source_is_left_unused():
 def test_attach_leaves_a_stale_build_unused(monkeypatch, caplog):
     import types
 
-    from xrce.agent.engine import fastpath
+    from xrce.agent.engine.compiled import fastpath
 
     if fastpath._fastpath is None:
         pytest.fail("the compiled receive path is not built: the suite's install compiles it")
     monkeypatch.delenv("XRCE_FASTPATH", raising=False)
     monkeypatch.setattr(fastpath._fastpath, "SOURCE_CRC", "00000000")
-    link = types.SimpleNamespace(name="udp", receiver=types.SimpleNamespace())
+    link = types.SimpleNamespace(name="udp")
     with caplog.at_level("WARNING", logger="xrce.agent"):
-        assert fastpath.attach(link, sock=None) is None
+        assert fastpath.attach(link, sock=None, engine=None) is None
     assert "built from other C sources" in caplog.text and "pip install -e ." in caplog.text
 
 
@@ -709,7 +710,7 @@ def test_the_ros_type_supports_are_an_extension_of_their_own(monkeypatch, caplog
     as the reason when a type known only by name is refused."""
     import importlib
 
-    from xrce.agent.engine import fastpath
+    from xrce.agent.engine.compiled import fastpath
     from xrce.agent.middleware import UnknownTypeError
     from xrce.agent.middleware.ros import compiled, raw_types
 

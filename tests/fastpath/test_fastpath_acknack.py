@@ -1,8 +1,8 @@
 """The client's ACKNACKs for the agent's reliable output stream in the compiled receive path
-(xrce/agent/engine/_reliable_out.c, xrce.agent.engine.compiled_streams.CompiledOutputStream).
+(xrce/agent/engine/compiled/_reliable_out.c, xrce.agent.engine.compiled.streams.CompiledOutputStream).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
-(which also sends the reader's samples itself, xrce/agent/engine/_reader_out.c) and once with
+(which also sends the reader's samples itself, xrce/agent/engine/compiled/_reader_out.c) and once with
 ``XRCE_FASTPATH=0``: a client reads a ROS topic on its reliable stream and answers the agent's
 DATA with hand-made ACKNACKs: each acknowledged at once (the window wraps twice), a
 NACK naming two messages (retransmitted, byte for byte), a window left to fill with a CREATE's
@@ -30,8 +30,8 @@ from xrce.wire.submessages import AckNack, Data, Status, decode_message, encode_
 from xrce.transports.udp import UdpTransport
 
 try:
-    from xrce.agent.engine import _fastpath as fastpath
-    from xrce.agent.engine.compiled_streams import CompiledOutputStream
+    from xrce.agent.engine.compiled import _fastpath as fastpath
+    from xrce.agent.engine.compiled.streams import CompiledOutputStream
 except ImportError:
     fastpath = None
 

@@ -1,5 +1,5 @@
 """FRAGMENTs and HEARTBEATs of a reliable stream in the compiled receive path
-(xrce/agent/engine/_reliable_in.c, xrce/agent/engine/fastpath.py).
+(xrce/agent/engine/compiled/_reliable_in.c, xrce/agent/engine/compiled/fastpath.py).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
 and once with ``XRCE_FASTPATH=0``: samples cut into FRAGMENTs in order, with a gap and its
@@ -23,7 +23,7 @@ from xrce.client.session import Session
 from xrce.transports.udp import UdpTransport
 
 try:
-    from xrce.agent.engine import _fastpath as fastpath
+    from xrce.agent.engine.compiled import _fastpath as fastpath
 except ImportError:
     fastpath = None
 

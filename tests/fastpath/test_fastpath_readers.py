@@ -1,5 +1,5 @@
 """Samples from ROS to a board sent by the compiled path's receive thread
-(xrce/agent/engine/_reader_out.c, ``FastPath.reader_ready``).
+(xrce/agent/engine/compiled/_reader_out.c, ``FastPath.reader_ready``).
 
 End to end through real agent processes, real sockets and real rclpy, once with the compiled path
 and once with ``XRCE_FASTPATH=0``: a board that only reads (it never writes, so nothing but its

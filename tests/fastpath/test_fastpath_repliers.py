@@ -1,5 +1,5 @@
 """ROS's service calls to a board's replier served by the compiled path's receive thread
-(xrce/agent/engine/_replier_out.c, ``FastPath.reader_ready`` for a replier): the thread takes each
+(xrce/agent/engine/compiled/_replier_out.c, ``FastPath.reader_ready`` for a replier): the thread takes each
 request from rcl, sends it to the board, and sends the board's reply back to ROS.
 
 End to end through real agent processes, real sockets and real rclpy clients:

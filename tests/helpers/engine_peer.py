@@ -25,6 +25,9 @@ REUSE, REPLACE = C.FLAG_REUSE | 1, C.FLAG_REPLACE | 1
 
 class Link:
     name = "test"
+    sends_from_any_thread = False
+    fastpath = None
+    info_locators = ()
 
     def __init__(self):
         self.sent = []

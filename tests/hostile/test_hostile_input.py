@@ -68,6 +68,9 @@ def test_live_dds_agent_over_udp_survives_fuzzed_datagrams(ros_domain):  # noqa:
 
 class _Link:
     name = "fuzz"
+    sends_from_any_thread = False
+    fastpath = None
+    info_locators = ()
 
     def __init__(self):
         self.sent = 0

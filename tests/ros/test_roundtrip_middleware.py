@@ -79,6 +79,7 @@ async def test_each_board_reads_the_graph_in_its_own_names(middleware, ros_domai
     assert "/parameter_events" in names and not [n for n in names if n.startswith("/robot1")]
 
     # The compiled path would carry the bytes as they are: not for what is translated.
-    assert middleware.subscription_address(robot1(6)) is None
-    assert middleware.publisher_address(robot1(5)) is None
-    assert middleware.subscription_address(plain(6)) and middleware.publisher_address(plain(5))
+    compiled = middleware.compiled_path_support()
+    assert compiled.subscription_address(robot1(6)) is None
+    assert compiled.publisher_address(robot1(5)) is None
+    assert compiled.subscription_address(plain(6)) and compiled.publisher_address(plain(5))

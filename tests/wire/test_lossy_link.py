@@ -29,7 +29,10 @@ class LossyNetwork:
         self.to_agent = []  # (endpoint, datagram)
         self.held = []  # (release_after_n_more_datagrams, deliver_fn)
         self.stats = {"sent": 0, "dropped": 0, "duplicated": 0, "reordered": 0}
-        self.name = "lossy"
+        self.name = "lossy"  # the engine's Link: xrce.agent.engine.link
+        self.sends_from_any_thread = False
+        self.fastpath = None
+        self.info_locators = ()
         self.next_tick = 0.0
 
     def _carry(self, deliver):

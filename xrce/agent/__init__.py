@@ -8,6 +8,8 @@
 - ``interfaces``: finding and building ROS 2 interface packages for the types clients name;
 - ``observe``: stats, ``xrce-agent stats``, ``/diagnostics`` and capture files;
 - ``cli`` (``xrce-agent``), started through ``launcher``; ``demo`` (``xrce-agent demo``);
-- ``c_sources``: whether one of the two optional compiled extensions (the engine's receive path,
-  the ROS middleware's type supports) is built from the C sources beside it.
+- ``c_sources``: whether one of the optional compiled extensions (the engine's receive path,
+  the ROS middleware's type supports) is built from the C sources beside it;
+- ``heap`` (over the tiny ``_heap`` extension): malloc_trim; ``allow_lists``: parsing of
+  --allow-keys and --allow-from.
 """

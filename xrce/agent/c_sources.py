@@ -1,8 +1,10 @@
 """Whether a compiled extension of the agent is built from the C sources beside it.
 
-The agent has two optional extensions, each built by setup.py from every .c and .h of one folder:
-the engine's receive path (``xrce/agent/engine/`` -> ``xrce.agent.engine._fastpath``) and the
-ROS type supports (``xrce/agent/middleware/ros/`` -> ``xrce.agent.middleware.ros._rostypes``).
+The agent has three optional extensions, each built by setup.py from every .c and .h of one folder:
+the engine's receive path (``xrce/agent/engine/compiled/`` -> ``xrce.agent.engine.compiled._fastpath``),
+the ROS type supports (``xrce/agent/middleware/ros/`` -> ``xrce.agent.middleware.ros._rostypes``)
+and malloc_trim (``xrce/agent/`` -> ``xrce.agent._heap``, which nothing checks: one function that
+cannot go stale).
 setup.py bakes the CRC-32 of the folder's sources into each (its ``SOURCE_CRC``), computed by
 ``source_crc`` here (it loads this file by path: the package is not importable while pip builds
 it). An editable install keeps the .so it built while the .c changes under it: a module whose CRC

@@ -15,6 +15,6 @@
   per client; ``scheduler``: the loop and the one timer of that work; ``mismatch_report``: endpoints
   that cannot reach their peers, named once; ``timeline``: where the time goes when a client
   comes back;
-- ``fastpath`` and ``_fastpath.c``: the UDP link's optional compiled receive path (the ROS type
-  supports and conversions are the middleware's own extension: ``middleware.ros.compiled``).
+- ``compiled``: the UDP link's optional compiled receive path, its C and its Python side (the ROS
+  type supports and conversions are the middleware's own extension: ``middleware.ros.compiled``).
 """

@@ -56,7 +56,7 @@ from xrce.agent.engine.client import ClientProxy, ResumingStream
 from xrce.agent.engine.clients import ClientTable, MemoryBudget
 from xrce.agent.engine.limits import (
     CLIENT_DEAD_TIME, CLIENT_EXPIRE_TIME, MAX_CLIENT_BYTES, MAX_CLIENTS, MAX_OUTPUT_QUEUE_BYTES,
-    MAX_TOTAL_BYTES, STREAM_WINDOW,
+    MAX_REASSEMBLY, MAX_TOTAL_BYTES, STREAM_WINDOW, DataLimits,
 )
 from xrce.agent.engine.link import Link
 from xrce.agent.engine.mismatch_report import MismatchReport
@@ -119,7 +119,7 @@ class Agent:
         # Held by whichever thread runs the engine (module docstring); reentrant because an
         # in-process middleware (-m ced) delivers samples while the engine is receiving.
         self.lock = lock = threading.RLock()
-        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.fastpath) feeding this agent
+        self.fastpaths: list = []  # compiled UDP receive paths (xrce.agent.engine.compiled.fastpath) feeding this agent
         # Failed CREATEs (a type no package provides, a bad profile): a stranger's flood of them
         # must not fill the operator's log (see ObjectRegistry.create).
         self.create_failures = RefusalLog(log, "failed CREATEs", lambda: self._clock())
@@ -137,7 +137,7 @@ class Agent:
         self.datapath = datapath = DataPath(
             table, middleware, output, budget, scheduler, acks, mismatches, self.timelines,
             self.fastpaths, lock, stats, clock, self._process_message,
-            max_reassembly_bytes=max_reassembly_bytes, max_output_queue_bytes=max_output_queue_bytes)
+            DataLimits(max_reassembly_bytes, max_output_queue_bytes))
         self.objects = objects = ObjectRegistry(
             middleware, datapath, self.fastpaths, self.create_failures, stats, clock,
             refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
@@ -181,6 +181,21 @@ class Agent:
         self._clock = clock
         for part in self._clocked:
             part.clock = clock
+        for fastpath in self.fastpaths:
+            fastpath.clock = clock
+
+    def attach_compiled_path(self, link, sock):
+        """The compiled receive path for the UDP ``link`` over ``sock`` (its own thread reads it),
+        given the parts of this engine it works with; None where the extension, the environment
+        or the middleware allow none (the link's loop reads the socket then)."""
+        from xrce.agent.engine.compiled import fastpath  # after the middleware started: it looks for rcl
+
+        datapath = self.datapath
+        return fastpath.attach(link, sock, fastpath.EngineParts(
+            support=self.middleware.compiled_path_support(), fastpaths=self.fastpaths,
+            output=self.output, timelines=self.timelines, datapath=datapath, acks=self.acks,
+            scheduler=self.scheduler, budget=self.budget, stats=self.stats, lock=self.lock,
+            clock=self._clock, reassembly_limit=datapath.max_reassembly_bytes or MAX_REASSEMBLY))
 
     @property
     def tap(self) -> Optional[Callable[[str, Any, Hashable, bytes], None]]:

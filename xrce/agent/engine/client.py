@@ -108,7 +108,7 @@ class ClientProxy:
         # While a CREATE waits for its type to be built: the messages to process afterwards, in
         # order, starting with the rest of the one that held the CREATE. None when not parked.
         self.parked: Optional[list] = None
-        # xrce.agent.engine.fastpath.CompiledClient while the UDP link's compiled path knows this client.
+        # xrce.agent.engine.compiled.client.CompiledClient while the UDP link's compiled path knows this client.
         self.fast: Any = None
         # Per-client counters for xrce.agent.observe.observability; plain ints so the hot path stays cheap.
         self.created_at = now
@@ -220,7 +220,7 @@ def client_host(link: Link, endpoint: Hashable) -> Hashable:
     address = endpoint_address(endpoint)
     if address is not None:
         return address
-    name = getattr(link, "name", "link")
+    name = link.name
     if isinstance(endpoint, tuple) and endpoint:
         return (name, endpoint[0])
     return (name, endpoint)

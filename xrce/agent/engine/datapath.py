@@ -10,7 +10,7 @@ here, so this module is the one to read and profile for throughput:
   ``pump`` sends them as DATA while the client's READ_DATA and the stream's window allow;
   ``send_on_stream`` numbers, stores (reliable) and fragments output.
 
-With the optional compiled UDP path (``xrce.agent.engine.fastpath``), WRITE_DATA of writers this path
+With the optional compiled UDP path (``xrce.agent.engine.compiled.fastpath``), WRITE_DATA of writers this path
 has handled once (best-effort, and reliable ones next in order) are published by the UDP link's read
 before they reach Python; what ``fast_write`` hands it (``offer``) is how it learns which ones.
 """
@@ -24,7 +24,7 @@ from typing import Hashable, Optional
 
 from xrce.wire import constants as C
 from xrce.agent.engine.client import ClientProxy, ObjectEntry, ReadRequest
-from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
+from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW, DataLimits
 from xrce.agent.engine.link import Link
 from xrce.wire.message import header_size
 from xrce.wire.streams import OutputBestEffortStream, OutputReliableStream, is_reliable
@@ -48,12 +48,11 @@ class DataPath:
     after a reliable sample), ``mismatches`` (samples a board's stream cannot carry),
     ``timelines``, ``fastpaths`` (the compiled receive paths) and ``lock`` (held for samples
     from the middleware's thread). ``process_message``: the dispatcher, for a message put
-    together from FRAGMENTs.
+    together from FRAGMENTs. ``limits``: what a client's reassembly and reader queues may hold.
     """
 
     def __init__(self, table, middleware, output, budget, scheduler, acks, mismatches, timelines,
-                 fastpaths: list, lock, stats, clock, process_message, *,
-                 max_reassembly_bytes: Optional[int], max_output_queue_bytes: int):
+                 fastpaths: list, lock, stats, clock, process_message, limits: DataLimits):
         # What the per-sample paths use, bound once: no hop through another part per sample.
         self.clients = table.clients
         self.endpoints = table.endpoints
@@ -73,8 +72,10 @@ class DataPath:
         self.stats = stats
         self.clock = clock
         self._process_message = process_message
-        self.max_reassembly_bytes = max_reassembly_bytes
-        self.max_output_queue_bytes = max_output_queue_bytes
+        # Read per queued sample and per FRAGMENT: plain attributes (the agent's
+        # ``max_reassembly_bytes`` setter changes the first).
+        self.max_reassembly_bytes = limits.max_reassembly_bytes
+        self.max_output_queue_bytes = limits.max_output_queue_bytes
 
     def fast_write(self, link: Link, endpoint: Hashable, data: bytes) -> bool:
         """The common case in one step: a message holding exactly one WRITE_DATA (FORMAT_DATA) of
@@ -135,8 +136,8 @@ class DataPath:
         if not entry.write(data[start + 8:end]) and entry.kind == C_DATAWRITER:
             self.stats.publish_errors += 1
         if entry.kind == C_DATAWRITER or entry.kind == C_REPLIER:
-            fastpath = getattr(link, "fastpath", None)
-            if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.fastpath)
+            fastpath = link.fastpath
+            if fastpath is not None:  # the next ones may not need Python (xrce.agent.engine.compiled.fastpath)
                 fastpath.offer(client, stream_id, entry)
         if stream_id & 0x80 and client.alive:
             # offer() may have handed the stream's numbers to C: acknowledge the stream now held
@@ -222,7 +223,7 @@ class DataPath:
         loop already has to send."""
         scheduler = self.scheduler
         if scheduler.loop is not None and threading.get_ident() != scheduler.thread and \
-                not getattr(client.link, "sends_from_any_thread", False):
+                not client.link.sends_from_any_thread:
             scheduler.loop.call_soon_threadsafe(self.from_middleware, client, object_id, payload)
             return
         with self.lock:
@@ -292,7 +293,7 @@ class DataPath:
         delivery = request.delivery
         now = self.clock()
         reader.active = None  # a new READ_DATA stops the previous one first
-        fastpath = getattr(client.link, "fastpath", None)
+        fastpath = client.link.fastpath
         if fastpath is not None:
             fastpath.reader_ready(client, entry)  # C stops sending for the old one
         client.blocked_readers.discard(entry.object_id)
@@ -370,7 +371,7 @@ class DataPath:
                 active.remaining -= 1
                 if active.remaining <= 0:
                     reader.active = None
-        fastpath = getattr(client.link, "fastpath", None)
+        fastpath = client.link.fastpath
         if fastpath is not None:
             # Nothing queued and a READ_DATA without limits: C may send its samples itself
             fastpath.reader_ready(client, entry)
@@ -421,7 +422,7 @@ class DataPath:
             message = Reassembled(buffer)
             del buffer
             self._process_message(client, message, header_size(message[0]), stream_id)
-            fastpath = getattr(client.link, "fastpath", None)
+            fastpath = client.link.fastpath
             if fastpath is not None and client.alive:
                 self._offer_reassembled(fastpath, client, stream_id, message)
         return True
@@ -429,7 +430,7 @@ class DataPath:
     @staticmethod
     def _offer_reassembled(fastpath, client: ClientProxy, stream_id: int, message: bytes) -> None:
         """A message put together from FRAGMENTs was one WRITE_DATA of a writer: the next ones
-        of its stream may not need Python (xrce.agent.engine.fastpath reassembles in C)."""
+        of its stream may not need Python (xrce.agent.engine.compiled.fastpath reassembles in C)."""
         start = header_size(message[0])
         if len(message) < start + 8 or message[start] != C_WRITE_DATA:
             return
@@ -515,7 +516,7 @@ class DataPath:
 
     def release_acknowledged(self, client: ClientProxy, stream) -> None:
         """Give the bytes of the history the compiled path acknowledged back to the client's
-        budget (``compiled_streams.CompiledOutputStream``: freed as the window is looked at)."""
+        budget (``compiled.streams.CompiledOutputStream``: freed as the window is looked at)."""
         freed = stream.release()
         if freed:
             self.budget.charge(client, -freed)

@@ -1,5 +1,8 @@
 """The engine's limits: stream depth, the per-client quotas and memory budget, the session timings."""
 
+from dataclasses import dataclass
+from typing import Optional
+
 STREAM_WINDOW = 16  # RELIABLE_STREAM_DEPTH of the eProsima agent, both directions
 # Per-client quotas (defaults; ``Agent`` takes each as a constructor argument, the CLI as a flag).
 # A fragmented message larger than this is abandoned: room for a 1 MiB sample (camera frames,
@@ -27,3 +30,13 @@ INFO_CACHE_SIZE = 256  # encoded INFO replies kept (a ping repeats one question)
 # often, for the participant that would show it to be one of them started over.
 SUCCESSOR_WATCH_S = 60.0
 SUCCESSOR_CHECK_S = 0.5
+
+
+@dataclass(frozen=True)
+class DataLimits:
+    """What one client's samples may hold in the data path (``DataPath``): a reassembly
+    (``max_reassembly_bytes``, None for ``MAX_REASSEMBLY``, looked up when used) and the samples
+    queued for its readers (``max_output_queue_bytes``)."""
+
+    max_reassembly_bytes: Optional[int] = None
+    max_output_queue_bytes: int = MAX_OUTPUT_QUEUE_BYTES

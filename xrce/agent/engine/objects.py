@@ -262,7 +262,7 @@ class ObjectRegistry:
         else:
             # A reader given no QoS (CED's names, a binary one without) queues at least what
             # the middleware keeps for it (CedMiddleware: eProsima's 16 per topic).
-            floor = getattr(mw, "reader_queue_floor", 1) if qos is READER_DEFAULTS else 1
+            floor = mw.reader_queue_floor if qos is READER_DEFAULTS else 1
             entry.reader = ReaderState(max(_queue_bound(qos), floor))
             mw.create_datareader(key, client.entity(entry.parent), client.entity(topic), qos,
                                  self.datapath.sample_callback(client, entry.object_id))

@@ -300,7 +300,7 @@ class Sessions:
                      impl_status)
         message = self._info_cache.get(cache_key)
         if message is None:
-            locators = getattr(link, "info_locators", ()) if link is not None else ()
+            locators = link.info_locators if link is not None else ()
             message = encode_message(session_id, stream_id, seq, key,
                                      [_info(request, impl_status, locators)])
             if len(self._info_cache) >= INFO_CACHE_SIZE:

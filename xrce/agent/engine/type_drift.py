@@ -47,10 +47,9 @@ FIX = ("the board's classes and the agent's package come from different definiti
 def arm(middleware, mismatches, scheduler, client: ClientProxy, entry: ObjectEntry, key) -> None:
     """Check the next sample of the datawriter ``entry`` against the middleware's type for it
     (nothing happens when the middleware cannot tell)."""
-    sample_check = getattr(middleware, "sample_check", None)
-    if sample_check is None or entry.topic_spec is None:
+    if entry.topic_spec is None:
         return
-    check = sample_check(key, entry.topic_spec.type_name)
+    check = middleware.sample_check(key, entry.topic_spec.type_name)
     if check is None:
         return
     publish = entry.write
@@ -79,8 +78,7 @@ def declared_hash(middleware, mismatches, client: ClientProxy, entry: ObjectEntr
     if declared is None or entry.topic_spec is None:
         return
     entry.info["type_hash"] = declared
-    lookup = getattr(middleware, "type_hash", None)
-    ours = lookup(entry.topic_spec.type_name) if lookup is not None else None
+    ours = middleware.type_hash(entry.topic_spec.type_name)
     where = "client %s, %s %s: %s %s" % (client.key.hex(), words.kind_name(entry.kind),
                                          object_id_text(entry.object_id), _topic(entry), _type(entry))
     if ours is None:

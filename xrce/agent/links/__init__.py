@@ -18,7 +18,9 @@ datagrams that are not XRCE) says so once at the default verbosity, rate-limited
 (``UndecodableHint``): otherwise a wrong setting looks exactly like a board that is not there.
 
 If the receiver has an ``endpoint_closed(link, endpoint)`` method, it is called when a TCP
-connection or a serial port goes away, so the engine can forget the sessions mapped to it.
+connection or a serial port goes away, so the engine can forget the sessions mapped to it; a UDP
+link asks a receiver with an ``attach_compiled_path(link, sock)`` method (the agent's engine) for
+the compiled receive path that reads its socket (``fastpath``, None when Python reads it).
 """
 
 from __future__ import annotations
@@ -100,6 +102,10 @@ class Link:
     # True when send() may be called from any thread (the engine then delivers a sample from the
     # middleware's thread without waking the loop); asyncio transports are loop-only.
     sends_from_any_thread = False
+    # The compiled receive path reading this link's socket (UDP's, where it is built), and the
+    # locators the engine's INFO names: what ``xrce.agent.engine.link.Link`` declares.
+    fastpath = None
+    info_locators = ()
 
     undecodable_what = "messages that are not XRCE"
 

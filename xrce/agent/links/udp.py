@@ -87,7 +87,7 @@ class UdpServer(Link):
         self.port = None
         self._loop = None
         self._sock = None
-        self.fastpath = None  # xrce.agent.engine.fastpath.FastPath when the compiled path reads the socket
+        self.fastpath = None  # xrce.agent.engine.compiled.fastpath.FastPath when the compiled path reads the socket
 
     async def start(self):
         # The socket is read directly rather than through create_datagram_endpoint: asyncio's
@@ -97,8 +97,10 @@ class UdpServer(Link):
         sock = _open_udp_socket(self.family, self.host, self.requested_port)
         self.port = sock.getsockname()[1]
         self._sock = sock
-        from xrce.agent.engine import fastpath  # after the middleware started: it looks for rcl
-        self.fastpath = fastpath.attach(self, sock)  # its own thread reads the socket
+        # After the middleware started: the compiled path looks for rcl. A receiver that is not
+        # the agent's engine (a test's echo) has none to offer.
+        attach = getattr(self.receiver, "attach_compiled_path", None)
+        self.fastpath = attach(self, sock) if attach is not None else None  # its own thread reads
         if self.fastpath is None:
             self._loop.add_reader(sock.fileno(), self._read_ready)
 
@@ -239,7 +241,7 @@ class DiscoveryServer(Link):
     def describe(self):
         return "discovery on port %d" % self.port
 
-    def info_locators(self):
+    def discovery_locators(self):
         if self.family == socket.AF_INET6:
             return [Locator(C.LOCATOR_LARGE, address, self.agent_port)
                     for address in local_ipv6_addresses()]
@@ -264,7 +266,7 @@ class DiscoveryServer(Link):
             self.stats.drops += 1
             return
         request = payloads[0]
-        info = Info(request.request_id, request.object_id, locators=self.info_locators())
+        info = Info(request.request_id, request.object_id, locators=self.discovery_locators())
         _send_datagram(self, sock or self._sock, addr,
                        encode_message(header.session_id, 0, 0, header.key, [info]))
 

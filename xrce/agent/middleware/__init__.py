@@ -113,7 +113,7 @@ class ClientOrigin:
 
 
 class CompiledPathSupport:
-    """What the engine's compiled receive path (``xrce.agent.engine.fastpath``: C that publishes
+    """What the engine's compiled receive path (``xrce.agent.engine.compiled.fastpath``: C that publishes
     a board's samples to rcl, takes ROS samples and requests, and answers them, without Python)
     needs of a middleware whose entities are rcl ones: an optional capability, offered by
     ``Middleware.compiled_path_support``. Every answer may be None: that entity stays on the

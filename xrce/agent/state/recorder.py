@@ -59,6 +59,8 @@ class _Silent:
 
     name = "restore"
     sends_from_any_thread = True
+    fastpath = None
+    info_locators = ()
 
     def send(self, endpoint, data) -> None:
         pass

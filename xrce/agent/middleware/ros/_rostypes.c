@@ -3,7 +3,7 @@
  * types known only by name (_named_types.c), a replier's requests and replies as CDR bytes
  * (_services.c), and a DDS participant made without the GIL
  * (xrce.agent.middleware.ros.participant). It is apart from the engine's compiled receive path
- * (xrce.agent.engine._fastpath): the protocol engine holds no ROS type-support code, and either
+ * (xrce.agent.engine.compiled._fastpath): the protocol engine holds no ROS type-support code, and either
  * extension may be missing without the other (setup.py). rcl, rmw and rcutils are not linked:
  * their functions are looked up in the librcl rclpy already loaded. */
 #define PY_SSIZE_T_CLEAN

@@ -1,4 +1,4 @@
-"""What the engine's compiled receive path (``xrce.agent.engine.fastpath``) gets of the ROS
+"""What the engine's compiled receive path (``xrce.agent.engine.compiled.fastpath``) gets of the ROS
 middleware's entities: ``RosCompiledPathSupport``, the middleware's ``CompiledPathSupport``
 (``RosMiddleware.compiled_path_support()``). The addresses of the rcl publishers, subscriptions
 and services C uses instead of rclpy, and the hand-over of a replier's request identities.

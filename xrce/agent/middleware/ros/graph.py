@@ -28,8 +28,8 @@ what it does, from what rclpy sees of the graph:
 A board whose names the agent changed (``naming``, a namespace or a remap) reads the Graph in its
 own names: its reader's samples are translated back as they are delivered to it
 (``board_graph_reader``), so its ``rcl_get_node_names`` lists its nodes as it created them. Such a
-reader stays off the compiled UDP path (``RosMiddleware.subscription_address``), which would send
-the Graph as it came.
+reader stays off the compiled UDP path (``RosCompiledPathSupport.subscription_address``), which
+would send the Graph as it came.
 
 Everything here runs on the domain's executor thread (``DomainRuntime.post``); the loop only
 counts readers.

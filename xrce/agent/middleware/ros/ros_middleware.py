@@ -168,35 +168,10 @@ class RosMiddleware(Middleware):
         return self.services.write_reply(replier, sample_identity, sample)
 
     @property
-    def request_timeout_s(self) -> float:
-        return self.services.request_timeout_s
-
-    @property
     def requests_timed_out(self) -> int:
-        """Service requests that got no reply in time, wherever they were held."""
+        """Service requests that got no reply in time, wherever they were held (the compiled
+        path's count through ``compiled_path_support().count_timed_out_requests``)."""
         return self.services.requests_timed_out
-
-    @requests_timed_out.setter
-    def requests_timed_out(self, count: int) -> None:
-        # engine/fastpath.py adds C's expired requests here until it goes through
-        # compiled_path_support().count_timed_out_requests (the compiled path's part of issue 54).
-        self.services.count_timed_out(count - self.services.requests_timed_out)
-
-    # -- what the compiled path needs (RosCompiledPathSupport) -----------------------------------
-    # engine/fastpath.py asks the middleware itself for these until it goes through
-    # compiled_path_support() (the compiled path's part of issue 54).
-
-    def publisher_address(self, writer: EntityKey) -> int | None:
-        return self.compiled.publisher_address(writer)
-
-    def subscription_address(self, reader: EntityKey) -> int | None:
-        return self.compiled.subscription_address(reader)
-
-    def replier_service(self, replier: EntityKey):
-        return self.compiled.replier_service(replier)
-
-    def replier_sequence_from(self, replier: EntityKey, next_sequence) -> None:
-        self.compiled.replier_sequence_from(replier, next_sequence)
 
     # -- what the operator is shown (ShownEntities) ------------------------------------------------
 

@@ -14,7 +14,8 @@ board's own participant (boards of one agent may be named apart):
   Only a namespace moves nodes; remaps do not, and without one the samples go as they are.
 
 A reader or writer with a translation takes Python's path for every sample (the compiled UDP path
-would carry the bytes as they are: ``RosMiddleware.subscription_address``/``publisher_address``).
+would carry the bytes as they are: ``RosCompiledPathSupport.subscription_address`` and
+``publisher_address``).
 Everything else a board reads is listed in docs/ARCHITECTURE.md ("Names back to the board").
 """
 

@@ -16,7 +16,7 @@ reader's samples do, ``ReaderHandoff``); otherwise through the loop. Unanswered 
 under one timer for the whole agent, armed while any wait, instead of a timer per request, so a
 request costs the loop no wake-up at all. Over a UDP link with the compiled path, the engine takes
 a replier's rcl service away from the executor once the board reads it (``replier_service``,
-xrce/agent/engine/_replier_out.c): requests and replies then pass no Python at all, and only the
+xrce/agent/engine/compiled/_replier_out.c): requests and replies then pass no Python at all, and only the
 requests rclpy's executor still delivers come this way, with identities from the compiled path's
 counter (``replier_sequence_from``). Measured with bench/microros/service_roundtrip.py (the real
 firmware's replier, an rclpy client, medians of interleaved rounds beside eProsima's agent).

@@ -1,4 +1,4 @@
-"""The UDP link's optional compiled receive path (``xrce/agent/engine/_fastpath.c``), Python side.
+"""The UDP link's optional compiled receive path (``xrce/agent/engine/compiled/_fastpath.c``), Python side.
 
 When the extension is built and the middleware is rclpy, a thread of the extension's own reads
 the UDP link's socket (``_receive_thread.c``): ``recvmmsg`` batches, best-effort WRITE_DATA of
@@ -15,7 +15,7 @@ best-effort or in-order reliable sample (``DataPath.fast_write`` calls ``offer``
 its source address and, for sessions with a key in the header, that key: a datagram from anywhere
 else is Python's to judge, e.g. against --allow-from), the stream (its sequence numbers move into
 C; Python's stream object becomes a ``CompiledStream`` or ``CompiledReliableStream`` asking C,
-``xrce.agent.engine.compiled_streams``, so the numbers have one owner) and the writer (its rcl
+``xrce.agent.engine.compiled.streams``, so the numbers have one owner) and the writer (its rcl
 publisher, which C lets go of before the middleware destroys it: ``CompiledClient.forget_writer``).
 A client that needs the engine's attention (dead, parked while a type builds, a recovery timeline
 pending) and every client while the capture tap or the -v 6 trace is on are left to Python; the
@@ -43,19 +43,22 @@ import asyncio
 import logging
 import os
 import time
-from typing import Dict, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, Optional
 
-from xrce.agent.engine.compiled_streams import CompiledOutputBestEffort, CompiledOutputStream, \
+from xrce.agent.engine.compiled.client import CompiledClient
+from xrce.agent.engine.compiled.streams import CompiledOutputBestEffort, CompiledOutputStream, \
     CompiledReliableStream, CompiledStream
-from xrce.agent.engine.limits import MAX_REASSEMBLY, STREAM_WINDOW
+from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.agent.log_levels import TRACE
+from xrce.agent.middleware import CompiledPathSupport
 from xrce.wire import constants as C
-from xrce.wire.streams import InputBestEffortStream, OutputBestEffortStream, OutputReliableStream
+from xrce.wire.streams import OutputBestEffortStream, OutputReliableStream
 
 log = logging.getLogger("xrce.agent")
 
 try:
-    from xrce.agent.engine import _fastpath
+    from xrce.agent.engine.compiled import _fastpath
 except ImportError:  # built without a compiler: the Python path serves
     _fastpath = None
 
@@ -64,90 +67,49 @@ def enabled_by_environment() -> bool:
     return os.environ.get("XRCE_FASTPATH", "1").strip().lower() not in ("0", "no", "off", "false")
 
 
-class CompiledClient:
-    """What C knows of one client: its handle, streams and writers."""
+@dataclass(frozen=True)
+class EngineParts:
+    """What the compiled path works with of the engine the link delivers to, given by the one who
+    builds the engine (``Agent.attach_compiled_path``): ``support``, what the middleware offers
+    this path; ``fastpaths``, the engine's list of compiled paths, which this one joins while it
+    reads; ``output``, whose ``tap`` (the capture) leaves every client to Python while it is
+    set; ``timelines``, the recovery timelines whose clients Python keeps; ``datapath``, which
+    takes the samples C leaves to Python; ``acks``, ``scheduler``, ``budget``, ``stats``, ``lock``
+    and ``clock`` as every part of the engine has them; ``reassembly_limit``, the bytes one
+    reassembly may hold."""
 
-    __slots__ = ("path", "handle", "streams", "writers", "enabled", "reliable", "out_streams")
-
-    def __init__(self, path: "FastPath", handle: int):
-        self.path = path
-        self.handle = handle
-        self.streams: set = set()
-        self.writers: set = set()
-        self.enabled = True
-        self.reliable = False  # a reliable stream is registered: C needs the budget's room
-        self.out_streams: set = set()  # the agent's reliable output streams whose ACKNACKs C takes
-
-    def compile_output(self, client) -> None:
-        """Hand the acknowledged point of every reliable output stream not yet compiled to C
-        (under the engine's lock: ``DataPath.send_on_stream`` uses the streams on other threads)."""
-        for stream_id, stream in list(client.out_reliable.items()):
-            if stream_id not in self.out_streams:
-                client.out_reliable[stream_id] = CompiledOutputStream(
-                    self.path.receiver, self.handle, stream, client.heartbeat_sent_at is not None)
-                self.out_streams.add(stream_id)
-                log.debug("client %s: reliable output stream 0x%02X: plain ACKNACKs take the "
-                          "compiled path", client.key.hex(), stream_id)
-
-    def probing(self, probing: bool) -> None:
-        """Python sends a HEARTBEAT and times the ACKNACK answering it: every ACKNACK is
-        Python's meanwhile."""
-        if self.out_streams:
-            self.path.receiver.set_probing(self.handle, probing)
-
-    def forget_writer(self, client, object_id: int) -> None:
-        """Before the writer's publisher is destroyed: C holds no pointer to it afterwards."""
-        if object_id in self.writers:
-            self.writers.discard(object_id)
-            samples, size = self.path.receiver.remove_writer(self.handle, object_id)
-            entry = client.objects.get(object_id)
-            if entry is not None:
-                entry.samples += samples
-                entry.sample_bytes += size
-
-    def drop(self, client) -> None:
-        """The client is deleted or its streams reset: C forgets it (counters folded first)."""
-        path = self.path
-        path.fold()
-        for object_id in list(self.writers):
-            self.forget_writer(client, object_id)
-        for stream_id in self.streams:  # the sequence numbers come back to Python
-            reliable = client.in_reliable.get(stream_id)
-            if isinstance(reliable, CompiledReliableStream):
-                partial = reliable.take_partial()  # so does a reassembly under way
-                if partial is not None:
-                    client.reassembly[stream_id] = bytearray(partial)
-                client.in_reliable[stream_id] = reliable.detached()
-            elif isinstance(client.in_best_effort.get(stream_id), CompiledStream):
-                stream = client.in_best_effort[stream_id] = InputBestEffortStream(stream_id)
-                seq = path.receiver.stream_seq(self.handle, stream_id)
-                if seq is not None:
-                    stream.last_handled = seq
-        for stream_id in self.out_streams:  # the acknowledged points come back to Python
-            stream = client.out_reliable.get(stream_id)
-            if isinstance(stream, CompiledOutputStream):
-                path.agent.budget.charge(client, -stream.release())
-                client.out_reliable[stream_id] = stream.detached()
-        for stream_id, stream in list(client.out_best_effort.items()):
-            if isinstance(stream, CompiledOutputBestEffort):
-                plain = client.out_best_effort[stream_id] = OutputBestEffortStream(stream_id)
-                plain.last_sent = stream.last_sent
-        for token, (owner, _object_id) in path.readers.items():
-            if owner is client:  # C keeps the subscription and hands every sample over
-                path.direct[token] = None
-        path.receiver.remove_client(self.handle)
-        path.clients.pop(self.handle, None)
-        client.fast = None
+    support: CompiledPathSupport
+    fastpaths: list
+    output: Any
+    timelines: Any
+    datapath: Any
+    acks: Any
+    scheduler: Any
+    budget: Any
+    stats: Any
+    lock: Any
+    clock: Callable[[], float]
+    reassembly_limit: int
 
 
 class FastPath:
-    """One UDP link's compiled read, bound to the agent the link delivers to."""
+    """One UDP link's compiled read, bound to the engine parts the link delivers to."""
 
-    def __init__(self, link, sock, agent):
+    def __init__(self, link, sock, engine: EngineParts):
         self.link = link
-        self.agent = agent
+        self.support = engine.support
+        self.fastpaths = engine.fastpaths
+        self.output = engine.output
+        self.timelines = engine.timelines
+        self.datapath = engine.datapath
+        self.acks = engine.acks
+        self.scheduler = engine.scheduler
+        self.budget = engine.budget
+        self.stats = engine.stats
+        self.lock = engine.lock
+        self.clock = engine.clock  # the engine's; ``Agent.clock`` sets it again when a test swaps it
         self.receiver = _fastpath.Receiver(sock.fileno())
-        self.receiver.set_reassembly_limit(agent.max_reassembly_bytes or MAX_REASSEMBLY)
+        self.receiver.set_reassembly_limit(engine.reassembly_limit)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
         # Readers whose samples C takes (_reader_out.c): token -> (ClientProxy, object id), the
         # token of each (client key, object id), and each token's READ_DATA C serves, if any.
@@ -165,7 +127,7 @@ class FastPath:
         self._loop = asyncio.get_running_loop()
         # The thread writes it when it has handed datagrams over or wants a fold.
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        agent.fastpaths.append(self)
+        self.fastpaths.append(self)
         self._loop.add_reader(self._wake_fd, self.handed_over)
         self.receiver.start(self._wake_fd)
 
@@ -178,12 +140,12 @@ class FastPath:
         self.repliers.clear()
         self._loop.remove_reader(self._wake_fd)
         os.close(self._wake_fd)
-        with self.agent.lock:
+        with self.lock:
             for client in list(self.clients.values()):
                 if client.fast is not None:
                     client.fast.drop(client)
-        if self in self.agent.fastpaths:
-            self.agent.fastpaths.remove(self)
+        if self in self.fastpaths:
+            self.fastpaths.remove(self)
 
     def handed_over(self) -> None:
         """The receive thread has datagrams for Python, or wants a fold (the loop's reader of the
@@ -216,7 +178,7 @@ class FastPath:
                     break
                 # The thread is paused, so what a client sent in answer to this round comes in
                 # the next: what this round owes goes out first (Acknowledgments.acknack_soon).
-                self.agent.acks.flush()
+                self.acks.flush()
             self._handing = False
             while self._revisit:  # every sample C handed over is out: C may send again
                 self.reader_ready(*self._revisit.popitem()[1])
@@ -227,7 +189,7 @@ class FastPath:
                 self.fold()
                 self.sync()
             if receiver.heartbeat_due(False):  # C sent reliable DATA: its HEARTBEAT round
-                self.agent.scheduler.heartbeat_soon()
+                self.scheduler.heartbeat_soon()
         finally:
             self._handing = False
             self._revisit.clear()
@@ -253,21 +215,21 @@ class FastPath:
         self.direct[token] = None  # C stopped sending for it when it handed this one over
         client, object_id = reader
         # a replier's request comes as its identity and body (C holds the request for the reply)
-        self.agent.datapath.from_middleware(client, object_id,
+        self.datapath.from_middleware(client, object_id,
                                             cdr if token in self.repliers else cdr[4:])
 
     # -- registration ---------------------------------------------------------------------
 
     def _eligible(self, client) -> bool:
-        agent = self.agent
+        pending = self.timelines.pending
         return client.alive and not client.dead and client.parked is None and \
-            not client.resuming and client.link is self.link and not (agent.timelines.pending and
-                                              client.key in agent.timelines.pending)
+            not client.resuming and client.link is self.link and not (pending and
+                                                                      client.key in pending)
 
     def _compiled(self, client, what: str) -> Optional[CompiledClient]:
         """The client's registration in C, made now if it has none; None if it may not have
         one (the capture tap or the trace is on, or the client needs the engine's attention)."""
-        if self.agent.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
+        if self.output.tap is not None or log.isEnabledFor(TRACE) or not self._eligible(client):
             return None
         state: Optional[CompiledClient] = client.fast
         if state is None:
@@ -296,8 +258,7 @@ class FastPath:
         token = self.reader_tokens.get((client.key_int, entry.object_id))
         if token is not None and self.direct.get(token) == want:
             return
-        if want is not None and self._handing and \
-                self.agent.scheduler.on_loop_thread():
+        if want is not None and self._handing and self.scheduler.on_loop_thread():
             self._revisit[(client.key_int, entry.object_id)] = (client, entry)
             return
         if want is None:
@@ -307,7 +268,7 @@ class FastPath:
             return
         if not self.serves_readers:
             return
-        if not self.agent.scheduler.on_loop_thread():
+        if not self.scheduler.on_loop_thread():
             # Registration is the loop's. A sample (or request) delivered on rclpy's thread asks
             # the loop to try: the entity may not have existed when its READ_DATA came (created
             # in a burst the domain's executor takes in later), and every later sample could
@@ -331,7 +292,7 @@ class FastPath:
         if stream_id & 0x80:
             if stream_id not in client.out_reliable:
                 client.out_reliable[stream_id] = OutputReliableStream(stream_id, STREAM_WINDOW)
-            with self.agent.lock:
+            with self.lock:
                 state.compile_output(client)
             stream = client.out_reliable[stream_id]
             if not isinstance(stream, CompiledOutputStream):
@@ -354,17 +315,16 @@ class FastPath:
         self._register_soon.discard(key)
         if client.objects.get(entry.object_id) is not entry:
             return  # deleted meanwhile
-        with self.agent.lock:  # (reentrant: reader_ready takes it again to compile output)
+        with self.lock:  # (reentrant: reader_ready takes it again to compile output)
             self.reader_ready(client, entry)
 
     def _add_reader(self, client, state: CompiledClient, entry) -> int:
         """Register the reader's (or replier's) rcl entity in C; its token, 0 if C cannot take
         it."""
-        middleware = self.agent.middleware
+        support = self.support
         key = client.entity(entry.object_id)
         if entry.kind == C.OBJK_REPLIER:
-            service_of = getattr(middleware, "replier_service", None)
-            service = service_of(key) if service_of is not None else None
+            service = support.replier_service(key)
             if service is None:
                 return 0
             try:
@@ -377,11 +337,10 @@ class FastPath:
                 return 0
             self.repliers.add(token)
             receiver = self.receiver
-            middleware.replier_sequence_from(key, lambda: receiver.replier_sequence(token))
+            support.replier_sequence_from(key, lambda: receiver.replier_sequence(token))
             what = "requests from ROS and their replies"
         else:
-            address_of = getattr(middleware, "subscription_address", None)
-            address = address_of(key) if address_of else None
+            address = support.subscription_address(key)
             if not address:
                 return 0
             token = self.receiver.add_reader(state.handle, entry.object_id, address)
@@ -426,9 +385,7 @@ class FastPath:
         self.fold()
         if token in self.repliers:  # identities are the record's again (it is going anyway)
             self.repliers.discard(token)
-            set_source = getattr(self.agent.middleware, "replier_sequence_from", None)
-            if set_source is not None:
-                set_source(client.entity(object_id), None)
+            self.support.replier_sequence_from(client.entity(object_id), None)
         self.receiver.remove_reader(token)
         self.readers.pop(token, None)
         self.direct.pop(token, None)
@@ -439,7 +396,6 @@ class FastPath:
         state = self._compiled(client, "best-effort samples")
         if state is None:
             return
-        agent = self.agent
         if len(client.out_reliable) != len(state.out_streams):
             state.compile_output(client)
         if stream_id not in state.streams and stream_id & 0x80:
@@ -461,15 +417,14 @@ class FastPath:
             client.in_best_effort[stream_id] = CompiledStream(self.receiver, state.handle, stream_id)
             state.streams.add(stream_id)
         if entry.object_id not in state.writers:
-            address_of = getattr(agent.middleware, "publisher_address", None)
-            address = address_of(client.entity(entry.object_id)) if address_of else None
+            address = self.support.publisher_address(client.entity(entry.object_id))
             if address:
                 self.receiver.add_writer(state.handle, entry.object_id, address)
                 state.writers.add(entry.object_id)
 
     def sync(self) -> None:
         """Disable the clients that need the engine's attention; re-enable the others."""
-        self.receiver.set_enabled(self.agent.tap is None and not log.isEnabledFor(TRACE))
+        self.receiver.set_enabled(self.output.tap is None and not log.isEnabledFor(TRACE))
         for client in self.clients.values():
             state = client.fast
             if state is None:
@@ -481,7 +436,7 @@ class FastPath:
             if eligible and state.reliable:
                 self.receiver.set_room(state.handle, self.room(client))
             if eligible and len(client.out_reliable) != len(state.out_streams):
-                with self.agent.lock:  # a stream created since: its ACKNACKs reached Python
+                with self.lock:  # a stream created since: its ACKNACKs reached Python
                     if client.fast is state:
                         state.compile_output(client)
 
@@ -489,71 +444,98 @@ class FastPath:
         """What the client's byte budget leaves (``Agent._over_budget``): C stores a FRAGMENT
         only within it, as Python's ``_hold_back`` refuses one beyond it. Refreshed whenever
         Python has handled a datagram; between, C counts down what it adds itself."""
-        budget = self.agent.budget
+        budget = self.budget
         return min(budget.max_client_bytes - client.buffered - client.queued_bytes,
                    budget.max_total_bytes - budget.buffered_total - budget.queued_total)
 
     # -- counters -------------------------------------------------------------------------
 
     def fold(self) -> None:
-        """Move C's counters into the agent's, the link's, the clients' and the writers'."""
+        """Move C's counters into the engine's, the link's, the clients' and the writers'."""
+        traffic, clients, writers, acks = self.receiver.fold()
+        acknacks = traffic[5]
+        self._fold_traffic(traffic)
+        reliable = self.receiver.fold_reliable()
+        if reliable is not None:
+            self._fold_reassembly(*reliable)
+        sent = self.receiver.fold_readers()
+        if sent is not None:
+            self._fold_readers(*sent)
+        if self.repliers:
+            expired = self.receiver.take_expired()
+            if expired:
+                self.support.count_timed_out_requests(expired)
+                log.warning("%s: %d service requests got no reply from their XRCE client within "
+                            "%.1f s", self.link.name, expired, self.support.request_timeout_s)
+        self._fold_clients(clients, acknacks)
+        for handle, object_id, count, size in writers:
+            client = self.clients.get(handle)
+            entry = client.objects.get(object_id) if client is not None else None
+            if entry is not None:
+                entry.samples += count
+                entry.sample_bytes += size
+        for handle, stream_id in acks:  # as DataPath.fast_write after a reliable sample
+            client = self.clients.get(handle)
+            stream = client.in_reliable.get(stream_id) if client is not None else None
+            if stream is not None and client.alive:
+                self.acks.acknack_soon(client, stream)
+
+    def _fold_traffic(self, traffic: tuple) -> None:
+        """The messages C took in and sent (ACKNACKs, replies) into the engine's and the link's
+        counters; a failed publish is said."""
         (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes, replies,
-         reply_bytes), clients, writers, acks = self.receiver.fold()
+         reply_bytes) = traffic
+        link_stats = self.link.stats
         if acknacks or replies:
-            stats = self.agent.stats
+            stats = self.stats
             stats.acknacks_out += acknacks
             stats.messages_out += acknacks + replies
             stats.bytes_out += acknack_bytes + reply_bytes
-            self.link.stats.messages_out += acknacks + replies
-            self.link.stats.bytes_out += acknack_bytes + reply_bytes
+            link_stats.messages_out += acknacks + replies
+            link_stats.bytes_out += acknack_bytes + reply_bytes
         if messages:
-            stats = self.agent.stats
+            stats = self.stats
             stats.messages_in += messages
             stats.bytes_in += size
             stats.samples_in += samples
             stats.samples_compiled += samples
             stats.dropped += stale
-            self.link.stats.messages_in += messages
-            self.link.stats.bytes_in += size
-        reliable = self.receiver.fold_reliable()
-        if reliable is not None:
-            fragments, charges = reliable
-            self.agent.stats.fragments_in += fragments
-            for handle, size in charges:  # reassembly C holds counts against the client's budget
-                client = self.clients.get(handle)
-                if client is not None:
-                    self.agent.budget.charge(client, size)
-        sent = self.receiver.fold_readers()
-        if sent is not None:
-            (samples, count, size), rows = sent
-            stats = self.agent.stats
-            stats.samples_out += samples
-            stats.samples_out_compiled += samples
-            stats.messages_out += count
-            stats.bytes_out += size
-            self.link.stats.messages_out += count
-            self.link.stats.bytes_out += size
-            for token, object_id, samples, sample_bytes, _count, _size in rows:
-                reader = self.readers.get(token)
-                entry = reader[0].objects.get(object_id) if reader is not None else None
-                if entry is not None:
-                    entry.samples += samples
-                    entry.sample_bytes += sample_bytes
+            link_stats.messages_in += messages
+            link_stats.bytes_in += size
         if publish_errors:
-            self.agent.stats.publish_errors += publish_errors
+            self.stats.publish_errors += publish_errors
             log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
-        if self.repliers:
-            expired = self.receiver.take_expired()
-            if expired:
-                middleware = self.agent.middleware
-                middleware.requests_timed_out = getattr(middleware, "requests_timed_out", 0) + \
-                    expired
-                log.warning("%s: %d service requests got no reply from their XRCE client within "
-                            "%.1f s", self.link.name, expired,
-                            getattr(middleware, "request_timeout_s", 0.0))
+
+    def _fold_reassembly(self, fragments: int, charges) -> None:
+        """FRAGMENTs C took; the reassembly it holds counts against each client's budget."""
+        self.stats.fragments_in += fragments
+        for handle, size in charges:
+            client = self.clients.get(handle)
+            if client is not None:
+                self.budget.charge(client, size)
+
+    def _fold_readers(self, totals: tuple, rows) -> None:
+        """Samples C sent to boards' readers: the engine's, the link's and each reader's counts."""
+        samples, count, size = totals
+        stats = self.stats
+        stats.samples_out += samples
+        stats.samples_out_compiled += samples
+        stats.messages_out += count
+        stats.bytes_out += size
+        self.link.stats.messages_out += count
+        self.link.stats.bytes_out += size
+        for token, object_id, samples, sample_bytes, _count, _size in rows:
+            reader = self.readers.get(token)
+            entry = reader[0].objects.get(object_id) if reader is not None else None
+            if entry is not None:
+                entry.samples += samples
+                entry.sample_bytes += sample_bytes
+
+    def _fold_clients(self, clients, acknacks: int) -> None:
+        """Each client's traffic through C, and when C last heard it (what liveliness judges)."""
         # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
-        offset = self.agent.clock() - time.monotonic() if self.agent.clock is not time.monotonic \
-            else 0.0
+        clock = self.clock
+        offset = clock() - time.monotonic() if clock is not time.monotonic else 0.0
         for handle, count, size, seen_ns, count_out, size_out, skew_ns in clients:
             client = self.clients.get(handle)
             if client is None:
@@ -575,17 +557,7 @@ class FastPath:
             seen = seen_ns / 1e9 + offset
             if seen > client.last_seen:
                 client.last_seen = seen
-        for handle, object_id, count, size in writers:
-            client = self.clients.get(handle)
-            entry = client.objects.get(object_id) if client is not None else None
-            if entry is not None:
-                entry.samples += count
-                entry.sample_bytes += size
-        for handle, stream_id in acks:  # as DataPath.fast_write after a reliable sample
-            client = self.clients.get(handle)
-            stream = client.in_reliable.get(stream_id) if client is not None else None
-            if stream is not None and client.alive:
-                self.agent.acks.acknack_soon(client, stream)
+
 
 def stale_build(module) -> Optional[str]:
     """Why ``module`` (the built extension) is not what the C sources beside it build, or None.
@@ -597,9 +569,9 @@ def stale_build(module) -> Optional[str]:
     return c_sources.stale_build(module, os.path.dirname(os.path.abspath(__file__)))
 
 
-def attach(link, sock) -> Optional[FastPath]:
-    """A ``FastPath`` for ``link`` if the extension, the environment and the agent allow one."""
-    agent = link.receiver
+def attach(link, sock, engine: EngineParts) -> Optional[FastPath]:
+    """A ``FastPath`` for ``link`` over ``sock``, working with ``engine``'s parts, if the
+    extension, the environment and the middleware (``engine.support``) allow one."""
     if _fastpath is None:
         log.debug("%s: compiled receive path not built; Python path", link.name)
         return None
@@ -611,12 +583,11 @@ def attach(link, sock) -> Optional[FastPath]:
         log.warning("%s: compiled receive path %s: `pip install -e .` rebuilds it; Python path",
                     link.name, stale)
         return None
-    if getattr(getattr(agent, "middleware", None), "publisher_address", None) is None or \
-            not hasattr(agent, "fastpaths"):
+    if engine.support is None:
         log.debug("%s: middleware without rcl publishers; Python path", link.name)
         return None
     if not _fastpath.resolve_rcl():
         log.debug("%s: rcl_publish_serialized_message not found; Python path", link.name)
         return None
     log.debug("%s: compiled receive path", link.name)
-    return FastPath(link, sock, agent)
+    return FastPath(link, sock, engine)

@@ -1,4 +1,4 @@
-/* The compiled receive path's tables, as Python fills them (xrce.agent.engine.fastpath): the
+/* The compiled receive path's tables, as Python fills them (xrce.agent.engine.compiled.fastpath): the
  * clients it may serve and their addresses, their streams and each stream's state, the writers it
  * may publish for. Registration runs on the loop's thread; the mutex keeps the receive thread
  * from seeing a table half changed. */

@@ -1,6 +1,6 @@
 """The agent's stream objects whose sequence numbers the compiled UDP path owns.
 
-When ``xrce.agent.engine.fastpath`` hands a client's stream to C (``_fastpath.c``,
+When ``xrce.agent.engine.compiled.fastpath`` hands a client's stream to C (``_fastpath.c``,
 ``_reliable_in.c``, ``_reliable_out.c``), the client's Python stream object is swapped for one of
 these: same interface as the ``xrce.wire.streams`` class it replaces, but its numbers are read from and
 written to C, so they have one owner while Python still handles everything C leaves to it

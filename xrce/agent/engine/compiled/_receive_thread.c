@@ -1,7 +1,7 @@
 /* The compiled path's own receive thread: it owns the UDP socket's reads, so a board's steady
  * traffic (samples, fragments, HEARTBEATs, ACKNACKs, TIMESTAMPs: what try_fast takes) never wakes
  * the interpreter. What try_fast leaves goes, in arrival order, into a bounded hand-off that
- * Python takes on the loop's thread when an eventfd wakes it (xrce.agent.engine.fastpath).
+ * Python takes on the loop's thread when an eventfd wakes it (xrce.agent.engine.compiled.fastpath).
  *
  * Order: once a datagram is handed to Python, every later one is too until Python has handled all
  * it took and resumes this thread (Receiver.resume); Python also pauses it around its own timed

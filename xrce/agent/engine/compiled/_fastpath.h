@@ -10,9 +10,6 @@
 
 #include <arpa/inet.h>
 #include <dlfcn.h>
-#if defined(__GLIBC__)
-#include <malloc.h>
-#endif
 #include <errno.h>
 #include <netinet/in.h>
 #include <pthread.h>
@@ -96,7 +93,7 @@ typedef struct OutStream {
 } OutStream;
 
 /* An agent best-effort output stream whose sequence numbers live here once a reader may be
- * served on it (xrce.agent.engine.compiled_streams.CompiledOutputBestEffort). */
+ * served on it (xrce.agent.engine.compiled.streams.CompiledOutputBestEffort). */
 typedef struct OutBestEffort {
     struct OutBestEffort *next;
     uint8_t stream_id;

@@ -15,7 +15,7 @@
  *
  * One owner per number: both of the stream's numbers live here (Python reads and moves them
  * through out_acknowledged, out_reserve and set_out_state:
- * xrce.agent.engine.compiled_streams.CompiledOutputStream), since the receive thread sends a
+ * xrce.agent.engine.compiled.streams.CompiledOutputStream), since the receive thread sends a
  * reader's DATA on the stream too (_reader_out.c). The history is split by who sent the message:
  * the messages sent here are kept here (slots) and freed as the acknowledged point passes them;
  * Python's stay Python's, released when it next uses the stream (CompiledOutputStream.release),

@@ -16,7 +16,7 @@
  * A datagram that is none of these (other reliable messages, control, unknown clients, anything
  * malformed, a failed reliable publish) is handed to Python unchanged, and so is every datagram
  * behind it until Python has handled them, so every decision Python makes it still makes in
- * arrival order. xrce/agent/engine/fastpath.py is the Python side.
+ * arrival order. xrce/agent/engine/compiled/fastpath.py is the Python side.
  *
  * History: this path first read on the asyncio loop's thread, and a thread of its own was measured
  * and dropped then: with only best-effort samples taken here, every other datagram cost two
@@ -28,7 +28,7 @@
  * removes a writer before it destroys the publisher. This module owns the input sequence number of
  * every registered stream: Python asks it (stream_accept) for the datagrams it handles itself, and
  * a registered reliable stream's two numbers (reliable_state, set_reliable_state) whenever its
- * InputReliableStream reads or moves them (xrce.agent.engine.compiled_streams.CompiledReliableStream).
+ * InputReliableStream reads or moves them (xrce.agent.engine.compiled.streams.CompiledReliableStream).
  * Counters accumulate here and Python folds them into its own (fold) whenever it runs for the link.
  *
  * rcl is not linked: the function is looked up in the librcl rclpy already loaded, so the module
@@ -153,7 +153,7 @@ static int64_t time_of_day_ns(void) {
 }
 
 /* A datagram that is one little-endian TIMESTAMP: answered here with the bytes the Python path
- * sends (xrce.agent.engine.dispatch, a test holds them equal): TIMESTAMP_REPLY on stream none,
+ * sends (xrce.agent.engine.agent, a test holds them equal): TIMESTAMP_REPLY on stream none,
  * the time of day at transmit and at receive, the client's time echoed. PX4 counts only round
  * trips under 10 ms towards its time sync and sends one in its loop among its samples: answered
  * here, it waits for nothing in Python, nor does the rest of the batch behind it. 1 if sent. */
@@ -506,7 +506,7 @@ static PyMethodDef Receiver_methods[] = {
 
 static PyTypeObject ReceiverType = {
     PyVarObject_HEAD_INIT(NULL, 0)
-    .tp_name = "xrce.agent.engine._fastpath.Receiver",
+    .tp_name = "xrce.agent.engine.compiled._fastpath.Receiver",
     .tp_basicsize = sizeof(Receiver),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_new = PyType_GenericNew,
@@ -527,33 +527,21 @@ static PyObject *resolve_readers(PyObject *module, PyObject *unused) {
     return resolve_rcl_readers();
 }
 
-/* malloc_trim(0) once start-up is over (xrce.agent.engine.dispatch). Here rather than through
- * ctypes: the ctypes package, once imported, stays in the process (0.57 MB of classes). */
-static PyObject *return_free_heap(PyObject *module, PyObject *unused) {
-#if defined(__GLIBC__)
-    malloc_trim(0);
-    Py_RETURN_TRUE;
-#else
-    Py_RETURN_FALSE;
-#endif
-}
-
 static PyMethodDef module_methods[] = {
     {"resolve_rcl", resolve_rcl, METH_NOARGS, NULL},
-    {"return_free_heap", return_free_heap, METH_NOARGS, NULL},
     {"resolve_readers", resolve_readers, METH_NOARGS,
      "True once rcl's serialized take and message callback are found"},
     {NULL},
 };
 
-/* CRC-32 of this folder's C sources, given by setup.py (xrce.agent.engine.fastpath compares it
- * with them). */
+/* CRC-32 of this folder's C sources, given by setup.py (xrce.agent.engine.compiled.fastpath
+ * compares it with them). */
 #ifndef XRCE_SOURCE_CRC
 #define XRCE_SOURCE_CRC "unknown"
 #endif
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "xrce.agent.engine._fastpath", NULL, -1, module_methods,
+    PyModuleDef_HEAD_INIT, "xrce.agent.engine.compiled._fastpath", NULL, -1, module_methods,
 };
 
 PyMODINIT_FUNC PyInit__fastpath(void) {
