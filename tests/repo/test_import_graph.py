@@ -278,3 +278,60 @@ def test_a_layer_crossing_is_found():
              "xrce.transports.udp": {"xrce.agent.links.udp"}, "xrce.msgs": {"xrce.wire.cdr"}}
     assert layer_crossings(every) == ["xrce.wire.cdr -> xrce.client.session",
                                       "xrce.transports.udp -> xrce.agent.links.udp"]
+
+
+# The floors inside the agent (issue 54), top down: what runs the agent, what it serves on, the
+# protocol engine, the middleware the engine creates entities in, what both report and build
+# with, and the ground modules every floor may use. An import may point down or across a floor,
+# never up: the engine knows no link, the middleware no engine, the observers neither.
+AGENT_FLOORS = [
+    ("xrce.agent.__main__", "xrce.agent.launcher", "xrce.agent.cli"),
+    ("xrce.agent.links", "xrce.agent.state", "xrce.agent.demo"),
+    ("xrce.agent.engine",),
+    ("xrce.agent.middleware",),
+    ("xrce.agent.observe", "xrce.agent.interfaces"),
+    ("xrce.agent.heap", "xrce.agent.allow_lists", "xrce.agent.log_levels", "xrce.agent.c_sources",
+     "xrce.agent._heap"),
+]
+
+
+def agent_floor(module):
+    """The floor (0 = top) of an agent module; the package xrce.agent itself is the ground's."""
+    for number, floor in enumerate(AGENT_FLOORS):
+        if any(_within(module, place) for place in floor):
+            return number
+    return len(AGENT_FLOORS) - 1 if module == "xrce.agent" else None
+
+
+def upward_imports(every):
+    """["a -> b"] for every import of an agent module from a floor above the importer's."""
+    found = []
+    for module in sorted(every):
+        floor = agent_floor(module)
+        if floor is None:
+            continue
+        for target in sorted(every[module]):
+            above = agent_floor(target)
+            if above is not None and above < floor:
+                found.append("%s -> %s" % (module, target))
+    return found
+
+
+def test_every_agent_module_has_a_floor():
+    every, _ = import_graph(ROOTS)
+    homeless = [m for m in sorted(every) if _within(m, "xrce.agent") and agent_floor(m) is None]
+    assert not homeless, "agent modules on no floor (add them to AGENT_FLOORS): %s" % homeless
+
+
+def test_the_agent_floors_only_point_down():
+    every, _ = import_graph(ROOTS)
+    found = upward_imports(every)
+    assert not found, "imports up a floor inside the agent:\n  " + "\n  ".join(found)
+
+
+def test_an_upward_import_inside_the_agent_is_found():
+    every = {"xrce.agent.middleware.ros.domain": {"xrce.agent.engine.agent", "xrce.agent.heap"},
+             "xrce.agent.engine.agent": {"xrce.agent.middleware", "xrce.agent.observe.names"},
+             "xrce.agent.heap": {"xrce.agent.engine.compiled"}}
+    assert upward_imports(every) == ["xrce.agent.heap -> xrce.agent.engine.compiled",
+                                     "xrce.agent.middleware.ros.domain -> xrce.agent.engine.agent"]
