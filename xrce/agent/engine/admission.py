@@ -43,6 +43,11 @@ def endpoint_address(endpoint):
     return address
 
 
+def _link_name(link) -> str:
+    # Admission is asked with a link, or with none (a restored client, a direct caller).
+    return link.name if link is not None else "link"
+
+
 class RefusalLog:
     """One kind of refusal logged at most ``burst`` lines per ``period`` seconds however many
     arrive, so that a stranger's flood cannot fill the operator's disk through the log. The
@@ -124,7 +129,7 @@ class AdmissionPolicy:
         from xrce.agent.observe.names import endpoint_text
 
         self._refusals.warning("refused CREATE_CLIENT of key %s from %s %s: %s (ERR_DENIED)",
-                               bytes(key).hex(), getattr(link, "name", "link"),
+                               bytes(key).hex(), _link_name(link),
                                endpoint_text(getattr(endpoint, "peer", endpoint)), reason)
         return False
 
@@ -151,7 +156,7 @@ class AdmissionPolicy:
         from xrce.agent.observe.names import endpoint_text
 
         self._datagram_refusals.warning("dropped a datagram of session 0x%02X from %s %s: %s",
-                                        data[0], getattr(link, "name", "link"),
+                                        data[0], _link_name(link),
                                         endpoint_text(peer), verdict)
         return False
 
