@@ -209,12 +209,13 @@ class FrameDecoder:
         return self._decode(buf, start, end, None)
 
     def _decode(self, buf, start, end, frames):
-        # The frame grammar for ``feed`` and ``scan``. With a list in ``frames`` (``buf`` is bytes) it
-        # decodes to ``end``, appending ``(src, dst, payload)`` per frame, finding flags and copying
-        # plain payload runs with bytes.find and slices (C speed for the agent's 64 KiB reads). With
-        # None it stops after the first frame and goes byte by byte, allocating nothing (a board's
-        # slices and memoryviews are heap objects). Returns the index after what it used. Per-byte
-        # work stays here in locals; what comes a few times a frame is in the methods below.
+        # The frame grammar, counters and CRC check for both ``feed`` and ``scan``. With a list in
+        # ``frames`` (``buf`` is bytes) it decodes to ``end``, appending ``(src, dst, payload)`` per
+        # frame, and finds flags and copies runs of plain payload bytes with bytes.find and slices (C
+        # speed on CPython, where the agent reads 64 KiB at a time). With None it stops after the
+        # first frame and goes byte by byte: every value is then a small int and nothing is allocated
+        # (a board's slices and bound memoryviews are heap objects). Returns the index after what it
+        # used.
         runs = frames is not None
         chunk = memoryview(buf) if runs else None  # its slices are views: no copy of the run
         buffer = self.buffer
@@ -222,23 +223,45 @@ class FrameDecoder:
         state = self._state
         escaped = self._escaped
         raw = self._raw
+        src = self._src
+        dst = self._dst
         length = self._length
         filled = self._filled
+        crc_rx = self._crc_rx
         self.frame_length = -1
         i = start
         while i < end:
             if state == _HUNT:
-                flag = self._find_flag(buf, i, end, runs)
+                if runs:
+                    flag = buf.find(_FLAG_BYTES, i, end)
+                else:
+                    flag = i
+                    while flag < end and buf[flag] != FLAG:
+                        flag += 1
+                    if flag == end:
+                        flag = -1
                 if flag < 0:
+                    self.dropped_bytes += end - i
                     i = end
                     break
+                if flag > i:  # back-to-back frames: nothing to count
+                    self.dropped_bytes += flag - i
                 i = flag + 1
                 state = _SRC
                 escaped = False
                 raw = 1
                 continue
             if state == _PAYLOAD and runs and not escaped:
-                stop = self._plain_run_end(buf, i, end, length - filled)
+                # Copy the run of plain payload bytes up to the next flag/escape in one slice.
+                stop = i + length - filled
+                if stop > end:
+                    stop = end
+                special = buf.find(_FLAG_BYTES, i, stop)
+                if special >= 0:
+                    stop = special
+                special = buf.find(_ESCAPE_BYTES, i, stop)
+                if special >= 0:
+                    stop = special
                 if stop > i:
                     count = stop - i
                     view[filled : filled + count] = chunk[i:stop]
@@ -269,108 +292,61 @@ class FrameDecoder:
                 filled += 1
                 if filled == length:
                     state = _CRC_LO
-            elif state == _CRC_HI:  # the frame is complete
-                state = _HUNT
-                given = self._complete(byte, raw, length, frames)
-                raw = 0
-                if given and not runs:
-                    break
-            else:  # the header, the CRC's first byte
-                state = self._header_byte(state, byte, raw)
-                length = self._length
-                if state == _HUNT:  # longer than max_payload: dropped
+            elif state == _SRC:
+                src = byte
+                state = _DST
+            elif state == _DST:
+                dst = byte
+                state = _LEN_LO
+            elif state == _LEN_LO:
+                length = byte
+                state = _LEN_HI
+            elif state == _LEN_HI:
+                length |= byte << 8
+                if length > self.max_payload:
+                    self.oversize += 1
+                    self.dropped_bytes += raw
                     raw = 0
-                elif state == _PAYLOAD:
+                    state = _HUNT
+                else:
                     filled = 0
+                    state = _PAYLOAD if length else _CRC_LO
+            elif state == _CRC_LO:
+                crc_rx = byte
+                state = _CRC_HI
+            else:  # _CRC_HI: the frame is complete
+                crc_rx |= byte << 8
+                state = _HUNT
+                if runs:
+                    check = self._crc(view[:length])  # crcmod's C loop on CPython
+                else:
+                    check = crc_of_prefix(self._crc, buffer, length)
+                if check != crc_rx:
+                    self.crc_errors += 1
+                    self.dropped_bytes += raw
+                elif self.local_addr is not None and dst != self.local_addr:
+                    self.wrong_address += 1
+                    self.dropped_bytes += raw
+                else:
+                    self.frames += 1
+                    if runs:
+                        frames.append((src, dst, bytes(view[:length])))
+                    else:
+                        self.frame_length = length
+                        self.frame_src = src
+                        self.frame_dst = dst
+                        raw = 0
+                        break
+                raw = 0
         self._state = state
         self._escaped = escaped
         self._raw = raw
+        self._src = src
+        self._dst = dst
         self._length = length
         self._filled = filled
-        return i
-
-    def _header_byte(self, state, byte, raw):
-        # src, dst, the length or the CRC's low byte kept, and the state after it; a length above
-        # max_payload drops the frame (its ``raw`` bytes) and hunts for the next flag.
-        if state == _SRC:
-            self._src = byte
-            return _DST
-        if state == _DST:
-            self._dst = byte
-            return _LEN_LO
-        if state == _LEN_LO:
-            self._length = byte
-            return _LEN_HI
-        if state == _CRC_LO:
-            self._crc_rx = byte
-            return _CRC_HI
-        length = self._length | byte << 8  # _LEN_HI
-        self._length = length
-        if length > self.max_payload:
-            self.oversize += 1
-            self.dropped_bytes += raw
-            return _HUNT
-        return _PAYLOAD if length else _CRC_LO
-
-    def _find_flag(self, buf, i, end, runs):
-        # Where the next flag in buf[i:end] is (-1: none), the bytes before it counted as dropped.
-        # bytes.find with runs (feed), else byte by byte (scan: nothing allocated).
-        if runs:
-            flag = buf.find(_FLAG_BYTES, i, end)
-        else:
-            flag = i
-            while flag < end and buf[flag] != FLAG:
-                flag += 1
-            if flag == end:
-                flag = -1
-        if flag < 0:
-            self.dropped_bytes += end - i
-        elif flag > i:  # back-to-back frames: nothing to count
-            self.dropped_bytes += flag - i
-        return flag
-
-    def _plain_run_end(self, buf, i, end, left):
-        # Where the run of plain payload bytes from buf[i] stops: after the ``left`` bytes the
-        # payload still needs, at the chunk's end, or at the next flag or escape.
-        stop = i + left
-        if stop > end:
-            stop = end
-        special = buf.find(_FLAG_BYTES, i, stop)
-        if special >= 0:
-            stop = special
-        special = buf.find(_ESCAPE_BYTES, i, stop)
-        if special >= 0:
-            stop = special
-        return stop
-
-    def _complete(self, crc_hi, raw, length, frames):
-        # A whole frame of ``raw`` bytes, its CRC's high byte last: dropped (and counted) on a bad
-        # CRC or another destination, else counted and given out, appended to ``frames`` (feed) or
-        # left in ``buffer`` with frame_length/src/dst set (scan). True when given out.
-        crc_rx = self._crc_rx | crc_hi << 8
         self._crc_rx = crc_rx
-        src = self._src
-        dst = self._dst
-        if frames is not None:
-            check = self._crc(self._view[:length])  # crcmod's C loop on CPython
-        else:
-            check = crc_of_prefix(self._crc, self.buffer, length)
-        if check != crc_rx:
-            self.crc_errors += 1
-            self.dropped_bytes += raw
-            return False
-        if self.local_addr is not None and dst != self.local_addr:
-            self.wrong_address += 1
-            self.dropped_bytes += raw
-            return False
-        self.frames += 1
-        if frames is not None:
-            frames.append((src, dst, bytes(self._view[:length])))
-        else:
-            self.frame_length = length
-            self.frame_src = src
-            self.frame_dst = dst
-        return True
+        return i
 
 
 # The receive loop of the client's framed links (SerialTransport on CPython, CustomTransport with
