@@ -57,7 +57,6 @@ class CustomTransport:
         "_crc",
         "_out",
         "_frame",
-        "_receive",
         "_flush",
         "_is_open",
         "_pending",
@@ -95,7 +94,7 @@ class CustomTransport:
         self._pending = []
         if framing:
             from xrce.transports.crc import get_crc
-            from xrce.transports.framing import FrameDecoder, receive_framed, write_frame
+            from xrce.transports.framing import FrameDecoder, write_frame
 
             self._crc = get_crc(crc)
             self.decoder = FrameDecoder(local_addr=local_addr, max_payload=mtu, crc=self._crc)
@@ -103,10 +102,9 @@ class CustomTransport:
             out = self._out = bytearray(2 * _PIECE)
             out[_PIECE:] = b""  # _PIECE long, _PIECE bytes to spare in its block (see _piece)
             self._frame = write_frame  # framing.py's, loaded only here (see above)
-            self._receive = receive_framed
             self._flush = self._piece  # bound once: a bound method per send is an allocation
         else:
-            self._crc = self._out = self._frame = self._receive = self._flush = None
+            self._crc = self._out = self._frame = self._flush = None
             self.decoder = None
             # One spare byte so an over-long packet is detected instead of cut to a plausible one.
             self._buf = bytearray(mtu + 1)
@@ -141,17 +139,15 @@ class CustomTransport:
                 return False
             self.sent += 1
             return True
-        if not self._send_framed(msg):
+        # encode_frame's bytes, escaped into _out and handed to write_cb a piece at a time
+        # (framing.write_frame, SerialTransport's scheme too): no frame object. Inline, not a
+        # method: each method is an entry of the class's dictionary in a board's heap.
+        if not self._frame(self._out, _PIECE, msg, self.local_addr, self.remote_addr,
+                           self._crc(msg), self._flush):
             self.send_errors += 1
             return False
         self.sent += 1
         return True
-
-    def _send_framed(self, msg):
-        # encode_frame's bytes, escaped into _out and handed to write_cb a piece at a time
-        # (framing.write_frame, SerialTransport's scheme too): no frame object.
-        return self._frame(self._out, _PIECE, msg, self.local_addr, self.remote_addr,
-                           self._crc(msg), self._flush)
 
     def _piece(self, n):
         # _out[:n] to write_cb as _out itself, cut to n in place: a bytearray shortened by slice
@@ -175,7 +171,7 @@ class CustomTransport:
         if not self._is_open:
             raise TransportError("custom transport is closed")
         if self.framing:
-            return self._receive(self, timeout_ms)  # framing.receive_framed
+            return self.decoder.receive(self, timeout_ms)
         deadline = ticks_add(ticks_ms(), timeout_ms)
         remaining = timeout_ms
         while True:
@@ -190,5 +186,5 @@ class CustomTransport:
                 return None
 
     def _read_available(self, wait_ms):
-        # framing.receive_framed's read: what read_cb gives within wait_ms, into _buf.
+        # FrameDecoder.receive's read: what read_cb gives within wait_ms, into _buf.
         return self._read_cb(self.user, self._buf, len(self._buf), wait_ms if wait_ms > 0 else 0)

@@ -17,7 +17,7 @@
 from xrce import EncodeError, IS_MICROPYTHON, sleep_ms, ticks_add, ticks_diff, ticks_ms
 from xrce.transports import TransportError
 from xrce.transports.crc import get_crc
-from xrce.transports.framing import FrameDecoder, encode_frame, receive_framed, write_frame
+from xrce.transports.framing import FrameDecoder, encode_frame, write_frame
 
 try:
     import serial as _pyserial  # pyserial
@@ -244,5 +244,5 @@ class SerialTransport:
         if IS_MICROPYTHON:
             length = self.recv_frame(timeout_ms)
             return None if length < 0 else bytes(memoryview(self.decoder.buffer)[:length])
-        return receive_framed(self, timeout_ms)
+        return self.decoder.receive(self, timeout_ms)
 
