@@ -237,7 +237,10 @@ def test_the_agent_sleeps_until_someone_subscribes_to_diagnostics(ros_peer, ros_
             assert session.create(attempts=5, timeout_ms=1000)
             session.create_participant(domain_id=ros_domain, name="silent")
             assert session.run_until_all_status(5000), session.last_statuses
-            time.sleep(2)  # the domain's start-up and DDS discovery settle
+            # The domain's start-up and DDS discovery settle: the node is in the peer's graph, then
+            # 6 s (what is measured is the steady state; 2 s was too short on a slowed host).
+            assert wait_until(lambda: ("silent", "/") in ros_peer.node_names(), 20)
+            time.sleep(6)
             assert _main_thread_wakes_over(pid, 3) <= 1
 
             arrays = []
