@@ -20,20 +20,13 @@ from test_msgs.srv import BasicTypes
 
 from agent_process import REPO, AgentProcess
 from ros_helpers import DomainLease, RosPeer, ros_domain, ros_peer, wait_until  # noqa: F401
+from test_ros_bridge import RawBasicTypes  # test_msgs/srv/BasicTypes as bytes
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
 
 KEYS = {1: "a1000001", 2: "a1000002", 3: "a1000003"}
 RELIABLE = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
-
-
-class RawBasicTypes:
-    """test_msgs/srv/BasicTypes for the board: bytes rclpy serialized."""
-    TYPE_NAME_REQUEST = "test_msgs::srv::dds_::BasicTypes_Request_"
-    TYPE_NAME_RESPONSE = "test_msgs::srv::dds_::BasicTypes_Response_"
-    Request = None
-    Response = None
 
 
 class Board(threading.Thread):

@@ -11,17 +11,10 @@ from test_msgs.srv import BasicTypes
 
 from agent_process import AgentProcess
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
+from test_ros_bridge import RawBasicTypes  # test_msgs/srv/BasicTypes as bytes
 from xrce.client.session import Session
 from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
-
-
-class RawBasicTypes:
-    """test_msgs/srv/BasicTypes for the client: bytes rclpy serialized."""
-    TYPE_NAME_REQUEST = "test_msgs::srv::dds_::BasicTypes_Request_"
-    TYPE_NAME_RESPONSE = "test_msgs::srv::dds_::BasicTypes_Response_"
-    Request = None
-    Response = None
 
 
 def spin_until(session, predicate, seconds=10.0):

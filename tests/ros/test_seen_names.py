@@ -16,6 +16,7 @@ from test_msgs.srv import BasicTypes
 
 from agent_process import REPO, AgentProcess
 from ros_helpers import DomainLease, ros_domain, ros_peer, wait_until  # noqa: F401
+from test_ros_bridge import RawBasicTypes  # test_msgs/srv/BasicTypes as bytes
 from xrce.agent.middleware import ClientOrigin, EndpointQosSpec, ServiceSpec
 from xrce.agent.middleware.ros.collisions import NameClaims
 from xrce.agent.middleware.ros.ros_middleware import RosMiddleware
@@ -25,14 +26,6 @@ from xrce.msgs.std_msgs import String
 from xrce.transports.udp import UdpTransport
 
 NAMING = ("--ros-args", "-r", "__ns:=/robot1", "-r", "cmd_vel:=cmd_vel_safe", "--")
-
-
-class RawBasicTypes:
-    """A service type the client carries as bytes: only its name matters here."""
-    TYPE_NAME_REQUEST = "test_msgs::srv::dds_::BasicTypes_Request_"
-    TYPE_NAME_RESPONSE = "test_msgs::srv::dds_::BasicTypes_Response_"
-    Request = None
-    Response = None
 
 
 def _stats_port(agent):
