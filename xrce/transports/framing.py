@@ -122,7 +122,9 @@ class FrameDecoder:
     # then hunts for the next flag) or, when ``local_addr`` is not None, a dst other than
     # ``local_addr`` (``wrong_address``, counted only for frames whose CRC is good) are dropped.
     # ``dropped_bytes`` counts raw bytes discarded while hunting plus the raw bytes (flag included) of
-    # every dropped or abandoned frame. ``frames`` counts frames returned.
+    # every dropped or abandoned frame, ``pending_bytes`` those of the frame in progress (neither
+    # returned nor dropped yet). ``frames`` counts frames returned. (All plain attributes: on a
+    # board each method or property is an entry of the class's dictionary, in the heap.)
     #
     # Memory is one preallocated ``max_payload`` buffer plus the returned payloads, whatever is fed.
     #
@@ -151,7 +153,7 @@ class FrameDecoder:
         "_view",
         "_state",
         "_escaped",
-        "_raw",
+        "pending_bytes",
         "_src",
         "_dst",
         "_length",
@@ -177,22 +179,17 @@ class FrameDecoder:
         self.wrong_address = 0
         self._state = _HUNT
         self._escaped = False
-        self._raw = 0  # raw bytes of the frame in progress, flag included
+        self.pending_bytes = 0  # flag included
         self._src = 0
         self._dst = 0
         self._length = 0
         self._filled = 0
         self._crc_rx = 0
 
-    @property
-    def pending_bytes(self):
-        # Raw bytes of the frame in progress (neither returned nor counted as dropped yet).
-        return self._raw
-
     def reset(self):
         # Forget any frame in progress (its bytes count as dropped) and hunt for the next flag.
-        self.dropped_bytes += self._raw
-        self._raw = 0
+        self.dropped_bytes += self.pending_bytes
+        self.pending_bytes = 0
         self._state = _HUNT
         self._escaped = False
 
@@ -252,7 +249,7 @@ class FrameDecoder:
         view = self._view
         state = self._state
         escaped = self._escaped
-        raw = self._raw
+        raw = self.pending_bytes
         src = self._src
         dst = self._dst
         length = self._length
@@ -370,7 +367,7 @@ class FrameDecoder:
                 raw = 0
         self._state = state
         self._escaped = escaped
-        self._raw = raw
+        self.pending_bytes = raw
         self._src = src
         self._dst = dst
         self._length = length
