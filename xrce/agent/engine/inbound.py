@@ -362,7 +362,7 @@ class Inbound:
                 self.state.read_data(client, flags, data, start, end, payload)
         elif sub_id == C.ACKNACK:
             if client.resuming:
-                self._resume_output(client, payload)
+                client.resume_output(payload)
             self.liveliness.on_acknack(client, payload)
         elif sub_id == C.HEARTBEAT:
             if client.resume_inputs and is_reliable(payload.stream_id) and \
@@ -466,18 +466,6 @@ class Inbound:
             else:
                 self.scheduler.wake_at(due)
         self.scheduler.wake_at(now + self.scheduler.heartbeat_period)
-
-    def _resume_output(self, client: ClientProxy, acknack) -> None:
-        """The board's ACKNACK says where a restored reliable output stream goes on
-        (``ResumingStream``): a plain stream takes its place there; once none is left, the
-        client is like any other (the compiled path may take it)."""
-        stream = client.out_reliable.get(acknack.stream_id)
-        if stream.__class__ is ResumingStream:
-            client.out_reliable[acknack.stream_id] = ResumingStream.resumed_at(
-                acknack.stream_id, STREAM_WINDOW, acknack.first_unacked)
-            log.debug("client %s: output stream 0x%02X resumes at %d", client.key.hex(),
-                      acknack.stream_id, acknack.first_unacked)
-        client.resuming = any(s.__class__ is ResumingStream for s in client.out_reliable.values())
 
 
 def _is_fragment(message: bytes) -> bool:
