@@ -12,8 +12,9 @@ Processor); each module is readable alone:
 - ``xrce.agent.engine.client``: ``ClientProxy`` (one client: its objects, streams, quotas and
   counters); ``xrce.agent.engine.clients``: ``ClientTable`` (the clients by key, endpoint and
   host) and ``MemoryBudget`` (the bytes their buffers hold); ``xrce.agent.engine.sessions``:
-  ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion); ``limits``, ``link``
-  and ``stats``: the quotas' defaults, the ``Link`` a transport server is, ``AgentStats``;
+  ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement, deletion, traffic for sessions
+  it does not know); ``limits``, ``link`` and ``stats``: the quotas' defaults, the ``Link`` a
+  transport server is, ``AgentStats``;
 - ``xrce.agent.engine.inbound``: ``Inbound``, every message in: the message header, stream
   admission and submessage dispatch, and the parking of clients whose CREATE waits for a type
   build;

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
-from typing import Any, Callable, Deque, Dict, Hashable
+from typing import Callable, Deque, Hashable
 
 from xrce import DecodeError
 from xrce.wire import constants as C
@@ -22,7 +22,6 @@ from xrce.wire.streams import InputBestEffortStream, InputReliableStream, is_rel
 from xrce.wire.submessages import (
     Heartbeat, TimestampReply, decode_payload, encode_message, sample_ids, Status,
 )
-from xrce.agent.engine.admission import RefusalLog
 from xrce.agent.engine.client import ClientProxy, ResumingStream
 from xrce.agent.engine.limits import STREAM_WINDOW
 from xrce.agent.engine.link import Link
@@ -36,13 +35,6 @@ log = logging.getLogger("xrce.agent")
 # Messages a parked client may queue while its type builds. Beyond, its reliable streams stop
 # advancing (the client retransmits: nothing acknowledged is lost); best-effort ones are dropped.
 MAX_PARKED_MESSAGES = 512
-
-# Traffic of sessions the agent does not know: one line per source per this many seconds, and
-# at most UNKNOWN_LOG_BURST lines per UNKNOWN_LOG_PERIOD_S in all (a spoofed flood's sources).
-UNKNOWN_SOURCE_LOG_S = 60.0
-UNKNOWN_LOG_BURST = 5
-UNKNOWN_LOG_PERIOD_S = 10.0
-MAX_UNKNOWN_SOURCES = 1024
 
 _HANDLED = frozenset((C.CREATE, C.DELETE, C.READ_DATA, C.ACKNACK, C.HEARTBEAT, C.GET_INFO,
                       C.TIMESTAMP, C.RESET))
@@ -73,9 +65,6 @@ class Inbound:
         self.admission = None
         self.tap = None
         self.state = None
-        self.unknown_log = RefusalLog(log, "lines about unknown sessions", lambda: self.clock(),
-                                      burst=UNKNOWN_LOG_BURST, period=UNKNOWN_LOG_PERIOD_S)
-        self._unknown_logged: Dict[Any, float] = {}  # source -> when its line was logged
         self._resumable: Deque[ClientProxy] = deque()  # parked clients whose build finished
         # A CREATE was handled in this turn of the loop: the client's next submessage waits for
         # the next turn (see process_message).
@@ -247,8 +236,7 @@ class Inbound:
         (as eProsima), and only two kinds get an answer, one at most per datagram: UDP sources
         are spoofable, and answering each of a datagram's submessages made the agent a
         reflector (5000 replies, 2-4x the bytes, for one 60 KB datagram)."""
-        self.timelines.unknown_traffic(link, endpoint, header)
-        self._log_unknown_session(link, endpoint, header)
+        self.sessions.unknown_session(link, endpoint, header)
         for sub_id, flags, start, end in iter_submessages(data, header.size):
             if sub_id == C.DELETE:
                 payload = decode_payload(sub_id, flags, data, start, end)
@@ -263,29 +251,6 @@ class Inbound:
                 return
             break
         self.stats.dropped += 1
-
-    def _log_unknown_session(self, link: Link, endpoint: Hashable, header) -> None:
-        """One line per source and minute: a board that kept its session while this agent
-        restarted without its state goes quiet otherwise, with nothing in the log saying why."""
-        keyed = header.session_id < C.SESSION_ID_WITHOUT_KEY_MASK
-        source = (header.key if keyed else None, link, endpoint)
-        now = self.clock()
-        last = self._unknown_logged.get(source)
-        if last is not None and now - last < UNKNOWN_SOURCE_LOG_S:
-            return
-        if len(self._unknown_logged) >= MAX_UNKNOWN_SOURCES:
-            self._unknown_logged.clear()
-        self._unknown_logged[source] = now
-        from xrce.agent.observe.names import endpoint_text
-
-        who = "client key %s" % bytes(header.key).hex() if keyed else \
-            "no client key in its headers (session 0x%02X)" % header.session_id
-        self.unknown_log.warning(
-            "traffic for session 0x%02X from %s %s (%s) that this agent does not know: the "
-            "board kept its session while the agent restarted without its state. Reset the "
-            "board, or run the agent with its state store (on unless --no-state; --state FILE) "
-            "so that a restarted agent resumes the session", header.session_id, link.name,
-            endpoint_text(getattr(endpoint, "peer", endpoint)), who)
 
     def process_message(self, client: ClientProxy, data: bytes, start: int, stream_id: int) -> None:
         """Submessages in order; the first failing one stops the rest of the message."""
