@@ -138,8 +138,9 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(ced_ag
     talker, listener = talker_and_listener(agent, link, reliable=False)
     listener.read(0x01, DeliveryControl())
     general = []
-    receive = agent._receive
-    agent._receive = lambda *args: (general.append(args[2]), receive(*args))[1]
+    inbound = agent.inbound
+    receive = inbound._receive
+    inbound._receive = lambda *args: (general.append(args[2]), receive(*args))[1]
     for index in range(3):
         talker.write(bytes([index]), stream_id=0x01)
     talker.send(0x01, WriteData(0x50, 0x0015, b"stale"), seq=1)  # older than the last: dropped

@@ -33,8 +33,9 @@ ENGINE = Path(__file__).resolve().parents[2] / "xrce" / "agent" / "engine"
 FOLDERS = (ENGINE, ENGINE / "compiled")  # the Python parts, and the compiled path's Python side
 KNOWS_THE_AGENT = {"agent.py"}  # the composer
 # The parts the agent is composed of: each must stay a class of its own.
-PARTS = {"Agent", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy", "ObjectRegistry",
-         "DataPath", "Acknowledgments", "Liveliness", "MismatchReport", "Scheduler", "Output"}
+PARTS = {"Agent", "Inbound", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy",
+         "ObjectRegistry", "DataPath", "Acknowledgments", "Liveliness", "MismatchReport",
+         "Scheduler", "Output"}
 
 
 def _engine_classes():
@@ -69,12 +70,13 @@ def test_no_engine_class_is_built_from_another():
 def test_the_agent_is_a_class_of_its_own_at_run_time():
     from xrce.agent.engine.agent import Agent
     from xrce.agent.engine.datapath import DataPath
+    from xrce.agent.engine.inbound import Inbound
     from xrce.agent.engine.liveliness import Acknowledgments, Liveliness
     from xrce.agent.engine.mismatch_report import MismatchReport
     from xrce.agent.engine.objects import ObjectRegistry
     from xrce.agent.engine.sessions import Sessions
 
-    for part in (Agent, Sessions, ObjectRegistry, DataPath, Acknowledgments, Liveliness,
+    for part in (Agent, Inbound, Sessions, ObjectRegistry, DataPath, Acknowledgments, Liveliness,
                  MismatchReport):
         assert part.__bases__ == (object,), part
 

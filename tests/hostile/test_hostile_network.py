@@ -18,7 +18,8 @@ from engine_peer import BIN, Clock, Link, Peer
 from ros_helpers import ros_domain  # noqa: F401
 from xrce.wire import constants as C
 from xrce.agent.middleware.ced import CedMiddleware
-from xrce.agent.engine.agent import MAX_PARKED_MESSAGES, Agent
+from xrce.agent.engine.agent import Agent
+from xrce.agent.engine.inbound import MAX_PARKED_MESSAGES
 from xrce.agent.middleware import TypeNotReady
 from xrce.wire.objects import DataWriterBin, EndpointQos, ParticipantBin, PubSubBin, TopicBin
 from xrce.wire.streams import OutputReliableStream

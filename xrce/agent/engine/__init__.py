@@ -1,8 +1,9 @@
 """The protocol engine: what the agent does with each XRCE message between a link and the middleware.
 
 - ``agent``: ``Agent``, which builds and wires the parts below (each an object that owns its
-  state and gets its collaborators in its constructor) and keeps the message header, stream
-  admission, submessage dispatch, parking of clients whose types build, and the lifecycle;
+  state and gets its collaborators in its constructor) and keeps the lifecycle;
+- ``inbound``: ``Inbound``, every message in: the message header, stream admission, submessage
+  dispatch and the parking of clients whose types build;
 - ``client``: per-client state (``ClientProxy``); ``clients``: the client table and the memory
   budget; ``sessions``: ``Sessions`` (CREATE_CLIENT, GET_INFO, dead time, retirement,
   deletion); ``admission``: who may open one; ``limits``: the quotas' defaults and timings;

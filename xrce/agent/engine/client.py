@@ -13,7 +13,7 @@ from typing import Any, Callable, Deque, Dict, Hashable, Optional, Set, Tuple
 
 from xrce.wire import constants as C
 from xrce.agent.engine.admission import endpoint_address
-from xrce.agent.engine.limits import MIN_MTU, QUOTA_LOG_INTERVAL
+from xrce.agent.engine.limits import MIN_MTU, QUOTA_LOG_INTERVAL, STREAM_WINDOW
 from xrce.agent.engine.link import Link
 from xrce.agent.middleware import ClientOrigin, EntityKey, TopicSpec
 from xrce.wire.streams import (
@@ -157,6 +157,18 @@ class ClientProxy:
         self.reassembly.clear()
         self.out_pending.clear()
         self.blocked_readers.clear()
+
+    def resume_output(self, acknack) -> None:
+        """The board's ACKNACK says where a restored reliable output stream goes on
+        (``ResumingStream``): a plain stream takes its place there; once none is left, the
+        client is like any other (the compiled path may take it)."""
+        stream = self.out_reliable.get(acknack.stream_id)
+        if stream.__class__ is ResumingStream:
+            self.out_reliable[acknack.stream_id] = ResumingStream.resumed_at(
+                acknack.stream_id, STREAM_WINDOW, acknack.first_unacked)
+            log.debug("client %s: output stream 0x%02X resumes at %d", self.key.hex(),
+                      acknack.stream_id, acknack.first_unacked)
+        self.resuming = any(s.__class__ is ResumingStream for s in self.out_reliable.values())
 
     def stream_bytes(self) -> int:
         """Bytes held by its streams (what ``reset_streams`` frees)."""

@@ -1,14 +1,16 @@
 """How sessions begin and end (XRCE-WIRE.md §3, §4): ``Sessions``, one part of
 ``xrce.agent.engine.agent.Agent``, answers CREATE_CLIENT and GET_INFO, binds sessions to endpoints,
-enforces ``max_clients``, says when a client is dead or certainly gone and deletes clients.
+enforces ``max_clients``, says when a client is dead or certainly gone and deletes clients, and
+tells the operator of traffic for sessions it does not know.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Callable, Dict, Hashable, Optional, Tuple
+from typing import Any, Callable, Dict, Hashable, Optional, Tuple
 
 from xrce.wire import constants as C
+from xrce.agent.engine.admission import RefusalLog
 from xrce.agent.engine.scheduler import NEVER
 from xrce.agent.engine.client import ClientProxy, _hard_liveliness, client_host
 from xrce.agent.engine.clients import ClientTable, HostRecord, MemoryBudget
@@ -17,11 +19,17 @@ from xrce.agent.engine.limits import (
 )
 from xrce.agent.engine.link import Link
 from xrce.agent.engine.stats import AgentStats
-from xrce.agent.observe.names import client_tag
+from xrce.agent.observe.names import client_tag, endpoint_text
 from xrce.wire.submessages import GetInfo, Info, StatusAgent, encode_message
 
 log = logging.getLogger("xrce.agent")
 
+# Traffic of sessions the agent does not know: one line per source per this many seconds, and
+# at most UNKNOWN_LOG_BURST lines per UNKNOWN_LOG_PERIOD_S in all (a spoofed flood's sources).
+UNKNOWN_SOURCE_LOG_S = 60.0
+UNKNOWN_LOG_BURST = 5
+UNKNOWN_LOG_PERIOD_S = 10.0
+MAX_UNKNOWN_SOURCES = 1024
 
 
 class Sessions:
@@ -57,6 +65,9 @@ class Sessions:
         # every session established and deleted. Set by the agent.
         self.state = None
         self._info_cache: Dict[tuple, bytes] = {}  # see info_message
+        self.unknown_log = RefusalLog(log, "lines about unknown sessions", lambda: self.clock(),
+                                      burst=UNKNOWN_LOG_BURST, period=UNKNOWN_LOG_PERIOD_S)
+        self._unknown_logged: Dict[Any, float] = {}  # source -> when its line was logged
 
     def endpoint_closed(self, link: Link, endpoint: Hashable) -> None:
         """A TCP connection or serial port went away: sessions identified by that endpoint need a
@@ -286,6 +297,29 @@ class Sessions:
         if self.timelines.pending:
             self.timelines.forget(client)
         log.info("client %s deleted", client.key.hex())
+
+    def unknown_session(self, link: Link, endpoint: Hashable, header) -> None:
+        """A message for a session this agent does not know: noted for the recovery timelines,
+        and logged once per source and minute: a board that kept its session while this agent
+        restarted without its state goes quiet otherwise, with nothing in the log saying why."""
+        self.timelines.unknown_traffic(link, endpoint, header)
+        keyed = header.session_id < C.SESSION_ID_WITHOUT_KEY_MASK
+        source = (header.key if keyed else None, link, endpoint)
+        now = self.clock()
+        last = self._unknown_logged.get(source)
+        if last is not None and now - last < UNKNOWN_SOURCE_LOG_S:
+            return
+        if len(self._unknown_logged) >= MAX_UNKNOWN_SOURCES:
+            self._unknown_logged.clear()
+        self._unknown_logged[source] = now
+        who = "client key %s" % bytes(header.key).hex() if keyed else \
+            "no client key in its headers (session 0x%02X)" % header.session_id
+        self.unknown_log.warning(
+            "traffic for session 0x%02X from %s %s (%s) that this agent does not know: the "
+            "board kept its session while the agent restarted without its state. Reset the "
+            "board, or run the agent with its state store (on unless --no-state; --state FILE) "
+            "so that a restarted agent resumes the session", header.session_id, link.name,
+            endpoint_text(getattr(endpoint, "peer", endpoint)), who)
 
     def reply_info(self, link: Link, endpoint: Hashable, header, request, impl_status: int) -> None:
         self.output.send_raw(link, endpoint, self.info_message(
