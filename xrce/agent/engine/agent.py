@@ -65,6 +65,7 @@ from xrce.agent.engine.output import Output, trace
 from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.sessions import Sessions
 from xrce.agent.engine.stats import AgentStats
+from xrce.agent.engine.stream_output import StreamOutput
 from xrce.agent.log_levels import TRACE
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines, Timeline
 from xrce.agent.heap import return_free_heap
@@ -134,19 +135,21 @@ class Agent:
                                                       heartbeat_period)
         self.acks = acks = Acknowledgments(table.clients, output, budget, scheduler, lock, stats,
                                            self._process_reliable_message)
+        self.stream_output = stream_output = StreamOutput(output, budget, scheduler,
+                                                          self.timelines, stats)
         self.datapath = datapath = DataPath(
-            table, middleware, output, budget, scheduler, acks, mismatches, self.timelines,
+            table, middleware, stream_output, budget, scheduler, acks, mismatches, self.timelines,
             self.fastpaths, lock, stats, clock, self._process_message,
             DataLimits(max_reassembly_bytes, max_output_queue_bytes))
         self.objects = objects = ObjectRegistry(
-            middleware, datapath, self.fastpaths, self.create_failures, stats, clock,
-            refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
+            middleware, datapath, stream_output, self.fastpaths, self.create_failures, stats,
+            clock, refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
         self.sessions = sessions = Sessions(
             table, objects, output, budget, scheduler, self.timelines, stats, clock,
             max_clients=max_clients, client_dead_time=client_dead_time,
             client_expire_time=client_expire_time, heartbeat_period=heartbeat_period)
-        self.liveliness = Liveliness(sessions, datapath, output, budget, mismatches, stats, clock,
-                                     heartbeat_period=heartbeat_period,
+        self.liveliness = Liveliness(sessions, datapath, stream_output, output, budget, mismatches,
+                                     stats, clock, heartbeat_period=heartbeat_period,
                                      client_expire_time=client_expire_time)
         self._clocked = (scheduler, mismatches, datapath, objects, sessions, self.liveliness)
         middleware.engine_lock = lock
