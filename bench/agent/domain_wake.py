@@ -3,7 +3,7 @@
     .venv/bin/python bench/agent/domain_wake.py [--jobs N] [--runs R]
 
 The EventsExecutor is woken by one sample on a private wake topic of the agent's node
-(xrce.agent.middleware.ros.domain). The figure is that wake-up as the agent has it (a DDS-level
+(xrce.agent.middleware.ros.wake). The figure is that wake-up as the agent has it (a DDS-level
 topic, outside the ROS graph, transient local so that a wake-up survives the topic's move between
 nodes); the baseline is the wake-up as the agent had it before (a volatile ROS topic, ``rt/``
 prefix), measured in the same run. Each run is one fresh DomainRuntime in a
@@ -27,11 +27,12 @@ from bench.common.figures import percentile, print_table, record  # noqa: E402
 
 def post_to_job_us(dds_level: bool, jobs: int) -> list:
     from xrce.agent.middleware.ros import domain as ros_domain
+    from xrce.agent.middleware.ros import wake as ros_wake
 
     from rclpy.qos import DurabilityPolicy
 
-    ros_domain.WAKE_DDS_LEVEL = dds_level
-    ros_domain.WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL if dds_level else \
+    ros_wake.WAKE_DDS_LEVEL = dds_level
+    ros_wake.WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL if dds_level else \
         DurabilityPolicy.VOLATILE
     runtime = ros_domain.DomainRuntime(random.randrange(150, 200), ros_domain.EXECUTOR_EVENTS)
     try:

@@ -169,7 +169,7 @@ def test_best_effort_samples_take_the_short_path_with_the_same_accounting(ced_ag
        sample=st.binary(max_size=600))
 def test_the_direct_data_encoding_is_byte_exact(session_id, stream_id, request_id, object_id,
                                                sample):
-    from xrce.agent.engine.datapath import data_message
+    from xrce.agent.engine.stream_output import data_message
     from xrce.wire.submessages import Data
 
     class Client:

@@ -2,9 +2,9 @@
 
 ``xrce.agent.engine.agent.Agent`` used to be ``class Agent(SessionTable, ObjectRegistry,
 DataPath, Liveliness)``, five mixins reading some forty attributes that other mixins set. Now each
-part (``Sessions``, ``ObjectRegistry``, ``DataPath``, ``Acknowledgments``, ``Liveliness``,
-``MismatchReport``, ``Scheduler``, ``Output``, ...) is an object that gets its collaborators in its
-constructor, and ``Agent`` builds and wires them. Three rules keep it so, read from the source with
+part (``Sessions``, ``ObjectRegistry``, ``DataPath``, ``StreamOutput``, ``Acknowledgments``,
+``Liveliness``, ``MismatchReport``, ``Scheduler``, ``Output``, ...) is an object that gets its
+collaborators in its constructor, and ``Agent`` builds and wires them. Three rules keep it so, read from the source with
 ``ast`` (so no import is needed to see them):
 
 - no class of the engine inherits from another class of the engine (no mixins; ``Agent``'s only
@@ -34,7 +34,8 @@ FOLDERS = (ENGINE, ENGINE / "compiled")  # the Python parts, and the compiled pa
 KNOWS_THE_AGENT = {"agent.py"}  # the composer
 # The parts the agent is composed of: each must stay a class of its own.
 PARTS = {"Agent", "Inbound", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy",
-         "ObjectRegistry", "DataPath", "Acknowledgments", "Liveliness", "MismatchReport",
+         "ObjectRegistry", "DataPath", "StreamOutput", "Acknowledgments", "Liveliness",
+         "MismatchReport",
          "Scheduler", "Output"}
 
 
@@ -75,9 +76,10 @@ def test_the_agent_is_a_class_of_its_own_at_run_time():
     from xrce.agent.engine.mismatch_report import MismatchReport
     from xrce.agent.engine.objects import ObjectRegistry
     from xrce.agent.engine.sessions import Sessions
+    from xrce.agent.engine.stream_output import StreamOutput
 
-    for part in (Agent, Inbound, Sessions, ObjectRegistry, DataPath, Acknowledgments, Liveliness,
-                 MismatchReport):
+    for part in (Agent, Inbound, Sessions, ObjectRegistry, DataPath, StreamOutput,
+                 Acknowledgments, Liveliness, MismatchReport):
         assert part.__bases__ == (object,), part
 
 

@@ -10,8 +10,9 @@
   ``link``: a transport server as the engine sees it; ``stats``: the agent-wide counters;
 - ``objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the middleware entities
   behind them, with ``reuse`` (REUSE/REPLACE) and ``xmlrep`` (XML representations);
-- ``datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out,
-  and output on a client's streams; ``output``: whole messages out (counted, traced, tapped);
+- ``datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in, READ_DATA/DATA out;
+  ``stream_output``: ``StreamOutput``, output on a client's streams (numbering, the reliable
+  window, FRAGMENTs out); ``output``: whole messages out (counted, traced, tapped);
 - ``liveliness``: ``Acknowledgments`` and ``Liveliness``, ACKNACK/HEARTBEAT and the timed work
   per client; ``scheduler``: the loop and the one timer of that work; ``mismatch_report``: endpoints
   that cannot reach their peers, named once; ``timeline``: where the time goes when a client

@@ -21,7 +21,8 @@ Processor); each module is readable alone:
 - ``xrce.agent.engine.objects``: ``ObjectRegistry``, CREATE/DELETE of XRCE objects and the
   middleware entities behind them;
 - ``xrce.agent.engine.datapath``: ``DataPath``, the per-sample path, WRITE_DATA/FRAGMENT in,
-  READ_DATA/DATA out, and output on a client's streams;
+  READ_DATA/DATA out; ``xrce.agent.engine.stream_output``: ``StreamOutput``, output on a
+  client's streams (numbering, the reliable window, FRAGMENTs out);
 - ``xrce.agent.engine.liveliness``: ``Acknowledgments`` (ACKNACK for input) and ``Liveliness``
   (retransmission on ACKNACK, HEARTBEATs, the timed work per client);
 - ``xrce.agent.engine.mismatch_report``: ``MismatchReport``, board endpoints that cannot reach their
@@ -66,6 +67,7 @@ from xrce.agent.engine.output import Output
 from xrce.agent.engine.scheduler import NEVER, Scheduler
 from xrce.agent.engine.sessions import Sessions
 from xrce.agent.engine.stats import AgentStats
+from xrce.agent.engine.stream_output import StreamOutput
 from xrce.agent.engine.timeline import TIMELINE_CHECK_S, RecoveryTimelines
 from xrce.agent.heap import return_free_heap
 from xrce.agent.middleware import Middleware
@@ -118,19 +120,21 @@ class Agent:
                                          lock, clock)
         self.acks = acks = Acknowledgments(table.clients, output, budget, scheduler, lock, stats,
                                            inbound.process_reliable_message)
+        self.stream_output = stream_output = StreamOutput(output, budget, scheduler,
+                                                          self.timelines, stats)
         self.datapath = datapath = DataPath(
-            table, middleware, output, budget, scheduler, acks, mismatches, self.timelines,
+            table, middleware, stream_output, budget, scheduler, acks, mismatches, self.timelines,
             self.fastpaths, lock, stats, clock, inbound.process_message,
             DataLimits(max_reassembly_bytes, max_output_queue_bytes))
         self.objects = objects = ObjectRegistry(
-            middleware, datapath, self.fastpaths, self.create_failures, stats, clock,
-            refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
+            middleware, datapath, stream_output, self.fastpaths, self.create_failures, stats,
+            clock, refs=dict(refs or {}), max_objects_per_client=max_objects_per_client)
         self.sessions = sessions = Sessions(
             table, objects, output, budget, scheduler, self.timelines, stats, clock,
             max_clients=max_clients, client_dead_time=client_dead_time,
             client_expire_time=client_expire_time, heartbeat_period=heartbeat_period)
-        self.liveliness = Liveliness(sessions, datapath, output, budget, mismatches, stats, clock,
-                                     heartbeat_period=heartbeat_period,
+        self.liveliness = Liveliness(sessions, datapath, stream_output, output, budget, mismatches,
+                                     stats, clock, heartbeat_period=heartbeat_period,
                                      client_expire_time=client_expire_time)
         inbound.connect(datapath, acks, objects, sessions, self.liveliness)
         self._clocked = (scheduler, mismatches, inbound, datapath, objects, sessions,

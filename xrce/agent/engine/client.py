@@ -101,7 +101,8 @@ class ClientProxy:
         self.out_reliable: Dict[int, OutputReliableStream] = {}
         self.reassembly: Dict[int, bytearray] = {}
         # Reliable output not yet sent, per stream: fragments of a sample longer than the window
-        # has room for, sent as ACKNACKs free room (xrce.agent.engine.datapath.DataPath.send_pending).
+        # has room for, sent as ACKNACKs free room (xrce.agent.engine.stream_output's
+        # StreamOutput.send_pending).
         self.out_pending: Dict[int, Deque[bytes]] = {}
         self.blocked_readers: Set[int] = set()
         self.alive = True  # False once deleted: late middleware callbacks are ignored

@@ -181,13 +181,15 @@ class Liveliness:
     """Retransmission on ACKNACK and the timed work per client (``tick_client``).
 
     Collaborators: ``sessions`` (dead time, retirement, deletion of a client), ``datapath``
-    (pending output, paced delivery, windows the compiled path acknowledged), ``output``,
-    ``budget``, ``mismatches`` (a board that holds fragments it can never complete)."""
+    (paced delivery), ``stream_output`` (pending output, windows the compiled path
+    acknowledged), ``output``, ``budget``, ``mismatches`` (a board that holds fragments it can
+    never complete)."""
 
-    def __init__(self, sessions, datapath, output, budget, mismatches, stats, clock, *,
-                 heartbeat_period: float, client_expire_time: float):
+    def __init__(self, sessions, datapath, stream_output, output, budget, mismatches, stats,
+                 clock, *, heartbeat_period: float, client_expire_time: float):
         self.sessions = sessions
         self.datapath = datapath
+        self.stream_output = stream_output
         self.output = output
         self.budget = budget
         self.mismatches = mismatches
@@ -225,7 +227,7 @@ class Liveliness:
             client.retransmissions += 1
             self.output.send_client(client, message)
         if client.out_pending:
-            self.datapath.send_pending(client, stream)
+            self.stream_output.send_pending(client, stream)
         if client.blocked_readers and stream.has_room():
             self._unblock(client)
 
@@ -327,7 +329,7 @@ class Liveliness:
                 due = again
         for stream in list(client.out_reliable.values()):
             if stream.__class__ is not OutputReliableStream:
-                self.datapath.release_acknowledged(client, stream)  # nothing may be sent for a while
+                self.stream_output.release_acknowledged(client, stream)  # nothing may be sent for a while
             span = stream.heartbeat()
             if span is not None:
                 self.stats.heartbeats_out += 1

@@ -67,7 +67,8 @@ class MismatchReport:
     def too_large_for_best_effort(self, client: ClientProxy, entry: ObjectEntry,
                                    size: int, message_size: int) -> None:
         """A reader's sample does not fit one best-effort message (those are never cut into
-        FRAGMENTs): it is dropped, now and every time (``DataPath.send_on_stream`` counts it)."""
+        FRAGMENTs): it is dropped, now and every time (``StreamOutput.send_on_stream`` counts
+        it)."""
         info = _info(entry)
         if "too_large" in info:
             return

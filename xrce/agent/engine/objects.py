@@ -52,18 +52,18 @@ class Parked(Exception):
 class ObjectRegistry:
     """CREATE/DELETE of XRCE objects and their middleware entities.
 
-    Collaborators: ``middleware`` (the entities), ``datapath`` (STATUS replies, and the sample
-    callbacks and reply writers bound to readers, requesters and repliers), ``fastpaths`` (the
-    compiled receive paths, let go of a deleted object's publisher or subscription first) and
-    ``create_failures`` (a rate-limited log: xrce.agent.engine.admission.RefusalLog). ``refs``:
-    the profiles a by-reference CREATE names.
+    Collaborators: ``middleware`` (the entities), ``datapath`` (the sample callbacks and reply
+    writers bound to readers, requesters and repliers), ``stream_output`` (STATUS replies),
+    ``fastpaths`` (the compiled receive paths, let go of a deleted object's publisher or
+    subscription first) and ``create_failures`` (a rate-limited log:
+    xrce.agent.engine.admission.RefusalLog). ``refs``: the profiles a by-reference CREATE names.
     """
 
-    def __init__(self, middleware, datapath, fastpaths: list, create_failures, stats,
-                 clock, *, refs: Dict[str, str], max_objects_per_client: Optional[int]):
+    def __init__(self, middleware, datapath, stream_output, fastpaths: list, create_failures,
+                 stats, clock, *, refs: Dict[str, str], max_objects_per_client: Optional[int]):
         self.middleware = middleware
         self.datapath = datapath
-        self.send_status = datapath.send_status
+        self.send_status = stream_output.send_status
         self.fastpaths = fastpaths
         self.create_failures = create_failures
         self.stats = stats

@@ -18,8 +18,8 @@ log = logging.getLogger("xrce.agent")
 class Output:
     """Sends whole messages: to an endpoint (``send_raw``: replies outside a session), to a
     client (``send_client``: counted per client too) or as one submessage on a client's stream
-    none (``send_stream0``). Streams with sequence numbers are the data path's
-    (``DataPath.send_on_stream``)."""
+    none (``send_stream0``). Streams with sequence numbers are ``StreamOutput``'s
+    (xrce.agent.engine.stream_output)."""
 
     def __init__(self, stats):
         self.stats = stats

@@ -7,6 +7,8 @@ every .c and .h of this folder) and its Python side.
   ``_reader_out.c`` samples from ROS sent to a board; ``_replier_out.c`` ROS's service calls to a
   board's replier; ``_reliable_in.c`` fragments and HEARTBEATs; ``_reliable_out.c`` the agent's
   reliable output streams and the client's ACKNACKs; ``_receiver_tables.c`` what Python registers;
+- ``fold``: ``CounterFold``, C's counters moved into the engine's, the link's, the clients' and
+  the entries';
 - ``streams``: the stream objects whose numbers C owns.
 
 The middleware is reached only through what it declares for this path

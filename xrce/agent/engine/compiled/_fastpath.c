@@ -153,7 +153,7 @@ static int64_t time_of_day_ns(void) {
 }
 
 /* A datagram that is one little-endian TIMESTAMP: answered here with the bytes the Python path
- * sends (xrce.agent.engine.agent, a test holds them equal): TIMESTAMP_REPLY on stream none,
+ * sends (xrce.agent.engine.inbound, a test holds them equal): TIMESTAMP_REPLY on stream none,
  * the time of day at transmit and at receive, the client's time echoed. PX4 counts only round
  * trips under 10 ms towards its time sync and sends one in its loop among its samples: answered
  * here, it waits for nothing in Python, nor does the rest of the batch behind it. 1 if sent. */

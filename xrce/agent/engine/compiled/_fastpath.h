@@ -172,7 +172,7 @@ typedef struct Client {
     int probing;
     uint64_t messages, bytes, messages_out, bytes_out;
     int64_t last_seen_ns;  /* CLOCK_MONOTONIC, time.monotonic()'s clock; 0: nothing new */
-    /* What the client's byte budget (Agent._over_budget) leaves for reassembly here, as Python
+    /* What the client's byte budget (MemoryBudget.over) leaves for reassembly here, as Python
      * last set it (set_room), less what was added since; and the bytes of reassembly added (or,
      * negative, given back) since the last fold, which Python charges to the client. */
     int64_t room, frag_charged;

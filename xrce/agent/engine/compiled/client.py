@@ -29,7 +29,8 @@ class CompiledClient:
 
     def compile_output(self, client) -> None:
         """Hand the acknowledged point of every reliable output stream not yet compiled to C
-        (under the engine's lock: ``DataPath.send_on_stream`` uses the streams on other threads)."""
+        (under the engine's lock: ``StreamOutput.send_on_stream`` uses the streams on other
+        threads)."""
         for stream_id, stream in list(client.out_reliable.items()):
             if stream_id not in self.out_streams:
                 client.out_reliable[stream_id] = CompiledOutputStream(

@@ -22,8 +22,9 @@ pending) and every client while the capture tap or the -v 6 trace is on are left
 thread is paused while Python decides that (``handed_over``, the engine's timed work), so C never
 takes a datagram Python would judge differently. C's counters are folded into the agent's, the
 link's, the clients' and the writers' whenever Python runs for the link (a hand-over, the timed
-work, which folds before it judges liveliness, and every read of the statistics); a reliable
-stream whose ACKNACK only Python can write (a NACK to send) wakes Python for it.
+work, which folds before it judges liveliness, and every read of the statistics:
+``xrce.agent.engine.compiled.fold``); a reliable stream whose ACKNACK only Python can write (a
+NACK to send) wakes Python for it.
 C only moves a reliable stream for a sample it published: a failed publish, like every
 duplicate, gap or retransmission, reaches Python unchanged.
 A registered client's TIMESTAMPs are answered in C (PX4's time sync counts only fast round trips).
@@ -42,11 +43,11 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, Optional
 
 from xrce.agent.engine.compiled.client import CompiledClient
+from xrce.agent.engine.compiled.fold import CounterFold
 from xrce.agent.engine.compiled.streams import CompiledOutputBestEffort, CompiledOutputStream, \
     CompiledReliableStream, CompiledStream
 from xrce.agent.engine.limits import STREAM_WINDOW
@@ -105,9 +106,7 @@ class FastPath:
         self.acks = engine.acks
         self.scheduler = engine.scheduler
         self.budget = engine.budget
-        self.stats = engine.stats
         self.lock = engine.lock
-        self.clock = engine.clock  # the engine's; ``Agent.clock`` sets it again when a test swaps it
         self.receiver = _fastpath.Receiver(sock.fileno())
         self.receiver.set_reassembly_limit(engine.reassembly_limit)
         self.clients: Dict[int, object] = {}  # handle -> ClientProxy
@@ -117,6 +116,10 @@ class FastPath:
         self.reader_tokens: Dict[tuple, int] = {}
         self.direct: Dict[int, Optional[tuple]] = {}
         self.repliers: set = set()  # the tokens of those readers that are repliers
+        self.counters = CounterFold(self.receiver, link, self.clients, self.readers, self.repliers,
+                                    engine.support, engine.acks, engine.budget, engine.stats,
+                                    engine.clock)
+        self.fold = self.counters.fold
         self._register_soon: set = set()  # (client key, object id) the loop is asked to register
         self.serves_readers = bool(_fastpath.resolve_readers())
         # While Python handles a hand-over, readers it delivered to wait here to be given back
@@ -130,6 +133,16 @@ class FastPath:
         self.fastpaths.append(self)
         self._loop.add_reader(self._wake_fd, self.handed_over)
         self.receiver.start(self._wake_fd)
+
+    @property
+    def clock(self) -> Callable[[], float]:
+        """The engine's clock, which only the fold reads; ``Agent.clock`` sets it again when a
+        test swaps it."""
+        return self.counters.clock
+
+    @clock.setter
+    def clock(self, clock: Callable[[], float]) -> None:
+        self.counters.clock = clock
 
     def close(self) -> None:
         self.receiver.stop()  # before the clients go: it reads their tables
@@ -441,122 +454,12 @@ class FastPath:
                         state.compile_output(client)
 
     def room(self, client) -> int:
-        """What the client's byte budget leaves (``Agent._over_budget``): C stores a FRAGMENT
+        """What the client's byte budget leaves (``MemoryBudget.over``): C stores a FRAGMENT
         only within it, as Python's ``_hold_back`` refuses one beyond it. Refreshed whenever
         Python has handled a datagram; between, C counts down what it adds itself."""
         budget = self.budget
         return min(budget.max_client_bytes - client.buffered - client.queued_bytes,
                    budget.max_total_bytes - budget.buffered_total - budget.queued_total)
-
-    # -- counters -------------------------------------------------------------------------
-
-    def fold(self) -> None:
-        """Move C's counters into the engine's, the link's, the clients' and the writers'."""
-        traffic, clients, writers, acks = self.receiver.fold()
-        acknacks = traffic[5]
-        self._fold_traffic(traffic)
-        reliable = self.receiver.fold_reliable()
-        if reliable is not None:
-            self._fold_reassembly(*reliable)
-        sent = self.receiver.fold_readers()
-        if sent is not None:
-            self._fold_readers(*sent)
-        if self.repliers:
-            expired = self.receiver.take_expired()
-            if expired:
-                self.support.count_timed_out_requests(expired)
-                log.warning("%s: %d service requests got no reply from their XRCE client within "
-                            "%.1f s", self.link.name, expired, self.support.request_timeout_s)
-        self._fold_clients(clients, acknacks)
-        for handle, object_id, count, size in writers:
-            client = self.clients.get(handle)
-            entry = client.objects.get(object_id) if client is not None else None
-            if entry is not None:
-                entry.samples += count
-                entry.sample_bytes += size
-        for handle, stream_id in acks:  # as DataPath.fast_write after a reliable sample
-            client = self.clients.get(handle)
-            stream = client.in_reliable.get(stream_id) if client is not None else None
-            if stream is not None and client.alive:
-                self.acks.acknack_soon(client, stream)
-
-    def _fold_traffic(self, traffic: tuple) -> None:
-        """The messages C took in and sent (ACKNACKs, replies) into the engine's and the link's
-        counters; a failed publish is said."""
-        (messages, size, samples, stale, publish_errors, acknacks, acknack_bytes, replies,
-         reply_bytes) = traffic
-        link_stats = self.link.stats
-        if acknacks or replies:
-            stats = self.stats
-            stats.acknacks_out += acknacks
-            stats.messages_out += acknacks + replies
-            stats.bytes_out += acknack_bytes + reply_bytes
-            link_stats.messages_out += acknacks + replies
-            link_stats.bytes_out += acknack_bytes + reply_bytes
-        if messages:
-            stats = self.stats
-            stats.messages_in += messages
-            stats.bytes_in += size
-            stats.samples_in += samples
-            stats.samples_compiled += samples
-            stats.dropped += stale
-            link_stats.messages_in += messages
-            link_stats.bytes_in += size
-        if publish_errors:
-            self.stats.publish_errors += publish_errors
-            log.warning("%s: %d samples could not be published", self.link.name, publish_errors)
-
-    def _fold_reassembly(self, fragments: int, charges) -> None:
-        """FRAGMENTs C took; the reassembly it holds counts against each client's budget."""
-        self.stats.fragments_in += fragments
-        for handle, size in charges:
-            client = self.clients.get(handle)
-            if client is not None:
-                self.budget.charge(client, size)
-
-    def _fold_readers(self, totals: tuple, rows) -> None:
-        """Samples C sent to boards' readers: the engine's, the link's and each reader's counts."""
-        samples, count, size = totals
-        stats = self.stats
-        stats.samples_out += samples
-        stats.samples_out_compiled += samples
-        stats.messages_out += count
-        stats.bytes_out += size
-        self.link.stats.messages_out += count
-        self.link.stats.bytes_out += size
-        for token, object_id, samples, sample_bytes, _count, _size in rows:
-            reader = self.readers.get(token)
-            entry = reader[0].objects.get(object_id) if reader is not None else None
-            if entry is not None:
-                entry.samples += samples
-                entry.sample_bytes += sample_bytes
-
-    def _fold_clients(self, clients, acknacks: int) -> None:
-        """Each client's traffic through C, and when C last heard it (what liveliness judges)."""
-        # C's clock is time.monotonic's; a test's substitute clock never sees compiled traffic.
-        clock = self.clock
-        offset = clock() - time.monotonic() if clock is not time.monotonic else 0.0
-        for handle, count, size, seen_ns, count_out, size_out, skew_ns in clients:
-            client = self.clients.get(handle)
-            if client is None:
-                continue
-            client.messages_out += count_out
-            client.bytes_out += size_out
-            if skew_ns is not None:
-                client.timestamp_skew_ns = skew_ns
-            if not count:
-                continue
-            client.messages_in += count
-            client.bytes_in += size
-            client.probes = 0
-            if acknacks and client.acknacks_sent:
-                # C acknowledged this client's messages itself: the last ACKNACK Python recorded
-                # is no longer the last sent, so its pending repeats are void and the next one
-                # Python sends counts from C's (liveliness.Acknowledgments.send_acknack).
-                client.acknacks_sent.clear()
-            seen = seen_ns / 1e9 + offset
-            if seen > client.last_seen:
-                client.last_seen = seen
 
 
 def stale_build(module) -> Optional[str]:

@@ -8,6 +8,7 @@
   board's endpoint cannot match); ``collisions``; ``shown``; ``compiled_path_support``;
   ``run_context`` (the loop and what the engine sets);
 - ``domain``: one rclpy context and executor thread per ROS domain, and the hand-off to the loop;
+  ``wake``: what wakes that thread for a job (a private wake topic, or a guard condition);
 - ``types``: XRCE/DDS names, interface classes and QoS as ROS 2 spells them;
 - ``compiled``: the optional ``_rostypes`` extension built from this folder's C (``_rostypes.c``,
   ``_services.c``, ``_named_types.c``): the raw types of ``raw_types`` (CDR bytes through rclpy,

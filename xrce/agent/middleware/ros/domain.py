@@ -19,19 +19,8 @@ Threading model (measured on the 2-core dev machine, Twist, peer in another proc
   SingleThreadedExecutor tolerates cross-thread creation, but it delivers raw subscriptions about
   ten times slower (measured when the executor was chosen; no bench here keeps that
   figure), so both go through the same job queue.
-- Nothing polls. The events executor cannot be woken from another thread (``wake()`` deadlocks,
-  rclpy guard conditions are "not supported" by it, and a future completed from another thread
-  never ends its spin), so each domain's agent node subscribes to a private wake topic and
-  ``post``/``call`` publish one empty sample to it: its callback runs the queued jobs on the
-  executor thread (measured 29 µs p50, 67 µs p99 from post to job). The wake topic is a
-  DDS-level one (``avoid_ros_namespace_conventions``), as a ROS topic it showed in every ROS
-  topic listing, and transient local, as it moves between nodes (``DomainRuntime.host``);
-  bench/agent/domain_wake.py measures it beside the former volatile ROS topic in one run: 110 vs
-  107 µs p50 on the loaded 2-core machine, medians of 5 runs of 2000 jobs. Between events the thread
-  waits in rclpy with a long timeout: 0.0 % of a core idle, where the former 2 ms spin slices
-  cost about 2 % (and ``spin()`` without a timeout busy-loops in this rclpy). The
-  SingleThreadedExecutor is woken by a guard condition of the agent node whose callback runs the
-  jobs (its own ``wake()`` does not end a ``spin_once`` that finds no callback ready).
+- Nothing polls: ``post``/``call`` wake the executor thread through a private wake topic (a
+  guard condition for the SingleThreadedExecutor), ``xrce.agent.middleware.ros.wake``.
 - Publishing and sending service responses need no executor and happen directly on the engine's
   thread: rcl publish/send_response are thread-safe.
 - Data from ROS reaches the engine on the executor thread itself when the engine's lock is free
@@ -46,7 +35,6 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import logging
-import os
 import queue
 import threading
 import time
@@ -57,13 +45,12 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from xrce.agent.middleware import MiddlewareError
 from xrce.agent.middleware.ros import participant
 from xrce.agent.middleware.ros.agent_node import AgentNode
-from xrce.agent.middleware.ros.raw_types import raw_message_type
+from xrce.agent.middleware.ros.wake import ExecutorWake
 
 # The whole ROS bridge logs under one name, the one it had as a single module, so that existing
 # log filters keep matching.
@@ -72,8 +59,6 @@ log = logging.getLogger("xrce.agent.ros")
 # CDR_LE, options 0: what the XRCE agent always puts in front of a sample going into DDS (§14).
 ENCAPSULATION_LE = b"\x00\x01\x00\x00"
 ENCAPSULATION_SIZE = 4
-_WAKE_TYPE = "builtin_interfaces::msg::dds_::Time_"
-_WAKE_SAMPLE = ENCAPSULATION_LE + bytes(8)  # builtin_interfaces/Time zero; the content is unused
 
 # rcl's log file (spdlog, ~/.ros/log/<exe>_<pid>_<time>.log) stays closed: rcl and rmw messages
 # still reach stderr through rcl's console output, the agent's own go through Python logging, and
@@ -89,67 +74,9 @@ FIRST_BURST_IDLE_S = 0.05
 FIRST_BURST_MAX_S = 0.25
 
 AGENT_NODE_NAME = "_xrce_agent"
-# The wake topic outside the ROS graph, transient local (_Wake); bench/agent/domain_wake.py sets
-# them to the former ROS topic, volatile, for its baseline.
-WAKE_DDS_LEVEL = True
-WAKE_DURABILITY = DurabilityPolicy.TRANSIENT_LOCAL
 
 EXECUTOR_EVENTS = "events"
 EXECUTOR_SINGLE = "single"
-
-
-class _Wake:
-    """What wakes a domain's executor thread for a job (module docstring), hosted on the node
-    ``DomainRuntime.host`` gives it."""
-
-    def __init__(self, runtime: "DomainRuntime"):
-        self.runtime = runtime
-        # Unique per process and domain, so that no other agent's wake-ups reach this one.
-        self.topic = "/_xrce_agent/wake_%d_%s" % (os.getpid(), os.urandom(4).hex())
-        self.entities = ()
-        self.generation = 0  # which attach() a callback comes from
-
-    def attach(self, node: Node) -> None:
-        runtime = self.runtime
-        self.generation += 1
-        generation = self.generation
-
-        def on_wake(_sample=None) -> None:
-            runtime._on_wake(generation)
-        if runtime._events:
-            # Reliable depth 1: one pending wake-up is enough; transient local: one sent before
-            # a moved pair has matched still arrives. A DDS-level topic (no rt/ prefix): ROS
-            # graph tools never list it, even with hidden topics shown.
-            profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                 history=HistoryPolicy.KEEP_LAST,
-                                 durability=WAKE_DURABILITY,
-                                 avoid_ros_namespace_conventions=WAKE_DDS_LEVEL)
-            wake_type = raw_message_type(_WAKE_TYPE)
-            subscription = node.create_subscription(wake_type, self.topic, on_wake, profile,
-                                                    raw=True)
-            publisher = node.create_publisher(wake_type, self.topic, profile)
-            publish = publisher.publish
-            runtime._wake_publisher = lambda: publish(_WAKE_SAMPLE)
-            self.entities = (node.destroy_subscription, subscription), \
-                (node.destroy_publisher, publisher)
-        else:
-            # Not executor.wake(): that trigger only makes spin_once rebuild its wait set and wait
-            # again for the rest of its timeout when no callback is ready (the jobs then waited up
-            # to 5 s, about 1 call in 6 under load). A guard condition with a callback is work the
-            # executor runs, so spin_once returns after it.
-            guard = runtime._wake_guard = node.create_guard_condition(on_wake)
-            self.entities = ((node.destroy_guard_condition, guard),)
-
-    def move(self, _old: Node, new: Node) -> None:
-        runtime = self.runtime
-        old_entities = self.entities
-        self.attach(new)
-        # This runs as a job, most often from the old entity's own callback: destroying it now
-        # crashes the EventsExecutor (a segfault, seen when a board's last node went). It is
-        # destroyed from the first callback of the new one, which a wake-up now brings.
-        runtime.retire(lambda: [destroy(entity) for destroy, entity in old_entities])
-        runtime._wake_pending = False
-        runtime._wake()
 
 
 class DomainRuntime:
@@ -171,16 +98,11 @@ class DomainRuntime:
         self.failed: BaseException | None = None  # why the context or executor did not start
         # The domain's DDS participant exists: rmw_fastrtps made it with the first node.
         self.joined = False
-        # SingleThreadedExecutor is woken through a guard condition with a callback; the events
-        # executor only through the wake topic (see module docstring).
-        self._wake_guard = None
         self._events = executor_kind == EXECUTOR_EVENTS
         self._idle_wait_s = idle_wait_s
         self._jobs: queue.SimpleQueue = queue.SimpleQueue()
         self._running = True
         self._stopped = rclpy.task.Future()  # completed on the executor thread by stop()
-        self._wake_publisher = None
-        self._wake_pending = False  # a wake-up sample is on its way: later posts need none
         self.nodes: set[Node] = set()
         self.client_nodes: list[Node] = []  # in the order they came
         # The node hosting the agent's own entities (the wake topic, RosMiddleware's agent
@@ -191,7 +113,10 @@ class DomainRuntime:
         self._anchored = False
         self._hosted: list = []  # moved with the host (DDS-level)
         self._pinned: list = []  # on the anchor for good (ROS topics)
-        self._wake_item: _Wake | None = None
+        self._wake_item: ExecutorWake | None = None  # made by make_wake
+        # Wakes the executor thread for a job: the wake item's own from make_wake on, called
+        # with no hop between; until then the thread blocks on the queue itself.
+        self._wake = _no_wake
         self._retired: list = []  # destroyers waiting for a safe callback (retire())
         self._start_lock = threading.Lock()
         self._started_up = False  # the first burst is over (post_after_start)
@@ -259,8 +184,9 @@ class DomainRuntime:
         if self.agent_node is None:
             self.agent_node = self.client_nodes[0] if self.client_nodes else \
                 self._anchor or self._raise_anchor()
-        self._wake_item = _Wake(self)
-        self.host(self._wake_item)
+        wake = self._wake_item = ExecutorWake(self._events, self._on_wake, self.retire)
+        self._wake = wake.wake
+        self.host(wake)
 
     def post_after_start(self, job) -> None:
         """Run ``job`` on the executor thread after the domain's first burst of jobs (see
@@ -336,7 +262,7 @@ class DomainRuntime:
         if self.agent_node is node:
             self._anchored = True
             self._move_host(self._anchor or self._raise_anchor())
-            self.retire(lambda: self._destroy_node(node))  # it hosted the wake-up (_Wake.move)
+            self.retire(lambda: self._destroy_node(node))  # it hosted the wake-up (wake.py)
             return
         self._destroy_node(node)
 
@@ -350,11 +276,9 @@ class DomainRuntime:
         entity, when no callback of what it destroys can be running."""
         self._retired.append(destroy)
 
-    def _on_wake(self, generation: int) -> None:
-        """Wake-up callback (executor thread) of the ``generation``-th wake entity."""
-        self._wake_pending = False  # before draining: a job posted from now on wakes us again
-        if self._retired and self._wake_item is not None and \
-                generation == self._wake_item.generation:
+    def _on_wake(self, current: bool) -> None:
+        """Wake-up callback (executor thread); ``current``: of the wake entity attached last."""
+        if self._retired and current:
             retired, self._retired = self._retired, []
             for destroy in retired:
                 try:
@@ -362,18 +286,6 @@ class DomainRuntime:
                 except Exception:
                     log.exception("domain %d: destroying a moved entity failed", self.domain_id)
         self._run_jobs()
-
-    def _wake(self) -> None:
-        if self._wake_guard is not None:
-            self._wake_guard.trigger()
-        elif self._wake_publisher is not None:
-            if not self._wake_pending:
-                self._wake_pending = True
-                try:
-                    self._wake_publisher()
-                except Exception:  # the topic moved (_Wake.move) as it was read: the new one
-                    self._wake_publisher()
-        # Until the wake-up exists (the first burst) the thread blocks on the queue itself.
 
     def _run_jobs(self) -> None:
         while True:
@@ -511,8 +423,7 @@ class DomainRuntime:
                                   % (self.domain_id, timeout_s)) from None
 
     def _destroy_all_nodes(self) -> None:
-        self._wake_publisher = None  # its node goes too
-        self._wake_guard = None
+        self._wake = _no_wake  # its node goes too
         self._hosted.clear()
         self._pinned.clear()
         self._retired.clear()  # their nodes are all destroyed below
@@ -546,3 +457,7 @@ class DomainRuntime:
             self.executor.shutdown()
         if self.context is not None:
             self.context.try_shutdown()
+
+
+def _no_wake() -> None:
+    """No wake entity (yet, or its node is gone)."""
