@@ -2,10 +2,10 @@
 
 ``xrce.agent.engine.agent.Agent`` used to be ``class Agent(SessionTable, ObjectRegistry,
 DataPath, Liveliness)``, five mixins reading some forty attributes that other mixins set. Now each
-part (``Sessions``, ``ObjectRegistry``, ``DataPath``, ``StreamOutput``, ``Acknowledgments``,
-``Liveliness``, ``MismatchReport``, ``Scheduler``, ``Output``, ...) is an object that gets its
-collaborators in its constructor, and ``Agent`` builds and wires them. Three rules keep it so, read from the source with
-``ast`` (so no import is needed to see them):
+part (``Inbound``, ``Sessions``, ``ObjectRegistry``, ``DataPath``, ``StreamOutput``,
+``Acknowledgments``, ``Liveliness``, ``MismatchReport``, ``Scheduler``, ``Output``, ...) is an
+object that gets its collaborators in its constructor, and ``Agent`` builds and wires them. Three
+rules keep it so, read from the source with ``ast`` (so no import is needed to see them):
 
 - no class of the engine inherits from another class of the engine (no mixins; ``Agent``'s only
   base is ``object``);
@@ -35,8 +35,7 @@ KNOWS_THE_AGENT = {"agent.py"}  # the composer
 # The parts the agent is composed of: each must stay a class of its own.
 PARTS = {"Agent", "Inbound", "Sessions", "ClientTable", "MemoryBudget", "ClientProxy",
          "ObjectRegistry", "DataPath", "StreamOutput", "Acknowledgments", "Liveliness",
-         "MismatchReport",
-         "Scheduler", "Output"}
+         "MismatchReport", "Scheduler", "Output"}
 
 
 def _engine_classes():

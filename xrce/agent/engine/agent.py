@@ -145,9 +145,6 @@ class Agent:
         self.clients = table.clients  # key → ClientProxy (the links, the CLI, the stats read it)
         self.endpoints = table.endpoints
         self._receive = inbound.receive  # per message: bound once
-        self._tap = None  # Output.tap and Inbound.tap, mirrored: see ``tap``
-        self._admission = None  # Sessions.admission and Inbound.admission, mirrored
-        self._state = None  # Sessions.state and Inbound.state, mirrored: see ``state``
 
     # ------------------------------------------------------------------ configuration --
 
@@ -181,30 +178,30 @@ class Agent:
     def tap(self) -> Optional[Callable[[str, Any, Hashable, bytes], None]]:
         """Called as tap(direction, link, endpoint, message) for every message in ("in") and out
         ("out"), e.g. by a capture file (xrce.agent.observe.capture); None costs one test."""
-        return self._tap
+        return self.output.tap
 
     @tap.setter
     def tap(self, tap) -> None:
-        self._tap = self.output.tap = self.inbound.tap = tap
+        self.output.tap = self.inbound.tap = tap
 
     @property
     def admission(self):
         """Who may open a session (xrce.agent.engine.admission); None: anyone."""
-        return self._admission
+        return self.sessions.admission
 
     @admission.setter
     def admission(self, admission) -> None:
-        self._admission = self.sessions.admission = self.inbound.admission = admission
+        self.sessions.admission = self.inbound.admission = admission
 
     @property
     def state(self):
         """The state store's recorder (xrce.agent.state.recorder), told of every control-plane
         change; None: nothing outlives the process."""
-        return self._state
+        return self.sessions.state
 
     @state.setter
     def state(self, state) -> None:
-        self._state = self.sessions.state = self.inbound.state = state
+        self.sessions.state = self.inbound.state = state
 
     @property
     def refs(self) -> Dict[str, str]:
@@ -341,7 +338,7 @@ class Agent:
         with self.lock:
             # The store first, and let go of: closing deletes every client here, which must
             # not delete them from the store (a restarted agent restores them).
-            state, self.state = self._state, None
+            state, self.state = self.state, None
             if state is not None:
                 # No more input for good: what the store records as handled on the boards'
                 # streams is then at least what any board was acknowledged (xrce.agent.engine.resync).

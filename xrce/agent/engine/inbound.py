@@ -45,7 +45,7 @@ class Inbound:
 
     Collaborators: ``table`` (clients by key and by endpoint), ``output``, ``budget`` (what parked
     and out-of-order messages hold), ``scheduler`` (the loop a parked client resumes on, when
-    timed work is due), ``timelines``, ``lock`` (the engine's, taken to resume parked clients
+    timed work is due), ``timelines``, ``stats``, ``lock`` (the engine's, taken to resume parked clients
     from the loop); then, given to ``connect``, the parts that call back into this one.
     ``admission``, ``tap`` and ``state`` are set by the agent (its properties of those names).
     """
